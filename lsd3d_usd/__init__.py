@@ -1,0 +1,34 @@
+"""lsd3d-usd: large-scale 3D driving scenes (LSD-3D) authored as OpenUSD stages.
+
+Importing this package registers the lsd3d surfel schema with USD's plugin
+system. That must happen before the USD schema registry initialises (i.e.
+before the first stage is opened in the process); a later registration is
+silently ignored by USD, so we check and say so.
+"""
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+__version__ = "0.1.0"
+
+SCHEMA_DIR = Path(__file__).resolve().parent / "schemas"
+SURFEL_TYPE = "Lsd3dSurfelField"
+SCENE_API = "Lsd3dSceneAPI"
+
+
+def _register_schema() -> bool:
+    from pxr import Plug, Usd
+
+    Plug.Registry().RegisterPlugins(str(SCHEMA_DIR))
+    if Usd.SchemaRegistry().FindConcretePrimDefinition(SURFEL_TYPE) is None:
+        warnings.warn(
+            "lsd3d_usd: the Lsd3dSurfelField schema could not be registered because "
+            "USD's schema registry was initialised before `import lsd3d_usd`. Import "
+            "lsd3d_usd before opening any stage, or set PXR_PLUGINPATH_NAME="
+            f"{SCHEMA_DIR}", RuntimeWarning, stacklevel=3)
+        return False
+    return True
+
+
+SCHEMA_REGISTERED = _register_schema()

@@ -1,0 +1,5 @@
+import sys
+
+from lsd3d_usd.cli import main
+
+sys.exit(main())

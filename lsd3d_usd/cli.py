@@ -1,0 +1,55 @@
+"""`lsd3d-usd` command line. Thin: parses, calls the library, prints.
+
+Each command lives in a module with ``register(subparsers)``, which adds its
+parser and sets ``func`` (taking the parsed args, returning an exit code).
+Heavy imports (torch, numba, ...) stay inside the handlers so --help is fast.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+import lsd3d_usd
+from lsd3d_usd.errors import Lsd3dError
+
+# Modules contributing commands; each defines register(subparsers).
+COMMAND_MODULES = (
+    "lsd3d_usd.inspect.commands",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="lsd3d-usd",
+        description="Generate large 3D driving scenes (LSD-3D) as OpenUSD stages: layout, "
+                    "proxy geometry, environment map, 2D Gaussian surfels, GGDS.")
+    parser.add_argument("--version", action="version", version=f"lsd3d-usd {lsd3d_usd.__version__}")
+    parser.add_argument("--debug", action="store_true",
+                        help="show full tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        importlib.import_module(name).register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except Lsd3dError as e:
+        if args.debug:
+            raise
+        print(f"lsd3d-usd: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print("lsd3d-usd: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())
