@@ -1,0 +1,399 @@
+"""Stage conventions: layer names, prim paths, create/open, provenance, atomic writes.
+
+The one place that knows where things live in a scene folder::
+
+    scene/
+      scene.usda          root layer: metadata + subLayers (strongest first)
+      layers/ggds_<run>.usdc, surfels.usdc, actors.usda, env.usda, proxy.usdc, layout.usda
+      textures/  assets/
+
+A step reads the layers below it and writes its own; it never rewrites another
+step's layer. Every write is atomic (temp file in the same folder + os.replace).
+Muting is persistent: a muted layer leaves the root's subLayers (so every USD
+tool sees it muted) and is remembered in customLayerData["lsd3d"]["mutedLayers"].
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import re
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable
+
+import lsd3d_usd
+from lsd3d_usd.errors import InputError
+
+from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402  (lsd3d_usd registered the schema first)
+
+WORLD = "/World"
+LAYOUT_PATH = "/World/Layout"
+PROXY_PATH = "/World/Proxy"
+SURFELS_PATH = "/World/Surfels"
+ENV_PATH = "/World/Env"
+ACTORS_PATH = "/World/Actors"
+CAMERAS_PATH = "/World/Cameras"
+
+ROOT_FILE = "scene.usda"
+LAYERS_DIR = "layers"
+TEXTURES_DIR = "textures"
+ASSETS_DIR = "assets"
+
+# Fixed step layers, weakest first. GGDS runs stack above all of them, newest strongest.
+STEP_LAYERS: dict[str, str] = {
+    "layout": "layout.usda",
+    "proxy": "proxy.usdc",
+    "env": "env.usda",
+    "actors": "actors.usda",
+    "surfels": "surfels.usdc",
+}
+GGDS_PREFIX = "ggds_"
+_RUN_RE = re.compile(r"^ggds_[A-Za-z0-9_.-]+\.usdc$")
+
+
+def chunk_prim_name(i: int, j: int) -> str:
+    """Prim name of chunk (i, j); negative indices are written m<k> (Chunk_m1_0)."""
+    def enc(k: int) -> str:
+        return f"m{-k}" if k < 0 else str(k)
+    return f"Chunk_{enc(int(i))}_{enc(int(j))}"
+
+
+def parse_chunk_prim_name(name: str) -> tuple[int, int]:
+    m = re.fullmatch(r"Chunk_(m?\d+)_(m?\d+)", name)
+    if not m:
+        raise ValueError(f"not a chunk prim name: {name!r}")
+    dec = lambda s: -int(s[1:]) if s.startswith("m") else int(s)  # noqa: E731
+    return dec(m.group(1)), dec(m.group(2))
+
+
+def new_stage() -> Usd.Stage:
+    """In-memory stage with the scene conventions: Z up, metres, defaultPrim /World."""
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, WORLD)
+    stage.SetDefaultPrim(world.GetPrim())
+    return stage
+
+
+# --------------------------------------------------------------------- provenance
+def _usd_value(value: Any) -> Any:
+    """Map Python values to ones customLayerData can hold (None dropped by caller)."""
+    if isinstance(value, (bool, int, float, str)):
+        return value
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, dict):
+        return {str(k): _usd_value(v) for k, v in value.items() if v is not None}
+    if hasattr(value, "tolist"):  # numpy scalars / arrays
+        return _usd_value(value.tolist())
+    if isinstance(value, (list, tuple)):
+        # Plain Python lists become untyped VtValue vectors that usda cannot parse back.
+        if value and all(isinstance(v, str) for v in value):
+            return Vt.StringArray(list(value))
+        if value and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            return Vt.DoubleArray([float(v) for v in value])
+    return json.dumps(value, default=str)  # anything else, losslessly readable
+
+
+def provenance(step: str, params: dict | None = None, seed: int | None = None,
+               timings: dict | None = None, **extra: Any) -> dict:
+    """How a layer was made: tool, version, step, time, seed, parameters, timings."""
+    prov: dict[str, Any] = {
+        "tool": "lsd3d-usd",
+        "version": lsd3d_usd.__version__,
+        "step": step,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "python": platform.python_version(),
+        "usd": ".".join(str(v) for v in Usd.GetVersion()),
+    }
+    if seed is not None:
+        prov["seed"] = int(seed)
+    if params:
+        prov["params"] = params
+    if timings:
+        prov["timings"] = timings
+    prov.update({k: v for k, v in extra.items() if v is not None})
+    return _usd_value(prov)
+
+
+def read_provenance(layer: Sdf.Layer) -> dict:
+    return dict(layer.customLayerData.get("lsd3d", {}))
+
+
+# ------------------------------------------------------------------ atomic writes
+def _tmp_sibling(path: Path) -> Path:
+    # Same folder (so os.replace is atomic) and same extension (USD picks the format by it).
+    return path.with_name(f".{path.stem}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}{path.suffix}")
+
+
+def save_layer(layer: Sdf.Layer, path: str | os.PathLike, provenance: dict | None = None) -> Path:
+    """Write `layer` to `path` atomically; merge `provenance` into customLayerData["lsd3d"]."""
+    path = Path(path).absolute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if provenance:
+        data = dict(layer.customLayerData)
+        lsd = dict(data.get("lsd3d", {}))
+        lsd.update(provenance)
+        data["lsd3d"] = lsd
+        layer.customLayerData = data
+    tmp = _tmp_sibling(path)
+    try:
+        if not layer.Export(str(tmp)):
+            raise OSError(f"USD could not write {path}")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    # A layer already open at this path in this process would keep serving old data.
+    opened = Sdf.Layer.Find(str(path))
+    if opened is not None and opened is not layer:
+        opened.Reload(force=True)
+    return path
+
+
+def save_stage(stage: Usd.Stage, path: str | os.PathLike, provenance: dict | None = None) -> Path:
+    """Atomically write the stage's root layer to `path` (format from the extension)."""
+    return save_layer(stage.GetRootLayer(), path, provenance)
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    path = Path(path).absolute()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _tmp_sibling(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+# ------------------------------------------------------------------- USD opening
+def open_stage(path: str | os.PathLike, load: bool = True) -> Usd.Stage:
+    """Open any USD file with one clear error for missing, non-USD or corrupt files."""
+    p = Path(path)
+    if p.is_dir() and (p / ROOT_FILE).is_file():
+        p = p / ROOT_FILE
+    if not p.exists():
+        raise InputError(f"{path}: no such file")
+    if p.is_dir():
+        raise InputError(f"{path}: is a folder without {ROOT_FILE}")
+    if not Sdf.FileFormat.FindByExtension(p.suffix.lstrip(".")) :
+        raise InputError(f"{path}: not a USD file (unknown extension {p.suffix!r})")
+    try:
+        stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll if load else Usd.Stage.LoadNone)
+    except Exception as e:  # Tf.ErrorException: syntax errors, truncated crate files
+        raise InputError(f"{path}: cannot be read as USD: {_first_line(e)}") from None
+    if stage is None:
+        raise InputError(f"{path}: cannot be read as USD")
+    return stage
+
+
+def _first_line(e: Exception) -> str:
+    text = " ".join(str(e).split())
+    # Tf errors carry "Error in '...' at line N in file ...: message"; keep the message.
+    m = re.search(r"(?:Failed to|Error|error)[^\n]*", text)
+    return (m.group(0) if m else text)[:300]
+
+
+# ------------------------------------------------------------------------ scene
+@dataclass
+class LayerInfo:
+    name: str           # "surfels", "ggds_20261122-001500", ...
+    path: Path
+    exists: bool
+    muted: bool
+    provenance: dict
+
+
+def order_layers(files: Iterable[str]) -> list[str]:
+    """Strongest first: GGDS runs (newest first: run names sort by time), then fixed steps
+    strong→weak (surfels, actors, env, proxy, layout), then anything else by name."""
+    files = set(files)
+    runs = sorted((f for f in files if f.startswith(GGDS_PREFIX)), reverse=True)
+    steps = [f for f in reversed(list(STEP_LAYERS.values())) if f in files]
+    other = sorted(files - set(runs) - set(steps))
+    return runs + steps + other
+
+
+class Scene:
+    """A scene folder: root layer + step layers under layers/."""
+
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root).absolute()
+
+    # ---- paths
+    @property
+    def root_layer_path(self) -> Path:
+        return self.root / ROOT_FILE
+
+    def layer_path(self, name: str) -> Path:
+        """Path of a step layer by step name ("proxy") or file name ("ggds_x.usdc")."""
+        file_name = STEP_LAYERS.get(name, name)
+        if name not in STEP_LAYERS and not _RUN_RE.match(file_name):
+            raise InputError(f"unknown scene layer {name!r}; steps: {', '.join(STEP_LAYERS)} "
+                             "or ggds_<run>.usdc")
+        return self.root / LAYERS_DIR / file_name
+
+    @staticmethod
+    def _rel(file_name: str) -> str:
+        return f"./{LAYERS_DIR}/{file_name}"
+
+    # ---- create / open
+    @classmethod
+    def create(cls, root: str | os.PathLike, *, seed: int = 0, chunk_size: float = 100.0,
+               extent: tuple | None = None, exist_ok: bool = False) -> "Scene":
+        scene = cls(root)
+        if scene.root_layer_path.exists() and not exist_ok:
+            raise InputError(f"{scene.root}: already holds a scene ({ROOT_FILE})")
+        for d in (LAYERS_DIR, TEXTURES_DIR, ASSETS_DIR):
+            (scene.root / d).mkdir(parents=True, exist_ok=True)
+        stage = new_stage()
+        world = stage.GetPrimAtPath(WORLD)
+        world.AddAppliedSchema(lsd3d_usd.SCENE_API)
+        world.CreateAttribute("lsd3d:scene:generator", Sdf.ValueTypeNames.String,
+                              variability=Sdf.VariabilityUniform).Set("lsd3d-usd")
+        world.CreateAttribute("lsd3d:scene:version", Sdf.ValueTypeNames.String,
+                              variability=Sdf.VariabilityUniform).Set(lsd3d_usd.__version__)
+        world.CreateAttribute("lsd3d:scene:seed", Sdf.ValueTypeNames.Int,
+                              variability=Sdf.VariabilityUniform).Set(int(seed))
+        world.CreateAttribute("lsd3d:scene:chunkSize", Sdf.ValueTypeNames.Double,
+                              variability=Sdf.VariabilityUniform).Set(float(chunk_size))
+        if extent is not None:
+            (x0, y0, z0), (x1, y1, z1) = extent
+            world.CreateAttribute("lsd3d:scene:extent", Sdf.ValueTypeNames.Double3Array,
+                                  variability=Sdf.VariabilityUniform).Set(
+                [(x0, y0, z0), (x1, y1, z1)])
+        stage.GetRootLayer().documentation = "lsd3d-usd scene: root layer (metadata + subLayers)"
+        if scene.root_layer_path.exists():  # exist_ok: keep the existing stack
+            old = Sdf.Layer.FindOrOpen(str(scene.root_layer_path))
+            stage.GetRootLayer().subLayerPaths = list(old.subLayerPaths)
+            data = dict(stage.GetRootLayer().customLayerData)
+            if "lsd3d" in old.customLayerData:
+                data["lsd3d"] = old.customLayerData["lsd3d"]
+            stage.GetRootLayer().customLayerData = data
+        save_layer(stage.GetRootLayer(), scene.root_layer_path,
+                   provenance("scene", seed=seed, chunkSize=float(chunk_size)))
+        return scene
+
+    @classmethod
+    def open(cls, root: str | os.PathLike) -> "Scene":
+        scene = cls(root)
+        if not scene.root_layer_path.is_file():
+            raise InputError(f"{scene.root}: not an lsd3d-usd scene folder (no {ROOT_FILE})")
+        scene._root_layer()  # fail early and clearly if unreadable
+        return scene
+
+    def _root_layer(self) -> Sdf.Layer:
+        try:
+            layer = Sdf.Layer.FindOrOpen(str(self.root_layer_path))
+        except Exception as e:
+            raise InputError(f"{self.root_layer_path}: cannot be read as USD: {_first_line(e)}") from None
+        if layer is None:
+            raise InputError(f"{self.root_layer_path}: cannot be read as USD")
+        layer.Reload()
+        return layer
+
+    # ---- the layer stack
+    def _stack_files(self, layer: Sdf.Layer) -> list[str]:
+        return [Path(p).name for p in layer.subLayerPaths]
+
+    def _muted_files(self, layer: Sdf.Layer) -> list[str]:
+        return list(layer.customLayerData.get("lsd3d", {}).get("mutedLayers", []))
+
+    def _write_root(self, layer: Sdf.Layer, stack: Iterable[str], muted: Iterable[str]) -> None:
+        layer.subLayerPaths = [self._rel(f) for f in order_layers(stack)]
+        data = dict(layer.customLayerData)
+        lsd = dict(data.get("lsd3d", {}))
+        muted = order_layers(muted)
+        if muted:
+            lsd["mutedLayers"] = Vt.StringArray(muted)
+        else:
+            lsd.pop("mutedLayers", None)
+        data["lsd3d"] = lsd
+        layer.customLayerData = data
+        save_layer(layer, self.root_layer_path)
+
+    def write_layer(self, name: str, stage_or_layer, provenance: dict | None = None) -> Path:
+        """Atomically write a step's layer and put it in the stack (unmuted)."""
+        layer = stage_or_layer.GetRootLayer() if isinstance(stage_or_layer, Usd.Stage) else stage_or_layer
+        path = save_layer(layer, self.layer_path(name), provenance)
+        root = self._root_layer()
+        muted = [m for m in self._muted_files(root) if m != path.name]
+        self._write_root(root, self._stack_files(root) + [path.name], muted)
+        return path
+
+    def add_layer(self, name: str) -> None:
+        """Put an existing layer file into the stack."""
+        path = self.layer_path(name)
+        if not path.is_file():
+            raise InputError(f"{path}: no such layer file")
+        root = self._root_layer()
+        self._write_root(root, self._stack_files(root) + [path.name],
+                         [m for m in self._muted_files(root) if m != path.name])
+
+    def layers(self) -> list[LayerInfo]:
+        """Active and muted layers, strongest first."""
+        root = self._root_layer()
+        active, muted = self._stack_files(root), self._muted_files(root)
+        infos = []
+        for f in order_layers(set(active) | set(muted)):
+            path = self.root / LAYERS_DIR / f
+            prov = {}
+            if path.is_file():
+                try:
+                    prov = read_provenance(Sdf.Layer.FindOrOpen(str(path)))
+                except Exception:
+                    prov = {}
+            infos.append(LayerInfo(Path(f).stem, path, path.is_file(), f in muted and f not in active, prov))
+        return infos
+
+    def _resolve(self, name: str) -> str:
+        root = self._root_layer()
+        known = self._stack_files(root) + self._muted_files(root)
+        for f in known:
+            if name in (f, Path(f).stem) or STEP_LAYERS.get(name) == f:
+                return f
+        raise InputError(f"{self.root}: no layer {name!r} in the stack "
+                         f"(layers: {', '.join(Path(f).stem for f in known) or 'none'})")
+
+    def mute(self, name: str) -> None:
+        f = self._resolve(name)
+        root = self._root_layer()
+        self._write_root(root, [s for s in self._stack_files(root) if s != f],
+                         self._muted_files(root) + [f])
+
+    def unmute(self, name: str) -> None:
+        f = self._resolve(name)
+        root = self._root_layer()
+        self._write_root(root, self._stack_files(root) + [f],
+                         [m for m in self._muted_files(root) if m != f])
+
+    def remove_layer(self, name: str, delete_file: bool = False) -> None:
+        f = self._resolve(name)
+        root = self._root_layer()
+        self._write_root(root, [s for s in self._stack_files(root) if s != f],
+                         [m for m in self._muted_files(root) if m != f])
+        if delete_file:
+            (self.root / LAYERS_DIR / f).unlink(missing_ok=True)
+
+    def new_run_name(self, prefix: str = "ggds") -> str:
+        """A fresh, sortable GGDS run name: ggds_<UTC time>[_<k>]."""
+        stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%d-%H%M%S")
+        base, k = f"{prefix}_{stamp}", 1
+        name = base
+        while (self.root / LAYERS_DIR / f"{name}.usdc").exists():
+            k += 1
+            name = f"{base}_{k}"
+        return name
+
+    def open_stage(self, load: bool = True) -> Usd.Stage:
+        return open_stage(self.root_layer_path, load=load)
