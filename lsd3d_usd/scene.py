@@ -186,7 +186,7 @@ def open_stage(path: str | os.PathLike, load: bool = True) -> Usd.Stage:
         raise InputError(f"{path}: no such file")
     if p.is_dir():
         raise InputError(f"{path}: is a folder without {ROOT_FILE}")
-    if not Sdf.FileFormat.FindByExtension(p.suffix.lstrip(".")) :
+    if not p.suffix or not Sdf.FileFormat.FindByExtension(p.suffix.lstrip(".")):
         raise InputError(f"{path}: not a USD file (unknown extension {p.suffix!r})")
     try:
         stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll if load else Usd.Stage.LoadNone)
@@ -199,9 +199,9 @@ def open_stage(path: str | os.PathLike, load: bool = True) -> Usd.Stage:
 
 def _first_line(e: Exception) -> str:
     text = " ".join(str(e).split())
-    # Tf errors carry "Error in '...' at line N in file ...: message"; keep the message.
-    m = re.search(r"(?:Failed to|Error|error)[^\n]*", text)
-    return (m.group(0) if m else text)[:300]
+    # Tf errors read "Error in 'func' at line N in file F : 'message'"; keep the message.
+    m = re.search(r" in file \S+ : '(.+?)'(?: Error in |$)", text)
+    return (m.group(1) if m else text)[:400]
 
 
 # ------------------------------------------------------------------------ scene

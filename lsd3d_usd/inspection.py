@@ -1,0 +1,139 @@
+"""`lsd3d-usd inspect`: layer stack with provenance, prim tree with counts, surfel statistics."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdVol
+
+from lsd3d_usd import scene
+from lsd3d_usd.diagnostics import captured_stderr
+from lsd3d_usd.splats.usdio import read_surfels
+
+
+def _layer_summary(layer: Sdf.Layer, muted: bool = False) -> dict:
+    prov = scene.read_provenance(layer)
+    return {"identifier": layer.realPath or layer.identifier,
+            "format": layer.GetFileFormat().formatId, "muted": muted,
+            "provenance": {k: (v if isinstance(v, (str, int, float, bool)) else str(v))
+                           for k, v in prov.items()}}
+
+
+def layer_stack(stage: Usd.Stage) -> list[dict]:
+    root = stage.GetRootLayer()
+    out = [_layer_summary(layer) for layer in stage.GetLayerStack(includeSessionLayers=False)]
+    for muted in root.customLayerData.get("lsd3d", {}).get("mutedLayers", []):
+        p = Path(root.realPath).parent / scene.LAYERS_DIR / muted
+        if p.is_file():
+            out.append(_layer_summary(Sdf.Layer.FindOrOpen(str(p)), muted=True))
+    return out
+
+
+def _prim_counts(prim: Usd.Prim) -> dict:
+    info: dict = {}
+    if prim.IsA(UsdVol.ParticleField):
+        a = prim.GetAttribute("positions")
+        v = a.Get() if a else None
+        info["particles"] = len(v) if v is not None else 0
+    elif prim.IsA(UsdGeom.Mesh):
+        m = UsdGeom.Mesh(prim)
+        pts, counts = m.GetPointsAttr().Get(), m.GetFaceVertexCountsAttr().Get()
+        info["points"] = len(pts) if pts is not None else 0
+        info["faces"] = len(counts) if counts is not None else 0
+    elif prim.IsA(UsdGeom.BasisCurves):
+        c = UsdGeom.BasisCurves(prim).GetCurveVertexCountsAttr().Get()
+        info["curves"] = len(c) if c is not None else 0
+    if prim.HasAuthoredPayloads():
+        info["payload"] = "loaded" if prim.IsLoaded() else "unloaded"
+    if prim.GetVariantSets().GetNames():
+        info["variants"] = {n: prim.GetVariantSets().GetVariantSet(n).GetVariantSelection()
+                            for n in prim.GetVariantSets().GetNames()}
+    return info
+
+
+def prim_tree(stage: Usd.Stage, max_depth: int = 4) -> list[dict]:
+    rows = []
+    it = iter(Usd.PrimRange.Stage(stage, Usd.PrimAllPrimsPredicate))
+    for prim in it:
+        depth = prim.GetPath().pathElementCount - 1
+        if depth >= max_depth:
+            it.PruneChildren()
+            continue
+        kids = len(prim.GetAllChildren())
+        rows.append({"path": str(prim.GetPath()), "depth": depth, "type": prim.GetTypeName() or "",
+                     "children": kids, **_prim_counts(prim)})
+        if depth == max_depth - 1 and kids:
+            rows[-1]["pruned"] = True
+    return rows
+
+
+def _pct(a: np.ndarray) -> dict:
+    if a.size == 0:
+        return {}
+    q = np.percentile(a, [0, 5, 50, 95, 100])
+    return dict(zip(("min", "p5", "median", "p95", "max"), [round(float(x), 6) for x in q]))
+
+
+def surfel_stats(prim: Usd.Prim) -> dict:
+    f = read_surfels(prim)
+    stats = {"path": str(prim.GetPath()), "type": prim.GetTypeName(), "count": f.n,
+             "sh_degree": f.sh_degree}
+    if f.n:
+        ext = f.extent()
+        stats["extent"] = [ext[0].round(3).tolist(), ext[1].round(3).tolist()]
+        stats["opacity"] = _pct(f.opacities)
+        stats["scale_max"] = _pct(f.scales.max(axis=1))
+        stats["scale_aspect"] = _pct(f.scales.max(axis=1) / np.maximum(f.scales.min(axis=1), 1e-12))
+        stats["color_dc_mean"] = f.colors().mean(axis=0).round(4).tolist()
+        if f.semantic_ids is not None:
+            ids, counts = np.unique(f.semantic_ids, return_counts=True)
+            names = f.semantic_classes
+            stats["classes"] = {(names[i] if 0 <= i < len(names) else str(int(i))): int(c)
+                                for i, c in zip(ids, counts)}
+    return stats
+
+
+def inspect(path: str | Path, max_depth: int = 4) -> dict:
+    with captured_stderr():
+        stage = scene.open_stage(path)
+        meta = {"upAxis": UsdGeom.GetStageUpAxis(stage),
+                "metersPerUnit": UsdGeom.GetStageMetersPerUnit(stage),
+                "defaultPrim": stage.GetRootLayer().defaultPrim or None}
+        return {"path": str(path), "stage": meta, "layers": layer_stack(stage),
+                "prims": prim_tree(stage, max_depth),
+                "surfels": [surfel_stats(p) for p in stage.Traverse() if p.IsA(UsdVol.ParticleField)]}
+
+
+def flatten(path: str | Path) -> str:
+    with captured_stderr():
+        return scene.open_stage(path).Flatten().ExportToString()
+
+
+def format_text(info: dict) -> str:
+    out = [f"{info['path']}", f"  upAxis={info['stage']['upAxis']} metersPerUnit="
+           f"{info['stage']['metersPerUnit']} defaultPrim={info['stage']['defaultPrim']}", "", "Layers (strongest first):"]
+    for layer in info["layers"]:
+        prov = layer["provenance"]
+        bits = [f"{k}={prov[k]}" for k in ("step", "created", "seed", "version") if k in prov]
+        out.append(f"  {'[muted] ' if layer['muted'] else ''}{layer['identifier']} ({layer['format']})"
+                   + (f"  {' '.join(bits)}" if bits else ""))
+    out += ["", "Prims:"]
+    for row in info["prims"]:
+        extra = {k: v for k, v in row.items() if k not in ("path", "depth", "type", "children")}
+        name = row["path"].rsplit("/", 1)[-1] or "/"
+        desc = " ".join(f"{k}={v}" for k, v in extra.items())
+        out.append(f"  {'  ' * row['depth']}{name} [{row['type'] or '-'}]"
+                   + (f" children={row['children']}" if row["children"] else "") + (f" {desc}" if desc else ""))
+    if info["surfels"]:
+        out += ["", "Surfel fields:"]
+        for s in info["surfels"]:
+            out.append(f"  {s['path']} ({s['type']}): {s['count']} surfels, SH degree {s['sh_degree']}")
+            for k in ("extent", "opacity", "scale_max", "scale_aspect", "color_dc_mean", "classes"):
+                if k in s:
+                    out.append(f"    {k}: {s[k]}")
+    return "\n".join(out)
+
+
+def format_json(info: dict) -> str:
+    return json.dumps(info, indent=2, default=str)

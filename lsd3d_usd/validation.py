@@ -1,0 +1,272 @@
+"""`lsd3d-usd validate`: usd-core's UsdValidation validators plus our own checks.
+
+Works on any USD file (our scenes, official ParticleField3DGaussianSplat files
+from other tools, plain meshes). Each problem names the prim, the attribute and
+what is wrong; errors fail validation, warnings are reported only.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdValidation, UsdVol
+
+import lsd3d_usd
+from lsd3d_usd import scene
+from lsd3d_usd.diagnostics import captured_stderr
+from lsd3d_usd.splats.field import KERNEL_SIGMAS, quat_to_matrix, sh_coeff_count
+
+QUAT_TOL = 1e-3
+EXTENT_TOL = 1e-4          # relative to the extent's size
+BULK_TEXT_LIMIT = 10_000   # particles in a .usda layer before we call it bulk data
+
+
+@dataclass
+class Problem:
+    severity: str            # "error" | "warning"
+    prim: str                # prim path, or "/" for stage/layer-level problems
+    attribute: str | None
+    message: str
+    check: str               # our check name or the UsdValidation validator name
+
+    def line(self) -> str:
+        where = self.prim + (f".{self.attribute}" if self.attribute else "")
+        prefix = "" if self.severity == "error" else "warning: "
+        return f"{prefix}{where}: {self.message}"
+
+
+# ------------------------------------------------------------------ usd-core
+def _usd_validators(stage: Usd.Stage) -> list[Problem]:
+    reg = UsdValidation.ValidationRegistry()
+    ctx = UsdValidation.ValidationContext(reg.GetOrLoadAllValidators())
+    out = []
+    for err in ctx.Validate(stage):
+        if err.HasNoError():
+            continue
+        sev = {UsdValidation.ValidationErrorType.Error: "error",
+               UsdValidation.ValidationErrorType.Warn: "warning"}.get(err.GetType())
+        if sev is None:
+            continue
+        prim, attr = "/", None
+        for site in err.GetSites():
+            if site.IsProperty():
+                p = site.GetProperty().GetPath()
+                prim, attr = str(p.GetPrimPath()), p.name
+                break
+            if site.IsPrim():
+                prim = str(site.GetPrim().GetPath())
+                break
+        name = err.GetValidator().GetMetadata().name if err.GetValidator() else err.GetName()
+        out.append(Problem(sev, prim, attr, " ".join(err.GetMessage().split()), name))
+    return out
+
+
+# --------------------------------------------------------------- our checks
+def _unknown_types(stage: Usd.Stage) -> list[Problem]:
+    reg = Usd.SchemaRegistry()
+    out = []
+    for prim in stage.Traverse(Usd.TraverseInstanceProxies(Usd.PrimAllPrimsPredicate)):
+        t = prim.GetTypeName()
+        if t and not reg.FindConcretePrimDefinition(t) and not reg.IsAbstract(t) \
+                and prim.GetPrimTypeInfo().GetSchemaType().isUnknown:
+            out.append(Problem("error", str(prim.GetPath()), None,
+                               f"unknown prim type {t!r} (schema not registered)", "lsd3d:UnknownPrimType"))
+        api_list = prim.GetMetadata("apiSchemas")
+        for api in (api_list.GetAddedOrExplicitItems() if api_list else []):
+            base = api.split(":")[0]
+            if not reg.FindAppliedAPIPrimDefinition(base) and not reg.GetTypeFromSchemaTypeName(base):
+                out.append(Problem("error", str(prim.GetPath()), None,
+                                   f"unknown applied API schema {api!r}", "lsd3d:UnknownAPISchema"))
+    return out
+
+
+def _array(prim: Usd.Prim, name: str) -> np.ndarray | None:
+    for n in (name, name + "h"):
+        a = prim.GetAttribute(n)
+        if a and a.HasValue():
+            v = a.Get()
+            if v is not None:
+                return np.asarray(v)
+    return None
+
+
+def _text_layers(attr: Usd.Attribute) -> list[Sdf.Layer]:
+    return [spec.layer for spec in attr.GetPropertyStack(Usd.TimeCode.Default())
+            if spec.layer.GetFileFormat().formatId == "usda" and not spec.layer.anonymous]
+
+
+def _check_particle_field(prim: Usd.Prim) -> list[Problem]:
+    path, out = str(prim.GetPath()), []
+
+    def err(attr, msg, check):
+        out.append(Problem("error", path, attr, msg, check))
+
+    def first(mask):
+        idx = np.flatnonzero(mask)
+        return f"{len(idx)} particle(s), first index {idx[0]}"
+
+    pos = _array(prim, "positions")
+    if pos is None:
+        return out  # no particles: valid per the schema
+    pos = pos.reshape(-1, 3).astype(np.float64)
+    n = len(pos)
+    surflet = prim.HasAPI("ParticleFieldKernelGaussianSurfletAPI") or \
+        prim.HasAPI("ParticleFieldKernelConstantSurfletAPI")
+    arrays = {"positions": pos}
+    for name, width in (("orientations", 4), ("scales", 3), ("opacities", 1)):
+        a = _array(prim, name)
+        if a is None:
+            continue
+        if a.size != n * width:
+            err(name, f"{a.size // width} values for {n} positions", "lsd3d:ArrayLength")
+            continue
+        arrays[name] = a.reshape(n, width).astype(np.float64) if width > 1 else a.reshape(n).astype(np.float64)
+    for name, a in arrays.items():
+        bad = ~np.isfinite(a.reshape(n, -1)).all(axis=1)
+        if bad.any():
+            err(name, f"non-finite values in {first(bad)}", "lsd3d:Finite")
+            arrays[name] = np.where(np.isfinite(a), a, 0.0)
+    if "opacities" in arrays:
+        o = arrays["opacities"]
+        bad = (o < 0) | (o > 1)
+        if bad.any():
+            err("opacities", f"outside [0, 1] in {first(bad)} (linear opacity, not logit)", "lsd3d:OpacityRange")
+    if "scales" in arrays:
+        s = arrays["scales"]
+        bad = ~(s[:, :2] > 0).all(axis=1) | (s[:, 2] < 0 if surflet else ~(s[:, 2] > 0))
+        if bad.any():
+            what = "x, y not > 0 (or z < 0)" if surflet else "not > 0"
+            err("scales", f"{what} in {first(bad)} (linear scales, not log)", "lsd3d:ScalePositive")
+    if "orientations" in arrays:
+        norm = np.linalg.norm(arrays["orientations"], axis=1)
+        bad = np.abs(norm - 1) > QUAT_TOL
+        if bad.any():
+            err("orientations", f"not unit quaternions (tolerance {QUAT_TOL}) in {first(bad)}",
+                "lsd3d:UnitQuaternion")
+    deg_attr = prim.GetAttribute("radiance:sphericalHarmonicsDegree")
+    coeffs = _array(prim, "radiance:sphericalHarmonicsCoefficients")
+    if coeffs is not None:
+        deg = deg_attr.Get() if deg_attr else 3
+        if deg is None or not 0 <= int(deg) <= 8:
+            err("radiance:sphericalHarmonicsDegree", f"invalid degree {deg}", "lsd3d:SHDegree")
+        else:
+            k = sh_coeff_count(int(deg))
+            if coeffs.size != n * k * 3:
+                err("radiance:sphericalHarmonicsCoefficients",
+                    f"{coeffs.size // 3} coefficients for {n} particles, but degree {deg} needs "
+                    f"{k} per particle ({n * k})", "lsd3d:SHDegree")
+            elif not np.isfinite(coeffs).all():
+                bad = ~np.isfinite(coeffs.reshape(n, -1)).all(axis=1)
+                err("radiance:sphericalHarmonicsCoefficients", f"non-finite values in {first(bad)}",
+                    "lsd3d:Finite")
+    sem = _array(prim, "lsd3d:semanticIds")
+    if sem is not None:
+        if sem.size != n:
+            err("lsd3d:semanticIds", f"{sem.size} values for {n} positions", "lsd3d:ArrayLength")
+        else:
+            classes = prim.GetAttribute("lsd3d:semanticClasses")
+            k = len(classes.Get() or ()) if classes and classes.HasValue() else None
+            if k is not None:
+                bad = (sem < -1) | (sem >= k)
+                if bad.any():
+                    err("lsd3d:semanticIds", f"ids outside [-1, {k}) in {first(bad)}", "lsd3d:SemanticRange")
+    # Extent must cover every kernel's support (3 sigma).
+    extent = _array(prim, "extent")
+    if extent is None or extent.size != 6:
+        err("extent", "missing (usd-core does not compute ParticleField extents; author it)",
+            "lsd3d:Extent")
+    elif n:
+        q = arrays.get("orientations", np.tile([0.0, 0, 0, 1], (n, 1)))
+        s = arrays.get("scales", np.ones((n, 3)))
+        rot = quat_to_matrix(np.where(np.linalg.norm(q, axis=1, keepdims=True) > 0, q, [0, 0, 0, 1]))
+        axes = rot * (KERNEL_SIGMAS * s[:, None, :])
+        if surflet:
+            axes[..., 2] = 0
+        half = np.sqrt((axes ** 2).sum(axis=2))
+        lo, hi = (pos - half).min(0), (pos + half).max(0)
+        ext = extent.reshape(2, 3).astype(np.float64)
+        tol = EXTENT_TOL * max(1.0, float(np.max(hi - lo)))
+        if (ext[0] > lo + tol).any() or (ext[1] < hi - tol).any():
+            err("extent", f"{ext.tolist()} does not cover the particles' 3-sigma bounds "
+                          f"{[lo.round(4).tolist(), hi.round(4).tolist()]}", "lsd3d:Extent")
+    # Bulk data belongs in crate files.
+    if n > BULK_TEXT_LIMIT:
+        for layer in _text_layers(prim.GetAttribute("positions")):
+            err("positions", f"{n} particles stored in text layer {layer.identifier}; "
+                             "bulk data belongs in .usdc", "lsd3d:BulkDataInUsda")
+    return out
+
+
+def _check_mesh(prim: Usd.Prim) -> list[Problem]:
+    path, out = str(prim.GetPath()), []
+    mesh = UsdGeom.Mesh(prim)
+    pts = mesh.GetPointsAttr().Get()
+    counts = mesh.GetFaceVertexCountsAttr().Get()
+    idx = mesh.GetFaceVertexIndicesAttr().Get()
+    if pts is None:
+        return out
+    pts = np.asarray(pts)
+    if not np.isfinite(pts).all():
+        bad = np.flatnonzero(~np.isfinite(pts).all(axis=1))
+        out.append(Problem("error", path, "points", f"non-finite values at {len(bad)} point(s), "
+                                                    f"first index {bad[0]}", "lsd3d:Finite"))
+    if counts is not None and idx is not None:
+        counts, idx = np.asarray(counts), np.asarray(idx)
+        if counts.sum() != len(idx):
+            out.append(Problem("error", path, "faceVertexIndices",
+                               f"{len(idx)} indices but faceVertexCounts sum to {counts.sum()}",
+                               "lsd3d:ArrayLength"))
+        if len(idx) and (idx.min() < 0 or idx.max() >= len(pts)):
+            out.append(Problem("error", path, "faceVertexIndices",
+                               f"indices outside [0, {len(pts)})", "lsd3d:IndexRange"))
+    return out
+
+
+def _check_assets(stage: Usd.Stage) -> list[Problem]:
+    out = []
+    for prim in stage.Traverse():
+        for attr in prim.GetAttributes():
+            if attr.GetTypeName() not in (Sdf.ValueTypeNames.Asset, Sdf.ValueTypeNames.AssetArray):
+                continue
+            value = attr.Get()
+            values = value if isinstance(value, (list, tuple)) or hasattr(value, "__len__") \
+                and not isinstance(value, Sdf.AssetPath) else [value]
+            for v in values or []:
+                if isinstance(v, Sdf.AssetPath) and v.path and not v.resolvedPath:
+                    out.append(Problem("error", str(prim.GetPath()), attr.GetName(),
+                                       f"unresolvable asset path @{v.path}@", "lsd3d:AssetPath"))
+    return out
+
+
+def validate(path: str | Path) -> list[Problem]:
+    """All problems of the USD file (or scene folder) at `path`. Raises InputError when
+    the file cannot be opened at all."""
+    with captured_stderr():
+        stage = scene.open_stage(path)
+        problems = _usd_validators(stage)
+        problems += _unknown_types(stage)
+        for prim in stage.Traverse():
+            if prim.IsA(UsdVol.ParticleField):
+                problems += _check_particle_field(prim)
+            elif prim.IsA(UsdGeom.Mesh):
+                problems += _check_mesh(prim)
+        problems += _check_assets(stage)
+    # usd-core's MissingReference validator may also name a missing texture we report per attribute.
+    ours = {p.message.split("@")[1] for p in problems if p.check == "lsd3d:AssetPath"}
+    return [p for p in problems
+            if not (p.check.startswith("usdUtilsValidators:MissingReference")
+                    and any(a in p.message for a in ours))]
+
+
+def report(path: str | Path, problems: list[Problem], as_json: bool) -> str:
+    errors = [p for p in problems if p.severity == "error"]
+    if as_json:
+        return json.dumps({"path": str(path), "valid": not errors,
+                           "errors": len(errors), "warnings": len(problems) - len(errors),
+                           "problems": [asdict(p) for p in problems]}, indent=2)
+    lines = [p.line() for p in problems]
+    lines.append(f"{path}: {'valid' if not errors else 'invalid'} "
+                 f"({len(errors)} error(s), {len(problems) - len(errors)} warning(s))")
+    return "\n".join(lines)
