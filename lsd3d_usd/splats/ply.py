@@ -1,0 +1,328 @@
+"""Gaussian-splat PLY files (the 3DGS / 2DGS layout) and 3DGS USD export.
+
+The layout written by the 3DGS and 2DGS reference code and read by gsplat,
+SuperSplat and most splat viewers: one ``vertex`` element, binary little-endian
+float32 properties
+
+    x y z  nx ny nz (zeros)  f_dc_0..2  f_rest_0..3(K-1)-1  opacity
+    scale_0..1 (2DGS) or scale_0..2 (3DGS)  rot_0..3
+
+with opacity stored as a logit, scales as natural logs, rotations as wxyz
+quaternions (not necessarily normalised) and f_rest channel-major: all of red's
+higher-order coefficients, then green's, then blue's. We add an optional int
+``semantic_id`` property (ignored by other tools).
+
+Importing a 3DGS file keeps each Gaussian's two largest axes as the surfel disk
+and makes the smallest the normal. Exporting for 3DGS-only consumers adds a thin
+third axis: ``thin`` x the smaller disk scale (1e-3 by default: a 10 cm surfel is
+0.1 mm thick, invisible as thickness but a valid, invertible covariance).
+"""
+from __future__ import annotations
+
+import os
+import re
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.splats.field import SurfelField, flatten_3d_gaussians, sh_degree_for
+
+THIN_AXIS = 1e-3
+_OPACITY_EPS = 1e-7  # logit of exactly 0 or 1 is infinite: clamp before the logit
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+_MAX_HEADER = 1 << 20
+
+
+# --- generic PLY (fixed-size properties) ------------------------------------------------
+
+def _parse_header(f, path):
+    """-> (format, [(element name, count, [(prop, numpy type)])]). File positioned at body."""
+    first = f.readline(64)
+    if first.rstrip(b"\r\n") != b"ply":
+        raise InputError(f"{path}: not a PLY file (missing 'ply' magic)")
+    fmt, elements, size = None, [], len(first)
+    while True:
+        line = f.readline(4096)
+        size += len(line)
+        if not line or size > _MAX_HEADER:
+            raise InputError(f"{path}: PLY header has no end_header")
+        try:
+            words = line.decode("ascii").split()
+        except UnicodeDecodeError:
+            raise InputError(f"{path}: PLY header is not ASCII") from None
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        key = words[0]
+        if key == "end_header":
+            break
+        if key == "format":
+            if len(words) != 3 or words[1] not in ("binary_little_endian", "binary_big_endian", "ascii"):
+                raise InputError(f"{path}: unsupported PLY format line {line.strip()!r}")
+            fmt = words[1]
+        elif key == "element":
+            if len(words) != 3 or not re.fullmatch(r"\d+", words[2]):
+                raise InputError(f"{path}: bad PLY element line {line.strip()!r}")
+            elements.append((words[1], int(words[2]), []))
+        elif key == "property":
+            if not elements:
+                raise InputError(f"{path}: PLY property before any element")
+            if words[1] == "list":
+                elements[-1][2].append((words[-1], "list"))
+                continue
+            if len(words) != 3 or words[1] not in _PLY_TYPES:
+                raise InputError(f"{path}: bad PLY property line {line.strip()!r}")
+            elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+        else:
+            raise InputError(f"{path}: unknown PLY header keyword {key!r}")
+    if fmt is None:
+        raise InputError(f"{path}: PLY header has no format line")
+    return fmt, elements
+
+
+def read_ply_vertices(path) -> np.ndarray:
+    """The ``vertex`` element of a PLY file as a numpy structured array.
+
+    Elements before ``vertex`` must have fixed-size properties (they are skipped);
+    anything after it is ignored."""
+    path = Path(path)
+    try:
+        f = open(path, "rb")
+    except OSError as e:
+        raise InputError(f"{path}: cannot open: {e.strerror}") from None
+    with f:
+        fmt, elements = _parse_header(f, path)
+        endian = ">" if fmt == "binary_big_endian" else "<"
+        names = [e[0] for e in elements]
+        if "vertex" not in names:
+            raise InputError(f"{path}: PLY has no 'vertex' element (elements: {', '.join(names) or 'none'})")
+        if fmt == "ascii":
+            text = f.read().split()
+            offset = 0
+        for name, count, props in elements:
+            if any(t == "list" for _, t in props):
+                raise InputError(f"{path}: PLY element {name!r} has list properties; "
+                                 "not a Gaussian-splat PLY")
+            seen = set()
+            for p, _ in props:
+                if p in seen:
+                    raise InputError(f"{path}: PLY element {name!r} repeats property {p!r}")
+                seen.add(p)
+            dtype = np.dtype([(p, endian + t) for p, t in props])
+            if fmt == "ascii":
+                n_tok = count * len(props)
+                if offset + n_tok > len(text):
+                    raise InputError(f"{path}: PLY body truncated in element {name!r}")
+                if name == "vertex":
+                    try:
+                        vals = np.array(text[offset:offset + n_tok], dtype=np.float64).reshape(count, len(props))
+                    except ValueError:
+                        raise InputError(f"{path}: PLY ascii body has non-numeric values") from None
+                    out = np.empty(count, dtype=dtype.newbyteorder("="))
+                    for i, (p, _) in enumerate(props):
+                        out[p] = vals[:, i]
+                    return out
+                offset += n_tok
+                continue
+            nbytes = dtype.itemsize * count
+            data = f.read(nbytes)
+            if len(data) != nbytes:
+                raise InputError(f"{path}: PLY body truncated in element {name!r} "
+                                 f"({len(data)} of {nbytes} bytes)")
+            if name == "vertex":
+                arr = np.frombuffer(data, dtype=dtype)
+                return arr.astype(dtype.newbyteorder("=")) if endian != "<" or sys.byteorder != "little" else arr
+    raise AssertionError("unreachable")
+
+
+def write_ply_vertices(path, arr: np.ndarray, comments=()) -> Path:
+    """Write a structured array as the binary little-endian ``vertex`` element, atomically."""
+    from lsd3d_usd.scene import atomic_write_bytes
+
+    inv = {v: k for k, v in _PLY_TYPES.items() if k in ("char", "uchar", "short", "ushort", "int",
+                                                          "uint", "float", "double")}
+    lines = ["ply", "format binary_little_endian 1.0"]
+    lines += [f"comment {c}" for c in comments]
+    lines.append(f"element vertex {len(arr)}")
+    le = []
+    for name in arr.dtype.names:
+        t = arr.dtype[name]
+        code = t.kind + str(t.itemsize)
+        if code not in inv:
+            raise ValueError(f"PLY cannot hold dtype {t} of property {name}")
+        lines.append(f"property {inv[code]} {name}")
+        le.append((name, "<" + code))
+    lines.append("end_header")
+    header = ("\n".join(lines) + "\n").encode("ascii")
+    body = np.ascontiguousarray(arr.astype(np.dtype(le))).tobytes()
+    return atomic_write_bytes(path, header + body)
+
+
+# --- Gaussian splats <-> SurfelField ---------------------------------------------------
+
+def _numbered(names, prefix):
+    idx = sorted(int(n[len(prefix):]) for n in names if re.fullmatch(re.escape(prefix) + r"\d+", n))
+    if idx != list(range(len(idx))):
+        raise ValueError(f"{prefix}* properties are not numbered 0..{len(idx) - 1}")
+    return [f"{prefix}{i}" for i in idx]
+
+
+def read_ply(path) -> SurfelField:
+    """Read a 3DGS or 2DGS PLY into a SurfelField (3D Gaussians flattened to surfels)."""
+    v = read_ply_vertices(path)
+    names = set(v.dtype.names)
+    if "packed_position" in names:
+        raise InputError(f"{path}: SuperSplat compressed PLY is not supported; decompress it first")
+    need = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity", "rot_0", "rot_1", "rot_2", "rot_3"]
+    missing = [n for n in need if n not in names]
+    if missing:
+        raise InputError(f"{path}: not a Gaussian-splat PLY: missing vertex properties {', '.join(missing)}")
+    try:
+        scale_names = _numbered(names, "scale_")
+        rest_names = _numbered(names, "f_rest_")
+    except ValueError as e:
+        raise InputError(f"{path}: {e}") from None
+    if len(scale_names) not in (2, 3):
+        raise InputError(f"{path}: expected 2 (2DGS) or 3 (3DGS) scale_* properties, got {len(scale_names)}")
+    n = len(v)
+    f64 = lambda k: v[k].astype(np.float64)  # noqa: E731
+
+    pos = np.stack([v["x"], v["y"], v["z"]], 1).astype(np.float32)
+    n_rest = len(rest_names)
+    if n_rest % 3:
+        raise InputError(f"{path}: {n_rest} f_rest_* properties is not a multiple of 3")
+    try:
+        sh_degree_for(1 + n_rest // 3)
+    except ValueError:
+        raise InputError(f"{path}: {n_rest} f_rest_* properties do not match an SH degree 0..3") from None
+    k = 1 + n_rest // 3
+    sh = np.zeros((n, k, 3), np.float32)
+    for c in range(3):
+        sh[:, 0, c] = v[f"f_dc_{c}"]
+        for j in range(k - 1):  # channel-major: f_rest_{c*(K-1)+j}
+            sh[:, 1 + j, c] = v[f"f_rest_{c * (k - 1) + j}"]
+    opac = (1.0 / (1.0 + np.exp(-f64("opacity")))).astype(np.float32)
+    q_wxyz = np.stack([f64(f"rot_{i}") for i in range(4)], 1)
+    qn = np.linalg.norm(q_wxyz, axis=1)
+    bad = ~(qn > 0) | ~np.isfinite(qn)
+    if bad.any():
+        raise InputError(f"{path}: {int(bad.sum())} splat(s) have a zero or non-finite rotation "
+                         f"(first vertex {int(np.flatnonzero(bad)[0])})")
+    q = (q_wxyz / qn[:, None])[:, [1, 2, 3, 0]]
+    scales = np.exp(np.stack([f64(s) for s in scale_names], 1))
+    if len(scale_names) == 3:
+        q, scales2 = flatten_3d_gaussians(q, scales)
+    else:
+        scales2 = scales
+    sem = v["semantic_id"].astype(np.int32) if "semantic_id" in names else None
+    classes = read_ply_semantic_classes(path) if sem is not None else ()
+    field = SurfelField(pos, q.astype(np.float32), scales2.astype(np.float32), opac, sh, sem, classes)
+    probs = [p for p in field.problems() if not p.startswith("semantic_ids")]
+    if probs:
+        raise InputError(f"{path}: " + "; ".join(probs))
+    return field
+
+
+def splat_vertex_array(field: SurfelField, layout: str = "2dgs", thin: float = THIN_AXIS) -> np.ndarray:
+    """The PLY vertex records of ``field`` in the 2DGS (2 scales) or 3DGS (3 scales) layout."""
+    if layout not in ("2dgs", "3dgs"):
+        raise InputError(f"PLY layout must be '2dgs' or '3dgs', got {layout!r}")
+    n, k = field.n, field.sh.shape[1]
+    ns = 2 if layout == "2dgs" else 3
+    props = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+             + [f"f_rest_{i}" for i in range(3 * (k - 1))] + ["opacity"]
+             + [f"scale_{i}" for i in range(ns)] + [f"rot_{i}" for i in range(4)])
+    dtype = [(p, "<f4") for p in props]
+    if field.semantic_ids is not None:
+        dtype.append(("semantic_id", "<i4"))
+    out = np.zeros(n, dtype=dtype)
+    for i, a in enumerate("xyz"):
+        out[a] = field.positions[:, i]
+    for c in range(3):
+        out[f"f_dc_{c}"] = field.sh[:, 0, c]
+        for j in range(k - 1):
+            out[f"f_rest_{c * (k - 1) + j}"] = field.sh[:, 1 + j, c]
+    p = np.clip(field.opacities.astype(np.float64), _OPACITY_EPS, 1.0 - _OPACITY_EPS)
+    out["opacity"] = np.log(p / (1.0 - p))
+    s = field.scales.astype(np.float64)
+    with np.errstate(divide="ignore"):
+        out["scale_0"], out["scale_1"] = np.log(s[:, 0]), np.log(s[:, 1])
+        if ns == 3:
+            out["scale_2"] = np.log(thin * np.minimum(s[:, 0], s[:, 1]))
+    q = field.orientations
+    out["rot_0"], out["rot_1"], out["rot_2"], out["rot_3"] = q[:, 3], q[:, 0], q[:, 1], q[:, 2]
+    if field.semantic_ids is not None:
+        out["semantic_id"] = field.semantic_ids
+    return out
+
+
+def write_ply(path, field: SurfelField, layout: str = "2dgs", thin: float = THIN_AXIS) -> Path:
+    """Write ``field`` as a Gaussian-splat PLY (binary little-endian), atomically."""
+    probs = field.problems()
+    if probs:
+        raise InputError(f"{path}: refusing to write invalid surfels: " + "; ".join(probs))
+    comments = [f"lsd3d-usd {layout} surfels"]
+    if field.semantic_classes:
+        comments.append("semantic_classes " + " ".join(field.semantic_classes))
+    return write_ply_vertices(path, splat_vertex_array(field, layout, thin), comments)
+
+
+def read_ply_semantic_classes(path) -> tuple[str, ...]:
+    """Class names from our 'comment semantic_classes ...' header line, if present."""
+    with open(path, "rb") as f:
+        for _ in range(10000):
+            line = f.readline(1 << 16)
+            if not line or line.strip() == b"end_header":
+                break
+            if line.startswith(b"comment semantic_classes "):
+                return tuple(line.decode("ascii", "replace").split()[2:])
+    return ()
+
+
+# --- official 3DGS ParticleField export ----------------------------------------------------
+
+def write_gaussian_splat_prim(stage, path: str, field: SurfelField, thin: float = THIN_AXIS):
+    """Author ``field`` as an official UsdVol ParticleField3DGaussianSplat at ``path``
+    (third axis = ``thin`` x the smaller disk scale), for 3DGS-only renderers."""
+    from pxr import Sdf, UsdVol, Vt
+
+    probs = field.problems()
+    if probs:
+        raise InputError(f"{path}: refusing to write invalid surfels: " + "; ".join(probs))
+    prim = UsdVol.ParticleField3DGaussianSplat.Define(stage, Sdf.Path(path)).GetPrim()
+    T = Sdf.ValueTypeNames
+    s3 = np.empty((field.n, 3), np.float32)
+    s3[:, :2] = field.scales
+    s3[:, 2] = thin * field.scales.min(axis=1)
+
+    def put(name, t, value, uniform=False):
+        attr = prim.GetAttribute(name) or prim.CreateAttribute(
+            name, t, variability=Sdf.VariabilityUniform if uniform else Sdf.VariabilityVarying)
+        attr.Set(value)
+
+    put("positions", T.Point3fArray, Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(field.positions)))
+    put("orientations", T.QuatfArray, Vt.QuatfArray.FromNumpy(np.ascontiguousarray(field.orientations)))
+    put("scales", T.Float3Array, Vt.Vec3fArray.FromNumpy(s3))
+    put("opacities", T.FloatArray, Vt.FloatArray.FromNumpy(np.ascontiguousarray(field.opacities)))
+    put("radiance:sphericalHarmonicsDegree", T.Int, int(field.sh_degree), uniform=True)
+    put("radiance:sphericalHarmonicsCoefficients", T.Float3Array,
+        Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(field.sh.reshape(-1, 3))))
+    put("extent", T.Float3Array, Vt.Vec3fArray.FromNumpy(field.extent().astype(np.float32)))
+    return prim
+
+
+def write_gaussian_splat_file(path, field: SurfelField, prim_path: str = "/World/Surfels",
+                              thin: float = THIN_AXIS, provenance: dict | None = None) -> Path:
+    """Stand-alone USD file holding one ParticleField3DGaussianSplat, written atomically."""
+    from lsd3d_usd import scene
+
+    stage = scene.new_stage()
+    write_gaussian_splat_prim(stage, prim_path, field, thin)
+    return scene.save_stage(stage, os.fspath(path), provenance)
