@@ -254,7 +254,7 @@ def validate(path: str | Path) -> list[Problem]:
                 problems += _check_mesh(prim)
         problems += _check_assets(stage)
     # usd-core's MissingReference validator may also name a missing texture we report per attribute.
-    ours = {p.message.split("@")[1] for p in problems if p.check == "lsd3d:AssetPath"}
+    ours = {Path(p.message.split("@")[1]).name for p in problems if p.check == "lsd3d:AssetPath"}
     return [p for p in problems
             if not (p.check.startswith("usdUtilsValidators:MissingReference")
                     and any(a in p.message for a in ours))]

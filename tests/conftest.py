@@ -1,0 +1,45 @@
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lsd3d_usd  # registers the schema before any stage is opened  # noqa: F401
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def random_field(n=1000, sh_degree=1, seed=0, semantic=True):
+    from lsd3d_usd.semantics import CLASSES
+    from lsd3d_usd.splats.field import SurfelField, sh_coeff_count
+
+    rng = np.random.default_rng(seed)
+    q = rng.normal(size=(n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    return SurfelField(
+        positions=rng.normal(size=(n, 3)) * 50,
+        orientations=q,
+        scales=rng.uniform(0.01, 1.0, (n, 2)),
+        opacities=rng.uniform(0, 1, n),
+        sh=rng.normal(size=(n, sh_coeff_count(sh_degree), 3)) * 0.3,
+        semantic_ids=rng.integers(-1, len(CLASSES), n) if semantic else None,
+        semantic_classes=CLASSES if semantic else (),
+    )
+
+
+@pytest.fixture
+def field_factory():
+    return random_field
+
+
+@pytest.fixture
+def run_cli():
+    """Run the CLI in a subprocess (as a user would); returns CompletedProcess."""
+    import subprocess
+
+    def run(*args, cwd=None, check=False):
+        env = dict(os.environ)
+        return subprocess.run([sys.executable, "-m", "lsd3d_usd", *map(str, args)],
+                              capture_output=True, text=True, cwd=cwd, env=env, check=check)
+    return run
