@@ -1,0 +1,373 @@
+"""numba kernels of the tile rasteriser: binning, forward compositing, hand-written backward.
+
+Per surfel the kernels read the 16 packed parameters of projection.PARAM_NAMES. Everything in
+the hot loops is float32 (a float64 literal would promote the loop): constants are np.float32.
+Tiles run in parallel (prange); inside a tile the surfel loop is outside and the pixel loop
+inside, with the alpha of all pixels computed in one branch-free loop and the compositing in
+a second. The backward recomputes alpha, walks each pixel's contributors back to front from the
+stored final transmittance and last contributor (as the CUDA rasterisers do), and writes one
+gradient row per (tile, surfel) pair; rows are summed per surfel afterwards, so the result does
+not depend on thread scheduling.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+f32 = np.float32
+_HALF = np.float32(0.5)
+_ONE = np.float32(1.0)
+_ZERO = np.float32(0.0)
+_TWO = np.float32(2.0)
+_EXP_CLAMP = np.float32(16.0)
+_INV64 = np.float32(1.0 / 64.0)
+# Taylor coefficients of exp(-t), t in [0, 0.25]; result squared 6 times = exp(-64 t).
+_E2 = np.float32(1.0 / 2.0)
+_E3 = np.float32(1.0 / 6.0)
+_E4 = np.float32(1.0 / 24.0)
+_E5 = np.float32(1.0 / 120.0)
+_E6 = np.float32(1.0 / 720.0)
+_E7 = np.float32(1.0 / 5040.0)
+_LOWPASS = np.float32(2.0)  # 1/sigma^2, sigma = sqrt(2)/2 px
+
+
+@njit(inline="always", fastmath=False)
+def exp_neg(y):
+    """exp(-y) for y >= 0 in plain float32 arithmetic (vectorises; libm expf does not).
+    Relative error ~1e-6 for y <= 16; beyond, exp(-16) = 1.1e-7 is returned (far below any
+    alpha threshold)."""
+    t = min(y, _EXP_CLAMP) * _INV64
+    p = _ONE - t * (_ONE - t * (_E2 - t * (_E3 - t * (_E4 - t * (_E5 - t * (_E6 - t * _E7))))))
+    p = p * p
+    p = p * p
+    p = p * p
+    p = p * p
+    p = p * p
+    p = p * p
+    return p
+
+
+@njit(cache=True)
+def bin_tiles(rects, order, tile, ntx, nty):
+    """(tile_start (ntiles+1,), tile_splats (npairs,) int32): per tile the surfels touching it in
+    the given (depth) order. rects are inclusive pixel ranges [i0, i1, j0, j1]."""
+    ntiles = ntx * nty
+    counts = np.zeros(ntiles + 1, np.int64)
+    for k in order:
+        i0, i1, j0, j1 = rects[k, 0], rects[k, 1], rects[k, 2], rects[k, 3]
+        if i0 > i1 or j0 > j1:
+            continue
+        for ty in range(j0 // tile, j1 // tile + 1):
+            for tx in range(i0 // tile, i1 // tile + 1):
+                counts[ty * ntx + tx + 1] += 1
+    for t in range(ntiles):
+        counts[t + 1] += counts[t]
+    pos = counts[:-1].copy()
+    out = np.empty(counts[ntiles], np.int32)
+    for k in order:
+        i0, i1, j0, j1 = rects[k, 0], rects[k, 1], rects[k, 2], rects[k, 3]
+        if i0 > i1 or j0 > j1:
+            continue
+        for ty in range(j0 // tile, j1 // tile + 1):
+            for tx in range(i0 // tile, i1 // tile + 1):
+                t = ty * ntx + tx
+                out[pos[t]] = k
+                pos[t] += 1
+    return counts, out
+
+
+@njit(inline="always")
+def _alpha_loop(prm, s, pxs, pys, npx, near, alpha_max, abuf, zbuf):
+    """alpha and depth of surfel s at all tile pixels (branch-free)."""
+    xb, yb, zc = prm[s, 0], prm[s, 1], prm[s, 2]
+    a1, a2, b1, b2 = prm[s, 3], prm[s, 4], prm[s, 5], prm[s, 6]
+    ex, ey, op = prm[s, 7], prm[s, 8], prm[s, 9]
+    for p in range(npx):
+        dx = pxs[p] - xb
+        dy = pys[p] - yb
+        uu = a1 * dx + a2 * dy
+        vv = b1 * dx + b2 * dy
+        iw = _ONE / (_ONE + ex * dx + ey * dy)
+        r3 = (uu * uu + vv * vv) * (iw * iw)
+        r2 = _LOWPASS * (dx * dx + dy * dy)
+        use3 = r3 <= r2
+        rho = r3 if use3 else r2
+        z = zc * iw if use3 else zc
+        a = min(alpha_max, op * exp_neg(_HALF * rho))
+        abuf[p] = a if z >= near else _ZERO
+        zbuf[p] = z
+
+
+@njit(parallel=True, cache=True)
+def forward(prm, tile_start, tile_splats, width, height, tile, ntx, nty,
+            near, alpha_min, alpha_max, t_min):
+    """Front-to-back compositing. Returns (rgb (H,W,3), T_final, depth_acc = sum w z,
+    normal_acc (H,W,3) = sum w n, depth_median, last (list position + 1 of the last
+    contributor, per pixel), med (list position of the median contributor or -1),
+    argmax_w (surfel index of the largest weight or -1), evals per tile)."""
+    rgb = np.zeros((height, width, 3), f32)
+    tfin = np.ones((height, width), f32)
+    dacc = np.zeros((height, width), f32)
+    nacc = np.zeros((height, width, 3), f32)
+    dmed = np.zeros((height, width), f32)
+    last = np.zeros((height, width), np.int32)
+    med = np.full((height, width), -1, np.int32)
+    amax = np.full((height, width), -1, np.int32)
+    evals = np.zeros(ntx * nty, np.int64)
+    npx = tile * tile
+    for t in prange(ntx * nty):
+        ty = t // ntx
+        tx = t - ty * ntx
+        x0 = tx * tile
+        y0 = ty * tile
+        pxs = np.empty(npx, f32)
+        pys = np.empty(npx, f32)
+        T = np.ones(npx, f32)
+        done = np.zeros(npx, np.bool_)
+        c_r = np.zeros(npx, f32)
+        c_g = np.zeros(npx, f32)
+        c_b = np.zeros(npx, f32)
+        c_d = np.zeros(npx, f32)
+        c_nx = np.zeros(npx, f32)
+        c_ny = np.zeros(npx, f32)
+        c_nz = np.zeros(npx, f32)
+        c_med = np.zeros(npx, f32)
+        l_last = np.zeros(npx, np.int32)
+        l_med = np.full(npx, -1, np.int32)
+        l_wmax = np.zeros(npx, f32)
+        l_amax = np.full(npx, -1, np.int32)
+        abuf = np.empty(npx, f32)
+        zbuf = np.empty(npx, f32)
+        ndone = 0
+        for p in range(npx):
+            i = x0 + p % tile
+            j = y0 + p // tile
+            pxs[p] = f32(i) + _HALF
+            pys[p] = f32(j) + _HALF
+            if i >= width or j >= height:
+                done[p] = True
+                ndone += 1
+        k0 = tile_start[t]
+        k1 = tile_start[t + 1]
+        nev = 0
+        for k in range(k0, k1):
+            if ndone == npx:
+                break
+            s = tile_splats[k]
+            nev += npx
+            _alpha_loop(prm, s, pxs, pys, npx, near, alpha_max, abuf, zbuf)
+            cr, cg, cb = prm[s, 10], prm[s, 11], prm[s, 12]
+            nx, ny, nz = prm[s, 13], prm[s, 14], prm[s, 15]
+            for p in range(npx):
+                a = abuf[p]
+                if a < alpha_min or done[p]:
+                    continue
+                tp = T[p]
+                tn = tp * (_ONE - a)
+                if tn < t_min:
+                    done[p] = True
+                    ndone += 1
+                    continue
+                w = a * tp
+                z = zbuf[p]
+                c_r[p] += w * cr
+                c_g[p] += w * cg
+                c_b[p] += w * cb
+                c_d[p] += w * z
+                c_nx[p] += w * nx
+                c_ny[p] += w * ny
+                c_nz[p] += w * nz
+                if tp > _HALF:
+                    c_med[p] = z
+                    l_med[p] = k
+                if w > l_wmax[p]:
+                    l_wmax[p] = w
+                    l_amax[p] = s
+                T[p] = tn
+                l_last[p] = k + 1
+        evals[t] = nev
+        for p in range(npx):
+            i = x0 + p % tile
+            j = y0 + p // tile
+            if i >= width or j >= height:
+                continue
+            rgb[j, i, 0] = c_r[p]
+            rgb[j, i, 1] = c_g[p]
+            rgb[j, i, 2] = c_b[p]
+            tfin[j, i] = T[p]
+            dacc[j, i] = c_d[p]
+            nacc[j, i, 0] = c_nx[p]
+            nacc[j, i, 1] = c_ny[p]
+            nacc[j, i, 2] = c_nz[p]
+            dmed[j, i] = c_med[p]
+            last[j, i] = l_last[p]
+            med[j, i] = l_med[p]
+            amax[j, i] = l_amax[p]
+    return rgb, tfin, dacc, nacc, dmed, last, med, amax, evals
+
+
+@njit(parallel=True, cache=True)
+def backward(prm, tile_start, tile_splats, width, height, tile, ntx, nty,
+             near, alpha_min, alpha_max, tfin, last, med,
+             g_rgb, g_t, g_d, g_n, g_med):
+    """Gradient rows (npairs, 16) w.r.t. the packed parameters, one row per (tile, surfel)
+    pair of tile_splats. g_t is dL/dT_final."""
+    npairs = tile_splats.shape[0]
+    out = np.zeros((npairs, 16), f32)
+    npx = tile * tile
+    for t in prange(ntx * nty):
+        k0 = tile_start[t]
+        k1 = tile_start[t + 1]
+        if k1 == k0:
+            continue
+        ty = t // ntx
+        tx = t - ty * ntx
+        x0 = tx * tile
+        y0 = ty * tile
+        pxs = np.empty(npx, f32)
+        pys = np.empty(npx, f32)
+        T = np.zeros(npx, f32)
+        sg = np.zeros(npx, f32)
+        tg = np.zeros(npx, f32)  # T_final * dL/dT_final
+        lst = np.zeros(npx, np.int32)
+        lmed = np.full(npx, -1, np.int32)
+        gr = np.zeros(npx, f32)
+        gg = np.zeros(npx, f32)
+        gb = np.zeros(npx, f32)
+        gd = np.zeros(npx, f32)
+        gnx = np.zeros(npx, f32)
+        gny = np.zeros(npx, f32)
+        gnz = np.zeros(npx, f32)
+        gm = np.zeros(npx, f32)
+        abuf = np.empty(npx, f32)
+        zbuf = np.empty(npx, f32)
+        kmax = k0
+        for p in range(npx):
+            i = x0 + p % tile
+            j = y0 + p // tile
+            pxs[p] = f32(i) + _HALF
+            pys[p] = f32(j) + _HALF
+            if i >= width or j >= height:
+                continue
+            T[p] = tfin[j, i]
+            tg[p] = tfin[j, i] * g_t[j, i]
+            lst[p] = last[j, i]
+            lmed[p] = med[j, i]
+            gr[p] = g_rgb[j, i, 0]
+            gg[p] = g_rgb[j, i, 1]
+            gb[p] = g_rgb[j, i, 2]
+            gd[p] = g_d[j, i]
+            gnx[p] = g_n[j, i, 0]
+            gny[p] = g_n[j, i, 1]
+            gnz[p] = g_n[j, i, 2]
+            gm[p] = g_med[j, i]
+            kmax = max(kmax, last[j, i])
+        for k in range(kmax - 1, k0 - 1, -1):
+            s = tile_splats[k]
+            _alpha_loop(prm, s, pxs, pys, npx, near, alpha_max, abuf, zbuf)
+            xb, yb, zc = prm[s, 0], prm[s, 1], prm[s, 2]
+            a1, a2, b1, b2 = prm[s, 3], prm[s, 4], prm[s, 5], prm[s, 6]
+            ex, ey, op = prm[s, 7], prm[s, 8], prm[s, 9]
+            cr, cg, cb = prm[s, 10], prm[s, 11], prm[s, 12]
+            nx, ny, nz = prm[s, 13], prm[s, 14], prm[s, 15]
+            d_xb = _ZERO
+            d_yb = _ZERO
+            d_zc = _ZERO
+            d_a1 = _ZERO
+            d_a2 = _ZERO
+            d_b1 = _ZERO
+            d_b2 = _ZERO
+            d_ex = _ZERO
+            d_ey = _ZERO
+            d_op = _ZERO
+            d_cr = _ZERO
+            d_cg = _ZERO
+            d_cb = _ZERO
+            d_nx = _ZERO
+            d_ny = _ZERO
+            d_nz = _ZERO
+            for p in range(npx):
+                a = abuf[p]
+                if k >= lst[p] or a < alpha_min:
+                    continue
+                om = _ONE - a
+                tb = T[p] / om
+                T[p] = tb
+                w = a * tb
+                z = zbuf[p]
+                q = cr * gr[p] + cg * gg[p] + cb * gb[p] + z * gd[p] \
+                    + nx * gnx[p] + ny * gny[p] + nz * gnz[p]
+                d_a = tb * q - (sg[p] + tg[p]) / om
+                sg[p] += w * q
+                d_cr += w * gr[p]
+                d_cg += w * gg[p]
+                d_cb += w * gb[p]
+                d_nx += w * gnx[p]
+                d_ny += w * gny[p]
+                d_nz += w * gnz[p]
+                gz = w * gd[p]
+                if lmed[p] == k:
+                    gz += gm[p]
+                # recompute the geometry of this pixel
+                dx = pxs[p] - xb
+                dy = pys[p] - yb
+                uu = a1 * dx + a2 * dy
+                vv = b1 * dx + b2 * dy
+                iw = _ONE / (_ONE + ex * dx + ey * dy)
+                u = uu * iw
+                v = vv * iw
+                r3 = (uu * uu + vv * vv) * (iw * iw)  # exactly as in _alpha_loop
+                r2 = _LOWPASS * (dx * dx + dy * dy)
+                g_rho = _ZERO
+                if a < alpha_max:  # not clamped
+                    gk = exp_neg(_HALF * (r3 if r3 <= r2 else r2))
+                    d_op += d_a * gk
+                    g_rho = -_HALF * d_a * a
+                if r3 <= r2:
+                    du = _TWO * u * g_rho
+                    dv = _TWO * v * g_rho
+                    dU = du * iw
+                    dV = dv * iw
+                    dW = -(du * u + dv * v + gz * z) * iw
+                    d_a1 += dU * dx
+                    d_a2 += dU * dy
+                    d_b1 += dV * dx
+                    d_b2 += dV * dy
+                    d_ex += dW * dx
+                    d_ey += dW * dy
+                    d_zc += gz * iw
+                    d_xb -= dU * a1 + dV * b1 + dW * ex
+                    d_yb -= dU * a2 + dV * b2 + dW * ey
+                else:
+                    d_xb -= _TWO * _LOWPASS * dx * g_rho
+                    d_yb -= _TWO * _LOWPASS * dy * g_rho
+                    d_zc += gz
+            o = out[k]
+            o[0] = d_xb
+            o[1] = d_yb
+            o[2] = d_zc
+            o[3] = d_a1
+            o[4] = d_a2
+            o[5] = d_b1
+            o[6] = d_b2
+            o[7] = d_ex
+            o[8] = d_ey
+            o[9] = d_op
+            o[10] = d_cr
+            o[11] = d_cg
+            o[12] = d_cb
+            o[13] = d_nx
+            o[14] = d_ny
+            o[15] = d_nz
+    return out
+
+
+@njit(cache=True)
+def reduce_pairs(rows, tile_splats, n):
+    """Sum the per-pair gradient rows into (n, 16) per-surfel gradients (float32)."""
+    g = np.zeros((n, rows.shape[1]), f32)
+    for k in range(tile_splats.shape[0]):
+        s = tile_splats[k]
+        for c in range(rows.shape[1]):
+            g[s, c] += rows[k, c]
+    return g

@@ -1,0 +1,220 @@
+"""Differentiable CPU rasteriser of 2D Gaussian surfels (2DGS, Huang et al. 2024): the one
+functional entry point, `rasterize`.
+
+Pipeline: per-surfel projection in torch (float64, camera-relative; autograd carries gradients
+from the packed kernel parameters back to means, quats, scales, opacities and SH), exact screen
+bounds and 16x16 tile binning in numpy/numba, then the numba forward kernel and its hand-written
+backward inside one torch.autograd.Function (no per-pixel autograd graph).
+
+Outputs are documented in `rasterize`; the float64 reference is render/reference.py.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.render import kernels
+from lsd3d_usd.render import projection as proj
+from lsd3d_usd.render.sh import eval_sh, sh_degree_of
+
+
+def _as_tensor(x, name, dtype=torch.float32):
+    if isinstance(x, np.ndarray):
+        x = torch.from_numpy(np.ascontiguousarray(x))
+    if not isinstance(x, torch.Tensor):
+        try:
+            x = torch.as_tensor(x)
+        except Exception as e:  # noqa: BLE001 - re-raised as a user error
+            raise InputError(f"rasterize: {name} is not an array ({e})") from None
+    if not x.is_floating_point():
+        x = x.to(dtype)
+    return x
+
+
+def _check(x, name, shape):
+    """shape: tuple with None for free dims."""
+    if x.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise InputError(f"rasterize: {name} has shape {tuple(x.shape)}, expected {want}")
+    bad = ~torch.isfinite(x.detach())
+    if bad.any():
+        where = tuple(int(i) for i in torch.nonzero(bad)[0])
+        index = where[0] if x.dim() > 1 and name not in ("viewmat", "K") else where
+        raise InputError(f"rasterize: {name} has a non-finite value (NaN or Inf) at index {index}")
+
+
+class _Raster(torch.autograd.Function):
+    """Packed parameters (M,16) float32 -> (rgb, alpha, depth_acc, normal_acc, depth_median)."""
+
+    @staticmethod
+    def forward(ctx, prm, plan):
+        p = prm.detach().contiguous().numpy()
+        rgb, tfin, dacc, nacc, dmed, last, med, amax, evals = kernels.forward(
+            p, plan["tile_start"], plan["tile_splats"], plan["width"], plan["height"],
+            plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
+            np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), np.float32(plan["t_min"]))
+        plan["evals"] = int(evals.sum())
+        plan["argmax"] = amax
+        ctx.plan = plan
+        ctx.aux = (p, tfin, last, med)
+        alpha = 1.0 - torch.from_numpy(tfin)
+        return (torch.from_numpy(rgb), alpha, torch.from_numpy(dacc), torch.from_numpy(nacc),
+                torch.from_numpy(dmed))
+
+    @staticmethod
+    def backward(ctx, g_rgb, g_alpha, g_d, g_n, g_med):
+        plan = ctx.plan
+        p, tfin, last, med = ctx.aux
+        t0 = time.perf_counter()
+
+        def arr(g):
+            return np.ascontiguousarray(g.detach().to(torch.float32).numpy())
+
+        rows = kernels.backward(
+            p, plan["tile_start"], plan["tile_splats"], plan["width"], plan["height"],
+            plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
+            np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), tfin, last, med,
+            arr(g_rgb), arr(-g_alpha), arr(g_d), arr(g_n), arr(g_med))
+        g = kernels.reduce_pairs(rows, plan["tile_splats"], p.shape[0])
+        plan["bwd_kernel_s"] = time.perf_counter() - t0
+        return torch.from_numpy(g), None
+
+
+def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
+              near=0.05, far=1e4, background=None, sh_degree=None, semantic_ids=None,
+              tile=16, alpha_min=1.0 / 255.0, t_min=1e-4, alpha_max=0.99, bound_sigma=None,
+              normal_space="camera", return_extras=True):
+    """Render 2D Gaussian surfels (gsplat-style arrays in, dict out).
+
+    means (N,3), quats (N,4) xyzw, scales (N,2) linear std-devs along the local x/y axes,
+    opacities (N,) in [0,1], sh (N,K,3) (K = (deg+1)^2, 3DGS ordering), viewmat (4,4) world->
+    camera in OpenCV axes, K (3,3) pixel intrinsics (pixel centres at +0.5), width, height.
+    background: None, (3,) or (H,W,3) composited behind with the final transmittance (the env
+    map per pixel direction). sh_degree: degree to use (default: all coefficients).
+    semantic_ids: optional (N,) int per surfel. bound_sigma: None = exact opacity-aware screen
+    bounds (conservative: no pixel with alpha >= alpha_min is missed); a number = fixed k-sigma
+    bounds (faster, lossy). t_min: early stop when transmittance falls below it.
+
+    Returns a dict of float32 tensors:
+      rgb (H,W,3)            colour, background included;
+      alpha (H,W)            1 - final transmittance;
+      depth_expected (H,W)   sum(w z)/alpha (camera z, metres), 0 where alpha < 1e-6;
+      depth_acc (H,W)        sum(w z) (un-normalised, as 2DGS);
+      depth_median (H,W)     depth where the transmittance crosses 0.5 (last contributor
+                             entered with T > 0.5), 0 where nothing contributes;
+      normal (H,W,3)         sum(w n), un-normalised, each surfel normal oriented towards the
+                             camera; OpenCV camera axes, or world axes with normal_space="world";
+      semantic (H,W) int64   semantic id of the largest-weight contributor, -1 if none (None
+                             without semantic_ids);
+      stats (dict)           n_visible, n_pairs, evals, timings (with return_extras).
+    Gradients flow from rgb, alpha, depth_acc/depth_expected, depth_median and normal to
+    means, quats, scales, opacities, sh (and background).
+    """
+    t_start = time.perf_counter()
+    means = _as_tensor(means, "means")
+    quats = _as_tensor(quats, "quats")
+    scales = _as_tensor(scales, "scales")
+    opacities = _as_tensor(opacities, "opacities")
+    sh = _as_tensor(sh, "sh")
+    viewmat = _as_tensor(viewmat, "viewmat")
+    K = _as_tensor(K, "K")
+    _check(means, "means", (None, 3))
+    n = means.shape[0]
+    _check(quats, "quats", (n, 4))
+    _check(scales, "scales", (n, 2))
+    _check(opacities, "opacities", (n,))
+    _check(sh, "sh", (n, None, 3))
+    _check(viewmat, "viewmat", (4, 4))
+    _check(K, "K", (3, 3))
+    width, height, tile = int(width), int(height), int(tile)
+    if width <= 0 or height <= 0 or tile <= 0:
+        raise InputError(f"rasterize: bad image size {width}x{height} or tile {tile}")
+    if not (0 < near < far):
+        raise InputError(f"rasterize: need 0 < near < far, got near={near}, far={far}")
+    if abs(float(K[2, 0])) > 0 or abs(float(K[2, 1])) > 0 or float(K[2, 2]) != 1.0:
+        raise InputError("rasterize: K must be a pinhole intrinsics matrix with last row (0, 0, 1)")
+    if (scales.detach() < 0).any():
+        i = int(torch.nonzero((scales.detach() < 0).any(1))[0])
+        raise InputError(f"rasterize: scales has a negative value at index {i}")
+    if (quats.detach().norm(dim=1) == 0).any():
+        i = int(torch.nonzero(quats.detach().norm(dim=1) == 0)[0])
+        raise InputError(f"rasterize: quats has a zero quaternion at index {i}")
+    try:
+        full_deg = sh_degree_of(sh.shape[1])
+    except ValueError as e:
+        raise InputError(f"rasterize: sh: {e}") from None
+    deg = full_deg if sh_degree is None else int(sh_degree)
+    if not 0 <= deg <= full_deg:
+        raise InputError(f"rasterize: sh_degree {deg} needs more than the {sh.shape[1]} coefficients given")
+    if background is not None:
+        background = _as_tensor(background, "background")
+        if background.dim() == 1:
+            _check(background, "background", (3,))
+        else:
+            _check(background, "background", (height, width, 3))
+    if normal_space not in ("camera", "world"):
+        raise InputError(f"rasterize: normal_space must be 'camera' or 'world', not {normal_space!r}")
+
+    # --- visibility and screen bounds (no grad, float64) ---
+    with torch.no_grad():
+        p_c, a_u, a_v, normal = proj.camera_space(means, quats, scales, viewmat)
+        keep = proj.cull_mask(p_c, normal, opacities, near, far, alpha_min)
+        idx = torch.nonzero(keep).flatten()
+        bounds = proj.screen_bounds(p_c[idx], a_u[idx], a_v[idx], K, opacities[idx],
+                                    near=near, alpha_min=alpha_min, bound_sigma=bound_sigma)
+        rects = proj.pixel_rects(bounds, width, height)
+        onscreen = (rects[:, 0] <= rects[:, 1]) & (rects[:, 2] <= rects[:, 3])
+        idx = idx[torch.from_numpy(onscreen)]
+        rects = np.ascontiguousarray(rects[onscreen])
+        zc = p_c[idx, 2].numpy()
+    t_cull = time.perf_counter()
+
+    # --- differentiable per-surfel parameters of the visible surfels ---
+    p_c, a_u, a_v, normal = proj.camera_space(means[idx], quats[idx], scales[idx], viewmat)
+    geo, n_facing = proj.kernel_params(p_c, a_u, a_v, normal, K)
+    _, centre = proj.camera_frame(viewmat)
+    dirs = means[idx].to(torch.float64) - centre
+    dirs = dirs / dirs.norm(dim=1, keepdim=True).clamp_min(1e-30)
+    colour = eval_sh(sh[idx], dirs.to(sh.dtype), deg)
+    prm = torch.cat([geo.to(torch.float32), opacities[idx, None].to(torch.float32),
+                     colour.to(torch.float32), n_facing.to(torch.float32)], dim=1)
+    t_prep = time.perf_counter()
+
+    # --- tiles, depth order ---
+    ntx = (width + tile - 1) // tile
+    nty = (height + tile - 1) // tile
+    order = np.argsort(zc, kind="stable")
+    tile_start, tile_splats = kernels.bin_tiles(rects, order, tile, ntx, nty)
+    t_bin = time.perf_counter()
+    plan = dict(tile_start=tile_start, tile_splats=tile_splats, width=width, height=height,
+                tile=tile, ntx=ntx, nty=nty, near=near, alpha_min=alpha_min,
+                alpha_max=alpha_max, t_min=t_min)
+    rgb, alpha, dacc, nacc, dmed = _Raster.apply(prm, plan)
+    t_raster = time.perf_counter()
+
+    if background is not None:
+        bg = background.to(torch.float32)
+        rgb = rgb + (1.0 - alpha)[..., None] * bg
+    depth = torch.where(alpha > 1e-6, dacc / alpha.clamp_min(1e-6), torch.zeros_like(dacc))
+    if normal_space == "world":
+        rot_c, _ = proj.camera_frame(viewmat)
+        nacc = nacc @ rot_c.to(torch.float32)
+    out = dict(rgb=rgb, alpha=alpha, depth_expected=depth, depth_acc=dacc, depth_median=dmed,
+               normal=nacc, semantic=None)
+    amax = plan["argmax"]
+    if semantic_ids is not None:
+        sem = torch.as_tensor(semantic_ids).long()
+        if sem.shape != (n,):
+            raise InputError(f"rasterize: semantic_ids has shape {tuple(sem.shape)}, expected ({n},)")
+        vis_sem = torch.cat([sem[idx], torch.tensor([-1])])
+        out["semantic"] = vis_sem[torch.from_numpy(amax.astype(np.int64))]  # -1 -> last = -1
+    if return_extras:
+        out["stats"] = dict(
+            n_visible=int(idx.numel()), n_pairs=int(tile_splats.shape[0]), evals=plan["evals"],
+            cull_s=t_cull - t_start, prep_s=t_prep - t_cull, bin_s=t_bin - t_prep,
+            raster_s=t_raster - t_bin, total_s=time.perf_counter() - t_start, plan=plan,
+            visible_index=idx)
+    return out

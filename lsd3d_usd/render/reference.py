@@ -1,0 +1,147 @@
+"""Plain float64 reference of the 2DGS surfel renderer, for tests and the benchmark.
+
+Same documented math as the fast path (rasterize.py), computed differently: explicit ray-plane
+intersection per pixel and surfel (no homography), every surfel at every pixel (no tiles, no
+screen bounds), all surfels composited in centre-depth order (no early stop unless t_min > 0
+is asked for, to mimic the fast path exactly). Differentiable by torch autograd (small scenes
+only: it builds (pixels x surfels) tensors), or evaluated on a pixel subset without grad, in
+surfel chunks, for large scenes.
+
+Documented rules shared with the fast path:
+  * scales clamped to >= projection.S_MIN; surfels culled when the centre depth is outside
+    [near, far], when exactly edge-on (|cos| < projection.EDGE_COS) or opacity < alpha_min;
+  * rho = min(u^2 + v^2, 2 |pixel - projected centre|^2); depth = ray-plane depth when the
+    first term is used, else the centre depth; alpha = min(alpha_max, opacity exp(-rho/2)),
+    zero when alpha < alpha_min or the depth is < near;
+  * colour = max(0, 0.5 + SH(direction camera -> surfel)), normal oriented towards the camera;
+  * median depth = depth of the last contributor entered with transmittance > 0.5.
+"""
+from __future__ import annotations
+
+import torch
+
+from lsd3d_usd.render import projection as proj
+from lsd3d_usd.render.sh import eval_sh, sh_degree_of
+
+
+def render_reference(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
+                     near=0.05, far=1e4, background=None, sh_degree=None,
+                     alpha_min=1.0 / 255.0, alpha_max=0.99, t_min=0.0,
+                     pixels=None, chunk=4096, normal_space="camera"):
+    """Render in float64. pixels: optional (P,2) long tensor of (i, j) pixel indices, then all
+    outputs are per listed pixel ((P,3) / (P,)) instead of images. Returns a dict like
+    rasterize(): rgb, alpha, depth_expected, depth_median, normal, weight_argmax (surfel index
+    of the largest weight, -1 if none)."""
+    dt = torch.float64
+    means, quats, scales = means.to(dt), quats.to(dt), scales.to(dt)
+    opacities, sh = opacities.to(dt), sh.to(dt)
+    Kd = K.to(dt)
+    deg = sh_degree_of(sh.shape[1]) if sh_degree is None else sh_degree
+    rot_c, centre = proj.camera_frame(viewmat)
+
+    p_c, a_u, a_v, normal = proj.camera_space(means, quats, scales, viewmat)
+    keep = proj.cull_mask(p_c, normal, opacities, near, far, alpha_min)
+    idx = torch.nonzero(keep).flatten()
+    idx = idx[torch.argsort(p_c[idx, 2].detach(), stable=True)]
+    p_c, a_u, a_v, normal = p_c[idx], a_u[idx], a_v[idx], normal[idx]
+    op = opacities[idx]
+    dirs = means[idx] - centre
+    dirs = dirs / dirs.norm(dim=1, keepdim=True)
+    colour = eval_sh(sh[idx], dirs, deg)
+    s_u = a_u.norm(dim=1)
+    s_v = a_v.norm(dim=1)
+    t_u, t_v = a_u / s_u[:, None], a_v / s_v[:, None]
+    flip = ((normal * p_c).sum(1, keepdim=True) > 0).to(dt)
+    n_f = normal * (1 - 2 * flip)
+    cproj = p_c @ Kd.T
+    xb, yb = cproj[:, 0] / cproj[:, 2], cproj[:, 1] / cproj[:, 2]
+
+    if pixels is None:
+        jj, ii = torch.meshgrid(torch.arange(height), torch.arange(width), indexing="ij")
+        pix = torch.stack([ii.flatten(), jj.flatten()], 1)
+    else:
+        pix = pixels.long()
+    px = pix[:, 0].to(dt) + 0.5
+    py = pix[:, 1].to(dt) + 0.5
+    rays = torch.stack([px, py, torch.ones_like(px)], 1) @ torch.linalg.inv(Kd).T  # z = 1
+    P = rays.shape[0]
+
+    T = torch.ones(P, dtype=dt)
+    alive = torch.ones(P, dtype=torch.bool)
+    rgb = torch.zeros(P, 3, dtype=dt)
+    dacc = torch.zeros(P, dtype=dt)
+    nacc = torch.zeros(P, 3, dtype=dt)
+    dmed = torch.zeros(P, dtype=dt)
+    wmax = torch.zeros(P, dtype=dt)
+    amax = torch.full((P,), -1, dtype=torch.long)
+    for c0 in range(0, idx.numel(), chunk):
+        sl = slice(c0, c0 + chunk)
+        n_dot_p = (n_f[sl] * p_c[sl]).sum(1)                       # (S,)
+        n_dot_d = rays @ n_f[sl].T                                  # (P,S)
+        safe = n_dot_d.abs() > 1e-300
+        tz = n_dot_p / torch.where(safe, n_dot_d, torch.ones_like(n_dot_d))  # depth (ray z = 1)
+        hit = tz[:, :, None] * rays[:, None, :] - p_c[sl][None]     # (P,S,3)
+        u = (hit * t_u[sl][None]).sum(-1) / s_u[sl]
+        v = (hit * t_v[sl][None]).sum(-1) / s_v[sl]
+        r3 = torch.where(safe, u * u + v * v, torch.full_like(u, float("inf")))
+        r2 = proj.LOWPASS_INV_SIGMA2 * ((px[:, None] - xb[sl]) ** 2 + (py[:, None] - yb[sl]) ** 2)
+        use3 = r3 <= r2
+        rho = torch.where(use3, r3, r2)
+        z = torch.where(use3, tz, p_c[sl, 2].expand_as(tz))
+        alpha = torch.clamp(op[sl] * torch.exp(-0.5 * rho), max=alpha_max)
+        alpha = torch.where((alpha >= alpha_min) & (z >= near), alpha, torch.zeros_like(alpha))
+        # transmittance before each surfel, and the early stop of the fast path if asked for
+        t_after = T[:, None] * torch.cumprod(1 - alpha, dim=1)
+        if t_min > 0:
+            ok = (t_after >= t_min) & alive[:, None]
+            alpha = torch.where(ok, alpha, torch.zeros_like(alpha))
+            stopped = (~ok).any(1)
+            t_after = T[:, None] * torch.cumprod(1 - alpha, dim=1)
+        t_before = torch.cat([T[:, None], t_after[:, :-1]], 1)
+        w = alpha * t_before
+        rgb = rgb + w @ colour[sl]
+        dacc = dacc + (w * z).sum(1)
+        nacc = nacc + w @ n_f[sl]
+        contrib = (alpha > 0) & (t_before > 0.5)
+        has = contrib.any(1)
+        lastc = torch.where(contrib, torch.arange(contrib.shape[1])[None], torch.full_like(contrib, -1, dtype=torch.long)).max(1).values
+        zsel = z.gather(1, lastc.clamp_min(0)[:, None])[:, 0]
+        dmed = torch.where(has, zsel, dmed)
+        cw, ci = w.detach().max(1)
+        better = cw > wmax
+        wmax = torch.where(better, cw, wmax)
+        amax = torch.where(better & (cw > 0), idx[sl][ci], amax)
+        T = t_after[:, -1]
+        if t_min > 0:
+            alive = alive & ~stopped
+
+    alpha_out = 1 - T
+    if background is not None:
+        bg = background.to(dt)
+        if bg.dim() == 3:
+            bg = bg.reshape(-1, 3) if pixels is None else bg[pix[:, 1], pix[:, 0]]
+        rgb = rgb + T[:, None] * bg
+    depth = torch.where(alpha_out > 1e-6, dacc / alpha_out.clamp_min(1e-6), torch.zeros_like(dacc))
+    if normal_space == "world":
+        nacc = nacc @ rot_c
+    out = dict(rgb=rgb, alpha=alpha_out, depth_expected=depth, depth_acc=dacc,
+               depth_median=dmed, normal=nacc, weight_argmax=amax)
+    if pixels is None:
+        for k, val in out.items():
+            out[k] = val.reshape(height, width, *val.shape[1:])
+    return out
+
+
+def splat_alpha_maps(means, quats, scales, opacities, viewmat, K, width, height, *,
+                     near=0.05, alpha_max=0.99):
+    """(N,H,W) float64 alpha of each surfel alone (no compositing, no alpha threshold, culled
+    surfels all zero): what a conservative screen bound must contain."""
+    n = means.shape[0]
+    out = torch.zeros(n, height, width, dtype=torch.float64)
+    for i in range(n):
+        sh = torch.zeros(1, 1, 3, dtype=torch.float64)
+        r = render_reference(means[i:i + 1], quats[i:i + 1], scales[i:i + 1], opacities[i:i + 1],
+                             sh, viewmat, K, width, height, near=near, alpha_min=0.0,
+                             alpha_max=alpha_max)
+        out[i] = r["alpha"]
+    return out
