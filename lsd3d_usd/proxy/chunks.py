@@ -1,0 +1,296 @@
+"""Layout -> proxy meshes, one 100 m chunk at a time.
+
+Chunk (i, j) covers [i*s, (i+1)*s) x [j*s, (j+1)*s) (s = layout.chunk_size) and
+is built from the features within ``margin`` of it. Two rules keep neighbours
+seamless (no cracks, no double cover):
+
+* Flat ground and strip solids (road, curb, sidewalk, vegetation patches,
+  terrain, markings, crosswalks, hedges) are computed from the features
+  around the chunk and then **cut exactly at the chunk border** as polygons;
+  strip solids become closed again with a cap on the cut (prism walls).
+* Compact solids (buildings, trees, vehicles, poles, signs, traffic lights)
+  are **owned by the chunk containing their anchor** (footprint centroid,
+  trunk or pole foot, spot centre) and kept whole, so they never appear
+  twice; a building may overhang its chunk's box.
+
+A chunk's inputs (the features within the margin, the few layout-wide
+derived features that land in it, the parameters and ``PROXY_VERSION``) hash to
+``chunk_inputs_hash``; the USD writer uses it to skip chunks that did not change.
+"""
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass, field, fields
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon, box
+
+from .buildings import BuildingStyle, building_mesh
+from .furniture import stop_sign_parts, street_light_parts, traffic_light_parts
+from .ground import GroundStyle, ground_areas, ground_parts
+from .markings import MarkingStyle, crosswalk_part, road_line_part, stop_line_part
+from .mesh import MeshPart
+from .vegetation import hedge_part, tree_parts, zone_shrubs
+from .vehicles import vehicle_part
+
+# Bump when the geometry rules change, so stored chunks are rebuilt.
+PROXY_VERSION = "1"
+
+
+@dataclass(frozen=True)
+class ProxyParams:
+    margin: float = 12.0              # m around a chunk whose features it reads
+    street_light_spacing: float = 35.0  # along road edges; 0 disables
+    traffic_lights: bool = True
+    ground: GroundStyle = field(default_factory=GroundStyle)
+    markings: MarkingStyle = field(default_factory=MarkingStyle)
+    building: BuildingStyle = field(default_factory=BuildingStyle)
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+ChunkKey = tuple[int, int]
+
+
+def chunk_of(x: float, y: float, size: float) -> ChunkKey:
+    return int(np.floor(x / size)), int(np.floor(y / size))
+
+
+def chunk_bounds(i: int, j: int, size: float) -> tuple[float, float, float, float]:
+    return i * size, j * size, (i + 1) * size, (j + 1) * size
+
+
+def chunk_label(i: int, j: int) -> str:
+    """Chunk name used in part ids (same as the USD prim name)."""
+    from lsd3d_usd.scene import chunk_prim_name
+    return chunk_prim_name(i, j)
+
+
+def all_chunks(layout) -> list[ChunkKey]:
+    ri, rj = layout.chunk_range()
+    return [(i, j) for i in ri for j in rj]
+
+
+# ------------------------------------------------------- layout-wide derived features
+@dataclass(frozen=True)
+class Fixture:
+    """A derived point feature (traffic light, street light) with its inputs' ids."""
+    kind: str
+    id: str
+    position: tuple[float, float]
+    yaw: float
+
+
+def _heading(points: np.ndarray, at_end: bool) -> np.ndarray:
+    d = points[-1, :2] - points[-2, :2] if at_end else points[1, :2] - points[0, :2]
+    n = np.linalg.norm(d)
+    return d / n if n > 0 else np.array([1.0, 0.0])
+
+
+def derive_fixtures(layout, params: ProxyParams) -> list[Fixture]:
+    """Traffic lights at junction approaches and street lights along road edges.
+
+    A traffic light stands on the right of the rightmost lane of each group of
+    driving lanes (same road, ends within 12 m) that enter a junction, unless a
+    stop sign controls one of them. Street lights stand every
+    ``street_light_spacing`` metres along each boundary road edge, on its outer
+    (right-hand) side, starting half a spacing from the edge's first point.
+    """
+    out: list[Fixture] = []
+    g = params.ground
+    if params.traffic_lights and layout.lanes:
+        by_id = {ln.id: ln for ln in layout.lanes}
+        stopped = {lid for s in layout.stop_signs for lid in s.lane_ids}
+        approaches = [ln for ln in layout.lanes
+                      if not ln.is_junction and ln.lane_type == "driving"
+                      and ln.direction == "forward" and ln.id not in stopped
+                      and any(by_id.get(s) is not None and by_id[s].is_junction
+                              for s in ln.successors)]
+        groups: list[list] = []
+        for ln in sorted(approaches, key=lambda l: (l.road_id, l.id)):
+            end = ln.points[-1, :2]
+            for grp in groups:
+                if grp[0].road_id == ln.road_id and np.linalg.norm(grp[0].points[-1, :2] - end) < 12.0:
+                    grp.append(ln)
+                    break
+            else:
+                groups.append([ln])
+        for grp in groups:
+            h = _heading(grp[0].points, True)
+            right = np.array([h[1], -h[0]])
+            ln = max(grp, key=lambda l: float(np.dot(l.points[-1, :2], right)))
+            p = ln.points[-1, :2] + right * (ln.widths[-1] / 2 + g.curb_width + 1.0)
+            yaw = float(np.arctan2(-h[1], -h[0]))       # facing the approaching traffic
+            out.append(Fixture("traffic_light", f"tl_{ln.id}", (float(p[0]), float(p[1])), yaw))
+    sp = params.street_light_spacing
+    if sp > 0:
+        for e in layout.road_edges:
+            if e.kind != "boundary":
+                continue
+            xy = e.points[:, :2]
+            seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+            s = np.concatenate([[0.0], np.cumsum(seg)])
+            for k, a in enumerate(np.arange(sp / 2, s[-1], sp)):
+                q = int(np.clip(np.searchsorted(s, a) - 1, 0, len(seg) - 1))
+                d = (xy[q + 1] - xy[q]) / max(seg[q], 1e-9)
+                right = np.array([d[1], -d[0]])          # road on the left: outside is right
+                p = np.array([np.interp(a, s, xy[:, 0]), np.interp(a, s, xy[:, 1])])
+                p = p + right * (g.curb_width + 0.6)
+                yaw = float(np.arctan2(-right[1], -right[0]))   # arm over the road
+                out.append(Fixture("street_light", f"sl_{e.id}_{k}", (float(p[0]), float(p[1])), yaw))
+    return out
+
+
+# ----------------------------------------------------------------------- hashing
+def _feature_bytes(f) -> bytes:
+    h = hashlib.blake2b(digest_size=16)
+    h.update(type(f).__name__.encode())
+    for fl in fields(f):
+        v = getattr(f, fl.name)
+        h.update(fl.name.encode())
+        if isinstance(v, np.ndarray):
+            h.update(str((v.shape, v.dtype.str)).encode())
+            h.update(np.ascontiguousarray(v).tobytes())
+        else:
+            h.update(repr(v).encode())
+    return h.digest()
+
+
+def chunk_inputs_hash(local_layout, fixtures: list[Fixture], params: ProxyParams,
+                      key: ChunkKey) -> str:
+    """Content hash of everything a chunk is built from."""
+    h = hashlib.sha256()
+    h.update(f"proxy v{PROXY_VERSION} chunk {key} size {local_layout.chunk_size}".encode())
+    h.update(repr(params.as_dict()).encode())
+    for f in sorted(local_layout.features(), key=lambda f: (type(f).__name__, f.id)):
+        h.update(_feature_bytes(f))
+    for fx in fixtures:
+        h.update(repr(fx).encode())
+    return h.hexdigest()
+
+
+# ------------------------------------------------------------------------ build
+@dataclass
+class ChunkInputs:
+    key: ChunkKey
+    bounds: tuple[float, float, float, float]
+    layout: object                    # features within the margin (a Layout)
+    fixtures: list[Fixture]
+    hash: str
+
+
+class ProxyBuilder:
+    """Builds chunks of one layout; derived features are computed once per layout."""
+
+    def __init__(self, layout, params: ProxyParams | None = None):
+        self.layout = layout
+        self.params = params or ProxyParams()
+        self.size = float(layout.chunk_size)
+        self.fixtures = derive_fixtures(layout, self.params)
+
+    def chunks(self) -> list[ChunkKey]:
+        return all_chunks(self.layout)
+
+    def inputs(self, key: ChunkKey) -> ChunkInputs:
+        i, j = key
+        b = chunk_bounds(i, j, self.size)
+        local = self.layout.features_in_box(((b[0], b[1]), (b[2], b[3])), self.params.margin)
+        fx = [f for f in self.fixtures if chunk_of(*f.position, self.size) == key]
+        return ChunkInputs(key, b, local, fx, chunk_inputs_hash(local, fx, self.params, key))
+
+    def build(self, key: ChunkKey, inputs: ChunkInputs | None = None) -> list[MeshPart]:
+        inp = inputs or self.inputs(key)
+        return build_chunk_parts(inp, self.params)
+
+
+def _owned(x: float, y: float, b) -> bool:
+    return b[0] <= x < b[2] and b[1] <= y < b[3]
+
+
+def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
+    """All mesh parts of one chunk."""
+    L, b = inp.layout, inp.bounds
+    clip = box(*b)
+    name = chunk_label(*inp.key)
+    g = params.ground
+    parts: list[MeshPart] = []
+
+    areas = ground_areas(
+        b, params.margin,
+        lanes=[(ln.points, ln.widths, ln.lane_type) for ln in L.lanes],
+        road_areas=[r.polygon for r in L.road_areas],
+        sidewalks=[s.polygon for s in L.sidewalks],
+        vegetation=[z.polygon for z in L.vegetation_zones],
+        buildings=[bd.footprint for bd in L.buildings],
+        style=g)
+    parts += ground_parts(areas, name, g)
+
+    def add(p):
+        if p is not None:
+            parts.append(p)
+
+    for rl in L.road_lines:
+        add(road_line_part(rl.id, rl.points, rl.kind, rl.color, rl.double, clip, g.road_z,
+                           params.markings))
+    for sl in L.stop_lines:
+        add(stop_line_part(sl.id, sl.points, clip, g.road_z, params.markings))
+    for cw in L.crosswalks:
+        add(crosswalk_part(cw.id, cw.polygon, clip, g.road_z, params.markings))
+    for h in L.hedges:
+        add(hedge_part(h.id, h.points, h.height, h.width, clip))
+
+    for bd in L.buildings:
+        fp = Polygon(bd.footprint[:, :2])
+        c = fp.representative_point() if not fp.is_valid else fp.centroid
+        if _owned(c.x, c.y, b):
+            add(building_mesh(bd.id, bd.footprint, bd.height_hint, bd.floors_hint,
+                              style=params.building))
+    for t in L.trees:
+        if _owned(t.position[0], t.position[1], b):
+            parts += tree_parts(t.id, t.position, t.height_hint, t.crown_radius_hint)
+    for z in L.vegetation_zones:
+        zp = Polygon(z.polygon[:, :2])
+        if not zp.is_valid:
+            zp = shapely.make_valid(zp)
+        parts += zone_shrubs(z.id, zp, z.kind, clip)
+    for ps in L.parking_spots:
+        if ps.occupied and _owned(ps.center[0], ps.center[1], b):
+            add(vehicle_part(ps.id, ps.center, ps.heading, ps.length, ps.width))
+    lanes_by_id = {ln.id: ln for ln in L.lanes}
+    for s in L.stop_signs:
+        if _owned(s.position[0], s.position[1], b):
+            parts += stop_sign_parts(s.id, s.position, _sign_yaw(s, lanes_by_id))
+    for fx in inp.fixtures:
+        if fx.kind == "traffic_light":
+            parts += traffic_light_parts(fx.id, fx.position, fx.yaw)
+        else:
+            parts += street_light_parts(fx.id, fx.position, fx.yaw)
+    return parts
+
+
+def _sign_yaw(sign, lanes_by_id) -> float:
+    """Face the traffic of the nearest controlled lane (towards its approaching cars)."""
+    best, yaw = np.inf, 0.0
+    for lid in sign.lane_ids:
+        ln = lanes_by_id.get(lid)
+        if ln is None:
+            continue
+        d = float(np.linalg.norm(ln.points[-1, :2] - sign.position[:2]))
+        if d < best:
+            h = _heading(ln.points, True)
+            best, yaw = d, float(np.arctan2(-h[1], -h[0]))
+    return yaw
+
+
+def build_proxy(layout, chunks=None, params: ProxyParams | None = None,
+                progress: bool = False) -> dict[ChunkKey, list[MeshPart]]:
+    """Mesh parts per chunk for ``chunks`` (default: every chunk of the layout's area)."""
+    builder = ProxyBuilder(layout, params)
+    keys = list(chunks) if chunks is not None else builder.chunks()
+    it = keys
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(keys, desc="proxy chunks", unit="chunk")
+    return {k: builder.build(k) for k in it}

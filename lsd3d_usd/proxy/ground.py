@@ -1,0 +1,116 @@
+"""The ground of a chunk as a planar partition: road, curb, sidewalk, vegetation, terrain.
+
+Within a chunk box the five areas are disjoint and their union is the whole
+box, so neighbouring chunks meet without gaps or double cover: every area is
+computed from the features around the chunk (box + margin) and only then cut
+at the box, exactly on the border line.
+
+Heights (flat ground; layout z is not used): terrain and vegetation patches at
+0, the road surface at ``road_z`` (slightly above, an open surface), curbs
+and sidewalks as closed prisms up to ``road_z + curb_height``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+from shapely.geometry import Polygon, box
+
+from .mesh import CURB, ROAD, SIDEWALK, TERRAIN, VEGETATION, MeshPart
+from .planar import as_area, flat_mesh, polygons_of, prism, ribbon
+
+NOT_ROAD_LANES = ("sidewalk", "border")
+
+
+@dataclass(frozen=True)
+class GroundStyle:
+    road_z: float = 0.02          # road surface height above terrain
+    curb_height: float = 0.15     # curb / sidewalk top above the road surface
+    curb_width: float = 0.3
+    sidewalk_width: float = 3.0   # derived sidewalks (when the layout has none)
+    derive_sidewalks: bool = True
+    terrain_cell: float = 10.0    # terrain is cut into cells (a ground grid) for even triangles
+
+
+def _union(geoms) -> Polygon:
+    geoms = [g for g in geoms if g is not None and not g.is_empty]
+    if not geoms:
+        return Polygon()
+    return as_area(shapely.union_all(np.array(geoms, dtype=object)))
+
+
+def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
+                 lanes: list[tuple[np.ndarray, np.ndarray, str]],
+                 road_areas: list[np.ndarray] = (), sidewalks: list[np.ndarray] = (),
+                 vegetation: list[np.ndarray] = (), buildings: list[np.ndarray] = (),
+                 style: GroundStyle = GroundStyle()) -> dict[str, Polygon]:
+    """Disjoint areas {road, curb, sidewalk, vegetation, terrain} covering ``chunk_box``.
+
+    lanes: (points (N, 2|3), full widths (N,), lane_type). Polygons are (N, 2|3)
+    arrays. Everything may extend beyond the box; pass all features within
+    ``margin`` of it so the result near the border does not depend on the chunk.
+    """
+    x0, y0, x1, y1 = chunk_box
+    cbox = box(x0, y0, x1, y1)
+    big = box(x0 - margin, y0 - margin, x1 + margin, y1 + margin)
+    road_parts, walk_parts = [], []
+    for pts, widths, lane_type in lanes:
+        rib = ribbon(pts, np.asarray(widths, dtype=np.float64) / 2)
+        (walk_parts if lane_type == "sidewalk" else
+         road_parts if lane_type not in NOT_ROAD_LANES else []).append(rib)
+    road_parts += [_poly(p) for p in road_areas]
+    R = shapely.intersection(_union(road_parts), big)
+    # the curb rings every road boundary (junction mouths are inside the union, so none there)
+    C = as_area(shapely.difference(R.buffer(style.curb_width, quad_segs=2, join_style="mitre"), R))
+    blocked = _union([R, C])
+    walk = [_poly(p) for p in sidewalks] + walk_parts
+    if not sidewalks and style.derive_sidewalks and not R.is_empty:
+        walk.append(R.buffer(style.curb_width + style.sidewalk_width, quad_segs=4))
+    houses = _union([_poly(p) for p in buildings])
+    S = as_area(shapely.difference(_union(walk), _union([blocked, houses])))
+    blocked = _union([blocked, S])
+    V = as_area(shapely.difference(_union([_poly(p) for p in vegetation]), blocked))
+    out = {ROAD: R, CURB: C, SIDEWALK: S, VEGETATION: V}
+    out = {k: as_area(shapely.intersection(g, cbox)) for k, g in out.items()}
+    out[TERRAIN] = as_area(shapely.difference(cbox, _union(list(out.values()))))
+    return out
+
+
+def _poly(p) -> Polygon:
+    poly = Polygon(np.asarray(p, dtype=np.float64)[:, :2])
+    return poly if poly.is_valid else as_area(shapely.make_valid(poly))
+
+
+def _grid_cells(geom: Polygon, cell: float) -> list[Polygon]:
+    if geom.is_empty or cell <= 0:
+        return polygons_of(geom)
+    x0, y0, x1, y1 = geom.bounds
+    gx = np.arange(np.floor(x0 / cell), np.ceil(x1 / cell)) * cell
+    gy = np.arange(np.floor(y0 / cell), np.ceil(y1 / cell)) * cell
+    X, Y = np.meshgrid(gx, gy, indexing="ij")
+    cells = shapely.box(X.ravel(), Y.ravel(), X.ravel() + cell, Y.ravel() + cell)
+    return polygons_of(shapely.GeometryCollection(list(shapely.intersection(cells, geom))))
+
+
+def ground_parts(areas: dict[str, Polygon], chunk_name: str,
+                 style: GroundStyle = GroundStyle()) -> list[MeshPart]:
+    """Meshes of the ground areas; ids ``ground/<class>/<chunk>``."""
+    top = style.road_z + style.curb_height
+    parts = []
+    for cls, geom in areas.items():
+        if geom.is_empty:
+            continue
+        pid = f"ground/{cls}/{chunk_name}"
+        if cls in (CURB, SIDEWALK):
+            v, f = prism(geom, 0.0, top)
+            solid = True
+        elif cls == TERRAIN:
+            v, f = flat_mesh(shapely.GeometryCollection(_grid_cells(geom, style.terrain_cell)), 0.0)
+            solid = False
+        else:
+            v, f = flat_mesh(geom, style.road_z if cls == ROAD else 0.0)
+            solid = False
+        if len(f):
+            parts.append(MeshPart(v, f, cls, pid, solid=solid))
+    return parts

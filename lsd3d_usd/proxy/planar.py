@@ -1,0 +1,233 @@
+"""2D geometry over shapely: ribbons along polylines, dashes, triangulation, prisms.
+
+Everything here takes plain numpy polylines / shapely polygons, so it does not
+depend on the layout model.
+"""
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely.geometry import LineString, MultiPolygon, Polygon, box
+from shapely.geometry.base import BaseGeometry
+
+from .mesh import MIN_FACE_AREA
+
+EMPTY = Polygon()
+
+
+def polygons_of(geom: BaseGeometry | None) -> list[Polygon]:
+    """The non-empty polygons inside any geometry (collections flattened)."""
+    if geom is None or geom.is_empty:
+        return []
+    if isinstance(geom, Polygon):
+        return [geom] if geom.area > 0 else []
+    if hasattr(geom, "geoms"):
+        out = []
+        for g in geom.geoms:
+            out.extend(polygons_of(g))
+        return out
+    return []
+
+
+def as_area(geom: BaseGeometry | None) -> BaseGeometry:
+    """Only the areal part of a geometry (drops slivers that degenerate to lines/points)."""
+    ps = polygons_of(geom)
+    if not ps:
+        return EMPTY
+    return ps[0] if len(ps) == 1 else MultiPolygon(ps)
+
+
+def _vertex_normals(xy: np.ndarray, miter_limit: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+    """Left unit normals per vertex (miter direction) and the miter scale 1/cos(half angle)."""
+    d = np.diff(xy, axis=0)
+    seg_len = np.linalg.norm(d, axis=1, keepdims=True)
+    seg_n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.maximum(seg_len, 1e-12)
+    vn = np.empty_like(xy)
+    vn[0], vn[-1] = seg_n[0], seg_n[-1]
+    vn[1:-1] = seg_n[:-1] + seg_n[1:]
+    ln = np.linalg.norm(vn, axis=1, keepdims=True)
+    # a 180-degree reversal has no miter; fall back to the incoming segment's normal
+    bad = ln[:, 0] < 1e-9
+    if bad.any():
+        vn[bad] = np.concatenate([seg_n[:1], seg_n])[bad]
+        ln[bad] = 1.0
+    vn = vn / ln
+    cos_half = np.ones(len(xy))
+    cos_half[1:-1] = np.einsum("ij,ij->i", vn[1:-1], seg_n[:-1])
+    scale = 1.0 / np.clip(cos_half, 1.0 / miter_limit, 1.0)
+    return vn, scale
+
+
+def clean_polyline(points: np.ndarray, tol: float = 1e-6) -> np.ndarray:
+    """XY of a polyline without repeated points."""
+    xy = np.asarray(points, dtype=np.float64)[:, :2]
+    if len(xy) < 2:
+        return xy
+    keep = np.ones(len(xy), bool)
+    keep[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=1) > tol
+    return xy[keep]
+
+
+def ribbon(points: np.ndarray, left: np.ndarray | float, right: np.ndarray | float | None = None
+           ) -> BaseGeometry:
+    """Area swept by a polyline with per-vertex half widths to the left and right.
+
+    Built from mitred per-segment quads (so consecutive quads share edges and
+    bends leave no wedge gaps) and unioned; self-overlaps on the inside of
+    tight bends are resolved by the union.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    keep_idx = _dedupe_index(pts[:, :2])
+    xy = pts[keep_idx, :2]
+    if len(xy) < 2:
+        return EMPTY
+    left = np.broadcast_to(np.asarray(left, dtype=np.float64), (len(pts),))[keep_idx]
+    right = left if right is None else np.broadcast_to(
+        np.asarray(right, dtype=np.float64), (len(pts),))[keep_idx]
+    vn, sc = _vertex_normals(xy)
+    L = xy + vn * (left * sc)[:, None]
+    R = xy - vn * (right * sc)[:, None]
+    quads = np.stack([R[:-1], R[1:], L[1:], L[:-1]], axis=1)   # (S, 4, 2), CCW
+    polys = shapely.polygons(quads)
+    bad = ~shapely.is_valid(polys)
+    if bad.any():
+        polys[bad] = shapely.make_valid(polys[bad])
+    return as_area(shapely.union_all(polys))
+
+
+def _dedupe_index(xy: np.ndarray, tol: float = 1e-6) -> np.ndarray:
+    if len(xy) < 2:
+        return np.arange(len(xy))
+    keep = np.ones(len(xy), bool)
+    keep[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=1) > tol
+    return np.nonzero(keep)[0]
+
+
+def offset_polyline(points: np.ndarray, dist: float) -> np.ndarray:
+    """Polyline offset to the left by ``dist`` (mitred)."""
+    xy = clean_polyline(points)
+    if len(xy) < 2:
+        return xy
+    vn, sc = _vertex_normals(xy)
+    return xy + vn * (dist * sc)[:, None]
+
+
+def dashes(points: np.ndarray, dash: float, gap: float, phase: float = 0.0) -> list[np.ndarray]:
+    """Sub-polylines of length ``dash`` every ``dash + gap`` metres along a polyline.
+
+    ``phase`` is the arc length at which the pattern starts (pass the
+    polyline's absolute start so dashes line up across chunk borders).
+    """
+    xy = clean_polyline(points)
+    if len(xy) < 2:
+        return []
+    seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    period = dash + gap
+    first = -((phase) % period)
+    starts = np.arange(first, s[-1], period)
+    out = []
+    for a in starts:
+        a0, a1 = max(a, 0.0), min(a + dash, s[-1])
+        if a1 - a0 < 1e-3:
+            continue
+        inner = (s > a0) & (s < a1)
+        pa = np.array([np.interp(a0, s, xy[:, 0]), np.interp(a0, s, xy[:, 1])])
+        pb = np.array([np.interp(a1, s, xy[:, 0]), np.interp(a1, s, xy[:, 1])])
+        out.append(np.vstack([pa, xy[inner], pb]))
+    return out
+
+
+def triangulate(geom: BaseGeometry) -> tuple[np.ndarray, np.ndarray]:
+    """Constrained Delaunay triangulation of a (multi)polygon with holes.
+
+    Returns vertices (N, 2) and CCW faces (M, 3) int32. Vertices are shared
+    between triangles (merged on exact coordinates).
+    """
+    xy, faces, _ = _triangulate_pool(geom, None)
+    return xy, faces
+
+
+def _triangulate_pool(geom: BaseGeometry, extra_xy: np.ndarray | None):
+    """triangulate(), with ``extra_xy`` points added to the vertex pool; also
+    returns their vertex indices (prisms use it to index their rings)."""
+    polys = polygons_of(geom)
+    if not polys:
+        return np.zeros((0, 2)), np.zeros((0, 3), np.int32), None
+    tris = shapely.constrained_delaunay_triangles(np.array(polys, dtype=object))
+    parts = [t for t in shapely.get_parts(tris) if not t.is_empty]
+    if not parts:
+        return np.zeros((0, 2)), np.zeros((0, 3), np.int32), None
+    c = shapely.get_coordinates(np.array(parts, dtype=object))
+    m = len(parts)
+    tri = c.reshape(m, 4, 2)[:, :3].reshape(-1, 2)
+    pool = tri if extra_xy is None else np.vstack([tri, extra_xy])
+    uniq, inv = np.unique(pool, axis=0, return_inverse=True)
+    inv = inv.reshape(-1)
+    faces = inv[: 3 * m].reshape(m, 3).astype(np.int32)
+    a, b, cc = uniq[faces[:, 0]], uniq[faces[:, 1]], uniq[faces[:, 2]]
+    cross = (b[:, 0] - a[:, 0]) * (cc[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (cc[:, 0] - a[:, 0])
+    flip = cross < 0
+    faces[flip] = faces[flip][:, ::-1]
+    faces = faces[np.abs(cross) > 2 * MIN_FACE_AREA]
+    return uniq, faces, (inv[3 * m:] if extra_xy is not None else None)
+
+
+def flat_mesh(geom: BaseGeometry, z: float) -> tuple[np.ndarray, np.ndarray]:
+    """Upward-facing triangulated surface of an area at height z."""
+    xy, f = triangulate(geom)
+    v = np.column_stack([xy, np.full(len(xy), float(z))])
+    return v, f
+
+
+def _oriented_rings(poly: Polygon) -> list[np.ndarray]:
+    """Rings (open, no repeated end) with exterior CCW and holes CW."""
+    poly = shapely.orient_polygons(poly, exterior_cw=False)
+    rings = [np.asarray(poly.exterior.coords)[:-1, :2]]
+    rings += [np.asarray(r.coords)[:-1, :2] for r in poly.interiors]
+    return rings
+
+
+def prism(geom: BaseGeometry, z0: float, z1: float) -> tuple[np.ndarray, np.ndarray]:
+    """Closed prism over an area between heights z0 < z1 (watertight, outward normals).
+
+    Top from a constrained triangulation, bottom its mirror, walls one quad per
+    ring edge; ring vertices are shared with the caps so the result is closed.
+    """
+    polys = polygons_of(shapely.remove_repeated_points(as_area(geom), 1e-7)
+                        if not geom.is_empty else geom)
+    if not polys:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    # drop collinear ring vertices so the cap triangulation has no zero-area slivers
+    polys = polygons_of(shapely.simplify(as_area(MultiPolygon(polys) if len(polys) > 1
+                                                 else polys[0]), 0.0))
+    rings, ring_sizes = [], []
+    for p in polys:
+        for r in _oriented_rings(p):
+            rings.append(r)
+            ring_sizes.append(len(r))
+    ring_xy = np.vstack(rings)
+    xy, top, ring_idx = _triangulate_pool(MultiPolygon(polys) if len(polys) > 1 else polys[0],
+                                          ring_xy)
+    n = len(xy)
+    verts = np.vstack([np.column_stack([xy, np.full(n, z1)]),
+                       np.column_stack([xy, np.full(n, z0)])])
+    walls = []
+    o = 0
+    for k in ring_sizes:
+        a = ring_idx[o:o + k]
+        b = np.roll(a, -1)
+        o += k
+        # edge a->b with the area on its left: the outward side is its right
+        walls.append(np.stack([a + n, b + n, b], axis=1))
+        walls.append(np.stack([a + n, b, a], axis=1))
+    faces = np.vstack([top, top[:, ::-1] + n] + walls).astype(np.int32)
+    return verts, faces
+
+
+def box_polygon(bounds) -> Polygon:
+    return box(*bounds)
+
+
+def line(points: np.ndarray) -> LineString:
+    return LineString(np.asarray(points, dtype=np.float64)[:, :2])

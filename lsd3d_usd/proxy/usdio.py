@@ -1,0 +1,337 @@
+"""Proxy meshes <-> USD: a root proxy layer with one payload per chunk.
+
+Layout on disk (``-o proxy.usdc``)::
+
+    proxy.usdc                      /World/Proxy/Chunk_<i>_<j>  (Xform, payload arc each)
+    proxy_chunks/chunk_<i>_<j>.usdc Chunk_<i>_<j> (defaultPrim) / <class> (UsdGeom.Mesh)
+
+The chunk folder is named after the root file's stem (``<stem>_chunks``), so
+a scene's ``layers/proxy.usdc`` keeps its chunks in ``layers/proxy_chunks/``.
+A stage opened with ``Usd.Stage.LoadNone`` shows the chunk prims but none of
+their meshes; ``stage.Load(chunk_path)`` brings in one chunk.
+
+Each mesh: one per chunk and semantic class (parts concatenated), with
+``UsdSemantics.LabelsAPI`` instance ``class`` (``semantics:labels:class =
+[<class>]``, the Isaac Sim / Replicator convention), a stable id
+``lsd3d:proxy:id = "<chunk>/<class>"``, the ids of the parts it holds
+(``lsd3d:proxy:partIds``) with a per-face index into them (uniform primvar
+``lsd3d:partIndex``), ``primvars:displayColor`` and an authored extent.
+
+Provenance: every chunk layer stores ``inputsHash`` (chunks.chunk_inputs_hash);
+the root layer stores the map chunk name -> inputs hash. A chunk whose hash
+is unchanged is not rebuilt and its file not rewritten; an unchanged root is
+not rewritten either. All writes are atomic (scene.save_layer).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lsd3d_usd.errors import InputError
+
+from .mesh import ClassMesh, MeshPart, merge_parts
+
+ID_ATTR = "lsd3d:proxy:id"
+PART_IDS_ATTR = "lsd3d:proxy:partIds"
+PART_INDEX_PRIMVAR = "lsd3d:partIndex"
+SOLID_ATTR = "lsd3d:proxy:solid"
+
+
+def chunk_file_name(i: int, j: int) -> str:
+    from lsd3d_usd.scene import chunk_prim_name
+    return chunk_prim_name(i, j).lower() + ".usdc"
+
+
+def chunks_dir(root_path: str | Path) -> Path:
+    p = Path(root_path)
+    return p.with_name(f"{p.stem}_chunks")
+
+
+def _class_color(cls: str) -> np.ndarray:
+    from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
+    k = CLASS_ID.get(cls)
+    return np.asarray(CLASS_COLORS[k] if k is not None else (0.5, 0.5, 0.5), dtype=np.float32)
+
+
+def _author_mesh(stage, path: str, cm: ClassMesh, solid: bool):
+    from pxr import Sdf, UsdGeom, UsdSemantics, Vt
+
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    pts = np.ascontiguousarray(cm.vertices, dtype=np.float32)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(cm.faces), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(
+        np.ascontiguousarray(cm.faces.reshape(-1), dtype=np.int32)))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDoubleSidedAttr(False)
+    lo, hi = pts.min(0), pts.max(0)
+    mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
+    prim = mesh.GetPrim()
+    labels = UsdSemantics.LabelsAPI.Apply(prim, "class")
+    labels.CreateLabelsAttr(Vt.TokenArray([cm.cls]))
+    prim.CreateAttribute(ID_ATTR, Sdf.ValueTypeNames.String,
+                         variability=Sdf.VariabilityUniform).Set(cm.name)
+    prim.CreateAttribute(PART_IDS_ATTR, Sdf.ValueTypeNames.StringArray,
+                         variability=Sdf.VariabilityUniform).Set(Vt.StringArray(list(cm.part_ids)))
+    prim.CreateAttribute(SOLID_ATTR, Sdf.ValueTypeNames.Bool,
+                         variability=Sdf.VariabilityUniform).Set(bool(solid))
+    pv = UsdGeom.PrimvarsAPI(prim)
+    pv.CreatePrimvar(PART_INDEX_PRIMVAR, Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.uniform).Set(
+        Vt.IntArray.FromNumpy(np.ascontiguousarray(cm.face_part, dtype=np.int32)))
+    base = _class_color(cm.cls)
+    if any(c is not None for c in cm.part_colors):
+        cols = np.array([base if c is None else c for c in cm.part_colors], dtype=np.float32)
+        mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(
+            Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(cols[cm.face_part])))
+    else:
+        mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(
+            Vt.Vec3fArray.FromNumpy(base[None, :]))
+    return mesh
+
+
+def write_chunk_layer(parts: list[MeshPart], key: tuple[int, int], path: str | Path,
+                      inputs_hash: str = "", params: dict | None = None) -> Path:
+    """Write one chunk's meshes (merged per class) to its own layer, atomically."""
+    from pxr import Usd, UsdGeom
+
+    from lsd3d_usd.scene import chunk_prim_name, provenance, save_layer
+
+    name = chunk_prim_name(*key)
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    root = UsdGeom.Xform.Define(stage, f"/{name}")
+    stage.SetDefaultPrim(root.GetPrim())
+    solid_by_cls: dict[str, bool] = {}
+    for p in parts:
+        solid_by_cls[p.cls] = solid_by_cls.get(p.cls, True) and p.solid
+    merged = merge_parts(parts, prefix=f"{name}/")
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for cls, cm in merged.items():
+        _author_mesh(stage, f"/{name}/{cls}", cm, solid_by_cls[cls])
+        lo, hi = np.minimum(lo, cm.vertices.min(0)), np.maximum(hi, cm.vertices.max(0))
+    if np.isfinite(lo).all():
+        UsdGeom.ModelAPI(root.GetPrim()).SetExtentsHint([tuple(lo), tuple(hi)])
+    prov = provenance("proxy-chunk", params or {}, chunk=[int(key[0]), int(key[1])],
+                      inputsHash=inputs_hash,
+                      triangles={c: int(cm.n_faces) for c, cm in merged.items()})
+    return save_layer(stage.GetRootLayer(), path, prov)
+
+
+def _root_stage(keys: list[tuple[int, int]], folder_name: str):
+    from pxr import Sdf, UsdGeom
+
+    from lsd3d_usd.scene import PROXY_PATH, chunk_prim_name, new_stage
+
+    stage = new_stage()
+    UsdGeom.Xform.Define(stage, PROXY_PATH)
+    for key in sorted(keys):
+        prim = UsdGeom.Xform.Define(stage, f"{PROXY_PATH}/{chunk_prim_name(*key)}").GetPrim()
+        prim.GetPayloads().AddPayload(Sdf.Payload(f"./{folder_name}/{chunk_file_name(*key)}"))
+    return stage
+
+
+def read_chunk_map(path: str | Path) -> dict[str, str]:
+    """Chunk name -> inputs hash stored in a proxy root layer ({} if none or unreadable)."""
+    from pxr import Sdf
+    p = Path(path)
+    if not p.is_file():
+        return {}
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(p))
+    except Exception:
+        return {}
+    if layer is None:
+        return {}
+    return {str(k): str(v) for k, v in dict(layer.customLayerData.get("lsd3d", {})
+                                             .get("chunks", {})).items()}
+
+
+def _chunk_file_hash(path: Path) -> str | None:
+    from pxr import Sdf
+    if not path.is_file():
+        return None
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
+    except Exception:
+        return None
+    if layer is None:
+        return None
+    return layer.customLayerData.get("lsd3d", {}).get("inputsHash")
+
+
+def write_root_layer(path: str | Path, chunk_hashes: dict[tuple[int, int], str],
+                     params: dict | None = None, layout_hash: str = "",
+                     extra: dict | None = None) -> Path:
+    from lsd3d_usd.scene import chunk_prim_name, provenance, save_stage
+
+    path = Path(path)
+    stage = _root_stage(list(chunk_hashes), chunks_dir(path).name)
+    prov = provenance("proxy", params or {}, layoutHash=layout_hash,
+                      chunks={chunk_prim_name(*k): h for k, h in sorted(chunk_hashes.items())},
+                      **(extra or {}))
+    return save_stage(stage, path, prov)
+
+
+def write_proxy(parts: dict[tuple[int, int], list[MeshPart]], path: str | Path,
+                hashes: dict[tuple[int, int], str] | None = None, layout_hash: str = "",
+                params: dict | None = None) -> Path:
+    """Write prebuilt parts: every chunk layer, then the root layer listing them."""
+    path = Path(path)
+    hashes = hashes or {}
+    folder = chunks_dir(path)
+    for key, ps in parts.items():
+        write_chunk_layer(ps, key, folder / chunk_file_name(*key), hashes.get(key, ""), params)
+    return write_root_layer(path, {k: hashes.get(k, "") for k in parts}, params, layout_hash)
+
+
+@dataclass
+class BuildReport:
+    path: Path
+    built: list[tuple[int, int]] = field(default_factory=list)
+    skipped: list[tuple[int, int]] = field(default_factory=list)
+    root_written: bool = False
+    seconds: float = 0.0
+    triangles: dict[str, int] = field(default_factory=dict)
+
+
+def layout_hash(layout) -> str:
+    import hashlib
+
+    from .chunks import _feature_bytes
+    h = hashlib.sha256()
+    for f in sorted(layout.features(), key=lambda f: (type(f).__name__, f.id)):
+        h.update(_feature_bytes(f))
+    h.update(repr((layout.extent, layout.chunk_size)).encode())
+    return h.hexdigest()
+
+
+def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force: bool = False,
+                      progress: bool = False) -> BuildReport:
+    """Build (only what changed) and write the proxy layer at ``path``.
+
+    ``chunks``: keys to build (default: every chunk of the layout's area).
+    Chunks whose inputs hash matches the one stored in their file are skipped.
+    With an explicit ``chunks`` list, chunks already listed in an existing root
+    layer stay listed; without it the root lists exactly the layout's chunks
+    (files of chunks no longer in the layout are removed).
+    """
+    from lsd3d_usd.scene import chunk_prim_name, parse_chunk_prim_name
+
+    from .chunks import ProxyBuilder, ProxyParams
+
+    t0 = time.perf_counter()
+    path = Path(path)
+    if path.suffix.lower() not in (".usdc", ".usda", ".usd"):
+        raise InputError(f"{path}: the proxy layer must be a .usdc, .usda or .usd file")
+    params = params or ProxyParams()
+    builder = ProxyBuilder(layout, params)
+    all_keys = builder.chunks()
+    keys = all_keys if chunks is None else [tuple(int(v) for v in k) for k in chunks]
+    folder = chunks_dir(path)
+    old_map = read_chunk_map(path)
+    new_map: dict[tuple[int, int], str] = {}
+    if chunks is not None:
+        for name, h in old_map.items():
+            try:
+                k = parse_chunk_prim_name(name)
+            except ValueError:
+                continue
+            if (folder / chunk_file_name(*k)).is_file():
+                new_map[k] = h
+    report = BuildReport(path)
+    pdict = params.as_dict()
+    it = keys
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(keys, desc="proxy chunks", unit="chunk")
+    for key in it:
+        inp = builder.inputs(key)
+        cfile = folder / chunk_file_name(*key)
+        if not force and _chunk_file_hash(cfile) == inp.hash:
+            report.skipped.append(key)
+        else:
+            parts = builder.build(key, inp)
+            write_chunk_layer(parts, key, cfile, inp.hash, pdict)
+            report.built.append(key)
+            for p in parts:
+                report.triangles[p.cls] = report.triangles.get(p.cls, 0) + p.n_faces
+        new_map[key] = inp.hash
+    if chunks is None and folder.is_dir():
+        keep = {chunk_file_name(*k) for k in new_map}
+        for f in folder.glob("chunk_*.usdc"):
+            if f.name not in keep:
+                f.unlink()
+    new_names = {chunk_prim_name(*k): h for k, h in new_map.items()}
+    lhash = layout_hash(layout)
+    if force or new_names != old_map or not path.is_file() or _root_layout_hash(path) != lhash:
+        write_root_layer(path, new_map, pdict, lhash)
+        report.root_written = True
+    report.seconds = time.perf_counter() - t0
+    return report
+
+
+def _root_layout_hash(path: Path) -> str | None:
+    from pxr import Sdf
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
+    except Exception:
+        return None
+    return None if layer is None else layer.customLayerData.get("lsd3d", {}).get("layoutHash")
+
+
+# --------------------------------------------------------------------------- reading
+def read_proxy(path: str | Path, chunks=None) -> dict[tuple[int, int], dict[str, ClassMesh]]:
+    """Meshes of a proxy layer (or any stage with /World/Proxy), per chunk and class.
+
+    Only the requested chunks' payloads are loaded (default: all).
+    """
+    from pxr import Usd, UsdGeom
+
+    from lsd3d_usd.scene import PROXY_PATH, open_stage, parse_chunk_prim_name
+
+    stage = open_stage(path, load=False)
+    root = stage.GetPrimAtPath(PROXY_PATH)
+    if not root or not root.IsValid():
+        raise InputError(f"{path}: no {PROXY_PATH} prim (not a proxy layer)")
+    want = None if chunks is None else {tuple(k) for k in chunks}
+    out = {}
+    for child in root.GetChildren():
+        try:
+            key = parse_chunk_prim_name(child.GetName())
+        except ValueError:
+            continue
+        if want is not None and key not in want:
+            continue
+        stage.Load(child.GetPath())
+        meshes = {}
+        for prim in Usd.PrimRange(stage.GetPrimAtPath(child.GetPath())):
+            if not prim.IsA(UsdGeom.Mesh):
+                continue
+            meshes[prim.GetName()] = class_mesh_from_prim(prim)
+        out[key] = meshes
+    return out
+
+
+def class_mesh_from_prim(prim) -> ClassMesh:
+    from pxr import UsdGeom, UsdSemantics
+
+    mesh = UsdGeom.Mesh(prim)
+    where = str(prim.GetPath())
+    pts = np.asarray(mesh.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)
+    counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], dtype=np.int64)
+    idx = np.asarray(mesh.GetFaceVertexIndicesAttr().Get() or [], dtype=np.int64)
+    if len(counts) and not np.all(counts == 3):
+        raise InputError(f"{where}: proxy meshes must be triangles")
+    faces = idx.reshape(-1, 3).astype(np.int32)
+    labels = UsdSemantics.LabelsAPI(prim, "class").GetLabelsAttr().Get()
+    cls = str(labels[0]) if labels else prim.GetName()
+    pid_attr = prim.GetAttribute(PART_IDS_ATTR)
+    part_ids = tuple(pid_attr.Get() or ()) if pid_attr else ()
+    pv = UsdGeom.PrimvarsAPI(prim).GetPrimvar(PART_INDEX_PRIMVAR)
+    fp = np.asarray(pv.Get(), dtype=np.int32) if pv and pv.HasValue() else np.zeros(len(faces), np.int32)
+    id_attr = prim.GetAttribute(ID_ATTR)
+    return ClassMesh(pts, faces, cls, part_ids, fp, name=str(id_attr.Get()) if id_attr else where)
