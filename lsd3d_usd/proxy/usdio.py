@@ -299,7 +299,9 @@ def read_proxy(path: str | Path, chunks=None) -> dict[tuple[int, int], dict[str,
         raise InputError(f"{path}: no {PROXY_PATH} prim (not a proxy layer)")
     want = None if chunks is None else {tuple(k) for k in chunks}
     out = {}
-    for child in root.GetChildren():
+    # unloaded payload prims are not "children" under the default predicate
+    for child in root.GetFilteredChildren(Usd.PrimIsActive & Usd.PrimIsDefined
+                                          & ~Usd.PrimIsAbstract):
         try:
             key = parse_chunk_prim_name(child.GetName())
         except ValueError:
