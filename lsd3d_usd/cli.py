@@ -17,6 +17,9 @@ from lsd3d_usd.errors import Lsd3dError
 COMMAND_MODULES = (
     "lsd3d_usd.commands",
     "lsd3d_usd.proxy.commands",
+    "lsd3d_usd.splats.commands",
+    "lsd3d_usd.render.commands",
+    "lsd3d_usd.env.commands",
 )
 
 

@@ -202,3 +202,28 @@ def mesh_to_surfels(vertices, faces, face_semantic_ids=None, *, count: int = 2_0
         semantic_classes=tuple(semantic_classes) if semantic_classes is not None else tuple(semantics.CLASSES),
     )
     return (field, fidx) if return_face_index else field
+
+
+def transform_surfels(field, M: np.ndarray):
+    """Apply a 4x4 (column-vector) world transform to a SurfelField: positions, disk axes
+    and scales (the scaled axes are re-orthonormalised around the transformed normal)."""
+    from dataclasses import replace
+
+    from lsd3d_usd.splats.field import quat_to_matrix
+
+    if np.allclose(M, np.eye(4), atol=0, rtol=0):
+        return field
+    A = M[:3, :3]
+    pos = field.positions.astype(np.float64) @ A.T + M[:3, 3]
+    R = quat_to_matrix(field.orientations)
+    ax = A @ R[..., 0][..., None]
+    ay = A @ R[..., 1][..., None]
+    ax, ay = ax[..., 0] * field.scales[:, :1], ay[..., 0] * field.scales[:, 1:2]
+    sx, sy = np.linalg.norm(ax, axis=1), np.linalg.norm(ay, axis=1)
+    x = ax / np.maximum(sx, 1e-30)[:, None]
+    n = np.cross(x, ay)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+    y = np.cross(n, x)
+    q = matrix_to_quat(np.stack([x, y, n], axis=2))
+    return replace(field, positions=pos.astype(np.float32), orientations=q.astype(np.float32),
+                   scales=np.stack([sx, sy], 1).astype(np.float32))
