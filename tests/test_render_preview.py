@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 import lsd3d_usd  # noqa: F401
-from pxr import Gf, Sdf, UsdGeom, UsdLux, UsdSemantics
+from pxr import Sdf, UsdGeom, UsdLux, UsdSemantics
 
 from lsd3d_usd import scene, semantics
 from lsd3d_usd.cli import main

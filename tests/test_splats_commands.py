@@ -1,12 +1,11 @@
 import numpy as np
-import pytest
 
 import lsd3d_usd  # noqa: F401
 from pxr import Gf, Usd, UsdGeom, UsdSemantics
 
 from lsd3d_usd import scene, semantics
 from lsd3d_usd.cli import main
-from lsd3d_usd.splats.ply import read_ply, read_ply_vertices
+from lsd3d_usd.splats.ply import read_ply_vertices
 from lsd3d_usd.splats.usdio import read_surfel_file
 
 
