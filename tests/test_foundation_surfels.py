@@ -141,3 +141,12 @@ def test_concat_and_problems(field_factory):
     c.scales[7, 1] = 0
     probs = " ".join(c.problems())
     assert "orientations" in probs and "first index 4" in probs and "scales" in probs
+
+
+def test_empty_field_round_trips(tmp_path):
+    f = SurfelField.empty(sh_degree=2)
+    assert f.n == 0 and f.sh.shape == (0, 9, 3)
+    path = tmp_path / "empty.usdc"
+    usdio.write_surfel_file(str(path), f)
+    assert usdio.read_surfel_file(str(path)).n == 0
+    assert SurfelField.concat([f, f]).n == 0

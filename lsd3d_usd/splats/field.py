@@ -118,7 +118,8 @@ class SurfelField:
         self.scales = np.asarray(self.scales, dtype=np.float32).reshape(n, 2)
         self.opacities = np.asarray(self.opacities, dtype=np.float32).reshape(n)
         sh = np.asarray(self.sh, dtype=np.float32)
-        self.sh = sh.reshape(n, -1, 3)
+        # reshape(n, -1, 3) cannot infer the middle axis when n == 0.
+        self.sh = sh if sh.ndim == 3 and sh.shape[0] == n else sh.reshape(n, -1, 3)
         sh_degree_for(self.sh.shape[1])
         if self.semantic_ids is not None:
             self.semantic_ids = np.asarray(self.semantic_ids, dtype=np.int32).reshape(n)
