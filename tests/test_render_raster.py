@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.render import kernels_prep as kprep
 from lsd3d_usd.render import projection as proj
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.render.reference import render_reference, splat_alpha_maps
@@ -139,17 +140,20 @@ def _hard_splats():
 
 
 def _misses(bound_sigma):
+    """Largest alpha of any surfel outside its own screen rectangle (the fast path's bounds)."""
     means, quats, scales, op, vm, K = _hard_splats()
     w, h, amin = 64, 48, 1.0 / 255.0
     amap = splat_alpha_maps(means, quats, scales, op, vm, K, w, h, near=0.05)
-    p_c, a_u, a_v, normal = proj.camera_space(means, quats, scales, vm)
-    keep = proj.cull_mask(p_c, normal, op, 0.05, 1e4, amin).numpy()
-    b = proj.screen_bounds(p_c, a_u, a_v, K, op, near=0.05, alpha_min=amin, bound_sigma=bound_sigma)
-    rect = proj.pixel_rects(b, w, h)
+    rot, centre = proj.camera_frame(vm)
+    sh = np.zeros((means.shape[0], 1, 3), np.float32)
+    _, vis, rect, _, _ = kprep.project(
+        means.numpy(), quats.numpy(), scales.numpy(), op.numpy(), sh, 0, rot.numpy(),
+        centre.numpy(), K.double().numpy(), w, h, 0.05, 1e4, amin,
+        -1.0 if bound_sigma is None else bound_sigma)
     worst = 0.0
     for i in range(means.shape[0]):
         inside = np.zeros((h, w), bool)
-        if keep[i] and rect[i, 0] <= rect[i, 1] and rect[i, 2] <= rect[i, 3]:
+        if vis[i]:
             inside[rect[i, 2]:rect[i, 3] + 1, rect[i, 0]:rect[i, 1] + 1] = True
         outside = amap[i].numpy()[~inside]
         worst = max(worst, float(outside.max(initial=0.0)))

@@ -17,8 +17,9 @@ import torch
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render import kernels
+from lsd3d_usd.render import kernels_prep as kprep
 from lsd3d_usd.render import projection as proj
-from lsd3d_usd.render.sh import eval_sh, sh_degree_of
+from lsd3d_usd.render.sh import sh_degree_of
 
 
 def _as_tensor(x, name, dtype=torch.float32):
@@ -47,19 +48,34 @@ def _check(x, name, shape):
 
 
 class _Raster(torch.autograd.Function):
-    """Packed parameters (M,16) float32 -> (rgb, alpha, depth_acc, normal_acc, depth_median)."""
+    """(means, quats, scales, opacities, sh) -> (rgb, alpha, depth_acc, normal_acc, depth_median):
+    numba projection + tile kernels forward, their hand-written backward."""
 
     @staticmethod
-    def forward(ctx, prm, plan):
-        p = prm.detach().contiguous().numpy()
+    def forward(ctx, means, quats, scales, opacities, sh, plan):
+        t0 = time.perf_counter()
+        arrs = tuple(np.ascontiguousarray(x.detach().numpy())
+                     for x in (means, quats, scales, opacities, sh))
+        prm_all, vis, rects, zc, _ = kprep.project(
+            *arrs, plan["deg"], plan["Rv"], plan["C"], plan["K"], plan["width"], plan["height"],
+            plan["near"], plan["far"], plan["alpha_min"], plan["bound_sigma"])
+        idx = np.flatnonzero(vis)
+        prm = np.ascontiguousarray(prm_all[idx])
+        order = np.argsort(zc[idx], kind="stable")
+        t1 = time.perf_counter()
+        tile_start, tile_splats = kernels.bin_tiles(rects[idx], order, plan["tile"], plan["ntx"],
+                                                    plan["nty"])
+        t2 = time.perf_counter()
         rgb, tfin, dacc, nacc, dmed, last, med, amax, evals = kernels.forward(
-            p, plan["tile_start"], plan["tile_splats"], plan["width"], plan["height"],
+            prm, tile_start, tile_splats, plan["width"], plan["height"],
             plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), np.float32(plan["t_min"]))
-        plan["evals"] = int(evals.sum())
-        plan["argmax"] = amax
+        t3 = time.perf_counter()
+        plan.update(evals=int(evals.sum()), argmax=amax, visible_index=idx,
+                    n_pairs=int(tile_splats.shape[0]), project_s=t1 - t0, bin_s=t2 - t1,
+                    raster_s=t3 - t2)
         ctx.plan = plan
-        ctx.aux = (p, tfin, last, med)
+        ctx.aux = (arrs, idx, prm, tile_start, tile_splats, tfin, last, med)
         alpha = 1.0 - torch.from_numpy(tfin)
         return (torch.from_numpy(rgb), alpha, torch.from_numpy(dacc), torch.from_numpy(nacc),
                 torch.from_numpy(dmed))
@@ -67,20 +83,26 @@ class _Raster(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_d, g_n, g_med):
         plan = ctx.plan
-        p, tfin, last, med = ctx.aux
+        arrs, idx, prm, tile_start, tile_splats, tfin, last, med = ctx.aux
         t0 = time.perf_counter()
 
         def arr(g):
             return np.ascontiguousarray(g.detach().to(torch.float32).numpy())
 
         rows = kernels.backward(
-            p, plan["tile_start"], plan["tile_splats"], plan["width"], plan["height"],
+            prm, tile_start, tile_splats, plan["width"], plan["height"],
             plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), tfin, last, med,
             arr(g_rgb), arr(-g_alpha), arr(g_d), arr(g_n), arr(g_med))
-        g = kernels.reduce_pairs(rows, plan["tile_splats"], p.shape[0])
-        plan["bwd_kernel_s"] = time.perf_counter() - t0
-        return torch.from_numpy(g), None
+        t1 = time.perf_counter()
+        gp = kernels.reduce_pairs(rows, tile_splats, prm.shape[0])
+        del rows
+        grads = kprep.project_backward(idx, gp, *arrs, plan["deg"], plan["Rv"], plan["C"], plan["K"])
+        plan.update(bwd_kernel_s=t1 - t0, bwd_total_s=time.perf_counter() - t0)
+        out = []
+        for g, need in zip(grads, ctx.needs_input_grad[:5]):
+            out.append(torch.from_numpy(g) if need else None)
+        return (*out, None)
 
 
 def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
@@ -158,53 +180,28 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
     if normal_space not in ("camera", "world"):
         raise InputError(f"rasterize: normal_space must be 'camera' or 'world', not {normal_space!r}")
 
-    # --- visibility and screen bounds (no grad, float64) ---
-    with torch.no_grad():
-        p_c, a_u, a_v, normal = proj.camera_space(means, quats, scales, viewmat)
-        keep = proj.cull_mask(p_c, normal, opacities, near, far, alpha_min)
-        idx = torch.nonzero(keep).flatten()
-        bounds = proj.screen_bounds(p_c[idx], a_u[idx], a_v[idx], K, opacities[idx],
-                                    near=near, alpha_min=alpha_min, bound_sigma=bound_sigma)
-        rects = proj.pixel_rects(bounds, width, height)
-        onscreen = (rects[:, 0] <= rects[:, 1]) & (rects[:, 2] <= rects[:, 3])
-        idx = idx[torch.from_numpy(onscreen)]
-        rects = np.ascontiguousarray(rects[onscreen])
-        zc = p_c[idx, 2].numpy()
-    t_cull = time.perf_counter()
-
-    # --- differentiable per-surfel parameters of the visible surfels ---
-    p_c, a_u, a_v, normal = proj.camera_space(means[idx], quats[idx], scales[idx], viewmat)
-    geo, n_facing = proj.kernel_params(p_c, a_u, a_v, normal, K)
-    _, centre = proj.camera_frame(viewmat)
-    dirs = means[idx].to(torch.float64) - centre
-    dirs = dirs / dirs.norm(dim=1, keepdim=True).clamp_min(1e-30)
-    colour = eval_sh(sh[idx], dirs.to(sh.dtype), deg)
-    prm = torch.cat([geo.to(torch.float32), opacities[idx, None].to(torch.float32),
-                     colour.to(torch.float32), n_facing.to(torch.float32)], dim=1)
-    t_prep = time.perf_counter()
-
-    # --- tiles, depth order ---
+    rot_c, centre = proj.camera_frame(viewmat)
     ntx = (width + tile - 1) // tile
     nty = (height + tile - 1) // tile
-    order = np.argsort(zc, kind="stable")
-    tile_start, tile_splats = kernels.bin_tiles(rects, order, tile, ntx, nty)
-    t_bin = time.perf_counter()
-    plan = dict(tile_start=tile_start, tile_splats=tile_splats, width=width, height=height,
-                tile=tile, ntx=ntx, nty=nty, near=near, alpha_min=alpha_min,
-                alpha_max=alpha_max, t_min=t_min)
-    rgb, alpha, dacc, nacc, dmed = _Raster.apply(prm, plan)
-    t_raster = time.perf_counter()
+    plan = dict(deg=deg, Rv=np.ascontiguousarray(rot_c.numpy()), C=np.ascontiguousarray(centre.numpy()),
+                K=np.ascontiguousarray(K.detach().to(torch.float64).numpy()), width=width,
+                height=height, tile=tile, ntx=ntx, nty=nty, near=float(near), far=float(far),
+                alpha_min=float(alpha_min), alpha_max=float(alpha_max), t_min=float(t_min),
+                bound_sigma=-1.0 if bound_sigma is None else float(bound_sigma))
+    f32 = torch.float32
+    rgb, alpha, dacc, nacc, dmed = _Raster.apply(means.to(f32), quats.to(f32), scales.to(f32),
+                                                 opacities.to(f32), sh.to(f32), plan)
 
     if background is not None:
         bg = background.to(torch.float32)
         rgb = rgb + (1.0 - alpha)[..., None] * bg
     depth = torch.where(alpha > 1e-6, dacc / alpha.clamp_min(1e-6), torch.zeros_like(dacc))
     if normal_space == "world":
-        rot_c, _ = proj.camera_frame(viewmat)
         nacc = nacc @ rot_c.to(torch.float32)
     out = dict(rgb=rgb, alpha=alpha, depth_expected=depth, depth_acc=dacc, depth_median=dmed,
                normal=nacc, semantic=None)
     amax = plan["argmax"]
+    idx = torch.from_numpy(plan["visible_index"])
     if semantic_ids is not None:
         sem = torch.as_tensor(semantic_ids).long()
         if sem.shape != (n,):
@@ -213,8 +210,7 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
         out["semantic"] = vis_sem[torch.from_numpy(amax.astype(np.int64))]  # -1 -> last = -1
     if return_extras:
         out["stats"] = dict(
-            n_visible=int(idx.numel()), n_pairs=int(tile_splats.shape[0]), evals=plan["evals"],
-            cull_s=t_cull - t_start, prep_s=t_prep - t_cull, bin_s=t_bin - t_prep,
-            raster_s=t_raster - t_bin, total_s=time.perf_counter() - t_start, plan=plan,
-            visible_index=idx)
+            n_visible=int(idx.numel()), n_pairs=plan["n_pairs"], evals=plan["evals"],
+            project_s=plan["project_s"], bin_s=plan["bin_s"], raster_s=plan["raster_s"],
+            total_s=time.perf_counter() - t_start, plan=plan, visible_index=idx)
     return out

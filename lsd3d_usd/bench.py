@@ -1,0 +1,54 @@
+"""`lsd3d-usd bench ...`: benchmarks that print numbers and write JSON (speed is checked here,
+never by timed tests).
+
+A small registry: each benchmark is BENCHMARKS[name] = (help, add_arguments, run), so another
+area adds its own (e.g. `bench ggds`) with one `register_benchmark` call in this module.
+"""
+from __future__ import annotations
+
+import argparse
+
+BENCHMARKS: dict = {}
+
+
+def register_benchmark(name, help_text, add_arguments, run):
+    """add_arguments(parser) adds flags; run(args) -> exit code. Keep heavy imports in run."""
+    BENCHMARKS[name] = (help_text, add_arguments, run)
+
+
+# ------------------------------------------------------------------ render ---
+def _render_args(p: argparse.ArgumentParser):
+    p.add_argument("--json", metavar="OUT.json", help="write per-configuration results as JSON")
+    p.add_argument("--png", metavar="OUT.png",
+                   help="time-vs-error plot (default: next to --json, or bench_render.png)")
+    p.add_argument("--quick", action="store_true", help="small subset, under a minute")
+    p.add_argument("--seed", type=int, default=0, help="seed of the synthetic scenes (default 0)")
+
+
+def _render_run(args) -> int:
+    from lsd3d_usd.render.benchmark import main
+
+    png = args.png
+    if png is None:
+        png = (args.json.rsplit(".", 1)[0] + ".png") if args.json else "bench_render.png"
+    main(json_path=args.json, quick=args.quick, png_path=png, seed=args.seed)
+    return 0
+
+
+register_benchmark(
+    "render",
+    "CPU 2DGS rasteriser: forward/backward time, evaluations/s, memory, error vs float64 reference",
+    _render_args, _render_run)
+
+
+def register(subparsers):
+    p = subparsers.add_parser(
+        "bench", help="run benchmarks (speed and accuracy numbers)",
+        description="Benchmarks that print numbers and write JSON. Measured on shared cores, "
+                    "timings are noisy.")
+    sub = p.add_subparsers(dest="bench_name", metavar="BENCHMARK")
+    for name, (help_text, add_args, run) in BENCHMARKS.items():
+        bp = sub.add_parser(name, help=help_text, description=help_text)
+        add_args(bp)
+        bp.set_defaults(func=run)
+    p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
