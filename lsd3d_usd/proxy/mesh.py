@@ -38,7 +38,8 @@ class MeshPart:
     """One object: triangles, semantic class, stable id.
 
     ``solid`` parts must be closed (watertight, outward normals); open parts
-    (ground patches, markings) must face up (+Z).
+    (ground patches, markings) must face up (+Z) unless ``faces_up`` is False
+    (surfaces reconstructed from point clouds face any way).
     """
     vertices: np.ndarray            # (N, 3) float64
     faces: np.ndarray               # (M, 3) int32, counter-clockwise seen from outside
@@ -46,6 +47,7 @@ class MeshPart:
     part_id: str
     solid: bool = False
     color: tuple[float, float, float] | None = None   # linear RGB override of the class colour
+    faces_up: bool = True
 
     def __post_init__(self):
         self.vertices = np.ascontiguousarray(self.vertices, dtype=np.float64).reshape(-1, 3)
@@ -134,7 +136,7 @@ def check_part(part: MeshPart) -> list[str]:
             errs.append(f"{where}: inconsistent winding")
         elif not tm.volume > 0:
             errs.append(f"{where}: normals point inwards (volume {tm.volume:.3g})")
-    else:
+    elif part.faces_up:
         good = area > MIN_FACE_AREA
         if good.any() and (n[good, 2] <= 0).any():
             errs.append(f"{where}: {int((n[good, 2] <= 0).sum())} faces of an open part face down")

@@ -1,0 +1,439 @@
+"""Proxy from a point cloud (the paper's "predicted from point-cloud data" path).
+
+Per chunk (same 100 m grid as the layout path):
+
+1. voxelise the points on a world-aligned lattice (voxel ``v``, default 0.2 m),
+   over the chunk box padded by enough voxels that every operation below sees
+   the same neighbourhood in both chunks of a seam;
+2. fill the ground: in columns near the data whose lowest occupied voxel is
+   within ``ground_band`` of the fitted ground plane, everything below it is
+   solid, so the ground becomes one upward surface instead of a thin slab;
+3. close holes: binary closing (``closing`` iterations);
+4. smooth the occupancy (Gaussian, sigma 0.7 voxel) and extract the 0.5 level
+   set with marching cubes (scikit-image);
+5. simplify by vertex clustering on a world-aligned lattice (cells of
+   ``simplify`` voxels; written here), before cutting, so both chunks of a
+   seam produce the same vertices there;
+6. keep the faces whose centroid lies in the chunk (each face in one chunk);
+7. label faces: from per-point labels (nearest point) when the cloud has
+   them, else by height above the fitted ground plane (< ``ground_band``:
+   road; non-ground connected components reaching ``building_height``:
+   building; lower ones: vehicle) — a crude rule, documented as such.
+
+Shells (walls sampled from both sides or once) give a closed thin surface
+around them (outer and inner side ~1-2 voxels apart): no global hole filling,
+because it is not local and would differ between chunks.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lsd3d_usd.errors import InputError
+
+from .mesh import BUILDING, ROAD, VEHICLE, MeshPart
+
+LABEL_PROPS = ("label", "class", "semantic", "semantic_id", "scalar_label", "labels")
+
+
+@dataclass(frozen=True)
+class PointProxyParams:
+    voxel: float = 0.2
+    closing: int = 2
+    simplify: float = 2.0          # vertex-clustering cell size in voxels (0 = off)
+    chunk_size: float = 100.0
+    sigma: float = 0.7             # Gaussian smoothing of the occupancy, voxels
+    ground_band: float = 0.3       # m above the ground plane still counted as ground
+    building_height: float = 3.0   # m: taller non-ground components are buildings
+    min_points: int = 20
+
+    def as_dict(self):
+        return asdict(self)
+
+
+# --------------------------------------------------------------------------- reading
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
+              "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4",
+              "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
+              "float64": "f8"}
+
+
+def read_ply_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Points (N, 3) float64 and labels (N,) int32 or None from a PLY file's vertex element.
+
+    ASCII and binary (little/big endian) PLY; the vertex element must come first
+    (as every point-cloud writer does) and have no list properties.
+    """
+    path = Path(path)
+    with open(path, "rb") as fh:
+        if fh.readline().strip() != b"ply":
+            raise InputError(f"{path}: not a PLY file (no 'ply' magic line)")
+        fmt, elements = None, []
+        while True:
+            line = fh.readline()
+            if not line:
+                raise InputError(f"{path}: PLY header has no end_header")
+            tok = line.decode("ascii", "replace").split()
+            if not tok or tok[0] in ("comment", "obj_info"):
+                continue
+            if tok[0] == "format":
+                fmt = tok[1]
+            elif tok[0] == "element":
+                elements.append((tok[1], int(tok[2]), []))
+            elif tok[0] == "property":
+                if not elements:
+                    raise InputError(f"{path}: PLY property before any element")
+                if tok[1] == "list":
+                    elements[-1][2].append((tok[-1], None))
+                else:
+                    if tok[1] not in _PLY_TYPES:
+                        raise InputError(f"{path}: PLY property type {tok[1]!r} unknown")
+                    elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
+            elif tok[0] == "end_header":
+                break
+        if not elements or elements[0][0] != "vertex":
+            raise InputError(f"{path}: PLY has no vertex element first")
+        _, n, props = elements[0]
+        if any(t is None for _, t in props):
+            raise InputError(f"{path}: PLY vertex element with list properties is not supported")
+        names = [p for p, _ in props]
+        for c in ("x", "y", "z"):
+            if c not in names:
+                raise InputError(f"{path}: PLY vertex element has no '{c}' property")
+        if fmt == "ascii":
+            rows = [fh.readline() for _ in range(n)]
+            try:
+                data = np.loadtxt(rows, dtype=np.float64, ndmin=2)
+            except ValueError as e:
+                raise InputError(f"{path}: malformed PLY ascii vertex data: {e}") from None
+            if data.shape != (n, len(names)):
+                raise InputError(f"{path}: PLY declares {n} vertices with {len(names)} values, "
+                                 f"read {data.shape}")
+            col = {p: data[:, k] for k, p in enumerate(names)}
+        elif fmt in ("binary_little_endian", "binary_big_endian"):
+            e = "<" if fmt == "binary_little_endian" else ">"
+            dt = np.dtype([(p, e + t) for p, t in props])
+            buf = fh.read(n * dt.itemsize)
+            if len(buf) < n * dt.itemsize:
+                raise InputError(f"{path}: PLY vertex data truncated ({len(buf)} of "
+                                 f"{n * dt.itemsize} bytes)")
+            arr = np.frombuffer(buf, dtype=dt, count=n)
+            col = {p: arr[p] for p in names}
+        else:
+            raise InputError(f"{path}: PLY format {fmt!r} unknown")
+    pts = np.column_stack([col["x"], col["y"], col["z"]]).astype(np.float64)
+    lab = next((col[p] for p in LABEL_PROPS if p in col), None)
+    return pts, (None if lab is None else np.asarray(lab).astype(np.int32))
+
+
+def read_npz_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """NPZ with 'points' (N, 3) and optional 'labels' (N,) ids; optional 'classes'
+    (names the ids index, mapped onto lsd3d_usd.semantics.CLASSES)."""
+    from lsd3d_usd.semantics import CLASS_ID
+    path = Path(path)
+    try:
+        z = np.load(path, allow_pickle=False)
+    except Exception as e:
+        raise InputError(f"{path}: cannot be read as .npz: {e}") from None
+    key = next((k for k in ("points", "xyz", "positions") if k in z.files), None)
+    if key is None:
+        raise InputError(f"{path}: no 'points' array (has: {', '.join(z.files) or 'nothing'})")
+    pts = np.asarray(z[key], dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] < 3:
+        raise InputError(f"{path}: 'points' must be (N, 3), got {pts.shape}")
+    labels = None
+    if "labels" in z.files:
+        labels = np.asarray(z["labels"]).astype(np.int32).reshape(-1)
+        if len(labels) != len(pts):
+            raise InputError(f"{path}: 'labels' has {len(labels)} entries for {len(pts)} points")
+        if "classes" in z.files:
+            names = [str(c) for c in z["classes"]]
+            unknown = [c for c in names if c not in CLASS_ID]
+            if unknown:
+                raise InputError(f"{path}: class {unknown[0]!r} in 'classes' is not a known "
+                                 "semantic class")
+            lut = np.array([CLASS_ID[c] for c in names] + [-1], dtype=np.int32)
+            labels = lut[np.where((labels >= 0) & (labels < len(names)), labels, len(names))]
+    return pts[:, :3], labels
+
+
+def read_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+    from lsd3d_usd.semantics import CLASSES
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{path}: no such file")
+    ext = p.suffix.lower()
+    if ext == ".ply":
+        pts, lab = read_ply_points(p)
+    elif ext == ".npz":
+        pts, lab = read_npz_points(p)
+    else:
+        raise InputError(f"{path}: point clouds must be .ply or .npz (got {ext or 'no extension'})")
+    finite = np.isfinite(pts).all(1)
+    if not finite.all():
+        raise InputError(f"{path}: {int((~finite).sum())} points have non-finite coordinates")
+    if lab is not None:
+        bad = (lab < -1) | (lab >= len(CLASSES))
+        if bad.any():
+            raise InputError(f"{path}: label {int(lab[bad][0])} is not a class id "
+                             f"(-1..{len(CLASSES) - 1}, see lsd3d_usd.semantics.CLASSES)")
+        if (lab < 0).all():
+            lab = None
+    return pts, lab
+
+
+# ----------------------------------------------------------------------- ground plane
+def fit_ground_plane(points: np.ndarray, cell: float = 2.0, iters: int = 200,
+                     thresh: float = 0.15, seed: int = 0) -> np.ndarray:
+    """Plane (a, b, c) with z = a*x + b*y + c, from the lowest point of each XY cell
+    by RANSAC, refined by least squares on the inliers."""
+    xy = np.floor(points[:, :2] / cell).astype(np.int64)
+    order = np.lexsort((points[:, 2], xy[:, 1], xy[:, 0]))
+    key = xy[order]
+    first = np.ones(len(order), bool)
+    first[1:] = (key[1:] != key[:-1]).any(1)
+    low = points[order[first]]
+    if len(low) < 3:
+        return np.array([0.0, 0.0, float(np.median(points[:, 2]))])
+    rng = np.random.default_rng(seed)
+    A = np.column_stack([low[:, 0], low[:, 1], np.ones(len(low))])
+    best, best_in = None, -1
+    for _ in range(iters):
+        s = rng.choice(len(low), 3, replace=False)
+        try:
+            coef = np.linalg.solve(A[s], low[s, 2])
+        except np.linalg.LinAlgError:
+            continue
+        if abs(coef[0]) > 0.3 or abs(coef[1]) > 0.3:       # ground is not steeper than ~17 deg
+            continue
+        n_in = int((np.abs(A @ coef - low[:, 2]) < thresh).sum())
+        if n_in > best_in:
+            best, best_in = coef, n_in
+    if best is None:
+        return np.array([0.0, 0.0, float(np.percentile(points[:, 2], 5))])
+    inl = np.abs(A @ best - low[:, 2]) < thresh
+    coef, *_ = np.linalg.lstsq(A[inl], low[inl, 2], rcond=None)
+    return coef
+
+
+def height_above(plane: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return p[:, 2] - (plane[0] * p[:, 0] + plane[1] * p[:, 1] + plane[2])
+
+
+# ------------------------------------------------------------------ simplification
+def cluster_vertices(vertices: np.ndarray, faces: np.ndarray, cell: float,
+                     face_data: np.ndarray | None = None):
+    """Vertex clustering: vertices in one world-aligned cell merge into their mean.
+
+    Faces that collapse (repeated vertex) are dropped, as are duplicate faces;
+    a pair of opposite faces on the same three vertices (a collapsed thin
+    sliver) is dropped entirely. Returns (vertices, faces, face_data).
+    """
+    if len(faces) == 0 or cell <= 0:
+        return vertices, faces, face_data
+    q = np.floor(vertices / cell).astype(np.int64)
+    _, cid, counts = np.unique(q, axis=0, return_inverse=True, return_counts=True)
+    cid = cid.reshape(-1)
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, cid, vertices)
+    newv = sums / counts[:, None]
+    f = cid[faces]
+    ok = (f[:, 0] != f[:, 1]) & (f[:, 1] != f[:, 2]) & (f[:, 0] != f[:, 2])
+    f = f[ok]
+    fd = None if face_data is None else face_data[ok]
+    # duplicates: one face per oriented triple; a triple present in both orientations
+    # (a collapsed thin sliver) is dropped entirely
+    r = np.argmin(f, axis=1)[:, None]
+    canon = np.concatenate([np.take_along_axis(f, (r + k) % 3, 1) for k in range(3)], 1)
+    _, first = np.unique(canon, axis=0, return_index=True)
+    first = np.sort(first)
+    f = f[first]
+    fd = None if fd is None else fd[first]
+    _, inv, cnt = np.unique(np.sort(f, axis=1), axis=0, return_inverse=True, return_counts=True)
+    keep = cnt[inv.reshape(-1)] == 1
+    f = f[keep]
+    fd = None if fd is None else fd[keep]
+    used = np.unique(f)
+    remap = np.full(len(newv), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return newv[used], remap[f].astype(np.int32), fd
+
+
+# ------------------------------------------------------------------- reconstruction
+def _chunk_surface(pts: np.ndarray, key, prm: PointProxyParams, plane: np.ndarray):
+    """Marching-cubes surface of one chunk (padded), simplified, cut to the chunk."""
+    from scipy import ndimage
+    from skimage.measure import marching_cubes
+
+    v = prm.voxel
+    S = prm.chunk_size
+    pad_vox = int(np.ceil(2 * prm.closing + 3 * prm.sigma + 3 + 2 * max(prm.simplify, 1)))
+    pad = pad_vox * v
+    x0, y0 = key[0] * S, key[1] * S
+    lo_xy = np.floor(np.array([x0 - pad, y0 - pad]) / v) * v
+    hi_xy = np.ceil(np.array([x0 + S + pad, y0 + S + pad]) / v) * v
+    sel = ((pts[:, 0] >= lo_xy[0]) & (pts[:, 0] < hi_xy[0])
+           & (pts[:, 1] >= lo_xy[1]) & (pts[:, 1] < hi_xy[1]))
+    p = pts[sel]
+    if len(p) < prm.min_points:
+        return None
+    # shrink the grid to the data (+ pad); the lattice stays world-aligned
+    lo_xy = np.maximum(lo_xy, np.floor((p[:, :2].min(0) - pad) / v) * v)
+    hi_xy = np.minimum(hi_xy, np.ceil((p[:, :2].max(0) + pad) / v) * v)
+    z_lo = np.floor((min(p[:, 2].min(), _plane_min(plane, lo_xy, hi_xy)) - pad) / v) * v
+    z_hi = np.ceil((p[:, 2].max() + pad) / v) * v
+    origin = np.array([lo_xy[0], lo_xy[1], z_lo])
+    shape = np.round((np.array([hi_xy[0], hi_xy[1], z_hi]) - origin) / v).astype(int) + 1
+    # voxel (i, j, k) is centred on origin + (i, j, k) * v (a global lattice: origins are
+    # multiples of v), so neighbouring chunks see identical samples in their overlap
+    idx = np.floor((p - origin) / v + 0.5).astype(np.int64)
+    idx = np.clip(idx, 0, shape - 1)
+    occ = np.zeros(shape, bool)
+    occ[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+
+    # ground fill: below the lowest occupied voxel of ground-level columns
+    has = occ.any(axis=2)
+    kmin = np.where(has, occ.argmax(axis=2), -1)
+    gi, gj = np.nonzero(has)
+    cx = origin[0] + gi * v
+    cy = origin[1] + gj * v
+    cz = origin[2] + kmin[gi, gj] * v
+    ground = cz - (plane[0] * cx + plane[1] * cy + plane[2]) < prm.ground_band
+    near = ndimage.binary_closing(has, iterations=3, border_value=0) | has
+    fill_to = np.full(has.shape, -1)
+    fill_to[gi[ground], gj[ground]] = kmin[gi[ground], gj[ground]]
+    # unobserved columns inside the data footprint: fill up to the plane
+    ii, jj = np.nonzero(near & ~has)
+    kp = np.floor((plane[0] * (origin[0] + ii * v) + plane[1] * (origin[1] + jj * v)
+                   + plane[2] - origin[2]) / v + 0.5).astype(int)
+    fill_to[ii, jj] = np.clip(kp, -1, shape[2] - 1)
+    ks = np.arange(shape[2])
+    occ |= ks[None, None, :] <= fill_to[:, :, None]
+
+    if prm.closing > 0:
+        occ = ndimage.binary_closing(occ, iterations=prm.closing, border_value=0) | occ
+    vol = ndimage.gaussian_filter(occ.astype(np.float32), prm.sigma, mode="nearest") \
+        if prm.sigma > 0 else occ.astype(np.float32)
+    if vol.max() < 0.5 or vol.min() > 0.5:
+        return None
+    verts, faces, _, _ = marching_cubes(vol, level=0.5, spacing=(v, v, v),
+                                        gradient_direction="descent", allow_degenerate=False)
+    verts = verts.astype(np.float64) + origin
+    faces = faces[:, ::-1].astype(np.int64)     # skimage winds clockwise seen from outside
+    if prm.simplify > 0:
+        verts, faces, _ = cluster_vertices(verts, faces, prm.simplify * v)
+    c = verts[faces].mean(1)
+    # the filled ground ends in a skirt down to the grid bottom where the data ends: drop it
+    below = height_above(plane, c) < -2 * v
+    inside = ~below & (c[:, 0] >= x0) & (c[:, 0] < x0 + S) & (c[:, 1] >= y0) & (c[:, 1] < y0 + S)
+    faces = faces[inside]
+    if len(faces) == 0:
+        return None
+    used = np.unique(faces)
+    remap = np.full(len(verts), -1, np.int64)
+    remap[used] = np.arange(len(used))
+    return verts[used], remap[faces].astype(np.int32)
+
+
+def _plane_min(plane, lo_xy, hi_xy) -> float:
+    xs = np.array([lo_xy[0], hi_xy[0]])
+    ys = np.array([lo_xy[1], hi_xy[1]])
+    X, Y = np.meshgrid(xs, ys)
+    return float((plane[0] * X + plane[1] * Y + plane[2]).min())
+
+
+def label_faces(verts: np.ndarray, faces: np.ndarray, plane: np.ndarray,
+                prm: PointProxyParams, tree=None, labels: np.ndarray | None = None) -> np.ndarray:
+    """Class id per face: nearest labelled point, else the height rule."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from lsd3d_usd.semantics import CLASS_ID
+
+    c = verts[faces].mean(1)
+    if tree is not None and labels is not None:
+        _, nn = tree.query(c, k=1)
+        return labels[nn].astype(np.int32)
+    h = height_above(plane, c)
+    out = np.full(len(faces), CLASS_ID[ROAD], np.int32)
+    above = np.nonzero(h >= prm.ground_band)[0]
+    if len(above):
+        f = faces[above]
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]]])
+        n = len(verts)
+        g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n))
+        _, comp = connected_components(g, directed=False)
+        fc = comp[f[:, 0]]
+        top = np.full(comp.max() + 1, -np.inf)
+        np.maximum.at(top, fc, height_above(plane, verts[f].reshape(-1, 3)).reshape(-1, 3).max(1))
+        out[above] = np.where(top[fc] >= prm.building_height, CLASS_ID[BUILDING], CLASS_ID[VEHICLE])
+    return out
+
+
+def points_to_parts(points: np.ndarray, labels: np.ndarray | None = None,
+                    params: PointProxyParams = PointProxyParams(), progress: bool = False
+                    ) -> dict[tuple[int, int], list[MeshPart]]:
+    """Mesh parts per chunk (one open part per class) reconstructed from points."""
+    from scipy.spatial import cKDTree
+
+    from lsd3d_usd.scene import chunk_prim_name
+    from lsd3d_usd.semantics import CLASSES
+
+    if params.voxel <= 0:
+        raise InputError(f"--voxel {params.voxel}: must be > 0")
+    if len(points) < params.min_points:
+        raise InputError(f"point cloud has {len(points)} points; need at least {params.min_points}")
+    plane = fit_ground_plane(points)
+    keys = sorted({(int(a), int(b)) for a, b in
+                   np.unique(np.floor(points[:, :2] / params.chunk_size).astype(np.int64), axis=0)})
+    tree = cKDTree(points) if labels is not None else None
+    it = keys
+    if progress:
+        from tqdm import tqdm
+        it = tqdm(keys, desc="point-cloud chunks", unit="chunk")
+    out = {}
+    for key in it:
+        surf = _chunk_surface(points, key, params, plane)
+        if surf is None:
+            continue
+        v, f = surf
+        fl = label_faces(v, f, plane, params, tree, labels)
+        parts = []
+        for cid in np.unique(fl):
+            cls = CLASSES[cid] if cid >= 0 else ROAD
+            sub = f[fl == cid]
+            used = np.unique(sub)
+            remap = np.full(len(v), -1, np.int64)
+            remap[used] = np.arange(len(used))
+            parts.append(MeshPart(v[used], remap[sub], cls,
+                                  f"points/{cls}/{chunk_prim_name(*key)}", faces_up=False))
+        out[key] = parts
+    return out
+
+
+def proxy_from_points(cloud_path, output, params: PointProxyParams = PointProxyParams(),
+                      progress: bool = False) -> dict:
+    """Read a cloud, reconstruct, write a proxy layer (same layout as the layout path)."""
+    import hashlib
+
+    from .usdio import write_proxy
+
+    t0 = time.perf_counter()
+    out = Path(output)
+    if out.suffix.lower() not in (".usdc", ".usda", ".usd"):
+        raise InputError(f"{output}: the proxy layer must be a .usdc, .usda or .usd file")
+    pts, labels = read_cloud(cloud_path)
+    parts = points_to_parts(pts, labels, params, progress)
+    if not parts:
+        raise InputError(f"{cloud_path}: no surface could be reconstructed (too few points?)")
+    h = hashlib.sha256(pts.tobytes() + (b"" if labels is None else labels.tobytes())
+                       + repr(params.as_dict()).encode()).hexdigest()
+    write_proxy(parts, out, hashes={k: h for k in parts}, layout_hash=h,
+                params={**params.as_dict(), "source": str(cloud_path)})
+    return {"chunks": len(parts), "points": len(pts),
+            "triangles": sum(p.n_faces for ps in parts.values() for p in ps),
+            "labels": "per-point labels" if labels is not None else "height rule",
+            "seconds": time.perf_counter() - t0}
