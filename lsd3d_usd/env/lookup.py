@@ -1,0 +1,86 @@
+"""Torch lookup of a latlong environment map by direction (for the renderer).
+
+Bilinear, seamless across the longitude wrap (columns wrap modulo W) and at the poles
+(above the top row centre the value blends toward the top row's mean, the one value the
+pole can have; likewise at the bottom).
+Differentiable with respect to the image. Uses the convention of `mapping`
+(DomeLight_1, poleAxis Z; top row = zenith; image centre = -Y).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+
+def directions_to_pixel(directions: torch.Tensor, width: int, height: int):
+    """(..., 3) -> continuous pixel coordinates (x, y), pixel centres at integer + 0.5."""
+    d = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    lon = torch.atan2(d[..., 0], -d[..., 1])
+    u = 0.5 - lon / (2 * math.pi)
+    v = 0.5 - torch.asin(d[..., 2].clamp(-1.0, 1.0)) / math.pi
+    return u * width, v * height
+
+
+def env_lookup(image: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+    """Radiance (..., C) of latlong `image` (H, W, C) in world `directions` (..., 3)."""
+    if image.ndim != 3 or image.shape[0] < 2:
+        raise ValueError(f"env_lookup: image must be (H, W, C) with H >= 2, got {tuple(image.shape)}")
+    H, W, C = image.shape
+    batch = directions.shape[:-1]
+    d = directions.reshape(-1, 3).to(image.dtype if image.is_floating_point() else torch.float32)
+    px, py = directions_to_pixel(d, W, H)
+    x = px - 0.5
+    y = py - 0.5                                   # in [-0.5, H - 0.5]
+    x0f = torch.floor(x)
+    fx = (x - x0f).unsqueeze(-1)
+    x0 = torch.remainder(x0f.long(), W)
+    x1 = torch.remainder(x0 + 1, W)                # longitude wraps
+    y0 = torch.floor(y).clamp(0, H - 2)
+    fy = (y - y0).clamp(0.0, 1.0).unsqueeze(-1)
+    y0 = y0.long()
+    flat = image.reshape(H * W, C)
+    r0, r1 = y0 * W, (y0 + 1) * W
+    out = ((flat[r0 + x0] * (1 - fx) + flat[r0 + x1] * fx) * (1 - fy)
+           + (flat[r1 + x0] * (1 - fx) + flat[r1 + x1] * fx) * fy)
+    # Between the first/last row centre and the pole, blend toward the pole value (the mean of
+    # that row): one value at the pole whatever the azimuth, so the lookup is continuous there.
+    wt = (-y / 0.5).clamp(0.0, 1.0).unsqueeze(-1)
+    wb = ((y - (H - 1)) / 0.5).clamp(0.0, 1.0).unsqueeze(-1)
+    out = out * (1 - wt - wb) + image[0].mean(0) * wt + image[H - 1].mean(0) * wb
+    return out.reshape(*batch, C)
+
+
+class EnvMap:
+    """An environment image as a torch tensor plus its convention; call it with directions."""
+
+    convention = "latlong, DomeLight_1 poleAxis=Z: top row zenith (+Z), centre -Y, u=0.25 +X"
+
+    def __init__(self, image, color_space: str = "lin_rec709", units: str = "kcd/m^2"):
+        if isinstance(image, np.ndarray):
+            image = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32))
+        if image.ndim != 3 or image.shape[1] != 2 * image.shape[0]:
+            raise ValueError(f"EnvMap: need a (H, 2H, C) latlong image, got {tuple(image.shape)}")
+        self.image = image
+        self.color_space = color_space
+        self.units = units
+
+    @classmethod
+    def from_exr(cls, path) -> "EnvMap":
+        from lsd3d_usd.env.exr import read_env
+        img, meta = read_env(path)
+        return cls(img, color_space=meta.get("lsd3d:colorSpace", "lin_rec709"))
+
+    @property
+    def height(self) -> int:
+        return int(self.image.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.image.shape[1])
+
+    def __call__(self, directions: torch.Tensor) -> torch.Tensor:
+        return env_lookup(self.image, directions)
+
+    lookup = __call__
