@@ -16,6 +16,7 @@ from lsd3d_usd.errors import Lsd3dError
 # Modules contributing commands; each defines register(subparsers).
 COMMAND_MODULES = (
     "lsd3d_usd.commands",
+    "lsd3d_usd.layout.commands",
     "lsd3d_usd.proxy.commands",
     "lsd3d_usd.splats.commands",
     "lsd3d_usd.render.commands",
