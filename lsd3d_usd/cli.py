@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "lsd3d_usd.splats.commands",
     "lsd3d_usd.render.commands",
     "lsd3d_usd.env.commands",
+    "lsd3d_usd.actors.commands",
     "lsd3d_usd.bench",
 )
 

@@ -1,0 +1,428 @@
+"""Seeded traffic over the layout's lane graph: IDM car following with junction reservations.
+
+Each vehicle drives along lane centre lines (arc length ``s`` on its current lane) and picks
+the next lane among the driving successors with the simulation's seeded generator when it
+enters a lane (two lanes planned ahead), so the run is a pure function of (layout, seed,
+parameters). Longitudinal control is the Intelligent Driver Model (Treiber, Hennecke &
+Helbing 2000):
+
+    a = a_max * (1 - (v / v0)^4 - (s*(v, dv) / gap)^2),   s* = s0 + v T + v dv / (2 sqrt(a_max b))
+
+with the gap to the nearest vehicle ahead along the planned lanes (or to a "wall" at the end
+of the lane when the vehicle may not enter the next one: dead ends, and junction lanes it
+holds no reservation for). v0 is the lane speed limit times a per-driver factor <= 1, and
+the next lane's limit once it is within braking distance; speeds are clipped to the
+current lane's limit. Junction entry is a first-come reservation: a vehicle at the head of
+its lane gets the junction lane it is heading for when no other vehicle holds a lane that
+crosses or merges with it (centre lines closer than ``conflict_distance``); it releases it
+one vehicle length after leaving it. A hard guard keeps every bumper-to-bumper gap to the
+leader >= ``min_gap`` (IDM alone can undershoot it after a late merge).
+
+Arrays in, arrays out: `simulate` returns a `TrafficRun` sampled at ``fps``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lsd3d_usd.errors import InputError
+
+DRIVABLE = ("driving", "bus", "entry", "exit")
+
+
+@dataclass(frozen=True)
+class IDMParams:
+    a_max: float = 1.5          # m/s^2 comfortable acceleration
+    b: float = 2.0              # m/s^2 comfortable deceleration
+    b_max: float = 8.0          # m/s^2 physical braking limit
+    T: float = 1.2              # s time headway
+    s0: float = 2.0             # m standstill gap
+    delta: float = 4.0
+    min_gap: float = 1.0        # m hard bumper-to-bumper guard
+    stop_margin: float = 1.0    # m before a lane end the vehicle may not pass
+    conflict_distance: float = 1.5
+    dt_max: float = 0.05        # s simulation step (output samples fall on steps)
+    speed_factor: tuple = (0.8, 1.0)
+
+
+class LaneGeom:
+    """Arc-length parameterisation of one lane's centre line (direction of travel)."""
+
+    def __init__(self, lane):
+        pts = np.asarray(lane.points, np.float64)
+        if lane.direction == "backward":
+            pts = pts[::-1]
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        keep = np.concatenate([[True], seg > 1e-9])
+        self.points = pts[keep]
+        self.cum = np.concatenate([[0.0], np.cumsum(seg[seg > 1e-9])])
+        self.length = float(self.cum[-1])
+        self.id = lane.id
+        self.limit = float(lane.speed_limit_mps)
+        self.is_junction = bool(lane.is_junction)
+
+    def point(self, s) -> np.ndarray:
+        s = np.clip(np.asarray(s, np.float64), 0.0, self.length)
+        return np.stack([np.interp(s, self.cum, self.points[:, k]) for k in range(3)], axis=-1)
+
+    def heading(self, s, half: float = 1.0) -> np.ndarray:
+        """Yaw (radians) of the chord over s +- half (smooth through polyline vertices)."""
+        s = np.asarray(s, np.float64)
+        a = self.point(np.maximum(s - half, 0.0))
+        b = self.point(np.minimum(s + half, self.length))
+        d = b - a
+        return np.arctan2(d[..., 1], d[..., 0])
+
+
+@dataclass
+class TrafficRun:
+    """Samples at times ``t`` (n_t,) of every vehicle (n_v): world xyz (n_v, n_t, 3),
+    yaw (radians, unwrapped over time), speed (m/s), lane index into ``lane_ids`` and s."""
+    t: np.ndarray
+    position: np.ndarray
+    yaw: np.ndarray
+    speed: np.ndarray
+    lane: np.ndarray
+    s: np.ndarray
+    lane_ids: list[str]
+    lengths: np.ndarray
+    lane_limits: np.ndarray
+    seed: int = 0
+    params: IDMParams = field(default_factory=IDMParams)
+
+    @property
+    def n(self) -> int:
+        return int(self.position.shape[0])
+
+
+class LaneGraph:
+    """Drivable lanes of a layout with successor indices and junction conflict sets."""
+
+    def __init__(self, layout, params: IDMParams = IDMParams()):
+        lanes = [ln for ln in layout.lanes if ln.lane_type in DRIVABLE and ln.speed_limit_mps > 0]
+        self.geoms = [LaneGeom(ln) for ln in lanes]
+        keep = [i for i, g in enumerate(self.geoms) if g.length > 1e-6]
+        self.geoms = [self.geoms[i] for i in keep]
+        lanes = [lanes[i] for i in keep]
+        self.ids = [g.id for g in self.geoms]
+        self.index = {lid: i for i, lid in enumerate(self.ids)}
+        self.succ = [[self.index[s] for s in ln.successors if s in self.index] for ln in lanes]
+        self.pred = [[self.index[p] for p in ln.predecessors if p in self.index] for ln in lanes]
+        self.length = np.array([g.length for g in self.geoms])
+        self.limit = np.array([g.limit for g in self.geoms])
+        self.junction = np.array([g.is_junction for g in self.geoms], bool)
+        self.conflicts = self._conflicts(params.conflict_distance)
+
+    def _conflicts(self, dist: float) -> list[set]:
+        """For each junction lane: the other junction lanes whose centre lines come within
+        ``dist`` (crossing, merging or diverging paths)."""
+        out = [set() for _ in self.geoms]
+        J = np.flatnonzero(self.junction)
+        if len(J) < 2:
+            return out
+        samples = {}
+        for j in J:
+            g = self.geoms[j]
+            n = max(2, int(np.ceil(g.length / 0.5)) + 1)
+            samples[j] = g.point(np.linspace(0.0, g.length, n))[:, :2]
+        lo = {j: samples[j].min(0) - dist for j in J}
+        hi = {j: samples[j].max(0) + dist for j in J}
+        for a_i, a in enumerate(J):
+            for b in J[a_i + 1:]:
+                if np.any(lo[a] > hi[b]) or np.any(lo[b] > hi[a]):
+                    continue
+                d = np.linalg.norm(samples[a][:, None, :] - samples[b][None, :, :], axis=2)
+                if d.min() < dist:
+                    out[a].add(int(b))
+                    out[b].add(int(a))
+        return out
+
+    def route_indices(self, lane_ids) -> list[int]:
+        """Validate a route: known drivable lanes, each the successor of the one before."""
+        idx = []
+        for k, lid in enumerate(lane_ids):
+            if lid not in self.index:
+                raise InputError(f"route: lane {lid!r} is not a drivable lane of the layout")
+            i = self.index[lid]
+            if idx and i not in self.succ[idx[-1]]:
+                raise InputError(f"route: lane {lid!r} does not follow lane {lane_ids[k - 1]!r} "
+                                 f"(successors: {', '.join(self.ids[j] for j in self.succ[idx[-1]]) or 'none'})")
+            idx.append(i)
+        if not idx:
+            raise InputError("route: no lanes given")
+        return idx
+
+
+@dataclass
+class _Vehicle:
+    length: float
+    lane: int
+    s: float
+    v: float
+    factor: float
+    plan: list            # next lanes (indices), at most two
+    forced: list          # remaining forced route (ego)
+    holds: dict           # lane index -> release condition (lane it leads to, or -1 while on it)
+
+
+def _idm(v, v0, gap, dv, p: IDMParams) -> float:
+    v0 = max(v0, 0.1)
+    s_star = p.s0 + max(0.0, v * p.T + v * dv / (2.0 * np.sqrt(p.a_max * p.b)))
+    gap = max(gap, 0.01)
+    return p.a_max * (1.0 - (v / v0) ** p.delta - (s_star / gap) ** 2)
+
+
+class Simulation:
+    def __init__(self, layout, seed: int, params: IDMParams = IDMParams()):
+        self.p = params
+        self.g = LaneGraph(layout, params)
+        self.rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x1D3]))
+        self.seed = int(seed)
+        self.veh: list[_Vehicle] = []
+
+    # ---- setup
+    def _choose(self, lane: int) -> int | None:
+        succ = self.g.succ[lane]
+        if not succ:
+            return None
+        return int(succ[int(self.rng.integers(len(succ)))]) if len(succ) > 1 else int(succ[0])
+
+    def _fill_plan(self, v: _Vehicle) -> None:
+        last = v.plan[-1] if v.plan else v.lane
+        while len(v.plan) < 2 and last is not None:
+            nxt = v.forced.pop(0) if v.forced else self._choose(last)
+            if nxt is None:
+                break
+            v.plan.append(nxt)
+            last = nxt
+
+    def spawn(self, lengths, min_spacing: float = 8.0, max_tries: int = 200) -> list[_Vehicle]:
+        """Place vehicles of the given lengths on non-junction lanes, spaced apart."""
+        cand = np.flatnonzero(~self.g.junction & (self.g.length >= 12.0))
+        if len(cand) == 0 and len(lengths):
+            raise InputError("traffic: the layout has no drivable lane long enough (>= 12 m) "
+                             "outside junctions to place moving actors on")
+        w = self.g.length[cand] / self.g.length[cand].sum() if len(cand) else None
+        for L in lengths:
+            for _ in range(max_tries):
+                lane = int(cand[self.rng.choice(len(cand), p=w)])
+                lo, hi = L / 2 + 1.0, self.g.length[lane] - L / 2 - 1.0
+                if hi <= lo:
+                    continue
+                s = float(self.rng.uniform(lo, hi))
+                if self._spawn_ok(lane, s, L, min_spacing):
+                    f = float(self.rng.uniform(*self.p.speed_factor))
+                    v = _Vehicle(float(L), lane, s, 0.5 * f * self.g.limit[lane], f, [], [], {})
+                    self._fill_plan(v)
+                    self.veh.append(v)
+                    break
+        return self.veh
+
+    def _spawn_ok(self, lane, s, L, spacing) -> bool:
+        p = self.g.geoms[lane].point(s)
+        for o in self.veh:
+            if o.lane == lane and abs(o.s - s) < (o.length + L) / 2 + spacing:
+                return False
+            q = self.g.geoms[o.lane].point(o.s)
+            if np.linalg.norm(p[:2] - q[:2]) < (o.length + L) / 2 + 0.5 and o.lane != lane:
+                # a different lane this close: only fine if side by side (>= a lane apart)
+                if np.linalg.norm(p[:2] - q[:2]) < 2.8:
+                    return False
+        return True
+
+    def add_ego(self, route: list[int], length: float, s: float = 0.0, v: float | None = None):
+        """A vehicle forced along ``route`` (lane indices) first; index 0 if added first."""
+        lane = route[0]
+        s = float(np.clip(s, 0.0, self.g.length[lane]))
+        ego = _Vehicle(float(length), lane, s, float(self.g.limit[lane] * 0.8 if v is None else v),
+                       1.0, [], list(route[1:]), {})
+        if self.g.junction[lane]:
+            ego.holds[lane] = -1
+        self._fill_plan(ego)
+        self.veh.insert(0, ego)
+        return ego
+
+    # ---- one step
+    def _ahead(self, i: int, horizon: float):
+        """(gap bumper-to-bumper, leader speed) of the nearest obstacle ahead of vehicle i
+        along its lane and plan, or (inf, 0)."""
+        me = self.veh[i]
+        best = (np.inf, 0.0)
+        # same lane
+        for j, o in enumerate(self.veh):
+            if j == i or o.lane != me.lane:
+                continue
+            if o.s > me.s or (o.s == me.s and j < i):
+                gap = o.s - me.s - (o.length + me.length) / 2
+                if gap < best[0]:
+                    best = (gap, o.v)
+        if np.isfinite(best[0]):
+            return best
+        dist = self.g.length[me.lane] - me.s          # from my centre to the end of my lane
+        prev = me.lane
+        for nxt in me.plan:
+            if dist - me.length / 2 > horizon:
+                break
+            if self._must_stop(me, prev, nxt):
+                return dist - me.length / 2 - self.p.stop_margin, 0.0
+            for o in self.veh:
+                if o.lane == nxt:
+                    gap = dist + o.s - (o.length + me.length) / 2
+                    if gap < best[0]:
+                        best = (gap, o.v)
+            if np.isfinite(best[0]):
+                return best
+            dist += self.g.length[nxt]
+            prev = nxt
+        if len(me.plan) < 2 and dist - me.length / 2 <= horizon:
+            # the plan ends (dead end): a wall at its end
+            return dist - me.length / 2 - self.p.stop_margin, 0.0
+        return best
+
+    def _must_stop(self, me: _Vehicle, cur: int, nxt: int) -> bool:
+        return bool(self.g.junction[nxt]) and nxt not in me.holds and not self.g.junction[cur]
+
+    def _grant(self) -> None:
+        """Junction reservations, nearest-to-the-lane-end first."""
+        want = []
+        for i, me in enumerate(self.veh):
+            if not me.plan or not self.g.junction[me.plan[0]] or me.plan[0] in me.holds:
+                continue
+            if self.g.junction[me.lane]:
+                continue
+            head = all(not (o.lane == me.lane and (o.s > me.s or (o.s == me.s and j < i)))
+                       for j, o in enumerate(self.veh) if j != i)
+            rem = self.g.length[me.lane] - me.s
+            if head and rem - me.length / 2 < max(30.0, me.v ** 2 / (2 * self.p.b) + 10.0):
+                want.append((rem, i))
+        for _, i in sorted(want):
+            me = self.veh[i]
+            # the whole chain of junction lanes ahead must be free of conflicts
+            chain = []
+            for nxt in me.plan:
+                if not self.g.junction[nxt]:
+                    break
+                chain.append(nxt)
+            blocked = False
+            for j, o in enumerate(self.veh):
+                if j == i:
+                    continue
+                held = set(o.holds) | ({o.lane} if self.g.junction[o.lane] else set())
+                for c in chain:
+                    if held & self.g.conflicts[c]:
+                        blocked = True
+                        break
+                if blocked:
+                    break
+            if not blocked:
+                for c in chain:
+                    me.holds[c] = -1
+
+    def _release(self, me: _Vehicle) -> None:
+        for lane in list(me.holds):
+            if lane == me.lane:
+                continue
+            # released once the vehicle is a length past the end of the held lane
+            if not self.g.junction[me.lane] and me.s > me.length:
+                del me.holds[lane]
+
+    def step(self, dt: float) -> None:
+        p = self.p
+        self._grant()
+        acc = np.zeros(len(self.veh))
+        bound = np.full(len(self.veh), np.inf)
+        for i, me in enumerate(self.veh):
+            horizon = max(120.0, me.v * 8.0)
+            gap, v_lead = self._ahead(i, horizon)
+            v0 = self.g.limit[me.lane] * me.factor
+            if me.plan:
+                nxt_lim = self.g.limit[me.plan[0]] * me.factor
+                rem = self.g.length[me.lane] - me.s
+                if nxt_lim < v0 and rem < me.v ** 2 / (2 * p.b) + me.v * p.T + 5.0:
+                    v0 = nxt_lim
+            acc[i] = _idm(me.v, v0, gap, me.v - v_lead, p) if np.isfinite(gap) else \
+                p.a_max * (1 - (me.v / max(v0, 0.1)) ** p.delta)
+            bound[i] = gap - p.min_gap if np.isfinite(gap) else np.inf
+        for i, me in enumerate(self.veh):
+            a = max(acc[i], -p.b_max)
+            v_new = max(0.0, me.v + a * dt)
+            ds = 0.5 * (me.v + v_new) * dt
+            if ds > bound[i]:                # hard guard against the leader's old position
+                ds = max(0.0, bound[i])
+                v_new = min(v_new, 2.0 * ds / dt - me.v) if ds > 0 else 0.0
+                v_new = max(v_new, 0.0)
+            self._advance(me, ds)
+            me.v = min(v_new, self.g.limit[me.lane])
+        for me in self.veh:
+            self._release(me)
+
+    def _advance(self, me: _Vehicle, ds: float) -> None:
+        me.s += ds
+        while me.s > self.g.length[me.lane]:
+            if not me.plan:  # dead end: stay at the end
+                me.s = self.g.length[me.lane]
+                me.v = 0.0
+                return
+            me.s -= self.g.length[me.lane]
+            me.lane = me.plan.pop(0)
+            self._fill_plan(me)
+
+    # ---- run
+    def run(self, seconds: float, fps: float) -> TrafficRun:
+        if not (fps > 0) or not (seconds >= 0):
+            raise InputError(f"traffic: need fps > 0 and seconds >= 0, got fps={fps}, seconds={seconds}")
+        n_t = int(round(seconds * fps)) + 1
+        sub = max(1, int(np.ceil((1.0 / fps) / self.p.dt_max)))
+        dt = 1.0 / fps / sub
+        nv = len(self.veh)
+        lane = np.zeros((nv, n_t), np.int32)
+        s = np.zeros((nv, n_t))
+        v = np.zeros((nv, n_t))
+        for k in range(n_t):
+            if k:
+                for _ in range(sub):
+                    self.step(dt)
+            for i, me in enumerate(self.veh):
+                lane[i, k], s[i, k], v[i, k] = me.lane, me.s, me.v
+        pos = np.zeros((nv, n_t, 3))
+        yaw = np.zeros((nv, n_t))
+        for i in range(nv):
+            for k in range(n_t):
+                g = self.g.geoms[lane[i, k]]
+                pos[i, k] = g.point(s[i, k])
+                yaw[i, k] = g.heading(s[i, k])
+            yaw[i] = np.unwrap(yaw[i])
+        return TrafficRun(np.arange(n_t) / fps, pos, yaw, v, lane, s, list(self.g.ids),
+                          np.array([me.length for me in self.veh]), self.g.limit.copy(),
+                          self.seed, self.p)
+
+
+def simulate(layout, lengths, seed: int = 0, seconds: float = 8.0, fps: float = 10.0,
+             params: IDMParams = IDMParams(), ego_route=None, ego_length: float = 4.8) -> TrafficRun:
+    """Spawn ``len(lengths)`` vehicles (seeded) and run IDM traffic; deterministic per seed.
+    With ``ego_route`` (lane ids) vehicle 0 is an ego car starting at the route's first lane
+    and following it (then seeded choices)."""
+    sim = Simulation(layout, seed, params)
+    if ego_route:
+        sim.add_ego(sim.g.route_indices(list(ego_route)), ego_length)
+    sim.spawn(list(lengths))
+    return sim.run(seconds, fps)
+
+
+def constant_speed_route(layout, lane_ids, speed: float, times) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (n,3), yaw (n,)) at ``times`` driving ``lane_ids`` at ``speed`` from the
+    start of the first lane; the car stops at the end of the last lane."""
+    g = LaneGraph(layout)
+    idx = g.route_indices(list(lane_ids))
+    if not speed > 0:
+        raise InputError(f"route: speed must be > 0, got {speed}")
+    cum = np.concatenate([[0.0], np.cumsum(g.length[idx])])
+    d = np.clip(np.asarray(times, np.float64) * speed, 0.0, cum[-1])
+    pos, yaw = np.zeros((len(d), 3)), np.zeros(len(d))
+    for k, dk in enumerate(d):
+        j = min(int(np.searchsorted(cum, dk, side="right")) - 1, len(idx) - 1)
+        geom = g.geoms[idx[j]]
+        pos[k] = geom.point(dk - cum[j])
+        yaw[k] = geom.heading(dk - cum[j])
+    return pos, np.unwrap(yaw)

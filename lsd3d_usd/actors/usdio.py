@@ -1,0 +1,251 @@
+"""The actors layer (``layers/actors.usda``) and reading placed actors back for rendering.
+
+Layer content (authored with Sdf, so nothing needs to resolve while writing)::
+
+    /World/Actors                 Xform, lsd3d:actors:seed / fps / seconds
+      Parked/<Kind>_<k>           Xform, references = @<asset, relative to the layer>@
+                                  xformOp:translate + xformOp:rotateZ (degrees), static
+      Moving/<Kind>_<k>           the same, both ops time-sampled (one sample per traffic
+                                  step at the scene's timeCodesPerSecond), plus
+                                  lsd3d:actor:speed (m/s) samples
+        Body                      over: primvars:displayColor = per-instance paint
+
+The asset files stay where they are (a library folder); the layer only points at them.
+Every actor prim carries ``lsd3d:actor:role`` (parked | moving | ego) and
+``lsd3d:actor:asset`` (the path as given, for error messages).
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import lsd3d_usd  # noqa: F401
+from lsd3d_usd.errors import InputError
+
+ROLE_ATTR = "lsd3d:actor:role"
+ASSET_ATTR = "lsd3d:actor:asset"
+SPEED_ATTR = "lsd3d:actor:speed"
+DEFAULT_TCPS = 24.0
+
+
+# ------------------------------------------------------------------ writing
+@dataclass
+class ActorSpec:
+    """One actor to author: name, role, asset reference (relative string), paint colour
+    (or None) and its transform: static (position, yaw) or sampled (times, positions, yaws)."""
+    name: str
+    role: str
+    asset: str
+    position: np.ndarray                      # (3,) or (n,3)
+    yaw: np.ndarray | float                   # radians, scalar or (n,)
+    times: np.ndarray | None = None           # seconds (n,) when time-sampled
+    speed: np.ndarray | None = None
+    paint: tuple | None = None
+    extra: dict = field(default_factory=dict)
+
+
+def _spec_attr(prim_spec, name: str, type_name, value=None, uniform=False, custom=True):
+    from pxr import Sdf
+    a = Sdf.AttributeSpec(prim_spec, name, type_name,
+                          Sdf.VariabilityUniform if uniform else Sdf.VariabilityVarying, custom)
+    if value is not None:
+        a.default = value
+    return a
+
+
+def author_actor(layer, parent_path: str, a: ActorSpec, tcps: float):
+    """Author one actor prim spec under ``parent_path`` in ``layer`` (Sdf level)."""
+    from pxr import Gf, Sdf, Vt
+    T = Sdf.ValueTypeNames
+    path = Sdf.Path(parent_path).AppendChild(a.name)
+    spec = Sdf.CreatePrimInLayer(layer, path)
+    spec.specifier = Sdf.SpecifierDef
+    spec.typeName = "Xform"
+    spec.referenceList.Prepend(Sdf.Reference(a.asset))
+    _spec_attr(spec, ROLE_ATTR, T.Token, a.role, uniform=True)
+    _spec_attr(spec, ASSET_ATTR, T.String, a.asset, uniform=True)
+    for k, v in a.extra.items():
+        _spec_attr(spec, f"lsd3d:actor:{k}", T.String, str(v), uniform=True)
+    tr = _spec_attr(spec, "xformOp:translate", T.Double3, custom=False)
+    rz = _spec_attr(spec, "xformOp:rotateZ", T.Float, custom=False)
+    _spec_attr(spec, "xformOpOrder", T.TokenArray, Vt.TokenArray(["xformOp:translate", "xformOp:rotateZ"]),
+               uniform=True, custom=False)
+    if a.times is None:
+        p = np.asarray(a.position, np.float64).reshape(3)
+        tr.default = Gf.Vec3d(*map(float, p))
+        rz.default = float(np.degrees(float(a.yaw)))
+    else:
+        P = np.asarray(a.position, np.float64).reshape(-1, 3)
+        Y = np.degrees(np.asarray(a.yaw, np.float64).reshape(-1))
+        sp = _spec_attr(spec, SPEED_ATTR, T.Float) if a.speed is not None else None
+        for k, t in enumerate(np.asarray(a.times, np.float64)):
+            code = round(float(t) * tcps, 6)  # 0.1 s * 24 must be 2.4, not 2.4000000000000004
+            layer.SetTimeSample(tr.path, code, Gf.Vec3d(*map(float, P[k])))
+            layer.SetTimeSample(rz.path, code, float(Y[k]))
+            if sp is not None:
+                layer.SetTimeSample(sp.path, code, float(a.speed[k]))
+    if a.paint is not None:
+        body = Sdf.CreatePrimInLayer(layer, path.AppendChild("Body"))
+        body.specifier = Sdf.SpecifierOver
+        pv = _spec_attr(body, "primvars:displayColor", T.Color3fArray,
+                        Vt.Vec3fArray([Gf.Vec3f(*map(float, a.paint))]), custom=False)
+        pv.SetInfo("interpolation", "constant")
+    return spec
+
+
+def scene_time_codes_per_second(scene) -> float:
+    """The scene root layer's timeCodesPerSecond (USD's default, 24, when unauthored)."""
+    from pxr import Sdf
+    root = Sdf.Layer.FindOrOpen(str(scene.root_layer_path))
+    return float(root.timeCodesPerSecond) if root.HasTimeCodesPerSecond() else DEFAULT_TCPS
+
+
+def actors_layer(actors: list[ActorSpec], tcps: float, seconds: float, info: dict):
+    """An in-memory stage whose root layer holds /World/Actors with ``actors`` (the stage
+    keeps the layer alive)."""
+    from pxr import Sdf
+
+    from lsd3d_usd.scene import ACTORS_PATH, new_stage
+    stage = new_stage()
+    layer = stage.GetRootLayer()
+    layer.timeCodesPerSecond = tcps
+    layer.framesPerSecond = tcps
+    layer.startTimeCode = 0.0
+    layer.endTimeCode = float(seconds * tcps)
+    with Sdf.ChangeBlock():
+        root = Sdf.CreatePrimInLayer(layer, ACTORS_PATH)
+        root.specifier = Sdf.SpecifierDef
+        root.typeName = "Xform"
+        for k, v in info.items():
+            _spec_attr(root, f"lsd3d:actors:{k}", Sdf.ValueTypeNames.String, str(v), uniform=True)
+        groups = set()
+        for a in actors:
+            g = {"parked": "Parked", "moving": "Moving", "ego": "Ego"}.get(a.role, "Other")
+            gp = f"{ACTORS_PATH}/{g}"
+            if g not in groups:
+                gs = Sdf.CreatePrimInLayer(layer, gp)
+                gs.specifier = Sdf.SpecifierDef
+                gs.typeName = "Xform"
+                groups.add(g)
+            author_actor(layer, gp, a, tcps)
+    return stage
+
+
+def extend_root_time_range(scene, end_code: float, tcps: float) -> None:
+    """Make the scene root's playback range cover [0, end_code] at ``tcps`` (usdview and
+    other tools read start/endTimeCode from the root layer only)."""
+    from pxr import Sdf
+
+    from lsd3d_usd.scene import save_layer
+    root = Sdf.Layer.FindOrOpen(str(scene.root_layer_path))
+    root.Reload()
+    changed = False
+    if not root.HasTimeCodesPerSecond() or root.timeCodesPerSecond != tcps:
+        root.timeCodesPerSecond = tcps
+        root.framesPerSecond = tcps
+        changed = True
+    if not root.HasStartTimeCode():
+        root.startTimeCode = 0.0
+        changed = True
+    if not root.HasEndTimeCode() or root.endTimeCode < end_code:
+        root.endTimeCode = float(end_code)
+        changed = True
+    if changed:
+        save_layer(root, scene.root_layer_path)
+
+
+# ------------------------------------------------------------------ reading
+def check_references(stage, root_path: str) -> None:
+    """Every reference under ``root_path`` points at an existing file (InputError naming the
+    actor prim, the asset path as written and the layer it was written in otherwise)."""
+    from pxr import Usd
+    start = stage.GetPrimAtPath(root_path)
+    if not start:
+        return
+    for prim in Usd.PrimRange(start):
+        for spec in prim.GetPrimStack():
+            refs = spec.referenceList
+            for ref in list(refs.prependedItems) + list(refs.explicitItems) + list(refs.appendedItems):
+                if not ref.assetPath:
+                    continue
+                path = spec.layer.ComputeAbsolutePath(ref.assetPath)
+                if not os.path.isfile(path):
+                    raise InputError(f"{spec.layer.realPath or spec.layer.identifier}: actor {prim.GetPath()} "
+                                     f"references missing asset {ref.assetPath!r} (resolved to {path})")
+
+
+@dataclass
+class PlacedActor:
+    path: str
+    role: str
+    meshes: list            # MeshData in the actor-root frame
+    surfels: object | None  # SurfelField in the actor-root frame, or None
+    dims: np.ndarray
+
+
+class ActorSet:
+    """The actors of a composed stage: geometry read once (in each actor's own frame);
+    `world_meshes(t)` / `world_surfels(t)` place them at time t. Stateless per call."""
+
+    def __init__(self, stage, root_path: str | None = None):
+        from pxr import Usd, UsdGeom
+
+        from lsd3d_usd.actors.assets import DIMS_ATTR, mesh_data_from_prim
+        from lsd3d_usd.scene import ACTORS_PATH
+        from lsd3d_usd.splats.field import SurfelField
+        from lsd3d_usd.splats.init import transform_surfels
+        from lsd3d_usd.splats.usdio import is_particle_field, read_surfels
+
+        self.stage = stage
+        root_path = root_path or ACTORS_PATH
+        check_references(stage, root_path)
+        self.actors: list[PlacedActor] = []
+        start = stage.GetPrimAtPath(root_path)
+        if not start:
+            return
+        t0 = Usd.TimeCode.EarliestTime()
+        for prim in Usd.PrimRange(start):
+            role = prim.GetAttribute(ROLE_ATTR)
+            if not role or not role.HasValue():
+                continue
+            Minv = np.linalg.inv(self._world(prim, t0))
+            meshes, fields = [], []
+            for sub in Usd.PrimRange(prim):
+                if sub.IsA(UsdGeom.Mesh):
+                    meshes.append(mesh_data_from_prim(sub, Minv @ self._world(sub, t0)))
+                elif is_particle_field(sub):
+                    f = read_surfels(sub, t0)
+                    if f.n:
+                        fields.append(transform_surfels(f, Minv @ self._world(sub, t0)))
+            surf = None
+            if fields:
+                try:
+                    surf = SurfelField.concat(fields)
+                except ValueError:
+                    from dataclasses import replace
+                    surf = SurfelField.concat([replace(f, semantic_ids=None, semantic_classes=()) for f in fields])
+            da = prim.GetAttribute(DIMS_ATTR)
+            dims = np.array(da.Get(), np.float64) if da and da.HasValue() else np.array([4.5, 1.8, 1.5])
+            self.actors.append(PlacedActor(str(prim.GetPath()), str(role.Get()), meshes, surf, dims))
+
+    @staticmethod
+    def _world(prim, t) -> np.ndarray:
+        from pxr import UsdGeom
+        return np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t), np.float64).T
+
+    def __len__(self) -> int:
+        return len(self.actors)
+
+    def transforms(self, time_code) -> list[np.ndarray]:
+        from pxr import Usd
+        t = Usd.TimeCode(time_code)
+        return [self._world(self.stage.GetPrimAtPath(a.path), t) for a in self.actors]
+
+    def visible(self, time_code) -> list[bool]:
+        from pxr import Usd, UsdGeom
+        t = Usd.TimeCode(time_code)
+        return [UsdGeom.Imageable(self.stage.GetPrimAtPath(a.path)).ComputeVisibility(t)
+                != UsdGeom.Tokens.invisible for a in self.actors]
