@@ -1,0 +1,69 @@
+"""Adam that updates only the rows it is given (the surfels a view touched), as
+gsplat's SelectiveAdam: surfels outside the sampled frusta keep their values and
+moments untouched instead of drifting on stale momentum."""
+from __future__ import annotations
+
+import math
+
+import torch
+
+
+class SelectiveAdam:
+    def __init__(self, params: dict[str, torch.Tensor], lrs: dict[str, float],
+                 betas=(0.9, 0.999), eps: float = 1e-15):
+        self.params, self.lrs = params, dict(lrs)
+        self.b1, self.b2, self.eps = betas[0], betas[1], eps
+        self.m = {k: torch.zeros_like(v) for k, v in params.items()}
+        self.v = {k: torch.zeros_like(v) for k, v in params.items()}
+        # Per-row step counts: bias correction must count the updates a row received.
+        n = next(iter(params.values())).shape[0]
+        self.t = torch.zeros(n, dtype=torch.int64)
+
+    @torch.no_grad()
+    def step(self, rows: torch.Tensor) -> None:
+        if rows.numel() == 0:
+            return
+        self.t[rows] += 1
+        t = self.t[rows].to(torch.float64)
+        c1 = (1 - self.b1 ** t).to(torch.float32)
+        c2 = (1 - self.b2 ** t).to(torch.float32)
+        for k, p in self.params.items():
+            if p.grad is None or self.lrs.get(k, 0.0) == 0.0:
+                continue
+            g = p.grad[rows]
+            m = self.m[k][rows].mul_(self.b1).add_(g, alpha=1 - self.b1)
+            v = self.v[k][rows].mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
+            self.m[k][rows], self.v[k][rows] = m, v
+            shape = (-1,) + (1,) * (p.dim() - 1)
+            mhat = m / c1.view(shape)
+            vhat = v / c2.view(shape)
+            p[rows] -= self.lrs[k] * mhat / (vhat.sqrt() + self.eps)
+
+    @torch.no_grad()
+    def reset_rows(self, rows: torch.Tensor) -> None:
+        for k in self.params:
+            self.m[k][rows] = 0
+            self.v[k][rows] = 0
+        self.t[rows] = 0
+
+    def state_dict(self) -> dict:
+        return {"m": {k: v.clone() for k, v in self.m.items()},
+                "v": {k: v.clone() for k, v in self.v.items()}, "t": self.t.clone(),
+                "lrs": dict(self.lrs)}
+
+    def load_state_dict(self, state: dict) -> None:
+        for k in self.params:
+            if state["m"][k].shape != self.params[k].shape:
+                raise ValueError(f"optimizer state for {k} has shape {tuple(state['m'][k].shape)}, "
+                                 f"parameters {tuple(self.params[k].shape)}")
+            self.m[k] = state["m"][k].clone()
+            self.v[k] = state["v"][k].clone()
+        self.t = state["t"].clone()
+
+
+def lr_at(step: int, total: int, lr0: float, lr1: float) -> float:
+    """Log-linear decay from lr0 to lr1 (as 3DGS's position schedule)."""
+    if total <= 1:
+        return lr0
+    f = min(max(step / (total - 1), 0.0), 1.0)
+    return math.exp(math.log(lr0) * (1 - f) + math.log(lr1) * f)
