@@ -83,7 +83,7 @@ def preetham_xyY(dirs: np.ndarray, sun: np.ndarray, T: float):
     out = []
     for coef, zval in ((_PEREZ_Y, Yz), (_PEREZ_x, xz), (_PEREZ_y, yz)):
         norm = _perez(coef, T, one, np.array([theta_s]), np.array([math.cos(theta_s)]))[0]
-        out.append((zval / norm) * _perez(coef, T, cos_t, gamma, cos_g))
+        out.append(np.float32(zval / norm) * _perez(coef, T, cos_t, gamma, cos_g))
     return out[0], out[1], out[2]
 
 
@@ -135,29 +135,41 @@ class CloudNoise:
         return dirs[:, :2] * s[:, None] * np.float32(1.6)
 
     def __call__(self, dirs: np.ndarray) -> np.ndarray:
-        p = self.plane_coords(dirs)
-        total = np.zeros(len(dirs), np.float32)
-        amp, freq, norm = 1.0, 1.0, 0.0
-        n = self.size
-        for o in range(self.octaves):
-            c, s = math.cos(self.rotations[o]), math.sin(self.rotations[o])
-            x = (c * p[:, 0] - s * p[:, 1]) * freq + self.offsets[o, 0]
-            y = (s * p[:, 0] + c * p[:, 1]) * freq + self.offsets[o, 1]
-            x0, y0 = np.floor(x), np.floor(y)
+        p = np.ascontiguousarray(self.plane_coords(dirs), dtype=np.float32)
+        rot = np.stack([np.cos(self.rotations), np.sin(self.rotations)], -1).astype(np.float32)
+        return _fbm(p, self.lattice, self.offsets, rot)
+
+
+def _fbm_py(p, lattice, offsets, rot):
+    """Fractal value noise (smoothstep-interpolated lattice, octaves halving in amplitude)."""
+    n = lattice.shape[0]
+    total = np.zeros(p.shape[0], np.float32)
+    amp, freq, norm = 1.0, 1.0, 0.0
+    for o in range(offsets.shape[0]):
+        c, s = rot[o, 0], rot[o, 1]
+        for k in range(p.shape[0]):
+            x = (c * p[k, 0] - s * p[k, 1]) * freq + offsets[o, 0]
+            y = (s * p[k, 0] + c * p[k, 1]) * freq + offsets[o, 1]
+            x0, y0 = math.floor(x), math.floor(y)
             fx, fy = x - x0, y - y0
             fx = fx * fx * (3 - 2 * fx)
             fy = fy * fy * (3 - 2 * fy)
-            i0 = np.mod(x0.astype(np.int64), n)
-            j0 = np.mod(y0.astype(np.int64), n)
+            i0, j0 = int(x0) % n, int(y0) % n
             i1, j1 = (i0 + 1) % n, (j0 + 1) % n
-            L = self.lattice
-            v = ((L[j0, i0] * (1 - fx) + L[j0, i1] * fx) * (1 - fy)
-                 + (L[j1, i0] * (1 - fx) + L[j1, i1] * fx) * fy)
-            total += np.float32(amp) * v
-            norm += amp
-            amp *= 0.5
-            freq *= 2.0
-        return total / np.float32(norm)
+            v = ((lattice[j0, i0] * (1 - fx) + lattice[j0, i1] * fx) * (1 - fy)
+                 + (lattice[j1, i0] * (1 - fx) + lattice[j1, i1] * fx) * fy)
+            total[k] += amp * v
+        norm += amp
+        amp *= 0.5
+        freq *= 2.0
+    return total / np.float32(norm)
+
+
+try:  # numba: ~20x the numpy version of the same loop; the plain one is the fallback
+    import numba as _nb
+    _fbm = _nb.njit(cache=True, fastmath=True)(_fbm_py)
+except ImportError:  # pragma: no cover
+    _fbm = _fbm_py
 
 
 class SkyModel:
@@ -266,6 +278,9 @@ class SkyModel:
         if len(d) == 0:
             return out
         z = np.maximum(d[:, 2], 0.0)
+        floor = (NIGHT_FLOOR * NIGHT_TINT * (1.0 + 1.5 * (1.0 - z))[:, None]).astype(np.float32)
+        if self.overcast:     # the clear sky is fully hidden: skip it
+            return self._cloud_base(d, z, floor, T) * (0.78 + 0.44 * self.clouds(d))[:, None]
         # clear sky (Preetham), scaled for low sun / twilight
         Y, x, y = preetham_xyY(d, self.sun_dir_eff.astype(np.float32), T)
         clear = cs.xyY_to_rec709(x, y, Y.astype(np.float32))
@@ -279,26 +294,18 @@ class SkyModel:
             horiz = np.hypot(d[:, 0], d[:, 1]) + 1e-6
             cos_az = (d[:, 0] * s[0] + d[:, 1] * s[1]) / (horiz * max(math.hypot(s[0], s[1]), 1e-6))
             az = np.arccos(np.clip(cos_az, -1, 1))
-            g = (np.exp(-(az / 0.8) ** 2) + 0.12) * np.exp(-z / 0.16)
-            clear += (self.glow * self.glow_level * g)[:, None].astype(np.float32) \
+            g = (np.exp(-(az / np.float32(0.8)) ** 2) + np.float32(0.12)) * np.exp(-z / np.float32(0.16))
+            clear += (np.float32(self.glow * self.glow_level) * g)[:, None] \
                 * self.sun_chroma.astype(np.float32)
         if self.moon_k > 0 and self.sun_elevation < 0:
             Ym, xm, ym = preetham_xyY(d, self.moon_dir.astype(np.float32), T)
             clear += cs.xyY_to_rec709(xm, ym, (Ym * self.moon_k).astype(np.float32))
-        floor = NIGHT_FLOOR * NIGHT_TINT * (1.0 + 1.5 * (1.0 - z))[:, None]
-        clear += floor.astype(np.float32)
+        clear += floor
 
         if self.clouds is None:
             return clear
         alpha, n = self.cloud_alpha(d)
-        base = (self.overcast_Lz * (1.0 + 2.0 * z) / 3.0)[:, None] * self.overcast_rgb[None, :]
-        base = base.astype(np.float32) + floor.astype(np.float32) * 1.5
-        if self.moon_k > 0 and self.sun_elevation < 0:     # moonlit overcast (same CIE law)
-            base += np.float32(self.moon_k * (8.6 * math.sin(math.radians(self.moon_elevation))
-                                              + 0.123) * p.overcast_gain) \
-                * ((1.0 + 2.0 * z) / 3.0)[:, None] * self.overcast_rgb.astype(np.float32)
-        if self.overcast:
-            return base * (0.78 + 0.44 * n)[:, None]
+        base = self._cloud_base(d, z, floor, T)
         # partly cloudy: bright, sun-tinted cumulus over the clear sky; silver lining near the sun
         cg = np.clip(d @ self.sun_dir_eff.astype(np.float32), -1, 1)
         lit = 3.4 * (1.1 - 0.35 * alpha)[:, None] * float(_smoothstep(-8.0, 2.0, self.sun_elevation)) \
@@ -308,6 +315,16 @@ class SkyModel:
         cloud = base * lit * tint + (np.exp((cg - 1.0) / 0.02) * 3.0 * self.overcast_Lz)[:, None] \
             * self.sun_chroma.astype(np.float32)
         return clear * (1 - alpha)[:, None] + cloud.astype(np.float32) * alpha[:, None]
+
+    def _cloud_base(self, d, z, floor, T):
+        """CIE overcast luminance (sun- and moon-lit) in the overcast colour."""
+        law = ((1.0 + 2.0 * z) / 3.0)[:, None]
+        base = (self.overcast_Lz * law * self.overcast_rgb[None, :]).astype(np.float32) + floor * 1.5
+        if self.moon_k > 0 and self.sun_elevation < 0:     # moonlit overcast (same CIE law)
+            base += (np.float32(self.moon_k * (8.6 * math.sin(math.radians(self.moon_elevation))
+                                               + 0.123) * self.params.overcast_gain)
+                     * law * self.overcast_rgb).astype(np.float32)
+        return base
 
     # ------------------------------------------------------------------ disks
     def _disk(self, d, centre, radius, pixel_angle, luminance_rgb):
