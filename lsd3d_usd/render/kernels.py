@@ -77,29 +77,31 @@ def bin_tiles(rects, order, tile, ntx, nty):
 
 
 @njit(inline="always")
-def _alpha_loop(prm, s, pxs, pys, npx, near, alpha_max, abuf, zbuf):
-    """alpha and depth of surfel s at all tile pixels (branch-free)."""
+def _alpha_loop(prm, s, pxs, pys, tile, li0, li1, lj0, lj1, near, alpha_max, abuf, zbuf):
+    """alpha and depth of surfel s at the tile pixels of its screen rectangle (branch-free
+    inner loop along rows)."""
     xb, yb, zc = prm[s, 0], prm[s, 1], prm[s, 2]
     a1, a2, b1, b2 = prm[s, 3], prm[s, 4], prm[s, 5], prm[s, 6]
     ex, ey, op = prm[s, 7], prm[s, 8], prm[s, 9]
-    for p in range(npx):
-        dx = pxs[p] - xb
-        dy = pys[p] - yb
-        uu = a1 * dx + a2 * dy
-        vv = b1 * dx + b2 * dy
-        iw = _ONE / (_ONE + ex * dx + ey * dy)
-        r3 = (uu * uu + vv * vv) * (iw * iw)
-        r2 = _LOWPASS * (dx * dx + dy * dy)
-        use3 = r3 <= r2
-        rho = r3 if use3 else r2
-        z = zc * iw if use3 else zc
-        a = min(alpha_max, op * exp_neg(_HALF * rho))
-        abuf[p] = a if z >= near else _ZERO
-        zbuf[p] = z
+    for jj in range(lj0, lj1 + 1):
+        for p in range(jj * tile + li0, jj * tile + li1 + 1):
+            dx = pxs[p] - xb
+            dy = pys[p] - yb
+            uu = a1 * dx + a2 * dy
+            vv = b1 * dx + b2 * dy
+            iw = _ONE / (_ONE + ex * dx + ey * dy)
+            r3 = (uu * uu + vv * vv) * (iw * iw)
+            r2 = _LOWPASS * (dx * dx + dy * dy)
+            use3 = r3 <= r2
+            rho = r3 if use3 else r2
+            z = zc * iw if use3 else zc
+            a = min(alpha_max, op * exp_neg(_HALF * rho))
+            abuf[p] = a if z >= near else _ZERO
+            zbuf[p] = z
 
 
 @njit(parallel=True, cache=True)
-def forward(prm, tile_start, tile_splats, width, height, tile, ntx, nty,
+def forward(prm, rects, tile_start, tile_splats, width, height, tile, ntx, nty,
             near, alpha_min, alpha_max, t_min):
     """Front-to-back compositing. Returns (rgb (H,W,3), T_final, depth_acc = sum w z,
     normal_acc (H,W,3) = sum w n, depth_median, last (list position + 1 of the last
@@ -154,37 +156,42 @@ def forward(prm, tile_start, tile_splats, width, height, tile, ntx, nty,
             if ndone == npx:
                 break
             s = tile_splats[k]
-            nev += npx
-            _alpha_loop(prm, s, pxs, pys, npx, near, alpha_max, abuf, zbuf)
+            li0 = max(rects[s, 0] - x0, 0)
+            li1 = min(rects[s, 1] - x0, tile - 1)
+            lj0 = max(rects[s, 2] - y0, 0)
+            lj1 = min(rects[s, 3] - y0, tile - 1)
+            nev += (li1 - li0 + 1) * (lj1 - lj0 + 1)
+            _alpha_loop(prm, s, pxs, pys, tile, li0, li1, lj0, lj1, near, alpha_max, abuf, zbuf)
             cr, cg, cb = prm[s, 10], prm[s, 11], prm[s, 12]
             nx, ny, nz = prm[s, 13], prm[s, 14], prm[s, 15]
-            for p in range(npx):
-                a = abuf[p]
-                if a < alpha_min or done[p]:
-                    continue
-                tp = T[p]
-                tn = tp * (_ONE - a)
-                if tn < t_min:
-                    done[p] = True
-                    ndone += 1
-                    continue
-                w = a * tp
-                z = zbuf[p]
-                c_r[p] += w * cr
-                c_g[p] += w * cg
-                c_b[p] += w * cb
-                c_d[p] += w * z
-                c_nx[p] += w * nx
-                c_ny[p] += w * ny
-                c_nz[p] += w * nz
-                if tp > _HALF:
-                    c_med[p] = z
-                    l_med[p] = k
-                if w > l_wmax[p]:
-                    l_wmax[p] = w
-                    l_amax[p] = s
-                T[p] = tn
-                l_last[p] = k + 1
+            for jj in range(lj0, lj1 + 1):
+                for p in range(jj * tile + li0, jj * tile + li1 + 1):
+                    a = abuf[p]
+                    if a < alpha_min or done[p]:
+                        continue
+                    tp = T[p]
+                    tn = tp * (_ONE - a)
+                    if tn < t_min:
+                        done[p] = True
+                        ndone += 1
+                        continue
+                    w = a * tp
+                    z = zbuf[p]
+                    c_r[p] += w * cr
+                    c_g[p] += w * cg
+                    c_b[p] += w * cb
+                    c_d[p] += w * z
+                    c_nx[p] += w * nx
+                    c_ny[p] += w * ny
+                    c_nz[p] += w * nz
+                    if tp > _HALF:
+                        c_med[p] = z
+                        l_med[p] = k
+                    if w > l_wmax[p]:
+                        l_wmax[p] = w
+                        l_amax[p] = s
+                    T[p] = tn
+                    l_last[p] = k + 1
         evals[t] = nev
         for p in range(npx):
             i = x0 + p % tile
@@ -207,7 +214,7 @@ def forward(prm, tile_start, tile_splats, width, height, tile, ntx, nty,
 
 
 @njit(parallel=True, cache=True)
-def backward(prm, tile_start, tile_splats, width, height, tile, ntx, nty,
+def backward(prm, rects, tile_start, tile_splats, width, height, tile, ntx, nty,
              near, alpha_min, alpha_max, tfin, last, med,
              g_rgb, g_t, g_d, g_n, g_med):
     """Gradient rows (npairs, 16) w.r.t. the packed parameters, one row per (tile, surfel)
@@ -264,7 +271,11 @@ def backward(prm, tile_start, tile_splats, width, height, tile, ntx, nty,
             kmax = max(kmax, last[j, i])
         for k in range(kmax - 1, k0 - 1, -1):
             s = tile_splats[k]
-            _alpha_loop(prm, s, pxs, pys, npx, near, alpha_max, abuf, zbuf)
+            li0 = max(rects[s, 0] - x0, 0)
+            li1 = min(rects[s, 1] - x0, tile - 1)
+            lj0 = max(rects[s, 2] - y0, 0)
+            lj1 = min(rects[s, 3] - y0, tile - 1)
+            _alpha_loop(prm, s, pxs, pys, tile, li0, li1, lj0, lj1, near, alpha_max, abuf, zbuf)
             xb, yb, zc = prm[s, 0], prm[s, 1], prm[s, 2]
             a1, a2, b1, b2 = prm[s, 3], prm[s, 4], prm[s, 5], prm[s, 6]
             ex, ey, op = prm[s, 7], prm[s, 8], prm[s, 9]
@@ -286,62 +297,63 @@ def backward(prm, tile_start, tile_splats, width, height, tile, ntx, nty,
             d_nx = _ZERO
             d_ny = _ZERO
             d_nz = _ZERO
-            for p in range(npx):
-                a = abuf[p]
-                if k >= lst[p] or a < alpha_min:
-                    continue
-                om = _ONE - a
-                tb = T[p] / om
-                T[p] = tb
-                w = a * tb
-                z = zbuf[p]
-                q = cr * gr[p] + cg * gg[p] + cb * gb[p] + z * gd[p] \
-                    + nx * gnx[p] + ny * gny[p] + nz * gnz[p]
-                d_a = tb * q - (sg[p] + tg[p]) / om
-                sg[p] += w * q
-                d_cr += w * gr[p]
-                d_cg += w * gg[p]
-                d_cb += w * gb[p]
-                d_nx += w * gnx[p]
-                d_ny += w * gny[p]
-                d_nz += w * gnz[p]
-                gz = w * gd[p]
-                if lmed[p] == k:
-                    gz += gm[p]
-                # recompute the geometry of this pixel
-                dx = pxs[p] - xb
-                dy = pys[p] - yb
-                uu = a1 * dx + a2 * dy
-                vv = b1 * dx + b2 * dy
-                iw = _ONE / (_ONE + ex * dx + ey * dy)
-                u = uu * iw
-                v = vv * iw
-                r3 = (uu * uu + vv * vv) * (iw * iw)  # exactly as in _alpha_loop
-                r2 = _LOWPASS * (dx * dx + dy * dy)
-                g_rho = _ZERO
-                if a < alpha_max:  # not clamped
-                    gk = exp_neg(_HALF * (r3 if r3 <= r2 else r2))
-                    d_op += d_a * gk
-                    g_rho = -_HALF * d_a * a
-                if r3 <= r2:
-                    du = _TWO * u * g_rho
-                    dv = _TWO * v * g_rho
-                    dU = du * iw
-                    dV = dv * iw
-                    dW = -(du * u + dv * v + gz * z) * iw
-                    d_a1 += dU * dx
-                    d_a2 += dU * dy
-                    d_b1 += dV * dx
-                    d_b2 += dV * dy
-                    d_ex += dW * dx
-                    d_ey += dW * dy
-                    d_zc += gz * iw
-                    d_xb -= dU * a1 + dV * b1 + dW * ex
-                    d_yb -= dU * a2 + dV * b2 + dW * ey
-                else:
-                    d_xb -= _TWO * _LOWPASS * dx * g_rho
-                    d_yb -= _TWO * _LOWPASS * dy * g_rho
-                    d_zc += gz
+            for jj in range(lj0, lj1 + 1):
+                for p in range(jj * tile + li0, jj * tile + li1 + 1):
+                    a = abuf[p]
+                    if k >= lst[p] or a < alpha_min:
+                        continue
+                    om = _ONE - a
+                    tb = T[p] / om
+                    T[p] = tb
+                    w = a * tb
+                    z = zbuf[p]
+                    q = cr * gr[p] + cg * gg[p] + cb * gb[p] + z * gd[p] \
+                        + nx * gnx[p] + ny * gny[p] + nz * gnz[p]
+                    d_a = tb * q - (sg[p] + tg[p]) / om
+                    sg[p] += w * q
+                    d_cr += w * gr[p]
+                    d_cg += w * gg[p]
+                    d_cb += w * gb[p]
+                    d_nx += w * gnx[p]
+                    d_ny += w * gny[p]
+                    d_nz += w * gnz[p]
+                    gz = w * gd[p]
+                    if lmed[p] == k:
+                        gz += gm[p]
+                    # recompute the geometry of this pixel
+                    dx = pxs[p] - xb
+                    dy = pys[p] - yb
+                    uu = a1 * dx + a2 * dy
+                    vv = b1 * dx + b2 * dy
+                    iw = _ONE / (_ONE + ex * dx + ey * dy)
+                    u = uu * iw
+                    v = vv * iw
+                    r3 = (uu * uu + vv * vv) * (iw * iw)  # exactly as in _alpha_loop
+                    r2 = _LOWPASS * (dx * dx + dy * dy)
+                    g_rho = _ZERO
+                    if a < alpha_max:  # not clamped
+                        gk = exp_neg(_HALF * (r3 if r3 <= r2 else r2))
+                        d_op += d_a * gk
+                        g_rho = -_HALF * d_a * a
+                    if r3 <= r2:
+                        du = _TWO * u * g_rho
+                        dv = _TWO * v * g_rho
+                        dU = du * iw
+                        dV = dv * iw
+                        dW = -(du * u + dv * v + gz * z) * iw
+                        d_a1 += dU * dx
+                        d_a2 += dU * dy
+                        d_b1 += dV * dx
+                        d_b2 += dV * dy
+                        d_ex += dW * dx
+                        d_ey += dW * dy
+                        d_zc += gz * iw
+                        d_xb -= dU * a1 + dV * b1 + dW * ex
+                        d_yb -= dU * a2 + dV * b2 + dW * ey
+                    else:
+                        d_xb -= _TWO * _LOWPASS * dx * g_rho
+                        d_yb -= _TWO * _LOWPASS * dy * g_rho
+                        d_zc += gz
             o = out[k]
             o[0] = d_xb
             o[1] = d_yb
