@@ -224,7 +224,7 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
         sidewalks=[s.polygon for s in L.sidewalks],
         vegetation=[z.polygon for z in L.vegetation_zones],
         buildings=[bd.footprint for bd in L.buildings],
-        style=g)
+        style=g, extent=_extent(L))
     parts += ground_parts(areas, name, g)
 
     def add(p):
@@ -268,6 +268,13 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
         else:
             parts += street_light_parts(fx.id, fx.position, fx.yaw)
     return parts
+
+
+def _extent(layout):
+    if layout.extent is None:
+        return None
+    (x0, y0), (x1, y1) = layout.extent
+    return float(x0), float(y0), float(x1), float(y1)
 
 
 def _sign_yaw(sign, lanes_by_id) -> float:

@@ -44,12 +44,14 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
                  lanes: list[tuple[np.ndarray, np.ndarray, str]],
                  road_areas: list[np.ndarray] = (), sidewalks: list[np.ndarray] = (),
                  vegetation: list[np.ndarray] = (), buildings: list[np.ndarray] = (),
-                 style: GroundStyle = GroundStyle()) -> dict[str, Polygon]:
+                 style: GroundStyle = GroundStyle(),
+                 extent: tuple[float, float, float, float] | None = None) -> dict[str, Polygon]:
     """Disjoint areas {road, curb, sidewalk, vegetation, terrain} covering ``chunk_box``.
 
     lanes: (points (N, 2|3), full widths (N,), lane_type). Polygons are (N, 2|3)
     arrays. Everything may extend beyond the box; pass all features within
     ``margin`` of it so the result near the border does not depend on the chunk.
+    ``extent`` (the layout's area): roads leaving it get no curb across their cut end.
     """
     x0, y0, x1, y1 = chunk_box
     cbox = box(x0, y0, x1, y1)
@@ -63,6 +65,10 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
     R = shapely.intersection(_union(road_parts), big)
     # the curb rings every road boundary (junction mouths are inside the union, so none there)
     C = as_area(shapely.difference(R.buffer(style.curb_width, quad_segs=2, join_style="mitre"), R))
+    if extent is not None:
+        # a road cut at the layout's edge continues beyond it: no curb across its end
+        inner = box(*extent).buffer(-1.5 * style.curb_width, join_style="mitre")
+        C = as_area(shapely.intersection(C, inner))
     blocked = _union([R, C])
     walk = [_poly(p) for p in sidewalks] + walk_parts
     if not sidewalks and style.derive_sidewalks and not R.is_empty:

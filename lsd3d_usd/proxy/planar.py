@@ -142,35 +142,28 @@ def triangulate(geom: BaseGeometry) -> tuple[np.ndarray, np.ndarray]:
     """Constrained Delaunay triangulation of a (multi)polygon with holes.
 
     Returns vertices (N, 2) and CCW faces (M, 3) int32. Vertices are shared
-    between triangles (merged on exact coordinates).
+    between triangles (merged on exact coordinates); near-collinear slivers
+    (area <= MIN_FACE_AREA) are dropped.
     """
-    xy, faces, _ = _triangulate_pool(geom, None)
-    return xy, faces
-
-
-def _triangulate_pool(geom: BaseGeometry, extra_xy: np.ndarray | None):
-    """triangulate(), with ``extra_xy`` points added to the vertex pool; also
-    returns their vertex indices (prisms use it to index their rings)."""
+    empty = np.zeros((0, 2)), np.zeros((0, 3), np.int32)
     polys = polygons_of(geom)
     if not polys:
-        return np.zeros((0, 2)), np.zeros((0, 3), np.int32), None
+        return empty
     tris = shapely.constrained_delaunay_triangles(np.array(polys, dtype=object))
     parts = [t for t in shapely.get_parts(tris) if not t.is_empty]
     if not parts:
-        return np.zeros((0, 2)), np.zeros((0, 3), np.int32), None
+        return empty
     c = shapely.get_coordinates(np.array(parts, dtype=object))
     m = len(parts)
     tri = c.reshape(m, 4, 2)[:, :3].reshape(-1, 2)
-    pool = tri if extra_xy is None else np.vstack([tri, extra_xy])
-    uniq, inv = np.unique(pool, axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
-    faces = inv[: 3 * m].reshape(m, 3).astype(np.int32)
+    uniq, inv = np.unique(tri, axis=0, return_inverse=True)
+    faces = inv.reshape(m, 3).astype(np.int32)
     a, b, cc = uniq[faces[:, 0]], uniq[faces[:, 1]], uniq[faces[:, 2]]
     cross = (b[:, 0] - a[:, 0]) * (cc[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (cc[:, 0] - a[:, 0])
     flip = cross < 0
     faces[flip] = faces[flip][:, ::-1]
     faces = faces[np.abs(cross) > 2 * MIN_FACE_AREA]
-    return uniq, faces, (inv[3 * m:] if extra_xy is not None else None)
+    return uniq, faces
 
 
 def flat_mesh(geom: BaseGeometry, z: float) -> tuple[np.ndarray, np.ndarray]:
@@ -180,49 +173,89 @@ def flat_mesh(geom: BaseGeometry, z: float) -> tuple[np.ndarray, np.ndarray]:
     return v, f
 
 
-def _oriented_rings(poly: Polygon) -> list[np.ndarray]:
-    """Rings (open, no repeated end) with exterior CCW and holes CW."""
-    poly = shapely.orient_polygons(poly, exterior_cw=False)
-    rings = [np.asarray(poly.exterior.coords)[:-1, :2]]
-    rings += [np.asarray(r.coords)[:-1, :2] for r in poly.interiors]
-    return rings
-
-
 def prism(geom: BaseGeometry, z0: float, z1: float) -> tuple[np.ndarray, np.ndarray]:
     """Closed prism over an area between heights z0 < z1 (watertight, outward normals).
 
-    Top from a constrained triangulation, bottom its mirror, walls one quad per
-    ring edge; ring vertices are shared with the caps so the result is closed.
+    Per polygon: top from a constrained triangulation, bottom its mirror, walls
+    one quad per boundary edge of the cap triangulation, so the result is closed
+    by construction; a polygon that still does not close (rings touching each
+    other) is split in halves and retried.
     """
-    polys = polygons_of(shapely.remove_repeated_points(as_area(geom), 1e-7)
-                        if not geom.is_empty else geom)
-    if not polys:
+    if geom is None or geom.is_empty:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
-    # drop collinear ring vertices so the cap triangulation has no zero-area slivers
-    polys = polygons_of(shapely.simplify(as_area(MultiPolygon(polys) if len(polys) > 1
-                                                 else polys[0]), 0.0))
-    rings, ring_sizes = [], []
-    for p in polys:
-        for r in _oriented_rings(p):
-            rings.append(r)
-            ring_sizes.append(len(r))
-    ring_xy = np.vstack(rings)
-    xy, top, ring_idx = _triangulate_pool(MultiPolygon(polys) if len(polys) > 1 else polys[0],
-                                          ring_xy)
+    # drop repeated and collinear ring vertices so the caps have no zero-area slivers
+    polys = polygons_of(shapely.simplify(shapely.remove_repeated_points(as_area(geom), 1e-7), 0.0))
+    vs, fs, n0 = [], [], 0
+    for poly in polys:
+        v, f = _prism_split(poly, z0, z1)
+        if len(f):
+            vs.append(v)
+            fs.append(f + n0)
+            n0 += len(v)
+    if not fs:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    return np.vstack(vs), np.vstack(fs).astype(np.int32)
+
+
+def _prism_split(poly: Polygon, z0: float, z1: float, depth: int = 0):
+    """_prism_one, or when that cannot close the polygon (rings touching themselves or
+    each other), the prisms of its two halves (recursively, a few levels)."""
+    v, f = _prism_one(poly, z0, z1)
+    if len(f) or depth >= 6 or poly.area < 1e-4:
+        return v, f
+    x0, y0, x1, y1 = poly.bounds
+    if x1 - x0 >= y1 - y0:
+        m = x0 + (x1 - x0) * 0.5 + 1e-4 * (x1 - x0)
+        halves = [box(x0 - 1, y0 - 1, m, y1 + 1), box(m, y0 - 1, x1 + 1, y1 + 1)]
+    else:
+        m = y0 + (y1 - y0) * 0.5 + 1e-4 * (y1 - y0)
+        halves = [box(x0 - 1, y0 - 1, x1 + 1, m), box(x0 - 1, m, x1 + 1, y1 + 1)]
+    vs, fs, n0 = [], [], 0
+    for h in halves:
+        for piece in polygons_of(shapely.simplify(shapely.intersection(poly, h), 0.0)):
+            pv, pf = _prism_split(piece, z0, z1, depth + 1)
+            if len(pf):
+                vs.append(pv)
+                fs.append(pf + n0)
+                n0 += len(pv)
+    if not fs:
+        return v, f
+    return np.vstack(vs), np.vstack(fs).astype(np.int32)
+
+
+def _closed(faces: np.ndarray) -> bool:
+    """Every directed edge appears once and has its reverse (closed, consistently wound)."""
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]).astype(np.int64)
+    k = e[:, 0] * (faces.max() + 1) + e[:, 1]
+    r = e[:, 1] * (faces.max() + 1) + e[:, 0]
+    ks = np.sort(k)
+    if (np.diff(ks) == 0).any():
+        return False
+    return bool(np.isin(r, ks, assume_unique=False).all())
+
+
+def _prism_one(poly: Polygon, z0: float, z1: float):
+    empty = np.zeros((0, 3)), np.zeros((0, 3), np.int32)
+    if not poly.is_valid or poly.area < 1e-6:
+        return empty
+    xy, top = triangulate(poly)
+    if len(top) == 0:
+        return empty
+    # walls along the boundary edges of the cap triangulation itself (edges used by one
+    # triangle), so the solid is closed even where near-collinear slivers were dropped
+    e = np.concatenate([top[:, [0, 1]], top[:, [1, 2]], top[:, [2, 0]]]).astype(np.int64)
+    m = len(xy)
+    fwd = e[:, 0] * m + e[:, 1]
+    rev = e[:, 1] * m + e[:, 0]
+    boundary = e[~np.isin(fwd, rev)]
     n = len(xy)
     verts = np.vstack([np.column_stack([xy, np.full(n, z1)]),
                        np.column_stack([xy, np.full(n, z0)])])
-    walls = []
-    o = 0
-    for k in ring_sizes:
-        a = ring_idx[o:o + k]
-        b = np.roll(a, -1)
-        o += k
-        # edge a->b with the area on its left: the outward side is its right
-        walls.append(np.stack([a + n, b + n, b], axis=1))
-        walls.append(np.stack([a + n, b, a], axis=1))
+    a, b = boundary[:, 0], boundary[:, 1]
+    # edge a->b of a CCW cap triangle has the area on its left: outward is its right
+    walls = [np.stack([a + n, b + n, b], axis=1), np.stack([a + n, b, a], axis=1)]
     faces = np.vstack([top, top[:, ::-1] + n] + walls).astype(np.int32)
-    return verts, faces
+    return (verts, faces) if _closed(faces) else empty
 
 
 def box_polygon(bounds) -> Polygon:
