@@ -90,10 +90,11 @@ def grid_layout(nx: int = 2, ny: int = 2, block: float = 100.0, offset: float = 
                     [[x0, y0], [x1, y0], [x1, y1], [x0, y1]]), kind="park"))
                 L.add(m.Hedge(f"{bid}_hedge", np.array([[x0, y0 - 1], [x1, y0 - 1]])))
                 continue
+            north = min(14.0, (y1 - y0) / 2 - 1)     # the north building's depth
             x = x0
             while x1 - x >= 10:                      # a row of buildings along the block's south side
                 w = min(rng.uniform(10, 24), x1 - x)
-                d = min(rng.uniform(10, 18), (y1 - y0) / 2 - 1)
+                d = min(rng.uniform(10, 18), (y1 - y0) - north - 2)
                 fp = np.array([[x, y0], [x + w, y0], [x + w, y0 + d], [x, y0 + d]])
                 if roofs % 4 == 3:                   # an L-shaped one now and then
                     fp = np.array([[x, y0], [x + w, y0], [x + w, y0 + d / 2], [x + w / 2, y0 + d / 2],
@@ -102,7 +103,7 @@ def grid_layout(nx: int = 2, ny: int = 2, block: float = 100.0, offset: float = 
                 L.add(m.Building(f"{bid}_b{roofs}", fp, height_hint=float(rng.uniform(6, 30))))
                 x += w + rng.uniform(1, 4)
             # a big building on the north side crossing whatever chunk border is there
-            L.add(m.Building(f"{bid}_n", np.array([[x0, y1 - 14], [x1, y1 - 14], [x1, y1], [x0, y1]]),
+            L.add(m.Building(f"{bid}_n", np.array([[x0, y1 - north], [x1, y1 - north], [x1, y1], [x0, y1]]),
                              height_hint=float(rng.uniform(8, 20)), floors_hint=3))
     for k, x in enumerate(xs):                        # trees and parking along the y roads
         for n, y in enumerate(np.arange(5.0, H, 15.0)):

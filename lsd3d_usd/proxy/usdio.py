@@ -121,17 +121,26 @@ def write_chunk_layer(parts: list[MeshPart], key: tuple[int, int], path: str | P
     return save_layer(stage.GetRootLayer(), path, prov)
 
 
-def _root_stage(keys: list[tuple[int, int]], folder_name: str):
+def _root_layer(keys: list[tuple[int, int]], folder_name: str):
+    """Root proxy layer built with Sdf (no composition, so payload files need not exist yet)."""
     from pxr import Sdf, UsdGeom
 
-    from lsd3d_usd.scene import PROXY_PATH, chunk_prim_name, new_stage
+    from lsd3d_usd.scene import PROXY_PATH, WORLD, chunk_prim_name
 
-    stage = new_stage()
-    UsdGeom.Xform.Define(stage, PROXY_PATH)
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    layer.defaultPrim = WORLD.strip("/")
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.z)
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
+    world = Sdf.CreatePrimInLayer(layer, WORLD)
+    world.specifier = Sdf.SpecifierDef
+    world.typeName = "Xform"
+    proxy = Sdf.CreatePrimInLayer(layer, PROXY_PATH)
+    proxy.specifier = Sdf.SpecifierDef
+    proxy.typeName = "Xform"
     for key in sorted(keys):
-        prim = UsdGeom.Xform.Define(stage, f"{PROXY_PATH}/{chunk_prim_name(*key)}").GetPrim()
-        prim.GetPayloads().AddPayload(Sdf.Payload(f"./{folder_name}/{chunk_file_name(*key)}"))
-    return stage
+        spec = Sdf.PrimSpec(proxy, chunk_prim_name(*key), Sdf.SpecifierDef, "Xform")
+        spec.payloadList.Prepend(Sdf.Payload(f"./{folder_name}/{chunk_file_name(*key)}"))
+    return layer
 
 
 def read_chunk_map(path: str | Path) -> dict[str, str]:
@@ -166,14 +175,14 @@ def _chunk_file_hash(path: Path) -> str | None:
 def write_root_layer(path: str | Path, chunk_hashes: dict[tuple[int, int], str],
                      params: dict | None = None, layout_hash: str = "",
                      extra: dict | None = None) -> Path:
-    from lsd3d_usd.scene import chunk_prim_name, provenance, save_stage
+    from lsd3d_usd.scene import chunk_prim_name, provenance, save_layer
 
     path = Path(path)
-    stage = _root_stage(list(chunk_hashes), chunks_dir(path).name)
+    layer = _root_layer(list(chunk_hashes), chunks_dir(path).name)
     prov = provenance("proxy", params or {}, layoutHash=layout_hash,
                       chunks={chunk_prim_name(*k): h for k, h in sorted(chunk_hashes.items())},
                       **(extra or {}))
-    return save_stage(stage, path, prov)
+    return save_layer(layer, path, prov)
 
 
 def write_proxy(parts: dict[tuple[int, int], list[MeshPart]], path: str | Path,
