@@ -171,10 +171,9 @@ def forward(prm, rects, tile_start, tile_splats, width, height, tile, ntx, nty,
                         continue
                     tp = T[p]
                     tn = tp * (_ONE - a)
-                    if tn < t_min:
+                    if tn < t_min:  # composite this one, then stop: residual <= t_min
                         done[p] = True
                         ndone += 1
-                        continue
                     w = a * tp
                     z = zbuf[p]
                     c_r[p] += w * cr

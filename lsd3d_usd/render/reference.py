@@ -93,9 +93,11 @@ def render_reference(means, quats, scales, opacities, sh, viewmat, K, width, hei
         # transmittance before each surfel, and the early stop of the fast path if asked for
         t_after = T[:, None] * torch.cumprod(1 - alpha, dim=1)
         if t_min > 0:
-            ok = (t_after >= t_min) & alive[:, None]
+            # the fast path composites the surfel that takes T below t_min, then stops
+            t_prev = torch.cat([T[:, None], t_after[:, :-1]], 1)
+            ok = (t_prev >= t_min) & alive[:, None]
             alpha = torch.where(ok, alpha, torch.zeros_like(alpha))
-            stopped = (~ok).any(1)
+            stopped = (~ok).any(1) | (t_after[:, -1] < t_min)
             t_after = T[:, None] * torch.cumprod(1 - alpha, dim=1)
         t_before = torch.cat([T[:, None], t_after[:, :-1]], 1)
         w = alpha * t_before
