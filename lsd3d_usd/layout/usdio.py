@@ -22,6 +22,7 @@ Format (full reference in docs/layout.md):
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -184,13 +185,32 @@ def _write_feature(parent: Sdf.PrimSpec, name: str, f) -> None:
             pad = w / 2
         _attr(prim, "extent", T.Float3Array, _extent(pts, pad))
 
+    defaults = _defaults(type(f))
     for attr_name, (field_name, type_name) in SCHEMA[ftype].items():
         value = getattr(f, field_name)
+        if field_name in defaults and not isinstance(value, np.ndarray) and value == defaults[field_name]:
+            continue   # the reader restores model defaults; smaller, faster layers
         if type_name == T.StringArray:
             value = Vt.StringArray(list(value))
         elif type_name == T.Double3:
             value = tuple(float(v) for v in value)
         _attr(prim, NS + attr_name, type_name, value, uniform=True)
+
+
+_DEFAULTS: dict = {}
+
+
+def _defaults(cls) -> dict:
+    """Model defaults of a feature class (field name -> value)."""
+    if cls not in _DEFAULTS:
+        out = {}
+        for fl in dataclasses.fields(cls):
+            if fl.default is not dataclasses.MISSING:
+                out[fl.name] = fl.default
+            elif fl.default_factory is not dataclasses.MISSING:
+                out[fl.name] = fl.default_factory()
+        _DEFAULTS[cls] = out
+    return _DEFAULTS[cls]
 
 
 def _write_trees(parent: Sdf.PrimSpec, trees: list[m.Tree], used: set[str]) -> None:
