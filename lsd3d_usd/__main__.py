@@ -1,5 +1,3 @@
-import sys
+from lsd3d_usd.cli import run
 
-from lsd3d_usd.cli import main
-
-sys.exit(main())
+run()

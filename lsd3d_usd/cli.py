@@ -58,5 +58,16 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def run() -> None:
+    """Console entry point. Exits with os._exit after flushing: OpenImageIO's nanobind module
+    otherwise prints spurious "leaked instances" warnings at interpreter teardown once torch
+    is also loaded, which would bury our one-line messages."""
+    import os
+    code = main()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    run()

@@ -49,6 +49,7 @@ def _scene(args) -> int:
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    register_generate(sub)
     p = sub.add_parser(
         "validate", help="check a USD file or scene against USD's validators and the surfel schema",
         description="Run usd-core's UsdValidation validators plus lsd3d checks: unknown prim types; "
@@ -81,3 +82,89 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("layer", nargs="?", help="layer name, e.g. surfels or ggds_20261122-101500")
     p.add_argument("--delete", action="store_true", help="with remove: also delete the layer file")
     p.set_defaults(func=_scene)
+
+
+def _size(text: str, what: str) -> tuple[int, int]:
+    from lsd3d_usd.errors import InputError
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"{what} {text!r}: expected WxH, e.g. 480x270") from None
+    return w, h
+
+
+def _extent(text: str) -> tuple[float, float]:
+    from lsd3d_usd.errors import InputError
+    try:
+        w, h = (float(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--extent {text!r}: expected WxH in metres, e.g. 200x200") from None
+    return w, h
+
+
+def _generate(args) -> int:
+    import json
+    from pathlib import Path
+
+    from lsd3d_usd.pipeline import GenerateOptions, generate
+
+    opts = GenerateOptions(
+        out=Path(args.output), layout=Path(args.layout) if args.layout else None, seed=args.seed,
+        extent=_extent(args.extent), style=args.style, prompt=args.prompt, when=args.when,
+        lat=args.lat, lon=args.lon, weather=args.weather, season=args.season,
+        env_resolution=_size(args.env_resolution, "--env-resolution"), surfels=args.surfels,
+        steps=args.steps, prior=args.prior, resolution=_size(args.resolution, "--resolution"),
+        views=args.views, checkpoint_every=args.checkpoint_every, perceptual=not args.no_perceptual,
+        resume=args.resume, force=args.force, progress=not args.no_progress and sys.stderr.isatty(),
+        log=(lambda *a: print(*a, file=sys.stderr)))
+    try:
+        summary = generate(opts)
+    except KeyboardInterrupt:
+        print("lsd3d-usd: interrupted: the scene is valid; continue with --resume", file=sys.stderr)
+        return 130
+    if args.json:
+        Path(args.json).write_text(json.dumps(summary, indent=2, default=str))
+    print(json.dumps(summary, indent=2, default=str))
+    return 0
+
+
+def register_generate(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "generate", help="build a scene: layout → proxy → environment → surfels → GGDS",
+        description="Generate a driving scene as a USD stage folder. Builds (or reuses, when "
+                    "unchanged) the layout, proxy, environment and surfel layers, then runs GGDS "
+                    "and writes layers/ggds_<run>.usdc holding only overs of the optimised "
+                    "surfel attributes (layers/surfels.usdc is never rewritten). --steps 0 stops "
+                    "before GGDS: a complete scene without optimisation. Ctrl-C leaves a valid "
+                    "scene that --resume continues.")
+    p.add_argument("--layout", help="layout layer (.usda/.usdc; see docs/layout.md). Without it a "
+                                    "layout is generated from --seed, --extent and --style")
+    p.add_argument("-o", "--output", required=True, help="scene folder to create or update")
+    p.add_argument("--prompt", help='scene description, e.g. "rainy autumn evening in Seattle" '
+                                    "(time of day, weather, season, place; see docs/env.md)")
+    p.add_argument("--steps", type=int, default=150, help="GGDS steps (0 = no optimisation; default 150)")
+    p.add_argument("--prior", default="procedural",
+                   help="image prior: 'procedural' (default, runs on CPU) or 'diffusers:DIR' "
+                        "(a local latent-diffusion + depth ControlNet directory; never downloads)")
+    p.add_argument("--resolution", default="480x270", help="GGDS render size WxH (default 480x270)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of every step (default 0)")
+    p.add_argument("--resume", action="store_true", help="continue the newest GGDS run from its checkpoint")
+    p.add_argument("--force", action="store_true",
+                   help="use an output folder that holds another scene or other files")
+    p.add_argument("--surfels", type=int, help="initial surfel count (default: 2 per m² of proxy "
+                                               "surface, at most 4 M)")
+    p.add_argument("--views", type=int, default=48, help="training views sampled along and off the lanes")
+    p.add_argument("--checkpoint-every", type=int, default=50, help="steps between checkpoints (default 50)")
+    p.add_argument("--no-perceptual", action="store_true", help="skip the EfficientNet perceptual loss")
+    p.add_argument("--extent", default="200x200", help="generated layout size WxH m (no --layout)")
+    p.add_argument("--style", default="urban", choices=("urban", "suburban", "highway"),
+                   help="generated layout style (no --layout)")
+    p.add_argument("--when", help="local date/time, e.g. 2026-06-21T13:00+02:00 (overrides the prompt)")
+    p.add_argument("--lat", type=float, help="latitude (with --lon; overrides the prompt's place)")
+    p.add_argument("--lon", type=float, help="longitude")
+    p.add_argument("--weather", help="clear|partly-cloudy|overcast|fog|rain|snow (overrides the prompt)")
+    p.add_argument("--season", help="spring|summer|autumn|winter (overrides the prompt)")
+    p.add_argument("--env-resolution", default="2048x1024", help="environment map size (default 2048x1024)")
+    p.add_argument("--json", help="also write the summary JSON here")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    p.set_defaults(func=_generate)
