@@ -188,8 +188,8 @@ def read_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
 # ----------------------------------------------------------------------- ground plane
 def fit_ground_plane(points: np.ndarray, cell: float = 2.0, iters: int = 200,
                      thresh: float = 0.15, seed: int = 0) -> np.ndarray:
-    """Plane (a, b, c) with z = a*x + b*y + c, from the lowest point of each XY cell
-    by RANSAC, refined by least squares on the inliers."""
+    """Plane (a, b, c) with z = a*x + b*y + c: RANSAC over the lowest point of each
+    XY cell, then least squares over all points within ``thresh`` of it."""
     xy = np.floor(points[:, :2] / cell).astype(np.int64)
     order = np.lexsort((points[:, 2], xy[:, 1], xy[:, 0]))
     key = xy[order]
@@ -214,8 +214,11 @@ def fit_ground_plane(points: np.ndarray, cell: float = 2.0, iters: int = 200,
             best, best_in = coef, n_in
     if best is None:
         return np.array([0.0, 0.0, float(np.percentile(points[:, 2], 5))])
-    inl = np.abs(A @ best - low[:, 2]) < thresh
-    coef, *_ = np.linalg.lstsq(A[inl], low[inl, 2], rcond=None)
+    # refine on every point near the plane (the per-cell minima sit low in the noise)
+    inl = np.abs(height_above(best, points)) < thresh
+    P = points[inl]
+    coef, *_ = np.linalg.lstsq(np.column_stack([P[:, 0], P[:, 1], np.ones(len(P))]), P[:, 2],
+                               rcond=None)
     return coef
 
 
