@@ -214,6 +214,6 @@ def test_entity_bomb_does_not_hang(tmp_path):
     f = tmp_path / "bomb.xodr"
     f.write_text(bomb)
     t = time.perf_counter()
-    with pytest.raises(InputError):
+    with pytest.raises(InputError, match="malformed XML|no road"):
         od.read_opendrive(f)
     assert time.perf_counter() - t < 5

@@ -73,8 +73,8 @@ def arc_points(center, radius: float, a0: float, sweep: float, tol: float = ARC_
 def hermite(p0, t0, p1, t1, tol: float = ARC_TOLERANCE) -> np.ndarray:
     """Cubic Hermite curve from p0 (unit tangent t0) to p1 (unit tangent t1).
 
-    Tangent magnitudes are chord/…: we use the chord length times 0.5–0.6, a
-    common choice giving near-circular quarter turns. Endpoints are exact.
+    Tangent magnitudes: the chord length (straight-ish) or 0.55 × chord for turns,
+    which keeps quarter turns close to circular. Endpoints are exact.
     """
     p0, p1 = np.asarray(p0, float), np.asarray(p1, float)
     chord = float(np.linalg.norm(p1 - p0))
