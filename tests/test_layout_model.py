@@ -48,7 +48,7 @@ def test_bounds_chunks_and_box_query():
     # a ends at x = 90, its surface reaches 91.75: inside a 10 m margin, not a 5 m one
     assert "a" in {f.id for f in L.features_in_box(L.chunk_box(1, 0), margin=10).features()}
     assert "a" not in {f.id for f in L.features_in_box(L.chunk_box(1, 0), margin=5).features()}
-    sub = L.features_in_box(((0, 0), (40, 40)), margin=5)
+    sub = L.features_in_box(((0, 0), (48, 44)), margin=1.5)   # spot spans x 49..51, y 43.5..48.5
     assert {f.id for f in sub.features()} == {"p"}
 
 
