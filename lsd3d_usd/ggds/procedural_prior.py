@@ -1,0 +1,178 @@
+"""The procedural prior: a deterministic, G-buffer-conditioned image prior (no learned model).
+
+It renders the proxy G-buffer of a view with world-space procedural materials per semantic
+class (ggds/materials.py), lit by the environment: sun (with the caller's per-pixel
+visibility, i.e. shadows ray-cast against the proxy), sky irradiance from SH, a Fresnel
+reflection of the sky on glossy / wet surfaces, a sun highlight, and fog by distance.
+Background pixels take the env sky lookup (or an SH sky gradient). Materials depend only on
+world position, normal and class, so the same world point gets the same albedo from any
+view: the prior is 3D-consistent by construction.
+
+Noise level t sets how much of the target is re-synthesised versus kept from the render x:
+    x_hat = (1 - w(t)) * GF_t(x) + w(t) * P,   w(t) = smoothstep(t_keep, t_full, t)
+where P is the procedural render and GF_t a self-guided filter of x with radius
+r(t) = max(1, round(gf_radius * t)) pixels and eps(t) = gf_eps0 + gf_eps1 * t (variance units):
+at small t the target is x with its pixel noise smoothed (edges kept), at t >= t_full it is
+the procedural render, in between a cross-fade. Defaults: t_keep 0.05, t_full 0.6.
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+
+from lsd3d_usd.ggds import materials as mat
+from lsd3d_usd.ggds.filters import guided_filter
+from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv, check_image, check_t
+
+_C0 = 0.28209479177387814
+_C1 = 0.4886025119029199
+_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
+
+
+def sh_basis9(d: torch.Tensor) -> torch.Tensor:
+    """(..., 3) unit directions -> (..., 9) real SH (3DGS ordering, as lsd3d_usd.env.sh)."""
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return torch.stack([
+        torch.full_like(x, _C0), -_C1 * y, _C1 * z, -_C1 * x,
+        _C2[0] * x * y, _C2[1] * y * z, _C2[2] * (2 * z * z - x * x - y * y),
+        _C2[3] * x * z, _C2[4] * (x * x - y * y)], dim=-1)
+
+
+def _smoothstep(e0, e1, x):
+    x = min(1.0, max(0.0, (x - e0) / (e1 - e0)))
+    return x * x * (3 - 2 * x)
+
+
+class ProceduralPrior(Prior):
+    """Deterministic procedural image prior (see module doc). `seed` selects the material
+    variation of the scene; it is fixed per prior (not per call) so every view agrees."""
+
+    name = "procedural"
+
+    def __init__(self, seed: int = 0, floor_height: float = 3.2, ground_z: float = 0.0,
+                 window_spacing: float = 2.6, t_keep: float = 0.05, t_full: float = 0.6,
+                 gf_radius: int = 8, gf_eps0: float = 1e-4, gf_eps1: float = 4e-3):
+        if not 0 <= t_keep < t_full <= 1:
+            raise ValueError(f"need 0 <= t_keep < t_full <= 1, got {t_keep}, {t_full}")
+        self.seed = int(seed)
+        self.floor_height = float(floor_height)
+        self.ground_z = float(ground_z)
+        self.window_spacing = float(window_spacing)
+        self.t_keep, self.t_full = float(t_keep), float(t_full)
+        self.gf_radius, self.gf_eps0, self.gf_eps1 = int(gf_radius), float(gf_eps0), float(gf_eps1)
+
+    def describe(self) -> dict:
+        return {"prior": self.name, "seed": self.seed, "floor_height": self.floor_height,
+                "ground_z": self.ground_z, "window_spacing": self.window_spacing,
+                "t_keep": self.t_keep, "t_full": self.t_full, "gf_radius": self.gf_radius,
+                "gf_eps0": self.gf_eps0, "gf_eps1": self.gf_eps1}
+
+    def settings(self, env: PriorEnv) -> mat.MaterialSettings:
+        return mat.MaterialSettings(seed=self.seed, floor_height=self.floor_height, ground_z=self.ground_z,
+                                    window_spacing=self.window_spacing, wetness=float(env.wetness),
+                                    snow_cover=float(env.snow_cover), vegetation=env.vegetation)
+
+    # -- schedule ---------------------------------------------------------------------------
+    def blend_weight(self, t: float) -> float:
+        """Fraction of the procedural render in the target at level t."""
+        return _smoothstep(self.t_keep, self.t_full, t)
+
+    def filter_params(self, t: float) -> tuple[int, float]:
+        return max(1, round(self.gf_radius * t)), self.gf_eps0 + self.gf_eps1 * t
+
+    # -- the procedural render -----------------------------------------------------------
+    def surface(self, gb: GBuffer, env: PriorEnv):
+        """Per-pixel albedo (H,W,3), spec (H,W), rough (H,W), mirror (H,W), surface mask (H,W)."""
+        H, W = gb.shape
+        dev = gb.depth.device
+        pos = gb.world_pos.reshape(-1, 3).to(torch.float64)
+        valid = (gb.valid.reshape(-1) & torch.isfinite(pos).all(-1))
+        nrm = torch.nn.functional.normalize(gb.normal.reshape(-1, 3).float(), dim=-1)
+        sem = gb.semantic.reshape(-1).long()
+        # group the covered pixels by class once (one gather in, one scatter out)
+        idx = valid.nonzero()[:, 0]
+        order = torch.argsort(sem[idx], stable=True)
+        idx = idx[order]
+        cls, counts = torch.unique_consecutive(sem[idx], return_counts=True)
+        p_all, n_all = pos[idx].cpu(), nrm[idx].cpu()
+        outs = []
+        s = self.settings(env)
+        start = 0
+        for cid, cnt in zip(cls.tolist(), counts.tolist()):
+            p, n = p_all[start:start + cnt], n_all[start:start + cnt]
+            start += cnt
+            m = mat.MATERIALS.get(cid, mat.default_material)(p, n, s)
+            m, mir = mat.apply_weather(cid, m, p, n, s)
+            outs.append(torch.cat([m.albedo.clamp(0, 1), m.spec[:, None], m.rough.clamp(0.02, 1)[:, None],
+                                   mir[:, None]], dim=1))
+        flat = torch.zeros(H * W, 6, device=dev)
+        flat[:, 4] = 1.0
+        if outs:
+            flat[idx] = torch.cat(outs).to(dev)
+        flat = flat.reshape(H, W, 6)
+        albedo, spec, rough, mirror = flat[..., :3], flat[..., 3], flat[..., 4], flat[..., 5]
+        valid = valid.reshape(H, W)
+        return albedo, spec, rough, mirror, valid
+
+    def sky(self, dirs: torch.Tensor, env: PriorEnv) -> torch.Tensor:
+        """Background radiance (..., 3) in world directions (env units, before exposure)."""
+        if env.sky_lookup is not None:
+            return env.sky_lookup(dirs.float()).float()
+        # no env map: the radiance a uniform-per-direction sky with this irradiance would have,
+        # E(d) / pi, brightened towards the horizon (haze)
+        base = (sh_basis9(dirs.float()) @ env.sh_irradiance.to(dirs.device)).clamp_min(0) / math.pi
+        haze = torch.exp(-4.0 * dirs[..., 2:3].abs().float())
+        return base * (1.0 + 0.6 * haze)
+
+    def render(self, gb: GBuffer, env: PriorEnv) -> torch.Tensor:
+        """The procedural image P (H, W, 3) in display range (exposure applied, clamped to [0, 1])."""
+        gb.validate()
+        dev = gb.depth.device
+        albedo, spec, rough, mirror, valid = self.surface(gb, env)
+        V = torch.nn.functional.normalize(gb.view_dirs.float(), dim=-1)
+        n = torch.nn.functional.normalize(gb.normal.float(), dim=-1)
+        n = torch.where(((n * V).sum(-1, keepdim=True) > 0), -n, n)     # face the camera
+        sdir = env.sun_direction.to(dev)
+        e_sun = env.sun_irradiance.to(dev) * _smoothstep(-0.02, 0.02, float(sdir[2]))
+        vis = gb.sun_visibility.float() if gb.sun_visibility is not None else torch.ones_like(gb.depth)
+        ndl = (n @ sdir).clamp_min(0) * vis
+        e_sky = (sh_basis9(n) @ env.sh_irradiance.to(dev)).clamp_min(0)
+        diffuse = albedo / math.pi * (ndl[..., None] * e_sun + e_sky)
+        # specular: Schlick Fresnel, sky reflection (glossy / wet) and a normalised Blinn-Phong sun lobe
+        cos_v = (-(V * n).sum(-1)).clamp(0, 1)
+        F = spec + (1 - spec) * (1 - cos_v) ** 5
+        r = V - 2 * (V * n).sum(-1, keepdim=True) * n
+        refl_w = F * torch.maximum(mirror, (1 - rough) ** 2)
+        refl = self.sky(r, env) * refl_w[..., None]
+        h = torch.nn.functional.normalize(sdir - V, dim=-1)
+        alpha = (2.0 / rough ** 2 - 2.0).clamp(1.0, 2000.0)
+        lobe = (alpha + 8) / (8 * math.pi) * (n * h).sum(-1).clamp_min(0) ** alpha
+        sun_spec = (F * lobe * ndl)[..., None] * e_sun
+        col = diffuse + refl + sun_spec
+        if env.fog_density > 0:
+            dist = (gb.world_pos.to(torch.float64) - gb.camera_position.to(torch.float64)).norm(dim=-1).float()
+            T = torch.exp(-env.fog_density * torch.nan_to_num(dist, nan=0.0, posinf=1e9))[..., None]
+            col = col * T + env.fog_color.to(dev) * (1 - T)
+        bg = self.sky(V, env)
+        col = torch.where(valid[..., None], col, bg)
+        return (col * env.exposure).clamp(0, 1).float()
+
+    # -- the prior ---------------------------------------------------------------------------
+    @torch.no_grad()
+    def target(self, x: torch.Tensor, gbuffer: GBuffer, env: PriorEnv, t: float,
+               n_steps: int = 5, seed: int | None = None) -> torch.Tensor:
+        """x_hat = (1 - w(t)) GF_t(x) + w(t) P (module doc). Deterministic; n_steps and seed are
+        accepted for interface compatibility and do not change the result."""
+        check_image(x)
+        t = check_t(t)
+        H, W = x.shape[:2]
+        gbuffer.validate(H, W)
+        x = x.detach().float()
+        w = self.blend_weight(t)
+        r, eps = self.filter_params(t)
+        kept = guided_filter(x, r, eps) if w < 1 else torch.zeros_like(x)
+        if w <= 0:
+            return kept
+        P = self.render(gbuffer, env).to(x.device)
+        return (1 - w) * kept + w * P
