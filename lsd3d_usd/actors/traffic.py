@@ -164,6 +164,7 @@ class _Vehicle:
     plan: list            # next lanes (indices), at most two
     forced: list          # remaining forced route (ego)
     holds: dict           # lane index -> release condition (lane it leads to, or -1 while on it)
+    free: bool = True     # chooses successors once ``forced`` runs out (else stops at its end)
 
 
 def _idm(v, v0, gap, dv, p: IDMParams) -> float:
@@ -191,7 +192,7 @@ class Simulation:
     def _fill_plan(self, v: _Vehicle) -> None:
         last = v.plan[-1] if v.plan else v.lane
         while len(v.plan) < 2 and last is not None:
-            nxt = v.forced.pop(0) if v.forced else self._choose(last)
+            nxt = v.forced.pop(0) if v.forced else (self._choose(last) if v.free else None)
             if nxt is None:
                 break
             v.plan.append(nxt)
@@ -231,12 +232,14 @@ class Simulation:
                     return False
         return True
 
-    def add_ego(self, route: list[int], length: float, s: float = 0.0, v: float | None = None):
-        """A vehicle forced along ``route`` (lane indices) first; index 0 if added first."""
+    def add_ego(self, route: list[int], length: float, s: float = 0.0, v: float | None = None,
+                free: bool = False):
+        """Vehicle 0: forced along ``route`` (lane indices); at its end it stops, or with
+        ``free`` goes on with seeded choices."""
         lane = route[0]
         s = float(np.clip(s, 0.0, self.g.length[lane]))
         ego = _Vehicle(float(length), lane, s, float(self.g.limit[lane] * 0.8 if v is None else v),
-                       1.0, [], list(route[1:]), {})
+                       1.0, [], list(route[1:]), {}, free)
         if self.g.junction[lane]:
             ego.holds[lane] = -1
         self._fill_plan(ego)

@@ -36,7 +36,14 @@ def _parse_times(args):
 
 
 def _render(args) -> int:
+    from lsd3d_usd.errors import InputError
     from lsd3d_usd.render.preview import render_preview
+
+    if args.rig:
+        from lsd3d_usd.render.rig import run_rig_from_args
+        return run_rig_from_args(args)
+    if not args.camera:
+        raise InputError("render: give --camera PRIM_PATH (or --rig with --route/--trajectory)")
 
     files = render_preview(args.scene, args.camera, args.output, times=_parse_times(args),
                            resolution=_parse_resolution(args.resolution), fmt=args.format,
@@ -56,7 +63,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "PNG (tone-mapped, sRGB) or EXR (scene-linear RGBA + Z depth) frames named after the "
                     "camera: OUT/<camera>.png, or OUT/<camera>.<frame>.png with --frames.")
     p.add_argument("scene", help="scene folder (holding scene.usda) or any USD file")
-    p.add_argument("--camera", required=True, help="camera prim path, e.g. /World/Cameras/Front")
+    p.add_argument("--camera", help="camera prim path, e.g. /World/Cameras/Front (required unless --rig)")
     p.add_argument("-o", "--output", required=True, help="output folder (created if missing)")
     p.add_argument("--resolution", help="WIDTHxHEIGHT, or WIDTH with the height from the camera's "
                                         "aperture aspect (default 960 wide)")
@@ -71,4 +78,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sh-degree", type=int, choices=(0, 1, 2, 3),
                    help="use only SH up to this degree (default: all the surfels have)")
     p.add_argument("--no-env", action="store_true", help="black background instead of the env map")
+    from lsd3d_usd.render.rig import add_rig_arguments
+    add_rig_arguments(p)
     p.set_defaults(func=_render)

@@ -1,0 +1,67 @@
+"""MP4 clips from rendered frames via imageio-ffmpeg (its wheel ships an ffmpeg binary).
+
+H.264 / yuv420p needs even sizes: frames are padded by edge replication to a multiple of
+``block`` (2) rather than rescaled, so pixels stay exact. Written to a temp file, then
+renamed (atomic).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+
+def encoder_available() -> tuple[bool, str]:
+    """(available, why not)."""
+    try:
+        import imageio_ffmpeg
+        exe = imageio_ffmpeg.get_ffmpeg_exe()
+    except Exception as e:  # ImportError or no binary for this platform
+        return False, f"imageio-ffmpeg unavailable ({' '.join(str(e).split())[:120]})"
+    return (True, "") if exe and os.path.isfile(exe) else (False, "no ffmpeg binary found")
+
+
+def _pad(frame: np.ndarray, block: int) -> np.ndarray:
+    h, w = frame.shape[:2]
+    ph, pw = (-h) % block, (-w) % block
+    if ph or pw:
+        frame = np.pad(frame, ((0, ph), (0, pw), (0, 0)), mode="edge")
+    return np.ascontiguousarray(frame)
+
+
+def write_mp4(path, frames, fps: float, block: int = 2) -> Path:
+    """Write uint8 RGB frames (iterable of (H,W,3), all the same size) as an H.264 MP4."""
+    import imageio_ffmpeg
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    gen = None
+    size = None
+    try:
+        for f in frames:
+            f = np.asarray(f)
+            if f.dtype != np.uint8 or f.ndim != 3 or f.shape[2] != 3:
+                raise ValueError(f"write_mp4: frames must be (H, W, 3) uint8, got {f.shape} {f.dtype}")
+            f = _pad(f, block)
+            if gen is None:
+                size = (f.shape[1], f.shape[0])
+                gen = imageio_ffmpeg.write_frames(str(tmp), size, fps=float(fps), codec="libx264",
+                                                  pix_fmt_out="yuv420p", macro_block_size=1,
+                                                  output_params=["-crf", "23"], ffmpeg_log_level="error")
+                gen.send(None)
+            elif (f.shape[1], f.shape[0]) != size:
+                raise ValueError(f"write_mp4: frame size {f.shape[1]}x{f.shape[0]} differs from {size}")
+            gen.send(f)
+        if gen is None:
+            raise ValueError("write_mp4: no frames")
+        gen.close()
+        gen = None
+        os.replace(tmp, path)
+    finally:
+        if gen is not None:
+            gen.close()
+        if tmp.exists():
+            tmp.unlink()
+    return path
