@@ -59,9 +59,9 @@ def test_forward_matches_float64_reference():
     for k in OUTS:
         err = (out[k].double() - ref[k]).abs().max().item()
         assert err < tol[k], (k, err)
-    # without early stop in the reference: the documented accuracy budget
+    # without early stop in the reference: the residual behind T < t_min stays below ~t_min
     ref0 = render_reference(**s, background=bg)
-    assert (out["rgb"].double() - ref0["rgb"]).abs().max() < 1e-3
+    assert (out["rgb"].double() - ref0["rgb"]).abs().max() < 2e-4
 
 
 def test_tile_size_and_image_edges_do_not_change_the_image():

@@ -7,7 +7,9 @@ inside, with the alpha of all pixels computed in one branch-free loop and the co
 a second. The backward recomputes alpha, walks each pixel's contributors back to front from the
 stored final transmittance and last contributor (as the CUDA rasterisers do), and writes one
 gradient row per (tile, surfel) pair; rows are summed per surfel afterwards, so the result does
-not depend on thread scheduling.
+not depend on thread scheduling. Tiles are visited in a fixed shuffled order (tile_order):
+prange hands each thread a contiguous block of iterations, and image rows differ in work
+(horizon vs sky), so a shuffle balances the threads.
 """
 from __future__ import annotations
 
@@ -101,7 +103,7 @@ def _alpha_loop(prm, s, pxs, pys, tile, li0, li1, lj0, lj1, near, alpha_max, abu
 
 
 @njit(parallel=True, cache=True)
-def forward(prm, rects, tile_start, tile_splats, width, height, tile, ntx, nty,
+def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
             near, alpha_min, alpha_max, t_min):
     """Front-to-back compositing. Returns (rgb (H,W,3), T_final, depth_acc = sum w z,
     normal_acc (H,W,3) = sum w n, depth_median, last (list position + 1 of the last
@@ -117,7 +119,8 @@ def forward(prm, rects, tile_start, tile_splats, width, height, tile, ntx, nty,
     amax = np.full((height, width), -1, np.int32)
     evals = np.zeros(ntx * nty, np.int64)
     npx = tile * tile
-    for t in prange(ntx * nty):
+    for it in prange(ntx * nty):
+        t = tile_order[it]
         ty = t // ntx
         tx = t - ty * ntx
         x0 = tx * tile
@@ -213,7 +216,7 @@ def forward(prm, rects, tile_start, tile_splats, width, height, tile, ntx, nty,
 
 
 @njit(parallel=True, cache=True)
-def backward(prm, rects, tile_start, tile_splats, width, height, tile, ntx, nty,
+def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
              near, alpha_min, alpha_max, tfin, last, med,
              g_rgb, g_t, g_d, g_n, g_med):
     """Gradient rows (npairs, 16) w.r.t. the packed parameters, one row per (tile, surfel)
@@ -221,7 +224,8 @@ def backward(prm, rects, tile_start, tile_splats, width, height, tile, ntx, nty,
     npairs = tile_splats.shape[0]
     out = np.zeros((npairs, 16), f32)
     npx = tile * tile
-    for t in prange(ntx * nty):
+    for it in prange(ntx * nty):
+        t = tile_order[it]
         k0 = tile_start[t]
         k1 = tile_start[t + 1]
         if k1 == k0:

@@ -68,7 +68,7 @@ class _Raster(torch.autograd.Function):
                                                     plan["nty"])
         t2 = time.perf_counter()
         rgb, tfin, dacc, nacc, dmed, last, med, amax, evals = kernels.forward(
-            prm, rects, tile_start, tile_splats, plan["width"], plan["height"],
+            prm, rects, tile_start, tile_splats, plan["tile_order"], plan["width"], plan["height"],
             plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), np.float32(plan["t_min"]))
         t3 = time.perf_counter()
@@ -91,7 +91,7 @@ class _Raster(torch.autograd.Function):
             return np.ascontiguousarray(g.detach().to(torch.float32).numpy())
 
         rows = kernels.backward(
-            prm, rects, tile_start, tile_splats, plan["width"], plan["height"],
+            prm, rects, tile_start, tile_splats, plan["tile_order"], plan["width"], plan["height"],
             plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), tfin, last, med,
             arr(g_rgb), arr(-g_alpha), arr(g_d), arr(g_n), arr(g_med))
@@ -188,7 +188,8 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
                 K=np.ascontiguousarray(K.detach().to(torch.float64).numpy()), width=width,
                 height=height, tile=tile, ntx=ntx, nty=nty, near=float(near), far=float(far),
                 alpha_min=float(alpha_min), alpha_max=float(alpha_max), t_min=float(t_min),
-                bound_sigma=-1.0 if bound_sigma is None else float(bound_sigma))
+                bound_sigma=-1.0 if bound_sigma is None else float(bound_sigma),
+                tile_order=np.random.default_rng(0).permutation(ntx * nty))
     f32 = torch.float32
     rgb, alpha, dacc, nacc, dmed = _Raster.apply(means.to(f32), quats.to(f32), scales.to(f32),
                                                  opacities.to(f32), sh.to(f32), plan)
