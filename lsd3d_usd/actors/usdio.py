@@ -104,13 +104,14 @@ def scene_time_codes_per_second(scene) -> float:
 
 
 def actors_layer(actors: list[ActorSpec], tcps: float, seconds: float, info: dict):
-    """An in-memory stage whose root layer holds /World/Actors with ``actors`` (the stage
-    keeps the layer alive)."""
+    """An anonymous layer holding /World/Actors with ``actors`` (keep a reference to it)."""
     from pxr import Sdf
 
     from lsd3d_usd.scene import ACTORS_PATH, new_stage
+    # A detached layer: on a stage, each reference would try to resolve while we author.
     stage = new_stage()
-    layer = stage.GetRootLayer()
+    layer = Sdf.Layer.CreateAnonymous(".usda")
+    layer.TransferContent(stage.GetRootLayer())
     layer.timeCodesPerSecond = tcps
     layer.framesPerSecond = tcps
     layer.startTimeCode = 0.0
@@ -131,7 +132,7 @@ def actors_layer(actors: list[ActorSpec], tcps: float, seconds: float, info: dic
                 gs.typeName = "Xform"
                 groups.add(g)
             author_actor(layer, gp, a, tcps)
-    return stage
+    return layer
 
 
 def extend_root_time_range(scene, end_code: float, tcps: float) -> None:

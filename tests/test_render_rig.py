@@ -1,0 +1,191 @@
+"""Sensor rig: geometry, trajectories, depth-order compositing, determinism, occlusion."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+import lsd3d_usd  # noqa: F401
+from pxr import Usd, UsdGeom
+
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.render import rig as R
+from lsd3d_usd.render.camera import from_usd
+
+
+def _box_surfels(lo, hi, count=8000, color=(0.6, 0.3, 0.2), seed=0):
+    from lsd3d_usd.proxy.shapes import box
+    from lsd3d_usd.splats.init import mesh_to_surfels
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    v, f = box(hi[0] - lo[0], hi[1] - lo[1], lo[2], hi[2])
+    v[:, :2] += (lo[:2] + hi[:2]) / 2
+    return mesh_to_surfels(v, f, count=count, color=color, opacity=0.98, scale_factor=1.6, seed=seed)
+
+
+def _car_at(x, y, yaw=0.0):
+    from lsd3d_usd.actors.assets import vehicle_meshes
+    c, s = np.cos(yaw), np.sin(yaw)
+    Rz = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    ms = vehicle_meshes("car")
+    vs, fs, cs, n = [], [], [], 0
+    for m in ms:
+        vs.append(m.vertices @ Rz.T + [x, y, 0.0])
+        fs.append(m.faces + n)
+        cs.append(m.colors)
+        n += len(m.vertices)
+    return R.ActorFrame(np.concatenate(vs), np.concatenate(fs), np.concatenate(cs), None)
+
+
+def _ego(x, y, yaw_deg):
+    M = np.eye(4)
+    M[:3, :3] = R.yaw_rotations(np.radians(yaw_deg))[0]
+    M[:3, 3] = (x, y, 0.0)
+    return M
+
+
+def test_waymo5_geometry():
+    names = [c.name for c in R.WAYMO5]
+    assert names == ["Front", "FrontLeft", "FrontRight", "SideLeft", "SideRight"]
+    for c in R.WAYMO5:
+        P = R.camera_in_ego(c)
+        fwd = P[:3, 2]
+        assert np.isclose(np.degrees(np.arctan2(fwd[1], fwd[0])), c.yaw_deg, atol=1e-9)
+        assert np.allclose(P[:3, 3], c.mount) and 1.8 <= c.mount[2] <= 2.1
+        assert 45.0 <= c.hfov_deg <= 55.0
+        cam = R.rig_camera(c, np.eye(4), 192)
+        assert np.isclose(2 * np.degrees(np.arctan(cam.width / 2 / cam.fx)), c.hfov_deg)
+        assert np.isclose(P[:3, 1] @ [0, 0, 1.0], -1.0)   # image down = world down (no roll)
+
+
+@pytest.fixture()
+def rig_scene(tmp_path):
+    """A scene with a surfel 'building', one parked and one moving car (referenced assets)."""
+    from lsd3d_usd.actors.assets import write_library
+    from lsd3d_usd.actors.usdio import ActorSpec, actors_layer
+    from lsd3d_usd.scene import Scene, new_stage
+    from lsd3d_usd.splats.usdio import write_surfels
+    lib = write_library(tmp_path / "lib", ("car",))
+    sc = Scene.create(tmp_path / "scene")
+    st = new_stage()
+    write_surfels(st, "/World/Surfels", _box_surfels((5, -8, 0), (25, 2, 8)))
+    sc.write_layer("surfels", st)
+    rel = "../../lib/car.usda"
+    times = np.arange(11) / 10.0
+    moving = np.stack([40.0 + 5 * times, np.full_like(times, -12.0), np.zeros_like(times)], 1)
+    specs = [ActorSpec("Car_000", "parked", rel, np.array([15.0, 40.0, 0.0]), 0.3),
+             ActorSpec("Car_001", "moving", rel, moving, np.zeros_like(times), times=times)]
+    sc.write_layer("actors", actors_layer(specs, 24.0, 1.0, {}))
+    traj = tmp_path / "poses.json"
+    traj.write_text(json.dumps([{"t": 0.0, "x": 10.0, "y": -20.0, "yaw": 0.0},
+                                {"t": 1.0, "x": 40.0, "y": -20.0, "z": 0.0, "yaw": 0.0}]))
+    return sc, lib["car"], traj
+
+
+def test_rig_stage_cameras_follow_ego(rig_scene, tmp_path):
+    sc, _, traj = rig_scene
+    stage, paths, track, tcps, notes = R.build_rig_stage(sc.root, tmp_path / "out", trajectory=traj,
+                                                         fps=10.0, seconds=1.0)
+    assert not notes and len(paths) == 6
+    # the rig file references the scene, it does not copy it
+    assert (tmp_path / "out" / "rig.usda").stat().st_size < 20000
+    assert stage.GetPrimAtPath("/World/Surfels")
+    for k in (0, 4, 9):
+        code = track.times[k] * tcps
+        ego = np.array(UsdGeom.Xformable(stage.GetPrimAtPath(R.EGO_PATH))
+                       .ComputeLocalToWorldTransform(Usd.TimeCode(code))).T
+        assert np.allclose(ego[:3, 3], [10.0 + 30.0 * track.times[k], -20.0, 0.0], atol=1e-9)
+        for spec, path in zip(R.WAYMO5, paths):
+            cam = from_usd(stage.GetPrimAtPath(path), code, 96)
+            rel = np.linalg.inv(ego) @ cam.pose
+            assert np.allclose(rel, R.camera_in_ego(spec), atol=1e-5)
+            assert np.isclose(2 * np.degrees(np.arctan(cam.width / 2 / cam.fx)), spec.hfov_deg, atol=1e-3)
+
+
+def test_trajectory_formats_and_errors(tmp_path):
+    p = tmp_path / "m.json"
+    M = np.eye(4)
+    M[:3, 3] = (1, 2, 3)
+    p.write_text(json.dumps({"poses": [{"t": 0, "matrix": M.tolist()}, {"t": 2, "x": 5, "y": 2, "yaw": 90}]}))
+    tr, clamped = R.resample(R.load_trajectory(p), [0.0, 1.0, 3.0])
+    assert clamped == 1
+    assert np.allclose(tr.positions[1], [3.0, 2.0, 1.5])
+    assert np.isclose(np.degrees(tr.yaws()[1]), 45.0)
+    for text, msg in [("[]", "non-empty list"), ('[{"x": 1}]', "pose 0"),
+                      ('[{"t": 1, "x": 0, "y": 0, "yaw": 0}, {"t": 0, "x": 0, "y": 0, "yaw": 0}]',
+                       "strictly increasing"), ("{", "not valid JSON"),
+                      ('[{"t": 0, "matrix": [[1, 0], [0, 1]]}]', "4x4")]:
+        p.write_text(text)
+        with pytest.raises(InputError, match=msg):
+            R.load_trajectory(p)
+    with pytest.raises(InputError, match="no such file"):
+        R.load_trajectory(tmp_path / "missing.json")
+
+
+def test_occluded_actor_appears_past_the_corner():
+    """A car behind a surfel building is hidden from the side camera while the ego is beside
+    the building and seen once the ego has driven past its corner."""
+    building = _box_surfels((5, -8, 0), (25, 2, 8))
+    car = _car_at(15.0, 40.0, 0.3)
+    side = R.WAYMO5[3]
+    seen = {}
+    for x in (15.0, 35.0):
+        cam = R.rig_camera(side, _ego(x, -20.0, 0.0), 96)
+        alone = R.composite(None, car, cam)
+        assert alone["actor_mask"].sum() > 0          # the car is in the field of view
+        out = R.composite(building, car, cam)
+        seen[x] = int(out["actor_mask"].sum())
+    assert seen[15.0] == 0 and seen[35.0] > 0
+
+
+def test_surfels_in_front_composite_over_actor():
+    """Per pixel the nearer wins: a thin surfel wall in front hides the car, one behind doesn't."""
+    car = _car_at(10.0, 0.0, np.pi / 2)
+    cam = R.rig_camera(R.WAYMO5[0], _ego(0.0, 0.0, 0.0), 64)
+    front_wall = _box_surfels((6, -6, 0), (6.2, 6, 4), color=(0.0, 0.8, 0.0))
+    back_wall = _box_surfels((16, -6, 0), (16.2, 6, 4), color=(0.0, 0.8, 0.0))
+    a = R.composite(back_wall, car, cam)
+    b = R.composite(front_wall, car, cam)
+    assert a["actor_mask"].sum() > 20 and b["actor_mask"].sum() == 0
+    # where the car shows, its colour (not the green wall) is in the image
+    m = a["actor_mask"]
+    assert a["rgb"][m][:, 1].mean() < 0.5 and b["rgb"][m][:, 1].mean() > 0.5
+
+
+def test_rendering_is_stateless_and_writes_clips(rig_scene, tmp_path):
+    sc, _, traj = rig_scene
+    stage, paths, track, tcps, _ = R.build_rig_stage(sc.root, tmp_path / "o", trajectory=traj,
+                                                     fps=10.0, seconds=1.0)
+    static = R.load_static(stage, use_env=False)
+    assert len(static.actors) == 3                 # parked, moving and the ego body
+
+    def frame(code, path):
+        cam = from_usd(stage.GetPrimAtPath(path), code, 64, 48)
+        return R.composite(static.surfels, R.actors_at(static, code), cam, static.env)["rgb"]
+
+    first = frame(12.0, paths[0])
+    frame(3.0, paths[3])                       # something else in between
+    frame(20.0, paths[5])
+    assert np.array_equal(first, frame(12.0, paths[0]))
+    # the moving car moves between time codes, the parked one does not
+    M0, M1 = static.actors.transforms(0.0), static.actors.transforms(24.0)
+    moved = [not np.allclose(a, b) for a, b in zip(M0, M1)]
+    roles = [a.role for a in static.actors.actors]
+    assert moved[roles.index("moving")] and not moved[roles.index("parked")]
+
+    res = R.render_rig(sc.root, tmp_path / "clip", trajectory=traj, fps=2.0, seconds=1.0, width=64,
+                       use_env=False, progress=False, log=lambda *_: None)
+    assert set(res.frames) == {c.name for c in R.WAYMO5} | {"Overview"}
+    assert all(len(v) == 2 and all(p.is_file() for p in v) for v in res.frames.values())
+    from lsd3d_usd.render.video import encoder_available
+    if encoder_available()[0]:
+        assert all(p.is_file() and p.stat().st_size > 0 for p in res.videos.values())
+
+
+def test_render_command_rig_errors(rig_scene, tmp_path, capsys):
+    from lsd3d_usd.cli import main
+    sc, _, traj = rig_scene
+    assert main(["render", str(sc.root), "-o", str(tmp_path / "x"), "--rig", "waymo5"]) == 1
+    assert "exactly one of --route" in capsys.readouterr().err
+    assert main(["render", str(sc.root), "-o", str(tmp_path / "x"), "--rig", "waymo5", "--route", "a"]) == 1
+    assert "needs the scene's layout" in capsys.readouterr().err
