@@ -4,6 +4,9 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+# torch before OpenImageIO: the other order makes OIIO's nanobind module print "leaked
+# instances" noise at interpreter exit, after pytest's summary line.
+import torch  # noqa: F401
 
 import lsd3d_usd  # registers the schema before any stage is opened  # noqa: F401
 

@@ -1,0 +1,130 @@
+"""`generate`: the whole pipeline on a small hand-authored layout; bad input writes nothing;
+re-runs reuse unchanged layers; GGDS writes only overs; Ctrl-C leaves a resumable scene."""
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Sdf
+
+from conftest import ROOT
+from lsd3d_usd import scene as S
+from lsd3d_usd import validation
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.pipeline import GenerateOptions, generate
+
+LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
+
+
+def opts(out, **kw):
+    base = dict(out=Path(out), layout=LAYOUT, steps=0, surfels=4000, env_resolution=(128, 64),
+                resolution=(64, 48), views=4, progress=False, perceptual=False,
+                prompt="sunny morning in Madrid", log=lambda *a: None)
+    base.update(kw)
+    return GenerateOptions(**base)
+
+
+def test_steps_zero_builds_a_valid_scene_and_reuses_it(tmp_path):
+    out = tmp_path / "scene"
+    summary = generate(opts(out))
+    assert summary["surfels"]["count"] == 4000 and not summary["surfels"]["reused"]
+    names = [i.name for i in S.Scene.open(out).layers()]
+    assert names == ["surfels", "env", "proxy", "layout"]
+    errors = [p for p in validation.validate(out) if p.severity == "error"]
+    assert errors == [], [p.line() for p in errors]
+    # The layout layer is the input exactly as given.
+    assert (out / "layers" / "layout.usda").read_bytes() == LAYOUT.read_bytes()
+    surf = (out / "layers" / "surfels.usdc").read_bytes()
+    again = generate(opts(out))
+    assert again["surfels"]["reused"] and again["proxy"]["built"] == 0
+    assert (out / "layers" / "surfels.usdc").read_bytes() == surf
+
+
+@pytest.mark.parametrize("bad,match", [
+    (dict(resolution=(0, 270)), "--resolution 0x270"),
+    (dict(steps=3, prior="diffusers:/nonexistent/model"), "no such directory"),
+    (dict(prior="magic", steps=3), "use 'procedural' or 'diffusers:DIR'"),
+    (dict(layout=Path("/nonexistent/layout.usda")), "no such file"),
+    (dict(surfels=0), "--surfels 0"),
+])
+def test_bad_input_writes_nothing(tmp_path, bad, match):
+    out = tmp_path / "scene"
+    with pytest.raises(InputError, match=match):
+        generate(opts(out, **bad))
+    assert not out.exists()
+
+
+def test_layout_without_lanes_is_refused(tmp_path):
+    lay = tmp_path / "nolanes.usda"
+    lay.write_text('#usda 1.0\n(\n defaultPrim = "World"\n metersPerUnit = 1\n upAxis = "Z"\n)\n'
+                   'def Xform "World" {\n def Scope "Layout" {\n }\n}\n')
+    out = tmp_path / "scene"
+    with pytest.raises(InputError, match="no driving lanes"):
+        generate(opts(out, layout=lay))
+    assert not out.exists()
+
+
+def test_output_folder_with_other_content_is_refused(tmp_path):
+    out = tmp_path / "scene"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    with pytest.raises(InputError, match="not empty"):
+        generate(opts(out))
+    assert os.listdir(out) == ["notes.txt"]
+
+
+def test_output_folder_with_a_different_scene_is_refused(tmp_path):
+    out = tmp_path / "scene"
+    generate(opts(out))
+    other = ROOT / "samples" / "layouts" / "curved_road.usda"
+    before = sorted(p.name for p in (out / "layers").iterdir())
+    with pytest.raises(InputError, match="holds a different scene"):
+        generate(opts(out, layout=other))
+    assert sorted(p.name for p in (out / "layers").iterdir()) == before
+
+
+class _Stop(Exception):
+    pass
+
+
+def test_ggds_writes_overs_and_survives_interrupt(tmp_path, monkeypatch):
+    pytest.importorskip("lsd3d_usd.ggds.procedural_prior")
+    from lsd3d_usd.ggds import run as R
+    out = tmp_path / "scene"
+    generate(opts(out))
+    surfels_before = (out / "layers" / "surfels.usdc").read_bytes()
+
+    real_step = R.GGDSRun.step
+    calls = {"n": 0}
+
+    def interrupting_step(self):
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise KeyboardInterrupt
+        return real_step(self)
+
+    monkeypatch.setattr(R.GGDSRun, "step", interrupting_step)
+    with pytest.raises(KeyboardInterrupt):
+        generate(opts(out, steps=6, checkpoint_every=2))
+    monkeypatch.setattr(R.GGDSRun, "step", real_step)
+    sc = S.Scene.open(out)
+    runs = [i for i in sc.layers() if i.name.startswith("ggds_")]
+    assert len(runs) == 1
+    assert runs[0].provenance["stepsDone"] == 3 and not runs[0].provenance["complete"]
+    assert [p for p in validation.validate(out) if p.severity == "error"] == []
+    summary = generate(opts(out, steps=6, resume=True))
+    assert summary["ggds"]["steps"] == 6
+    layer = Sdf.Layer.FindOrOpen(str(runs[0].path))
+    spec = layer.GetPrimAtPath(S.SURFELS_PATH)
+    assert spec.specifier == Sdf.SpecifierOver
+    assert set(spec.attributes.keys()) <= {"positions", "orientations", "scales", "opacities",
+                                           "radiance:sphericalHarmonicsCoefficients",
+                                           "radiance:sphericalHarmonicsDegree", "extent"}
+    prov = S.read_provenance(layer)
+    assert prov["complete"] and prov["stepsDone"] == 6
+    assert len(json.loads(prov["trainViews"])) == 4
+    # GGDS never rewrites the initial surfels.
+    assert (out / "layers" / "surfels.usdc").read_bytes() == surfels_before
+    for f in ("loss.png", "before_after.png", "summary.json"):
+        assert (out / "ggds" / runs[0].name / f).is_file()
