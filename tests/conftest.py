@@ -4,8 +4,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-# torch before OpenImageIO: the other order makes OIIO's nanobind module print "leaked
-# instances" noise at interpreter exit, after pytest's summary line.
 import torch  # noqa: F401
 
 import lsd3d_usd  # registers the schema before any stage is opened  # noqa: F401
@@ -46,3 +44,22 @@ def run_cli():
         return subprocess.run([sys.executable, "-m", "lsd3d_usd", *map(str, args)],
                               capture_output=True, text=True, cwd=cwd, env=env, check=check)
     return run
+
+
+# colour-science keeps OpenImageIO TypeDesc objects in module globals; with torch loaded,
+# interpreter teardown then makes OIIO's nanobind module print pages of "leaked instances"
+# after pytest's closing summary line. End the process right after pytest is done, with
+# pytest's own exit status, so the summary stays the last thing printed.
+_EXIT_STATUS: dict = {}
+
+
+def pytest_sessionfinish(session, exitstatus):
+    _EXIT_STATUS["code"] = int(exitstatus)
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_unconfigure(config):
+    if "code" in _EXIT_STATUS and "OpenImageIO" in sys.modules:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(_EXIT_STATUS["code"])
