@@ -121,22 +121,25 @@ FACADE_PALETTE = torch.tensor([
 def facade(p, nrm, s: MaterialSettings) -> Material:
     """Walls with a window grid on storeys of floor_height; roofs on up-facing faces."""
     n = p.shape[0]
-    # wall tone: smooth choice among the palette, varying over tens of metres
-    tone = noise.value_noise(p[:, :2] / 35.0, seed=s.seed + 41) * (len(FACADE_PALETTE) - 1)
-    i0 = tone.floor().long().clamp(0, len(FACADE_PALETTE) - 2)
-    w = _smoothstep(0.35, 0.65, tone - i0)
-    wall = _lerp(FACADE_PALETTE[i0], FACADE_PALETTE[i0 + 1], w)
-    wall = wall * (1.0 + 0.12 * (noise.fbm(p / 0.15, octaves=2, seed=s.seed + 42) - 0.5))[:, None]
     # façade coordinates: u along the wall (horizontal tangent), v = height above street level
     t = torch.stack([-nrm[:, 1], nrm[:, 0]], -1)
     tl = t.norm(dim=-1, keepdim=True)
     t = torch.where(tl > 1e-3, t / tl.clamp_min(1e-3), torch.tensor([1.0, 0.0]))
     u = (p[:, 0] * t[:, 0].double() + p[:, 1] * t[:, 1].double())
+    off = (p[:, 0] * nrm[:, 0].double() + p[:, 1] * nrm[:, 1].double())       # wall plane offset
+    # one "building" per 16 m of frontage (of one wall plane): its own wall tone and window pitch
+    bid = noise.hash_float(noise.cell(u, 16.0), noise.cell(off, 2.0), (nrm[:, :2] * 4).round().long().sum(-1),
+                           seed=s.seed + 40)
+    tone = noise.hash_float(noise.cell(u, 16.0), noise.cell(off, 2.0), seed=s.seed + 41)
+    wall = FACADE_PALETTE[(tone * len(FACADE_PALETTE)).long().clamp_max(len(FACADE_PALETTE) - 1)]
+    wall = wall * (0.85 + 0.3 * bid)[:, None]
+    wall = wall * (1.0 + 0.12 * (noise.fbm(p / 0.15, octaves=2, seed=s.seed + 42) - 0.5))[:, None]
+    spacing = s.window_spacing * (0.8 + 0.4 * bid).double()
     v = p[:, 2] - s.ground_z
     storey = torch.floor(v / s.floor_height)
     fv = ((v / s.floor_height) % 1.0).float()                  # position within the storey
-    col = torch.floor(u / s.window_spacing)
-    fu = ((u / s.window_spacing) % 1.0).float()
+    col = torch.floor(u / spacing)
+    fu = ((u / spacing) % 1.0).float()
     ground = storey < 1
     # windows: 50 % of the pitch wide; 30-80 % of the storey tall (shop fronts: 5-85 %, 75 %)
     half_w = torch.where(ground, torch.tensor(0.375), torch.tensor(0.25))
@@ -153,6 +156,8 @@ def facade(p, nrm, s: MaterialSettings) -> Material:
     # storey ledge
     ledge = (fv < 0.04).float() * (~ground).float()
     albedo = albedo * (1.0 - 0.25 * ledge)[:, None]
+    plinth = (v < 0.5).float() * (1 - win)                     # darker, dirtier base of the wall
+    albedo = albedo * (1.0 - 0.35 * plinth)[:, None]
     spec = 0.03 + 0.06 * win
     rough = 0.85 - 0.8 * win
     # roofs (up-facing): dark bitumen / gravel
