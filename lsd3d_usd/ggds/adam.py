@@ -10,8 +10,11 @@ import torch
 
 class SelectiveAdam:
     def __init__(self, params: dict[str, torch.Tensor], lrs: dict[str, float],
-                 betas=(0.9, 0.999), eps: float = 1e-15):
+                 betas=(0.9, 0.999), eps: float = 1e-15,
+                 lr_scales: dict[str, torch.Tensor] | None = None):
         self.params, self.lrs = params, dict(lrs)
+        # Optional per-element lr factors broadcast over a row (e.g. SH DC vs higher orders).
+        self.lr_scales = dict(lr_scales or {})
         self.b1, self.b2, self.eps = betas[0], betas[1], eps
         self.m = {k: torch.zeros_like(v) for k, v in params.items()}
         self.v = {k: torch.zeros_like(v) for k, v in params.items()}
@@ -37,7 +40,10 @@ class SelectiveAdam:
             shape = (-1,) + (1,) * (p.dim() - 1)
             mhat = m / c1.view(shape)
             vhat = v / c2.view(shape)
-            p[rows] -= self.lrs[k] * mhat / (vhat.sqrt() + self.eps)
+            update = self.lrs[k] * mhat / (vhat.sqrt() + self.eps)
+            if k in self.lr_scales:
+                update = update * self.lr_scales[k]
+            p[rows] -= update
 
     @torch.no_grad()
     def reset_rows(self, rows: torch.Tensor) -> None:

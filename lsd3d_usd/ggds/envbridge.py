@@ -66,9 +66,8 @@ def scene_light(params: EnvParams, exr_path=None, sh_resolution: int = 128) -> S
         from lsd3d_usd.env.lookup import EnvMap
         envmap = EnvMap.from_exr(exr_path)
     fog_rgb = np.asarray(model.fog_rgb, np.float64) * exposure
-    sky_lookup = None
-    if envmap is not None:
-        sky_lookup = (lambda d, m=envmap, e=exposure: m(d) * e)
+    # The prior applies env.exposure itself: hand it the map in its own units.
+    sky_lookup = envmap
     penv = PriorEnv(
         sun_direction=torch.tensor(sun_dir if np.linalg.norm(sun_dir) > 0 else [0, 0, 1.0],
                                    dtype=torch.float32),

@@ -43,7 +43,8 @@ class GGDSConfig:
     lr_quats: float = 2e-3
     lr_scales: float = 5e-3
     lr_opacities: float = 5e-2
-    lr_sh: float = 2.5e-2
+    lr_sh: float = 2.5e-2           # SH DC; higher orders get lr_sh * sh_rest_factor
+    sh_rest_factor: float = 0.05    # as 3DGS (rest = DC / 20)
     w_perceptual: float = 0.05
     w_normal: float = 0.1
     w_disparity: float = 1.0
@@ -117,7 +118,10 @@ class GGDSRun:
         self.params = P.to_params(field)
         for p in self.params.values():
             p.requires_grad_(True)
-        self.optimizer = SelectiveAdam(self.params, self._lrs(0))
+        k = self.params["sh"].shape[1]
+        sh_scale = torch.full((k, 1), float(config.sh_rest_factor))
+        sh_scale[0] = 1.0
+        self.optimizer = SelectiveAdam(self.params, self._lrs(0), lr_scales={"sh": sh_scale})
         self.strategy = MCMCStrategy(noise_scale=config.noise_scale,
                                      relocate_every=config.relocate_every, seed=config.seed)
         self.prior, self.env = prior, env

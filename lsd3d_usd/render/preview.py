@@ -115,12 +115,14 @@ def read_env(stage, time=None) -> EnvMap | None:
     except ImportError:
         return None
     t = _time(time)
+    dome_types = [UsdLux.DomeLight] + ([UsdLux.DomeLight_1] if hasattr(UsdLux, "DomeLight_1") else [])
     for prim in Usd.PrimRange(stage.GetPseudoRoot()):
-        if not prim.IsA(UsdLux.DomeLight):
+        kind = next((k for k in dome_types if prim.IsA(k)), None)
+        if kind is None:
             continue
         if UsdGeom.Imageable(prim).ComputeVisibility(t) == UsdGeom.Tokens.invisible:
             continue
-        light = UsdLux.DomeLight(prim)
+        light = kind(prim)
         asset = light.GetTextureFileAttr().Get(t)
         if not asset or not asset.path:
             continue

@@ -246,38 +246,11 @@ def scene_surfels(stage):
         return SurfelField.concat([replace(f, semantic_ids=None, semantic_classes=()) for f in fields])
 
 
-def read_env_any(stage):
-    """preview.read_env (UsdLux.DomeLight), else the env layer's DomeLight_1 (poleAxis Z)."""
-    from pxr import Usd, UsdGeom, UsdLux
-
-    from lsd3d_usd.render.preview import EnvMap, read_env, read_image
-    env = read_env(stage)
-    if env is not None or not hasattr(UsdLux, "DomeLight_1"):
-        return env
-    for prim in Usd.PrimRange(stage.GetPseudoRoot()):
-        if not prim.IsA(UsdLux.DomeLight_1):
-            continue
-        if UsdGeom.Imageable(prim).ComputeVisibility() == UsdGeom.Tokens.invisible:
-            continue
-        asset = UsdLux.DomeLight_1(prim).GetTextureFileAttr().Get()
-        if not asset or not asset.path:
-            continue
-        path = asset.resolvedPath or asset.path
-        img = read_image(path)
-        rgb = img[..., :3] if img.shape[2] >= 3 else np.repeat(img[..., :1], 3, axis=2)
-        lx = UsdLux.LightAPI(prim)
-        gain = float(lx.GetIntensityAttr().Get() or 1.0) * 2.0 ** float(lx.GetExposureAttr().Get() or 0.0)
-        col = np.asarray(lx.GetColorAttr().Get() or (1, 1, 1), np.float32)
-        M = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(Usd.TimeCode.Default())).T[:3, :3]
-        U, _, Vt = np.linalg.svd(M)
-        return EnvMap((rgb * (gain * col)).astype(np.float32), U @ Vt, "Z", str(prim.GetPath()))
-    return None
-
-
 def load_static(stage, use_env: bool = True) -> StaticContent:
     from lsd3d_usd.actors.relight import lighting_from_stage, proxy_occluder
+    from lsd3d_usd.render.preview import read_env
     from lsd3d_usd.actors.usdio import ActorSet
-    return StaticContent(scene_surfels(stage), read_env_any(stage) if use_env else None,
+    return StaticContent(scene_surfels(stage), read_env(stage) if use_env else None,
                          lighting_from_stage(stage), proxy_occluder(stage), ActorSet(stage))
 
 
