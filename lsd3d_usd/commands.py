@@ -115,6 +115,8 @@ def _generate(args) -> int:
         env_resolution=_size(args.env_resolution, "--env-resolution"), surfels=args.surfels,
         steps=args.steps, prior=args.prior, resolution=_size(args.resolution, "--resolution"),
         views=args.views, checkpoint_every=args.checkpoint_every, perceptual=not args.no_perceptual,
+        parked=0 if args.no_actors else args.parked, moving=0 if args.no_actors else args.moving,
+        actor_seconds=args.actor_seconds,
         resume=args.resume, force=args.force, progress=not args.no_progress and sys.stderr.isatty(),
         log=(lambda *a: print(*a, file=sys.stderr)))
     try:
@@ -156,6 +158,11 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", type=int, default=48, help="training views sampled along and off the lanes")
     p.add_argument("--checkpoint-every", type=int, default=50, help="steps between checkpoints (default 50)")
     p.add_argument("--no-perceptual", action="store_true", help="skip the EfficientNet perceptual loss")
+    p.add_argument("--parked", type=int, default=12, help="parked actors along the curbs (default 12)")
+    p.add_argument("--moving", type=int, default=8,
+                   help="moving actors driven by IDM traffic over the lane graph (default 8)")
+    p.add_argument("--actor-seconds", type=float, default=8.0, help="traffic duration in seconds (default 8)")
+    p.add_argument("--no-actors", action="store_true", help="no actors layer")
     p.add_argument("--extent", default="200x200", help="generated layout size WxH m (no --layout)")
     p.add_argument("--style", default="urban", choices=("urban", "suburban", "highway"),
                    help="generated layout style (no --layout)")

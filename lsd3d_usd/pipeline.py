@@ -47,6 +47,10 @@ class GenerateOptions:
     views: int = 48
     checkpoint_every: int = 50
     perceptual: bool = True
+    parked: int = 12                               # actors parked along the curbs
+    moving: int = 8                                # actors driven by the IDM traffic model
+    actor_seconds: float = 8.0
+    actor_fps: float = 10.0
     resume: bool = False
     force: bool = False
     progress: bool = True
@@ -80,6 +84,8 @@ def _check_options(o: GenerateOptions):
         raise InputError(f"--checkpoint-every {o.checkpoint_every}: must be positive")
     if o.resume and o.force:
         raise InputError("--resume and --force exclude each other")
+    if o.parked < 0 or o.moving < 0:
+        raise InputError(f"--parked {o.parked} / --moving {o.moving}: counts must be >= 0")
 
 
 def make_prior(spec: str):
@@ -251,6 +257,22 @@ def _surfel_step(sc: S.Scene, proxy, light, o: GenerateOptions) -> tuple:
     tmp.replace(faces_path)
     sc.add_layer("surfels")
     return read_surfel_file(str(path)), face, {"reused": False, "count": count, "init_s": round(dt, 2)}
+
+
+def _actors_step(sc: S.Scene, layout, o: GenerateOptions) -> dict:
+    """Parked and moving actors as references to the scene's own procedural vehicle assets
+    (written once into assets/, so the scene folder is self-contained)."""
+    from lsd3d_usd.actors import assets as A
+    from lsd3d_usd.actors.compose import add_actors
+    folder = sc.root / S.ASSETS_DIR
+    missing = [k for k in A.LIBRARY_KINDS if not (folder / f"{k}.usda").is_file()]
+    if missing:
+        A.write_library(folder, missing)
+    res = add_actors(sc, layout, parked=o.parked, moving=o.moving, seed=o.seed,
+                     seconds=o.actor_seconds, fps=o.actor_fps, assets_dir=folder)
+    for note in res.notes:
+        o.log(f"actors: {note}")
+    return {"parked": len(res.parked), "moving": len(res.moving_kinds), "seconds": res.seconds}
 
 
 # ------------------------------------------------------------------------- GGDS
@@ -428,6 +450,10 @@ def generate(o: GenerateOptions) -> dict:
     timings["surfels_s"] = time.perf_counter() - t
     o.log(f"surfels: {field.n:,} ({'reused' if sinfo['reused'] else 'initialised'})")
     summary = {"scene": str(sc.root), "proxy": prep, "surfels": sinfo}
+    if o.parked or o.moving:
+        t = time.perf_counter(); summary["actors"] = _actors_step(sc, layout, o)
+        timings["actors_s"] = time.perf_counter() - t
+        o.log(f"actors: {summary['actors']['parked']} parked, {summary['actors']['moving']} moving")
     if o.steps > 0 or o.resume:
         summary["ggds"] = _ggds_step(sc, layout, proxy, field, face, light, params, o)
         g = summary["ggds"]

@@ -30,7 +30,11 @@ def test_steps_zero_builds_a_valid_scene_and_reuses_it(tmp_path):
     summary = generate(opts(out))
     assert summary["surfels"]["count"] == 4000 and not summary["surfels"]["reused"]
     names = [i.name for i in S.Scene.open(out).layers()]
-    assert names == ["surfels", "env", "proxy", "layout"]
+    assert names == ["surfels", "actors", "env", "proxy", "layout"]
+    assert summary["actors"]["moving"] > 0
+    # Actor assets are referenced from the scene's own assets/ folder, never copied elsewhere.
+    assert sorted(p.name for p in (out / "assets").glob("*.usda")) == ["bus.usda", "car.usda",
+                                                                       "truck.usda", "van.usda"]
     errors = [p for p in validation.validate(out) if p.severity == "error"]
     assert errors == [], [p.line() for p in errors]
     # The layout layer is the input exactly as given.
