@@ -23,6 +23,8 @@ COMMAND_MODULES = (
     "lsd3d_usd.env.commands",
     "lsd3d_usd.actors.commands",
     "lsd3d_usd.bench",
+    "lsd3d_usd.batch.commands",
+    "lsd3d_usd.eval.commands",
 )
 
 

@@ -1,0 +1,69 @@
+"""`lsd3d-usd batch SPEC.toml`: generate many scenes as independent tasks."""
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def _batch(args) -> int:
+    from lsd3d_usd.errors import InputError
+
+    from .executors import make_executor
+    from .runner import DEFAULT_RETRIES, format_report, run_batch
+    from .spec import load_spec
+    from .tasks import plan_batch
+
+    spec = load_spec(args.spec)
+    retries = args.retries if args.retries is not None else (
+        spec.retries if spec.retries is not None else DEFAULT_RETRIES)
+    if retries < 0:
+        raise InputError(f"--retries {retries}: must be >= 0")
+    workers = args.workers if args.workers is not None else spec.workers
+    if workers is not None and workers < 1:
+        raise InputError(f"--workers {workers}: must be >= 1")
+    if args.dry_run:
+        for plan in plan_batch(spec):
+            for t in plan.tasks:
+                deps = f" (after {len(t.deps)} chunk task(s))" if t.deps else ""
+                print(f"{t.id:40s} {t.kind:6s} {t.inputs_hash}{deps}")
+        return 0
+    ex = make_executor(args.executor, workers, args.address)
+    err = lambda *a: print(*a, file=sys.stderr)  # noqa: E731
+    progress = not args.no_progress and sys.stderr.isatty()
+    try:
+        report = run_batch(spec, ex, retries=retries, progress=progress, log=err)
+    except KeyboardInterrupt:
+        err(f"lsd3d-usd: batch interrupted; finished tasks are recorded in {spec.state_path}: "
+            "run the same command again to continue")
+        return 130
+    finally:
+        ex.close(cancel=True)
+    for line in format_report(report):
+        print(line, file=sys.stdout if line.startswith("batch:") else sys.stderr)
+    print(f"state: {spec.state_path}")
+    return 0 if report.ok else 1
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "batch", help="generate many scenes from a TOML spec, on local processes or Ray",
+        description="Generate every scene of a TOML batch spec (docs/batch.md). Scenes run as "
+                    "independent tasks; a scene whose layout spans several proxy chunks is split, "
+                    "one task per chunk, then a scene task for the rest of `generate`. A failed "
+                    "task is retried, the others continue; re-running the command skips tasks "
+                    "already done with the same inputs (state in <output>/batch-state.json). "
+                    "Exit 0 when every task succeeded, 1 with one line per failed task.")
+    p.add_argument("spec", help="batch spec (.toml)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local: a process pool on this machine (default); ray: a Ray cluster "
+                        "(needs `pip install ray`)")
+    p.add_argument("--address", help="Ray cluster address (e.g. auto or ray://head:10001); "
+                                     "without it a local Ray instance is started")
+    p.add_argument("--workers", type=int,
+                   help="tasks at once (default: the spec's [batch].workers, else all CPUs)")
+    p.add_argument("--retries", type=int,
+                   help="re-runs of a failed task before it is reported (default 2)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="check the spec and list the tasks with their input hashes; run nothing")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=_batch)

@@ -1,0 +1,227 @@
+"""Where tasks run: a local process pool (default) or a Ray cluster.
+
+Both executors run the same function (``tasks.run_task``) on plain-dict payloads and give
+the driver the same three outcomes per task:
+
+- ``OK``: the task returned;
+- ``ERROR``: the task raised (the message names the exception);
+- ``LOST``: the worker process died (segfault, OOM kill, ``os._exit``).
+
+A process pool cannot say *which* task killed it: every task in flight fails with
+BrokenProcessPool. Those are reported as ``SUSPECT``, not charged an attempt, and re-run
+one per private single-worker pool, where a death is attributed exactly (then ``LOST``).
+Ray reports a dead worker per task (WorkerCrashedError), so it never needs that step; its own
+automatic retries are turned off so the driver's retry count holds for both executors.
+"""
+from __future__ import annotations
+
+import atexit
+import multiprocessing as mp
+import os
+import signal
+import sys
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
+from concurrent.futures import wait as futures_wait
+from concurrent.futures.process import BrokenProcessPool
+
+OK, ERROR, LOST, SUSPECT = "ok", "error", "lost", "suspect"
+
+
+def describe(exc: BaseException) -> str:
+    msg = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
+
+
+def _init_worker(threads: int) -> None:
+    """Runs first in every pool worker (spawned, so nothing heavy is imported yet): share the
+    cores between workers, and leave Ctrl-C to the driver (which stops the pool)."""
+    for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
+        os.environ[var] = str(threads)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    atexit.register(_quiet_exit)
+
+
+def _quiet_exit() -> None:
+    """At worker exit, silence stderr: native libraries' teardown chatter (OpenImageIO's
+    nanobind "leaked instances" once torch is loaded) would otherwise bury the batch report."""
+    try:
+        sys.stderr.flush()
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, 2)
+    except OSError:
+        pass
+
+
+def _call(payload: dict) -> dict:
+    from .tasks import run_task
+    return run_task(payload)
+
+
+class LocalExecutor:
+    """concurrent.futures.ProcessPoolExecutor with the spawn start method (no fork: torch,
+    numba and USD hold threads and locks that fork would copy half-way)."""
+
+    name = "local"
+
+    def __init__(self, workers: int | None = None):
+        self.workers = max(1, int(workers or os.cpu_count() or 1))
+        self.threads = max(1, (os.cpu_count() or 1) // self.workers)
+        self._ctx = mp.get_context("spawn")
+        self._pool: ProcessPoolExecutor | None = None
+        self._futures: dict = {}          # future -> (key, pool)
+        self._private: set = set()        # single-worker pools of isolated tasks
+        self._retired: list = []          # broken or finished pools, joined at close()
+
+    @property
+    def capacity(self) -> int:
+        return self.workers
+
+    def _new_pool(self, n: int) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=n, mp_context=self._ctx, initializer=_init_worker,
+                                   initargs=(self.threads,))
+
+    def submit(self, key, payload: dict, isolated: bool = False) -> None:
+        if isolated:
+            pool = self._new_pool(1)
+            self._private.add(pool)
+        else:
+            if self._pool is None:
+                self._pool = self._new_pool(self.workers)
+            pool = self._pool
+        self._futures[pool.submit(_call, payload)] = (key, pool)
+
+    def poll(self, timeout: float) -> list[tuple]:
+        """Outcomes of the tasks that finished within ``timeout`` s: [(key, status, value)]."""
+        if not self._futures:
+            return []
+        done, _ = futures_wait(list(self._futures), timeout=timeout, return_when=FIRST_COMPLETED)
+        out = []
+        broken = set()
+        for fut in done:
+            key, pool = self._futures.pop(fut)
+            exc = fut.exception()
+            if exc is None:
+                out.append((key, OK, fut.result()))
+            elif isinstance(exc, BrokenProcessPool):
+                broken.add(pool)
+                private = pool in self._private
+                out.append((key, LOST if private else SUSPECT,
+                            "worker process died (killed, crashed or out of memory)"))
+            else:
+                out.append((key, ERROR, describe(exc)))
+        for fut, (key, pool) in list(self._futures.items()):
+            if pool in broken:  # the rest of a broken pool's tasks fail too; collect them now
+                self._futures.pop(fut)
+                out.append((key, SUSPECT, "worker process died (killed, crashed or out of memory)"))
+        for pool in broken:
+            pool.shutdown(wait=False, cancel_futures=True)
+            if pool is self._pool:
+                self._pool = None
+            self._private.discard(pool)
+            self._retired.append(pool)
+        for pool in list(self._private):  # finished private pools
+            if not any(p is pool for _, p in self._futures.values()):
+                pool.shutdown(wait=False)
+                self._private.discard(pool)
+                self._retired.append(pool)
+        return out
+
+    def close(self, cancel: bool = False) -> None:
+        pools = ([self._pool] if self._pool else []) + list(self._private)
+        for pool in pools:
+            if cancel:
+                # Running tasks are abandoned (their writes are atomic); stop their processes.
+                procs = list(getattr(pool, "_processes", {}).values())
+                pool.shutdown(wait=False, cancel_futures=True)
+                for p in procs:
+                    if p.is_alive():
+                        p.terminate()
+                for p in procs:
+                    p.join(timeout=10)
+            else:
+                pool.shutdown(wait=True)
+        for pool in self._retired:
+            pool.shutdown(wait=True)
+        self._pool, self._private, self._futures, self._retired = None, set(), {}, []
+
+
+class RayExecutor:
+    """The same tasks on Ray: ``address=None`` starts a local instance with ``num_cpus``
+    (default: this machine's); otherwise connects (``auto``, ``ray://host:10001``, ...).
+    Workers must be able to import lsd3d_usd and see the spec's input and output paths."""
+
+    name = "ray"
+
+    def __init__(self, address: str | None = None, workers: int | None = None,
+                 num_cpus: int | None = None):
+        try:
+            import ray
+        except ImportError:
+            from lsd3d_usd.errors import InputError
+            raise InputError("--executor ray: Ray is not installed (pip install 'lsd3d-usd[ray]' "
+                             "or pip install ray)") from None
+        self.ray = ray
+        self._owns = not ray.is_initialized()
+        if self._owns:
+            kw = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+            if address:
+                ray.init(address=address, **kw)
+            else:
+                ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **kw)
+        cpus = int(ray.cluster_resources().get("CPU", 1))
+        self.workers = max(1, int(workers or cpus))
+        self._remote = ray.remote(_call).options(num_cpus=1, max_retries=0, retry_exceptions=False)
+        self._refs: dict = {}
+
+    @property
+    def capacity(self) -> int:
+        return self.workers
+
+    def submit(self, key, payload: dict, isolated: bool = False) -> None:
+        self._refs[self._remote.remote(payload)] = key
+
+    def poll(self, timeout: float) -> list[tuple]:
+        if not self._refs:
+            return []
+        ray = self.ray
+        done, _ = ray.wait(list(self._refs), num_returns=1, timeout=timeout)
+        if done:  # collect everything else already finished too
+            more, _ = ray.wait([r for r in self._refs if r not in done],
+                               num_returns=len(self._refs) - len(done), timeout=0)
+            done = done + more
+        out = []
+        for ref in done:
+            key = self._refs.pop(ref)
+            try:
+                out.append((key, OK, ray.get(ref)))
+            except ray.exceptions.RayTaskError as e:
+                cause = getattr(e, "cause", None)
+                out.append((key, ERROR, describe(cause) if cause is not None else describe(e)))
+            except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError,
+                    ray.exceptions.OutOfMemoryError) as e:
+                out.append((key, LOST, f"worker process died ({type(e).__name__})"))
+            except ray.exceptions.RayError as e:
+                out.append((key, ERROR, describe(e)))
+        return out
+
+    def close(self, cancel: bool = False) -> None:
+        if cancel:
+            for ref in list(self._refs):
+                try:
+                    self.ray.cancel(ref, force=True)
+                except Exception:
+                    pass
+        self._refs = {}
+        if self._owns:
+            self.ray.shutdown()
+
+
+def make_executor(kind: str, workers: int | None = None, address: str | None = None):
+    from lsd3d_usd.errors import InputError
+    if kind == "local":
+        if address:
+            raise InputError("--address is for --executor ray")
+        return LocalExecutor(workers)
+    if kind == "ray":
+        return RayExecutor(address, workers)
+    raise InputError(f"--executor {kind!r}: choose local or ray")

@@ -1,0 +1,273 @@
+"""Batch spec: a TOML file listing scenes to generate (docs/batch.md).
+
+    [batch]                 # optional
+    output = "out"          # base folder of relative scene outputs and of the batch state
+    workers = 2             # optional; the CLI's --workers wins
+    retries = 2             # optional; the CLI's --retries wins
+
+    [defaults]              # optional: generate options shared by every scene
+    steps = 50
+    resolution = "480x270"
+
+    [[scene]]
+    name = "crossing"
+    layout = "../layouts/hand_crossing.usda"   # relative to the spec file
+    prompt = "rainy autumn evening in Seattle"
+
+    [[scene]]
+    name = "generated-3"
+    seed = 3                # no layout: one is generated from seed/extent/style
+    extent = [300, 300]
+    style = "suburban"
+
+Every error names the file and the key (``scene[2] ("crossing").steps``), so a
+bad spec is refused before any work starts.
+"""
+from __future__ import annotations
+
+import difflib
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lsd3d_usd.errors import InputError
+
+STYLES = ("urban", "suburban", "highway")
+SPLIT_CHOICES = ("auto", "always", "never")
+# Injected failures, for tests of retry and reporting only (documented as such).
+TEST_CRASH_MODES = ("raise-once", "exit-once", "raise", "exit")
+NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
+
+
+# ---------------------------------------------------------------- value checkers
+# Each takes (value, where, base_dir) and returns the normalised value or raises InputError.
+def _int(lo=None):
+    def check(v, where, base):
+        if isinstance(v, bool) or not isinstance(v, int):
+            raise InputError(f"{where}: expected an integer, got {v!r}")
+        if lo is not None and v < lo:
+            raise InputError(f"{where}: must be >= {lo}, got {v}")
+        return v
+    return check
+
+
+def _float(positive=False, lo=None, hi=None):
+    def check(v, where, base):
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise InputError(f"{where}: expected a number, got {v!r}")
+        v = float(v)
+        if positive and not v > 0:
+            raise InputError(f"{where}: must be > 0, got {v}")
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            raise InputError(f"{where}: must be in [{lo}, {hi}], got {v}")
+        return v
+    return check
+
+
+def _str(v, where, base):
+    if not isinstance(v, str):
+        raise InputError(f"{where}: expected a string, got {v!r}")
+    return v
+
+
+def _bool(v, where, base):
+    if not isinstance(v, bool):
+        raise InputError(f"{where}: expected true or false, got {v!r}")
+    return v
+
+
+def _choice(choices):
+    def check(v, where, base):
+        if v not in choices:
+            raise InputError(f"{where}: expected one of {', '.join(map(str, choices))}, got {v!r}")
+        return v
+    return check
+
+
+def _pair(kind):
+    """[w, h] or "WxH" → (w, h) of ``kind`` (int or float), both positive."""
+    def check(v, where, base):
+        if isinstance(v, str):
+            try:
+                parts = [kind(p) for p in v.lower().split("x")]
+            except ValueError:
+                parts = []
+        elif isinstance(v, list) and all(isinstance(p, (int, float)) and not isinstance(p, bool)
+                                         for p in v):
+            parts = [kind(p) for p in v]
+            if kind is int and any(p != q for p, q in zip(parts, v)):
+                parts = []
+        else:
+            parts = []
+        if len(parts) != 2 or not all(p > 0 for p in parts):
+            eg = "[480, 270] or \"480x270\"" if kind is int else "[200, 200] or \"200x200\""
+            raise InputError(f"{where}: expected two positive {'integers' if kind is int else 'numbers'}"
+                             f" as {eg}, got {v!r}")
+        return tuple(parts)
+    return check
+
+
+def _path(v, where, base):
+    v = _str(v, where, base)
+    p = Path(v).expanduser()
+    return p if p.is_absolute() else (base / p).resolve()
+
+
+def _split(v, where, base):
+    if isinstance(v, bool):
+        return "always" if v else "never"
+    return _choice(SPLIT_CHOICES)(v, where, base)
+
+
+# generate options a scene (or [defaults]) may set → checker. Names follow GenerateOptions.
+OPTION_KEYS = {
+    "layout": _path,
+    "seed": _int(),
+    "extent": _pair(float),
+    "style": _choice(STYLES),
+    "prompt": _str,
+    "when": _str,
+    "lat": _float(lo=-90.0, hi=90.0),
+    "lon": _float(lo=-180.0, hi=180.0),
+    "weather": _str,
+    "season": _str,
+    "env_resolution": _pair(int),
+    "surfels": _int(1),
+    "steps": _int(0),
+    "prior": _str,
+    "resolution": _pair(int),
+    "views": _int(1),
+    "checkpoint_every": _int(1),
+    "perceptual": _bool,
+    "parked": _int(0),
+    "moving": _int(0),
+    "actor_seconds": _float(positive=True),
+    "actor_fps": _float(positive=True),
+    "force": _bool,
+}
+# batch-only keys of a scene (and of [defaults], except name/output)
+SCENE_KEYS = {"name": _str, "output": _path, "split_chunks": _split,
+              "test_crash": _choice(TEST_CRASH_MODES)}
+BATCH_KEYS = {"output": _path, "workers": _int(1), "retries": _int(0)}
+TOP_KEYS = ("batch", "defaults", "scene")
+
+
+@dataclass
+class SceneSpec:
+    name: str
+    output: Path                     # absolute scene folder
+    options: dict                    # GenerateOptions keyword arguments (no out/log/progress)
+    split_chunks: str = "auto"       # auto: split large layouts (tasks.AUTO_SPLIT_MIN_CHUNKS)
+    test_crash: str | None = None
+    index: int = 0
+
+    @property
+    def where(self) -> str:
+        return f"scene[{self.index}] ({self.name!r})"
+
+
+@dataclass
+class BatchSpec:
+    path: Path
+    output: Path
+    scenes: list[SceneSpec] = field(default_factory=list)
+    workers: int | None = None
+    retries: int | None = None
+
+    @property
+    def state_path(self) -> Path:
+        return self.output / "batch-state.json"
+
+
+def _unknown(key: str, known, where: str) -> InputError:
+    near = difflib.get_close_matches(key, list(known), n=1)
+    hint = f" (did you mean {near[0]!r}?)" if near else ""
+    return InputError(f"{where}: unknown key {key!r}{hint}; known keys: {', '.join(sorted(known))}")
+
+
+def _table(value, where: str) -> dict:
+    if not isinstance(value, dict):
+        raise InputError(f"{where}: expected a table, got {type(value).__name__}")
+    return value
+
+
+def _options(table: dict, where: str, base: Path, allowed: dict) -> dict:
+    out = {}
+    for key, value in table.items():
+        check = allowed.get(key)
+        if check is None:
+            raise _unknown(key, allowed, where)
+        out[key] = check(value, f"{where}.{key}", base)
+    return out
+
+
+def parse_spec(data: dict, path: Path) -> BatchSpec:
+    """Validate a parsed TOML document; ``path`` is the spec file (relative paths resolve
+    against its folder)."""
+    path = Path(path).absolute()
+    base = path.parent
+    w = path.name
+    for key in data:
+        if key not in TOP_KEYS:
+            raise _unknown(key, TOP_KEYS, w)
+    batch = _options(_table(data.get("batch", {}), f"{w}: [batch]"), f"{w}: batch", base, BATCH_KEYS)
+    output = batch.get("output", base / f"{path.stem}_out")
+    default_keys = {**OPTION_KEYS, "split_chunks": _split, "test_crash": SCENE_KEYS["test_crash"]}
+    defaults = _options(_table(data.get("defaults", {}), f"{w}: [defaults]"), f"{w}: defaults",
+                        base, default_keys)
+    scenes_raw = data.get("scene", [])
+    if not isinstance(scenes_raw, list) or not scenes_raw:
+        raise InputError(f"{w}: no scenes: add at least one [[scene]] table with a name")
+    spec = BatchSpec(path, output, workers=batch.get("workers"), retries=batch.get("retries"))
+    names, outputs = {}, {}
+    for i, raw in enumerate(scenes_raw):
+        where = f"{w}: scene[{i}]"
+        raw = _table(raw, where)
+        if "name" in raw and isinstance(raw["name"], str):
+            where = f"{w}: scene[{i}] ({raw['name']!r})"
+        own = _options(raw, where, output, {**OPTION_KEYS, **SCENE_KEYS})
+        # layout is relative to the spec file, output to [batch].output (re-resolve layout).
+        if "layout" in raw:
+            own["layout"] = _path(raw["layout"], f"{where}.layout", base)
+        name = own.pop("name", None)
+        if name is None:
+            raise InputError(f"{where}: missing key 'name' (a short folder-safe scene name)")
+        if not NAME_RE.match(name):
+            raise InputError(f"{where}.name: {name!r} must start with a letter or digit and hold only "
+                             "letters, digits, '_', '-' or '.'")
+        if name in names:
+            raise InputError(f"{where}.name: {name!r} already used by scene[{names[name]}]")
+        names[name] = i
+        merged = {**defaults, **own}
+        if "layout" in own:  # a scene's own layout wins over generator defaults
+            for k in ("extent", "style"):
+                if k not in own:
+                    merged.pop(k, None)
+        out_dir = merged.pop("output", output / name)
+        if out_dir in outputs:
+            raise InputError(f"{where}.output: {out_dir} is also the output of scene "
+                             f"{outputs[out_dir]!r}")
+        outputs[out_dir] = name
+        if out_dir.resolve() == output.resolve():
+            raise InputError(f"{where}.output: a scene cannot be written into the batch output "
+                             f"folder itself ({output}); use a subfolder")
+        split = merged.pop("split_chunks", "auto")
+        crash = merged.pop("test_crash", None)
+        if "layout" in merged and not Path(merged["layout"]).is_file():
+            raise InputError(f"{where}.layout: no such file: {merged['layout']}")
+        spec.scenes.append(SceneSpec(name, out_dir, merged, split, crash, i))
+    return spec
+
+
+def load_spec(path: str | Path) -> BatchSpec:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such batch spec file")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{path}: not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise InputError(f"{path}: not UTF-8 text: {e}") from None
+    return parse_spec(data, path)

@@ -1,0 +1,240 @@
+"""Batch tasks: what runs where, and how each is identified.
+
+A scene becomes either one ``scene`` task (``generate`` end to end) or, when it is split,
+one ``chunk`` task per proxy chunk plus a ``scene`` task that depends on them. A chunk task
+writes only its own chunk file (``layers/proxy_chunks/chunk_<i>_<j>.usdc``); it never touches
+the proxy root layer or scene.usda, so chunk tasks of one scene can run concurrently on
+different workers. When a scene's chunks are all done, the driver writes the proxy root layer
+(``finalize_chunks``); the scene task then runs ``generate``, which finds every chunk (and the
+root) up to date and reuses them.
+
+Every task carries the hash of its inputs: re-running a batch skips a task whose hash is
+recorded as done in the batch state (and whose outputs still exist).
+
+``run_task`` is the one function executed on workers (process pool or Ray). It takes and
+returns plain dicts, so it pickles anywhere.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from lsd3d_usd.errors import InputError
+
+from .spec import BatchSpec, SceneSpec
+
+TASK_VERSION = "batch-task-v1"
+# split_chunks = "auto" splits a scene whose layout spans at least this many proxy chunks:
+# below it, building the chunks in one task costs less than starting more workers.
+AUTO_SPLIT_MIN_CHUNKS = 8
+
+
+@dataclass(frozen=True)
+class Task:
+    id: str                         # "<scene>/scene" or "<scene>/chunk_<i>_<j>"
+    kind: str                       # "scene" | "chunk"
+    scene: str
+    inputs_hash: str
+    payload: dict                   # plain data for run_task
+    deps: tuple[str, ...] = ()
+    outputs: tuple[str, ...] = ()   # files that must exist for the task to count as done
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass
+class ScenePlan:
+    scene: SceneSpec
+    layout_hash: str
+    chunk_keys: list[tuple[int, int]] = field(default_factory=list)
+    chunk_hashes: dict = field(default_factory=dict)       # key -> chunk inputs hash
+    tasks: list[Task] = field(default_factory=list)
+
+
+def _hash(*parts) -> str:
+    h = hashlib.sha256()
+    for p in parts:
+        h.update(json.dumps(p, sort_keys=True, default=str).encode())
+    return h.hexdigest()[:20]
+
+
+def _file_hash(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:20]
+
+
+def generate_options(options: dict, out: Path, **kw):
+    """GenerateOptions from a scene's option dict (paths and tuples restored)."""
+    from lsd3d_usd.pipeline import GenerateOptions
+    o = dict(options)
+    if o.get("layout") is not None:
+        o["layout"] = Path(o["layout"])
+    for k in ("extent", "env_resolution", "resolution"):
+        if k in o:
+            o[k] = tuple(o[k])
+    return GenerateOptions(out=Path(out), **o, **kw)
+
+
+def _json_options(options: dict) -> dict:
+    return {k: (str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v)
+            for k, v in options.items()}
+
+
+def _read_layout(opts):
+    from lsd3d_usd.pipeline import _read_layout
+    return _read_layout(opts)[0]
+
+
+def chunk_file(scene_out: Path, key) -> Path:
+    from lsd3d_usd import scene as S
+    from lsd3d_usd.proxy.usdio import chunk_file_name, chunks_dir
+    return chunks_dir(Path(scene_out) / S.LAYERS_DIR / S.STEP_LAYERS["proxy"]) / chunk_file_name(*key)
+
+
+def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
+    """Tasks of one scene. Reads (or generates) the layout and checks the options, so bad
+    input is refused here, before any task runs."""
+    import lsd3d_usd
+    from lsd3d_usd.pipeline import _check_options
+    from lsd3d_usd.proxy.chunks import ProxyBuilder, ProxyParams
+    from lsd3d_usd.proxy.usdio import layout_hash
+
+    opts = generate_options(sc.options, sc.output, progress=False)
+    try:
+        _check_options(opts)
+        layout = _read_layout(opts)
+    except InputError as e:
+        raise InputError(f"{sc.where}: {e}") from None
+    lhash = layout_hash(layout)
+    plan = ScenePlan(sc, lhash)
+    jopts = _json_options(sc.options)
+    layout_file = sc.options.get("layout")
+    layout_id = _file_hash(layout_file) if layout_file else None
+    base = {"scene": sc.name, "out": str(sc.output), "options": jopts,
+            "test_crash": sc.test_crash, "marker_dir": str(logs_dir)}
+    builder = ProxyBuilder(layout, ProxyParams())
+    keys = sorted(builder.chunks())
+    split = sc.split_chunks == "always" or (sc.split_chunks == "auto"
+                                                and len(keys) >= AUTO_SPLIT_MIN_CHUNKS)
+    deps = []
+    if split:
+        from lsd3d_usd.scene import chunk_prim_name
+        for key in keys:
+            h = builder.inputs(key).hash
+            plan.chunk_keys.append(key)
+            plan.chunk_hashes[key] = h
+            cid = f"{sc.name}/{chunk_prim_name(*key).lower()}"
+            cfile = chunk_file(sc.output, key)
+            plan.tasks.append(Task(
+                cid, "chunk", sc.name, _hash(TASK_VERSION, "chunk", h, str(cfile)),
+                {**base, "kind": "chunk", "chunk": list(key), "id": cid,
+                 "log": str(logs_dir / f"{sc.name}.{chunk_prim_name(*key).lower()}.log")},
+                outputs=(str(cfile),)))
+            deps.append(cid)
+    sid = f"{sc.name}/scene"
+    from lsd3d_usd import scene as S
+    plan.tasks.append(Task(
+        sid, "scene", sc.name,
+        _hash(TASK_VERSION, "scene", jopts, layout_id, lhash, str(sc.output), lsd3d_usd.__version__),
+        {**base, "kind": "scene", "id": sid, "log": str(logs_dir / f"{sc.name}.scene.log")},
+        deps=tuple(deps), outputs=(str(Path(sc.output) / S.ROOT_FILE),)))
+    return plan
+
+
+def plan_batch(spec: BatchSpec) -> list[ScenePlan]:
+    logs = spec.output / ".batch"
+    return [plan_scene(sc, logs) for sc in spec.scenes]
+
+
+def prepare_scene(plan: ScenePlan) -> None:
+    """Create (or check) the scene folder before its tasks run: a split scene's chunk tasks
+    write into it, and generate refuses a non-empty folder that is not a scene."""
+    from lsd3d_usd.pipeline import _prepare_scene
+    opts = generate_options(plan.scene.options, plan.scene.output, progress=False)
+    try:
+        _prepare_scene(opts, plan.layout_hash)
+    except InputError as e:
+        raise InputError(f"{plan.scene.where}: {e}") from None
+
+
+def finalize_chunks(plan: ScenePlan) -> None:
+    """Driver side, after every chunk task of the scene: write the proxy root layer listing
+    the chunks (one writer, no race) and put it in the scene's stack."""
+    from lsd3d_usd import scene as S
+    from lsd3d_usd.proxy.chunks import ProxyParams
+    from lsd3d_usd.proxy.usdio import write_root_layer
+    sc = S.Scene.open(plan.scene.output)
+    write_root_layer(sc.layer_path("proxy"), dict(plan.chunk_hashes), ProxyParams().as_dict(),
+                     plan.layout_hash)
+    sc.add_layer("proxy")
+
+
+# ----------------------------------------------------------------------- on workers
+def _inject_crash(p: dict) -> None:
+    """Test-only failure injection (spec key ``test_crash``), applied to scene tasks."""
+    mode = p.get("test_crash")
+    if not mode or p["kind"] != "scene":
+        return
+    if mode.endswith("-once"):
+        marker = Path(p["marker_dir"]) / f"crashed.{p['scene']}"
+        if marker.exists():
+            return
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.write_text(str(os.getpid()))
+    if mode.startswith("exit"):
+        os._exit(17)  # the worker process dies, as on a segfault or OOM kill
+    raise RuntimeError(f"injected test crash ({mode})")
+
+
+def _run_chunk(p: dict, log) -> dict:
+    from lsd3d_usd.proxy.chunks import ProxyBuilder, ProxyParams
+    from lsd3d_usd.proxy.usdio import _chunk_file_hash, write_chunk_layer
+    opts = generate_options(p["options"], p["out"], progress=False, log=log)
+    layout = _read_layout(opts)
+    params = ProxyParams()
+    builder = ProxyBuilder(layout, params)
+    key = tuple(p["chunk"])
+    inp = builder.inputs(key)
+    cfile = chunk_file(p["out"], key)
+    if _chunk_file_hash(cfile) == inp.hash:
+        log(f"{p['id']}: chunk file up to date")
+        return {"chunk": list(key), "hash": inp.hash, "built": False}
+    parts = builder.build(key, inp)
+    write_chunk_layer(parts, key, cfile, inp.hash, params.as_dict())
+    tris = sum(part.n_faces for part in parts)
+    log(f"{p['id']}: wrote {cfile} ({tris} triangles)")
+    return {"chunk": list(key), "hash": inp.hash, "built": True, "triangles": tris}
+
+
+def _run_scene(p: dict, log) -> dict:
+    from lsd3d_usd.pipeline import generate
+    return generate(generate_options(p["options"], p["out"], progress=False, log=log))
+
+
+def run_task(payload: dict) -> dict:
+    """Execute one task (on a worker). Returns {"result": ..., "seconds": ...}; raises on
+    failure with the error as the exception's message."""
+    import lsd3d_usd  # noqa: F401  registers the schema before any stage is opened
+    t0 = time.perf_counter()
+    log_path = Path(payload["log"])
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    with open(log_path, "a", encoding="utf-8") as fh:
+        def log(*a):
+            fh.write(" ".join(str(x) for x in a) + "\n")
+            fh.flush()
+        log(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} pid {os.getpid()} {payload['id']}")
+        try:
+            _inject_crash(payload)
+            run = _run_chunk if payload["kind"] == "chunk" else _run_scene
+            result = run(payload, log)
+        except BaseException:
+            log(traceback.format_exc())
+            raise
+        secs = time.perf_counter() - t0
+        log(f"done in {secs:.1f} s")
+    return {"result": json.loads(json.dumps(result, default=str)), "seconds": round(secs, 2)}
