@@ -1,0 +1,326 @@
+"""`evaluate`: render seen / novel / trajectory views of a scene's composed stage and measure
+image-feature Fréchet distances, geometry agreement with the proxy, multi-view and temporal
+consistency. Writes SCENE/eval/ (report.html, PNGs, eval.json); returns the JSON dict.
+
+Rendering: every unmuted layer of the scene composed (initial surfels + GGDS overs), all
+visible ParticleField prims, the DomeLight env map behind (with its exposure, as the preview
+renders), then display encoding (tone map, default "clamp" = what GGDS's prior sees, and sRGB).
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lsd3d_usd import scene as S
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.eval import views as V
+
+IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
+FEATURES = "effnet_lite0"
+
+
+@dataclass
+class EvalOptions:
+    scene: Path
+    out_dir: Path | None = None          # default SCENE/eval
+    run: str | None = None
+    reference: Path | None = None
+    weights: Path | None = None
+    n_seen: int = 16
+    per_bin: int = 16
+    bins: tuple = V.DEFAULT_BINS
+    resolution: tuple = (320, 180)
+    seed: int = 0
+    frames: int = 24
+    step_m: float = 0.5
+    tonemap: str = "clamp"
+    exposure: float = 0.0
+    max_reference: int = 500
+    progress: bool = True
+    log: object = print
+    extra: dict = field(default_factory=dict)
+
+
+# ------------------------------------------------------------------ input checks
+def _check(o: EvalOptions) -> None:
+    from lsd3d_usd.render.preview import TONEMAPS
+    w, h = o.resolution
+    if w < 16 or h < 16:
+        raise InputError(f"--resolution {w}x{h}: width and height must be at least 16")
+    if o.n_seen < 1:
+        raise InputError(f"--seen {o.n_seen}: must be >= 1")
+    if o.per_bin < 1:
+        raise InputError(f"--per-bin {o.per_bin}: must be >= 1")
+    if not o.bins or any(not b > 0 for b in o.bins):
+        raise InputError(f"--bins {','.join(f'{b:g}' for b in o.bins)}: need positive distances")
+    if o.frames < 2:
+        raise InputError(f"--frames {o.frames}: need at least 2 frames for the temporal check")
+    if not o.step_m > 0:
+        raise InputError(f"--step {o.step_m}: must be positive")
+    if o.tonemap not in TONEMAPS:
+        raise InputError(f"--tonemap {o.tonemap!r}: choose from {', '.join(TONEMAPS)}")
+
+
+def reference_images(ref, limit: int) -> list[Path]:
+    """Image files of a reference folder (sorted, at most `limit`); one clear error if unusable."""
+    p = Path(ref)
+    if not p.is_dir():
+        raise InputError(f"--reference {ref}: no such directory")
+    files = sorted(f for f in p.iterdir() if f.is_file() and f.suffix.lower() in IMAGE_EXTS)
+    if len(files) < 2:
+        raise InputError(f"--reference {ref}: needs at least 2 images ({', '.join(IMAGE_EXTS)}), "
+                         f"found {len(files)}")
+    return files[:limit]
+
+
+def load_reference(files: list[Path]) -> list[np.ndarray]:
+    """sRGB images in [0, 1], (H,W,3) float32 (grey expanded, alpha dropped)."""
+    from lsd3d_usd.render.preview import read_image
+    out = []
+    for f in files:
+        try:
+            img = read_image(f)
+        except InputError as e:
+            raise InputError(f"--reference: {e}") from None
+        if img.ndim == 2:
+            img = img[..., None]
+        img = np.repeat(img[..., :1], 3, axis=2) if img.shape[2] < 3 else img[..., :3]
+        if min(img.shape[:2]) < 8:
+            raise InputError(f"--reference: {f}: image too small ({img.shape[1]}x{img.shape[0]})")
+        out.append(np.clip(img, 0.0, 1.0).astype(np.float32))
+    return out
+
+
+# ------------------------------------------------------------------ rendering
+def render_view(field, env, camera) -> dict:
+    """Surfels + env background for one camera: numpy dict with rgb (linear), alpha,
+    depth_median, depth_expected, normal_world (un-normalised), semantic."""
+    import torch
+
+    from lsd3d_usd.render.preview import env_background
+    from lsd3d_usd.render.rasterize import rasterize
+    bg = env_background(env, camera)
+    t = torch.from_numpy
+    with torch.no_grad():
+        out = rasterize(t(np.ascontiguousarray(field.positions)), t(np.ascontiguousarray(field.orientations)),
+                        t(np.ascontiguousarray(field.scales)), t(np.ascontiguousarray(field.opacities)),
+                        t(np.ascontiguousarray(field.sh)), t(camera.viewmat.astype(np.float32)),
+                        t(camera.K.astype(np.float32)), camera.width, camera.height,
+                        near=camera.near, far=camera.far,
+                        background=None if bg is None else t(np.ascontiguousarray(bg, np.float32)),
+                        normal_space="world", return_extras=False)
+    return {"rgb": out["rgb"].numpy(), "alpha": out["alpha"].numpy(),
+            "depth_median": out["depth_median"].numpy(), "depth_expected": out["depth_expected"].numpy(),
+            "normal_world": out["normal"].numpy()}
+
+
+def display(rgb: np.ndarray, tonemap: str, exposure: float) -> np.ndarray:
+    from lsd3d_usd.render.preview import srgb_encode
+    from lsd3d_usd.render.preview import tonemap as tm
+    return srgb_encode(tm(rgb, exposure, tonemap)).astype(np.float32)
+
+
+def _bar(total, desc, o: EvalOptions):
+    from tqdm import tqdm
+    return tqdm(total=total, desc=desc, unit="view", disable=not o.progress)
+
+
+# ------------------------------------------------------------------ the driver
+def evaluate(o: EvalOptions) -> dict:
+    t_start = time.perf_counter()
+    _check(o)
+    sc = S.Scene.open(o.scene)
+    from lsd3d_usd.eval import models
+    weights = models.check_weights_dir(o.weights)
+    ref_files = reference_images(o.reference, o.max_reference) if o.reference is not None else None
+    layout_path = sc.layer_path("layout")
+    if not layout_path.is_file():
+        raise InputError(f"{layout_path}: the scene has no layout layer (needed for cameras)")
+    if not sc.layer_path("proxy").is_file():
+        raise InputError(f"{sc.layer_path('proxy')}: the scene has no proxy layer (needed for geometry)")
+    out_dir = Path(o.out_dir) if o.out_dir else sc.root / "eval"
+
+    from lsd3d_usd.eval import geometry as G
+    from lsd3d_usd.eval import metrics as M
+    from lsd3d_usd.eval import temporal as T
+    from lsd3d_usd.layout.usdio import read_layout
+    from lsd3d_usd.pipeline import _proxy_arrays
+    from lsd3d_usd.render.gbuffer import render_gbuffer
+    from lsd3d_usd.render.preview import gather_surfels, read_env
+
+    timings = {}
+    t = time.perf_counter()
+    stage = sc.open_stage()
+    field = gather_surfels(stage)
+    if field is None:
+        raise InputError(f"{sc.root}: no surfels to render (no visible ParticleField prim)")
+    env = read_env(stage)
+    layout = read_layout(layout_path)
+    PV, PF, PC = _proxy_arrays(sc)
+    w, h = o.resolution
+    seen = V.seen_views(sc, layout, o.run, w, h)
+    pick = V.pick(len(seen.views), o.n_seen, o.seed)
+    seen_sel = [seen.views[i] for i in pick]
+    novel = V.novel_views(seen_sel, o.bins, o.per_bin, o.seed + 1, layout,
+                          train_centres=[v.camera.center for v in seen.views])
+    traj, traj_info = V.lane_trajectory(layout, o.frames, o.step_m, w, h)
+    timings["load_s"] = time.perf_counter() - t
+    o.log(f"eval: {field.n:,} surfels; seen: {seen.source}; {len(seen_sel)} seen + "
+          f"{len(novel)} novel views ({len(o.bins)} bins) + {len(traj)} trajectory frames at {w}x{h}")
+
+    # --- seen + novel renders, geometry against the proxy
+    t = time.perf_counter()
+    agree = {"seen": G.ClassAgreement(o.seed), "novel": G.ClassAgreement(o.seed + 1)}
+    seen_img, seen_frames, seen_gb, novel_img = [], [], [], []
+    mv_err = {b: [] for b in o.bins}
+    mv_shared = {b: [] for b in o.bins}
+    bar = _bar(len(seen_sel) + len(novel) + len(traj), "eval render", o)
+    for v in seen_sel:
+        fr = render_view(field, env, v.camera)
+        gb = render_gbuffer(PV, PF, v.camera, PC)
+        agree["seen"].add(fr, gb, v.camera)
+        seen_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        seen_frames.append(fr)
+        seen_gb.append(gb)
+        bar.update(1)
+    for nv in novel:
+        fr = render_view(field, env, nv.view.camera)
+        gb = render_gbuffer(PV, PF, nv.view.camera, PC)
+        agree["novel"].add(fr, gb, nv.view.camera)
+        novel_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        r = G.reprojection_depth_error(seen_sel[nv.source].camera, seen_frames[nv.source],
+                                       seen_gb[nv.source], nv.view.camera, fr, gb)
+        if r is not None:
+            mv_err[nv.bin_m].append(r["errors"])
+            mv_shared[nv.bin_m].append(r["shared_frac"])
+        bar.update(1)
+    timings["render_seen_novel_s"] = time.perf_counter() - t
+
+    # --- trajectory
+    t = time.perf_counter()
+    traj_frames, traj_img = [], []
+    for cam in traj:
+        fr = render_view(field, env, cam)
+        traj_frames.append({k: fr[k] for k in ("alpha", "depth_median", "depth_expected")})
+        traj_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        bar.update(1)
+    bar.close()
+    temporal = T.trajectory_warp_errors(traj, traj_img, traj_frames)
+    temporal.update(traj_info)
+    timings["render_trajectory_s"] = time.perf_counter() - t
+
+    # --- features and Fréchet distances
+    t = time.perf_counter()
+    import torch
+
+    from lsd3d_usd.ggds.effnet import EffNetFeatureExtractor
+    ext = EffNetFeatureExtractor()
+
+    def embed(imgs):
+        x = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).contiguous()
+        return ext.embed(x, linear=False, size=224).double().numpy()
+
+    f_seen = embed(seen_img)
+    f_novel = embed(novel_img)
+    bins_arr = np.array([nv.bin_m for nv in novel])
+    smallest = []
+
+    def fd(a, b):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", M.FewSamplesWarning)
+            r = M.frechet_distance_features(a, b)
+        if r.warning:
+            smallest.append(min(r.n1, r.n2))
+        return r
+
+    fd_out = {"features": "EfficientNet-Lite0 pooled 1280-d (bundled ImageNet weights), 224x224 "
+                          "bilinear resize of the sRGB display image",
+              "seen_vs_novel": {"overall": fd(f_seen, f_novel).to_json(),
+                                "per_bin": {f"{b:g}": fd(f_seen, f_novel[bins_arr == b]).to_json()
+                                            for b in o.bins}}}
+    half = len(f_seen) // 2
+    if half >= 2:
+        fd_out["seen_split_half"] = fd(f_seen[:half], f_seen[half:2 * half]).to_json()
+    n_ref = 0
+    if ref_files is not None:
+        f_ref = embed_list(ext, load_reference(ref_files))
+        n_ref = len(f_ref)
+        fd_out["vs_reference"] = {
+            "seen": fd(f_seen, f_ref).to_json(), "novel": fd(f_novel, f_ref).to_json(),
+            "novel_per_bin": {f"{b:g}": fd(f_novel[bins_arr == b], f_ref).to_json() for b in o.bins}}
+    timings["features_fd_s"] = time.perf_counter() - t
+
+    # --- multi-view summary
+    multiview = {"pairs": "each novel view vs the seen view it was displaced from (seen depth "
+                          "reprojected into the novel view; proxy decides mutual visibility)",
+                 "per_bin": {}}
+    all_err = []
+    for b in o.bins:
+        e = np.concatenate(mv_err[b]) if mv_err[b] else np.zeros(0)
+        all_err.append(e)
+        multiview["per_bin"][f"{b:g}"] = {
+            "median": round(float(np.median(e)), 5) if e.size else None,
+            "frac_over_5pct": round(float((e > 0.05).mean()), 4) if e.size else None,
+            "shared_frac": round(float(np.mean(mv_shared[b])), 4) if mv_shared[b] else 0.0,
+            "pairs": len(mv_err[b])}
+    e = np.concatenate(all_err)
+    multiview["median"] = round(float(np.median(e)), 5) if e.size else None
+    multiview["frac_over_5pct"] = round(float((e > 0.05).mean()), 4) if e.size else None
+
+    fd_warnings = []
+    if smallest:
+        fd_warnings.append(
+            f"Fréchet distances from fewer samples than feature dimensions ({f_seen.shape[1]}-d; "
+            f"smallest set {min(smallest)}): covariances are rank-deficient and values are biased "
+            "upwards; compare only values computed with equal sample counts")
+    unavailable = models.status(weights)
+    timings["total_s"] = time.perf_counter() - t_start
+    result = {
+        "scene": str(sc.root),
+        "run": seen.run,
+        "seen_views_source": seen.source,
+        "composed_layers": [li.name for li in sc.layers() if not li.muted and li.exists],
+        "surfels": int(field.n),
+        "resolution": [w, h],
+        "tonemap": o.tonemap,
+        "seed": o.seed,
+        "bins_m": [float(b) for b in o.bins],
+        "counts": {"train_views": len(seen.views), "seen": len(seen_sel), "novel": len(novel),
+                   "novel_per_bin": o.per_bin, "trajectory_frames": len(traj), "reference": n_ref},
+        "novel_views": {f"{b:g}": _bin_stats([nv for nv in novel if nv.bin_m == b]) for b in o.bins},
+        "fd_effnet_lite0": fd_out,
+        "geometry": {"seen": agree["seen"].result(), "novel": agree["novel"].result()},
+        "multiview_depth_err": multiview,
+        "temporal_warp_err": temporal,
+        "unavailable": unavailable,
+        "warnings": fd_warnings,
+        "timings": {k: round(v, 2) for k, v in timings.items()},
+    }
+    from lsd3d_usd.eval import report
+    t = time.perf_counter()
+    files = report.write_report(out_dir, result, sc, seen_img, novel_img, novel, traj_img,
+                                seen_frames=seen_frames, seen_gb=seen_gb)
+    result["timings"]["report_s"] = round(time.perf_counter() - t, 2)
+    result["files"] = {k: str(v) for k, v in files.items()}
+    report.write_json(out_dir / "eval.json", result)
+    return result
+
+
+def embed_list(ext, imgs: list[np.ndarray]) -> np.ndarray:
+    """Embeddings of images of differing sizes (one at a time; each resized to 224²)."""
+    import torch
+    return np.concatenate([ext.embed(torch.from_numpy(np.ascontiguousarray(im)).permute(2, 0, 1)[None],
+                                     linear=False, size=224).double().numpy() for im in imgs])
+
+
+def _bin_stats(nvs: list) -> dict:
+    if not nvs:
+        return {}
+    near = np.array([nv.nearest_train_m for nv in nvs])
+    yaw = np.abs([nv.yaw_deg for nv in nvs])
+    return {"count": len(nvs), "nearest_train_m_median": round(float(np.median(near)), 3),
+            "abs_yaw_deg_median": round(float(np.median(yaw)), 2)}

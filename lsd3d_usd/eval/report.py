@@ -1,0 +1,225 @@
+"""The evaluation report beside the scene: eval.json, report.html (self-contained apart from
+the PNGs next to it, referenced relatively) and PNGs: contact sheet (seen views and their
+novel views per distance bin), Fréchet distance by distance, a geometry panel, the temporal
+path, and the GGDS loss curve copied from SCENE/ggds/<run>/loss.png. Every file is written
+atomically (temp + rename)."""
+from __future__ import annotations
+
+import html
+import io
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from lsd3d_usd import scene as S
+
+
+def _save_fig(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    plt.close(fig)
+    return S.atomic_write_bytes(path, buf.getvalue())
+
+
+def write_json(path: Path, data: dict) -> Path:
+    return S.atomic_write_bytes(path, (json.dumps(data, indent=2, default=str) + "\n").encode())
+
+
+def _plt():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def contact_sheet(path: Path, seen_img, novel_img, novel, bins, rows: int = 4) -> Path:
+    plt = _plt()
+    rows = min(rows, len(seen_img))
+    cols = 1 + len(bins)
+    h, w = seen_img[0].shape[:2]
+    fig, ax = plt.subplots(rows, cols, figsize=(2.2 * cols, 2.2 * rows * h / w + 0.4), squeeze=False)
+    for r in range(rows):
+        ax[r, 0].imshow(seen_img[r])
+        for c, b in enumerate(bins):
+            k = next((i for i, nv in enumerate(novel) if nv.bin_m == b and nv.source == r), None)
+            if k is not None:
+                ax[r, c + 1].imshow(novel_img[k])
+        for a in ax[r]:
+            a.set_xticks([]); a.set_yticks([])
+    ax[0, 0].set_title("seen (trained)", fontsize=9)
+    for c, b in enumerate(bins):
+        ax[0, c + 1].set_title(f"novel {b:g} m", fontsize=9)
+    fig.tight_layout(pad=0.3)
+    return _save_fig(fig, path)
+
+
+def fd_plot(path: Path, result: dict) -> Path:
+    plt = _plt()
+    fd = result["fd_effnet_lite0"]
+    bins = result["bins_m"]
+    ys = [fd["seen_vs_novel"]["per_bin"][f"{b:g}"]["value"] for b in bins]
+    fig, ax = plt.subplots(1, 2, figsize=(9, 3.0))
+    ax[0].plot(bins, ys, "o-", label="seen vs novel (per bin)")
+    if "seen_split_half" in fd:
+        ax[0].axhline(fd["seen_split_half"]["value"], color="gray", ls="--",
+                      label="seen half vs half (fewer samples)")
+    if "vs_reference" in fd:
+        ax[0].plot(bins, [fd["vs_reference"]["novel_per_bin"][f"{b:g}"]["value"] for b in bins], "s-",
+                   label="novel vs reference")
+        ax[0].axhline(fd["vs_reference"]["seen"]["value"], color="C2", ls=":", label="seen vs reference")
+    ax[0].set_xscale("log", base=2); ax[0].set_xlabel("novel view distance from training camera (m)")
+    ax[0].set_ylabel("FD (EfficientNet-Lite0)"); ax[0].legend(fontsize=7)
+    mv = result["multiview_depth_err"]["per_bin"]
+    ax[1].plot(bins, [100 * (mv[f"{b:g}"]["median"] or np.nan) for b in bins], "o-")
+    ax[1].set_xscale("log", base=2); ax[1].set_xlabel("distance (m)")
+    ax[1].set_ylabel("median reprojected depth err (%)")
+    fig.tight_layout()
+    return _save_fig(fig, path)
+
+
+def geometry_panel(path: Path, img, frame, gbuf) -> Path:
+    from lsd3d_usd.eval.geometry import surfel_depth, unit
+    plt = _plt()
+    d_s = surfel_depth(frame)
+    ok = gbuf.mask & (frame["alpha"] > 0.5)
+    d_p = np.where(gbuf.mask, gbuf.depth, np.nan)
+    rel = np.where(ok, np.abs(d_s - d_p) / np.where(gbuf.mask, gbuf.depth, 1.0), np.nan)
+    n_s = unit(frame["normal_world"].astype(np.float64))
+    n_p = gbuf.normal.astype(np.float64)
+    ang = np.degrees(np.arccos(np.clip(np.abs(np.sum(n_s * n_p, -1)), 0, 1)))
+    ang = np.where(ok, ang, np.nan)
+    vmax = np.nanpercentile(d_p, 95) if np.isfinite(d_p).any() else 1.0
+    panels = [(img, "render", {}), (np.where(frame["alpha"] > 0.5, d_s, np.nan), "surfel depth (m)",
+                                    dict(cmap="viridis", vmin=0, vmax=vmax)),
+              (d_p, "proxy depth (m)", dict(cmap="viridis", vmin=0, vmax=vmax)),
+              (100 * rel, "|depth err| (%)", dict(cmap="magma", vmin=0, vmax=5)),
+              (ang, "normal err (deg)", dict(cmap="magma", vmin=0, vmax=30))]
+    fig, ax = plt.subplots(1, len(panels), figsize=(3.2 * len(panels), 2.3))
+    for a, (im, title, kw) in zip(ax, panels):
+        m = a.imshow(im, **kw)
+        a.set_title(title, fontsize=9); a.set_xticks([]); a.set_yticks([])
+        if kw:
+            fig.colorbar(m, ax=a, fraction=0.03)
+    fig.tight_layout(pad=0.3)
+    return _save_fig(fig, path)
+
+
+def temporal_panel(path: Path, traj_img, temporal: dict) -> Path:
+    plt = _plt()
+    picks = sorted({0, len(traj_img) // 2, len(traj_img) - 1})
+    fig, ax = plt.subplots(1, len(picks) + 1, figsize=(3.2 * (len(picks) + 1), 2.3))
+    for a, i in zip(ax, picks):
+        a.imshow(traj_img[i]); a.set_title(f"frame {i}", fontsize=9); a.set_xticks([]); a.set_yticks([])
+    per = [np.nan if e is None else e for e in temporal["per_pair"]]
+    ax[-1].plot(range(1, len(per) + 1), per, ".-", label="warp err")
+    ax[-1].set_xlabel("frame"); ax[-1].set_ylabel("mean |Δ sRGB|"); ax[-1].set_ylim(bottom=0)
+    fig.tight_layout(pad=0.3)
+    return _save_fig(fig, path)
+
+
+# ------------------------------------------------------------------ HTML
+def _fmt(x, pct=False, digits=3):
+    if x is None:
+        return "–"
+    if pct:
+        return f"{100 * x:.2f} %"
+    return f"{x:.{digits}f}" if isinstance(x, float) else html.escape(str(x))
+
+
+def _table(header, rows) -> str:
+    th = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
+    return f"<table><tr>{th}</tr>{body}</table>"
+
+
+def html_report(result: dict, images: dict) -> str:
+    fd = result["fd_effnet_lite0"]
+    bins = [f"{b:g}" for b in result["bins_m"]]
+    mv = result["multiview_depth_err"]
+    nv = result["novel_views"]
+    rows = [["seen vs all novel", _fmt(fd["seen_vs_novel"]["overall"]["value"]), "", "",
+             _fmt(mv["median"], pct=True), _fmt(mv["frac_over_5pct"], pct=True)]]
+    for b in bins:
+        m = mv["per_bin"][b]
+        rows.append([f"seen vs novel {b} m", _fmt(fd["seen_vs_novel"]["per_bin"][b]["value"]),
+                     _fmt(nv[b].get("nearest_train_m_median"), digits=2),
+                     _fmt(nv[b].get("abs_yaw_deg_median"), digits=1), _fmt(m["median"], pct=True),
+                     _fmt(m["frac_over_5pct"], pct=True)])
+    if "seen_split_half" in fd:
+        rows.append(["seen half vs half (noise floor, fewer samples)",
+                     _fmt(fd["seen_split_half"]["value"]), "", "", "", ""])
+    fd_table = _table(["comparison", "FD EffNet-Lite0", "nearest train cam (m)", "|yaw| (deg)",
+                       "multi-view depth err (median)", "> 5 %"], rows)
+    ref = ""
+    if "vs_reference" in fd:
+        r = fd["vs_reference"]
+        ref_rows = [["seen vs reference", _fmt(r["seen"]["value"])],
+                    ["novel vs reference", _fmt(r["novel"]["value"])]]
+        ref_rows += [[f"novel {b} m vs reference", _fmt(r["novel_per_bin"][b]["value"])] for b in bins]
+        ref = "<h2>Against the reference images</h2>" + _table(["comparison", "FD EffNet-Lite0"], ref_rows)
+    geo_rows = []
+    for split in ("seen", "novel"):
+        g = result["geometry"][split]
+        for name, s in list(g["per_class"].items()) + [("all classes", g["all"])]:
+            geo_rows.append([split, html.escape(name), s["pixels"], _fmt(s["coverage"], pct=True),
+                             _fmt(s["depth_rel_err_median"], pct=True),
+                             _fmt(s["normal_err_deg_median"], digits=2),
+                             _fmt(s["normal_err_deg_p90"], digits=2)])
+    geo = _table(["views", "class", "proxy pixels", "surfel coverage", "depth err (median)",
+                  "normal err deg (median)", "normal err deg (p90)"], geo_rows)
+    t = result["temporal_warp_err"]
+    temp = _table(["path", "frames", "warp err (mean |ΔsRGB|)", "naive frame diff", "valid pixels"],
+                  [[f"lane {html.escape(str(t.get('lane')))}, {t.get('path_m')} m", t["pairs"] + 1,
+                    _fmt(t["warp_err"], digits=4), _fmt(t["naive_err"], digits=4),
+                    _fmt(t["valid_frac"], pct=True)]])
+    unav = "".join(f"<li><b>{html.escape(u['metric'])}</b>: unavailable: {html.escape(u['reason'])}</li>"
+                   for u in result["unavailable"])
+    warn = "".join(f"<li>{html.escape(w)}</li>" for w in result["warnings"])
+    img = lambda key, alt: (f'<p><img src="{images[key]}" alt="{alt}"></p>' if key in images else "")  # noqa: E731
+    c = result["counts"]
+    return f"""<!doctype html>
+<html><head><meta charset="utf-8"><title>lsd3d-usd eval: {html.escape(Path(result['scene']).name)}</title>
+<style>body{{font-family:sans-serif;max-width:1200px;margin:1em auto;color:#222}}
+table{{border-collapse:collapse;margin:.5em 0}}td,th{{border:1px solid #bbb;padding:2px 8px;
+text-align:right}}th{{background:#eee}}td:first-child,td:nth-child(2){{text-align:left}}
+img{{max-width:100%}}code{{background:#f4f4f4}}</style></head><body>
+<h1>Evaluation of <code>{html.escape(result['scene'])}</code></h1>
+<p>Seen views: {html.escape(result['seen_views_source'])}. {c['seen']} seen and {c['novel']} novel views
+({c['novel_per_bin']} per distance bin), {c['trajectory_frames']} trajectory frames at
+{result['resolution'][0]}×{result['resolution'][1]}, {result['surfels']:,} surfels, layers
+{html.escape(', '.join(result['composed_layers']))}; tone map {html.escape(result['tonemap'])}; seed {result['seed']}.</p>
+<h2>Seen and novel views</h2>{img('contact_sheet', 'contact sheet')}
+<h2>Fréchet distance of EfficientNet-Lite0 features (fd_effnet_lite0; not FID)</h2>
+{fd_table}{img('fd_plot', 'FD by distance')}{ref}
+<h2>Geometry against the proxy</h2>{geo}{img('geometry', 'geometry panel')}
+<h2>Temporal consistency</h2>{temp}{img('temporal', 'temporal path')}
+<h2>GGDS loss</h2>{img('loss', 'GGDS loss curve') or '<p>no loss curve (no GGDS run)</p>'}
+<h2>Not computed</h2><ul>{unav}</ul>
+{'<h2>Warnings</h2><ul>' + warn + '</ul>' if warn else ''}
+<p>Timings (s): {html.escape(json.dumps(result['timings']))}</p>
+</body></html>
+"""
+
+
+def write_report(out_dir: Path, result: dict, sc, seen_img, novel_img, novel, traj_img, *,
+                 seen_frames, seen_gb) -> dict:
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    files = {"contact_sheet": contact_sheet(out_dir / "eval_contact_sheet.png", seen_img, novel_img,
+                                            novel, result["bins_m"]),
+             "fd_plot": fd_plot(out_dir / "eval_fd.png", result),
+             "geometry": geometry_panel(out_dir / "eval_geometry.png", seen_img[0], seen_frames[0],
+                                        seen_gb[0]),
+             "temporal": temporal_panel(out_dir / "eval_temporal.png", traj_img,
+                                        result["temporal_warp_err"])}
+    if result.get("run"):
+        loss = sc.root / "ggds" / result["run"] / "loss.png"
+        if loss.is_file():
+            files["loss"] = S.atomic_write_bytes(out_dir / "loss.png", loss.read_bytes())
+    images = {k: Path(v).name for k, v in files.items()}
+    files["html"] = S.atomic_write_bytes(out_dir / "report.html", html_report(result, images).encode())
+    files["json"] = out_dir / "eval.json"
+    return files
