@@ -114,6 +114,13 @@ def _path(v, where, base):
     return p if p.is_absolute() else (base / p).resolve()
 
 
+def _prior(v, where, base):
+    v = _str(v, where, base)
+    if v != "procedural" and not (v.startswith("diffusers:") and len(v) > len("diffusers:")):
+        raise InputError(f"{where}: expected 'procedural' or 'diffusers:DIR', got {v!r}")
+    return v
+
+
 def _split(v, where, base):
     if isinstance(v, bool):
         return "always" if v else "never"
@@ -135,7 +142,7 @@ OPTION_KEYS = {
     "env_resolution": _pair(int),
     "surfels": _int(1),
     "steps": _int(0),
-    "prior": _str,
+    "prior": _prior,
     "resolution": _pair(int),
     "views": _int(1),
     "checkpoint_every": _int(1),

@@ -1,0 +1,168 @@
+"""Batch runs on the local process pool and on a local 2-CPU Ray instance: split scenes build
+valid scenes; crashing tasks (exception or dead worker) are retried, reported and do not stop
+the others; an interrupted batch re-run redoes nothing that finished."""
+import io
+import json
+from contextlib import redirect_stderr, redirect_stdout
+
+import pytest
+
+from conftest import ROOT
+from lsd3d_usd import validation
+from lsd3d_usd.batch.executors import LocalExecutor
+from lsd3d_usd.batch.runner import run_batch
+from lsd3d_usd.batch.spec import load_spec
+from lsd3d_usd.cli import main
+
+LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
+
+TINY = f"""
+[batch]
+output = "out"
+[defaults]
+layout = "{LAYOUT}"
+steps = 0
+surfels = 2000
+resolution = [64, 48]
+views = 2
+env_resolution = [64, 32]
+perceptual = false
+parked = 0
+moving = 1
+"""
+
+
+def spec_file(tmp_path, scenes: str):
+    p = tmp_path / "spec.toml"
+    p.write_text(TINY + scenes)
+    return p
+
+
+def cli(*argv):
+    out, err = io.StringIO(), io.StringIO()
+    with redirect_stdout(out), redirect_stderr(err):
+        code = main(list(map(str, argv)))
+    return code, out.getvalue(), err.getvalue()
+
+
+def mtimes(folder):
+    return {p.relative_to(folder): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
+
+
+def test_local_pool_split_scene_crashes_retries_and_rerun(tmp_path):
+    p = spec_file(tmp_path, """
+[[scene]]
+name = "split"
+split_chunks = true
+[[scene]]
+name = "dies-once"
+seed = 1
+test_crash = "exit-once"
+[[scene]]
+name = "always-raises"
+test_crash = "raise"
+""")
+    code, out, err = cli("batch", p, "--workers", "2")
+    assert code == 1, (out, err)
+    # One line per failed task, naming the scene and the error; retried twice before.
+    assert ("failed: scene 'always-raises' task always-raises/scene (after 3 attempts): "
+            "RuntimeError: injected test crash (raise)") in err
+    assert "batch: 6 task(s) done, 0 already done, 1 failed" in out
+    state = json.loads((tmp_path / "out" / "batch-state.json").read_text())["tasks"]
+    assert state["always-raises/scene"]["status"] == "failed"
+    assert state["always-raises/scene"]["attempts"] == 3
+    # The scene whose worker died once was re-run and finished; the others were kept.
+    assert state["dies-once/scene"]["status"] == "done"
+    assert "dies-once/scene succeeded after" in err and "worker process died" in err
+    assert (tmp_path / "out" / ".batch" / "crashed.dies-once").exists()
+    for name in ("split", "dies-once"):
+        scene = tmp_path / "out" / name
+        assert [e.line() for e in validation.validate(scene) if e.severity == "error"] == []
+    # The split scene: four chunk tasks wrote the chunk files, the driver the proxy root, and
+    # generate reused all of them.
+    chunk_ids = [k for k in state if k.startswith("split/chunk_")]
+    assert len(chunk_ids) == 4 and all(state[k]["result"]["built"] for k in chunk_ids)
+    assert state["split/scene"]["result"]["proxy"] == {**state["split/scene"]["result"]["proxy"],
+                                                       "built": 0, "skipped": 4}
+    before = mtimes(tmp_path / "out" / "split")
+    # Re-run: finished tasks are skipped (nothing rewritten), the failed one is tried again.
+    code, out, err = cli("batch", p, "--workers", "2", "--retries", "0")
+    assert code == 1
+    assert "batch: 0 task(s) done, 6 already done, 1 failed" in out
+    assert "task always-raises/scene: RuntimeError: injected test crash (raise)" in err
+    assert mtimes(tmp_path / "out" / "split") == before
+
+
+def test_dead_worker_every_time_is_reported_not_hung(tmp_path):
+    p = spec_file(tmp_path, '[[scene]]\nname = "dies"\ntest_crash = "exit"\n')
+    spec = load_spec(p)
+    events = []
+    rep = run_batch(spec, LocalExecutor(2), retries=1, on_event=lambda *e: events.append(e[:2]))
+    assert [f.task_id for f in rep.failed] == ["dies/scene"]
+    assert rep.failed[0].attempts == 2 and "worker process died" in rep.failed[0].error
+    assert events == [("retry", "dies/scene"), ("failed", "dies/scene")]
+    assert not rep.ok
+
+
+def test_interrupted_batch_rerun_redoes_nothing_finished(tmp_path):
+    p = spec_file(tmp_path, '[[scene]]\nname = "s"\nsplit_chunks = true\n')
+    spec = load_spec(p)
+    done = []
+
+    def stop_after_two(kind, tid, info):
+        if kind == "done":
+            done.append(tid)
+            if len(done) == 2:
+                raise KeyboardInterrupt  # as Ctrl-C in the driver
+
+    with pytest.raises(KeyboardInterrupt):
+        run_batch(spec, LocalExecutor(1), on_event=stop_after_two)
+    state = json.loads(spec.state_path.read_text())["tasks"]
+    assert sorted(state) == sorted(done) and all(v["status"] == "done" for v in state.values())
+    assert not (tmp_path / "out" / ".batch.lock").exists()
+    chunks = tmp_path / "out" / "s" / "layers" / "proxy_chunks"
+    first = {f.name: f.stat().st_mtime_ns for f in chunks.glob("*.usdc")}
+    assert len(first) >= 2
+    rep = run_batch(spec, LocalExecutor(2))
+    assert rep.ok and sorted(rep.skipped) == sorted(done)
+    assert len(rep.done) == 5 - len(done) and "s/scene" in rep.done
+    again = {f.name: f.stat().st_mtime_ns for f in chunks.glob("*.usdc")}
+    for f, t in first.items():
+        assert again[f] == t             # chunk files of finished tasks were not rewritten
+    assert len(again) == 4
+    assert [e.line() for e in validation.validate(tmp_path / "out" / "s")
+            if e.severity == "error"] == []
+
+
+def test_ray_local_two_cpus(tmp_path):
+    ray = pytest.importorskip("ray", reason="ray is not installed (optional extra [ray])")
+    from lsd3d_usd.batch.executors import RayExecutor
+    p = spec_file(tmp_path, """
+[[scene]]
+name = "split"
+split_chunks = true
+[[scene]]
+name = "raises-once"
+test_crash = "raise-once"
+[[scene]]
+name = "dies"
+test_crash = "exit"
+""")
+    spec = load_spec(p)
+    ex = RayExecutor(num_cpus=2)
+    try:
+        assert ex.capacity == 2
+        rep = run_batch(spec, ex, retries=1)
+    finally:
+        ex.close()
+    assert not ray.is_initialized()
+    assert sorted(rep.done) == sorted(["split/chunk_m1_m1", "split/chunk_m1_0", "split/chunk_0_m1",
+                                       "split/chunk_0_0", "split/scene", "raises-once/scene"])
+    assert rep.retried["raises-once/scene"] == ["RuntimeError: injected test crash (raise-once)"]
+    assert [(f.task_id, f.attempts) for f in rep.failed] == [("dies/scene", 2)]
+    assert "WorkerCrashedError" in rep.failed[0].error
+    state = json.loads(spec.state_path.read_text())["tasks"]
+    assert state["raises-once/scene"]["result"]["surfels"]["count"] == 2000
+    for name in ("split", "raises-once"):
+        assert [e.line() for e in validation.validate(tmp_path / "out" / name)
+                if e.severity == "error"] == []
