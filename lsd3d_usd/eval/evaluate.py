@@ -136,7 +136,9 @@ def evaluate(o: EvalOptions) -> dict:
     sc = S.Scene.open(o.scene)
     from lsd3d_usd.eval import models
     weights = models.check_weights_dir(o.weights)
-    ref_files = reference_images(o.reference, o.max_reference) if o.reference is not None else None
+    # Reference images are read before any rendering: a bad folder fails at once.
+    ref_imgs = (load_reference(reference_images(o.reference, o.max_reference))
+                if o.reference is not None else None)
     layout_path = sc.layer_path("layout")
     if not layout_path.is_file():
         raise InputError(f"{layout_path}: the scene has no layout layer (needed for cameras)")
@@ -246,8 +248,8 @@ def evaluate(o: EvalOptions) -> dict:
     if half >= 2:
         fd_out["seen_split_half"] = fd(f_seen[:half], f_seen[half:2 * half]).to_json()
     n_ref = 0
-    if ref_files is not None:
-        f_ref = embed_list(ext, load_reference(ref_files))
+    if ref_imgs is not None:
+        f_ref = embed_list(ext, ref_imgs)
         n_ref = len(f_ref)
         fd_out["vs_reference"] = {
             "seen": fd(f_seen, f_ref).to_json(), "novel": fd(f_novel, f_ref).to_json(),

@@ -1,0 +1,182 @@
+"""`eval` on a tiny generated scene: the JSON's documented keys, the report files, seen views
+from the GGDS run's provenance, the --steps 0 fallback, the missing-weights path and bad
+input (one clear error, nothing half-written)."""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from lsd3d_usd import scene as S
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.eval import models
+from lsd3d_usd.eval import views as V
+from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
+from lsd3d_usd.ggds.cameras import sample_views
+from lsd3d_usd.layout.usdio import read_layout
+from lsd3d_usd.pipeline import GenerateOptions, generate
+
+LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    out = tmp_path_factory.mktemp("eval") / "scene"
+    generate(GenerateOptions(out=out, layout=LAYOUT, steps=2, surfels=3000, env_resolution=(128, 64),
+                             resolution=(64, 48), views=4, progress=False, perceptual=False,
+                             parked=0, moving=0, log=lambda *a: None))
+    return out
+
+
+def _opts(scene, **kw):
+    base = dict(scene=scene, n_seen=3, per_bin=2, bins=(0.5, 4.0), resolution=(64, 48), frames=4,
+                progress=False, log=lambda *a: None)
+    base.update(kw)
+    return EvalOptions(**base)
+
+
+def _write_png(path, rgb):
+    import OpenImageIO as oiio
+    px = np.ascontiguousarray((np.clip(rgb, 0, 1) * 255).astype(np.uint8))
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), oiio.ImageSpec(px.shape[1], px.shape[0], 3, "uint8"))
+    out.write_image(px)
+    out.close()
+
+
+def test_eval_end_to_end(tiny_scene, tmp_path):
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(3):
+        _write_png(ref / f"r{i}.png", rng.uniform(size=(40, 50, 3)))
+    (ref / "notes.txt").write_text("not an image")
+    weights = tmp_path / "weights"
+    weights.mkdir()
+    (weights / "dinov2_vits14_pretrain.pth").write_bytes(b"not really weights")
+    res = evaluate(_opts(tiny_scene, reference=ref, weights=weights))
+
+    runs = V.ggds_runs(S.Scene.open(tiny_scene))
+    assert res["run"] == runs[0].name and "training cameras" in res["seen_views_source"]
+    assert res["counts"] == {"train_views": 4, "seen": 3, "novel": 4, "novel_per_bin": 2,
+                             "trajectory_frames": 4, "reference": 3}
+    fd = res["fd_effnet_lite0"]
+    for r in [fd["seen_vs_novel"]["overall"], *fd["seen_vs_novel"]["per_bin"].values(),
+              fd["vs_reference"]["seen"], fd["vs_reference"]["novel"]]:
+        assert np.isfinite(r["value"]) and r["value"] >= 0 and r["dims"] == 1280
+    assert set(fd["seen_vs_novel"]["per_bin"]) == {"0.5", "4"}
+    assert fd["seen_vs_novel"]["per_bin"]["4"]["n"] == [3, 2]
+    # Random noise images are far from street renders; the renders are closer to each other.
+    assert fd["vs_reference"]["seen"]["value"] > fd["seen_vs_novel"]["overall"]["value"]
+    assert res["warnings"] and "fewer samples than feature dimensions" in res["warnings"][0]
+    # Geometry: the surfels were initialised on the proxy, so the road agrees closely.
+    road = res["geometry"]["seen"]["per_class"]["road"]
+    assert road["pixels"] > 0 and road["depth_rel_err_median"] < 0.05
+    assert set(res["multiview_depth_err"]["per_bin"]) == {"0.5", "4"}
+    t = res["temporal_warp_err"]
+    assert t["pairs"] == 3 and t["warp_err"] is not None and 0 <= t["warp_err"] < 1
+    # Weight-based metrics: never computed here, always with a reason.
+    un = {u["metric"]: u["reason"] for u in res["unavailable"]}
+    assert set(un) == {"fid_inception", "fd_dinov2", "clip_score"}
+    assert "not implemented" in un["fd_dinov2"] and "none of" in un["fid_inception"]
+    # Report files: HTML referencing PNGs next to it, JSON equal to what was returned.
+    out = tiny_scene / "eval"
+    html = (out / "report.html").read_text()
+    for name in ("eval_contact_sheet.png", "eval_fd.png", "eval_geometry.png", "eval_temporal.png",
+                 "loss.png"):
+        assert (out / name).is_file() and f'src="{name}"' in html
+    assert "fd_effnet_lite0" in html and "FID" not in html.replace("not FID", "")
+    assert json.loads((out / "eval.json").read_text())["fd_effnet_lite0"] == json.loads(json.dumps(fd))
+    assert not list(out.glob(".*tmp*"))
+
+
+def test_seen_views_come_from_the_run_provenance(tiny_scene):
+    sc = S.Scene.open(tiny_scene)
+    info = V.ggds_runs(sc)[0]
+    stored = json.loads(info.provenance["trainViews"])
+    seen = V.seen_views(sc, read_layout(sc.layer_path("layout")), None, 128, 96)
+    assert seen.run == info.name and len(seen.views) == len(stored)
+    for v, d in zip(seen.views, stored):
+        np.testing.assert_allclose(v.camera.pose.reshape(-1), d["pose"])
+        assert (v.camera.width, v.camera.height) == (128, 96)
+        assert v.camera.fx == pytest.approx(2 * d["intrinsics"][2])   # same field of view
+    with pytest.raises(InputError, match="no GGDS run 'ggds_nope'"):
+        V.seen_views(sc, None, "ggds_nope", 64, 48)
+
+
+def test_scene_without_ggds_run_uses_sampled_views(tiny_scene, tmp_path):
+    copy = tmp_path / "scene"
+    shutil.copytree(tiny_scene, copy, ignore=shutil.ignore_patterns("eval"))
+    sc = S.Scene.open(copy)
+    sc.remove_layer(V.ggds_runs(sc)[0].name)   # as after `generate --steps 0`
+    layout = read_layout(sc.layer_path("layout"))
+    seen = V.seen_views(sc, layout, None, 64, 48)
+    assert seen.run is None and "no GGDS run" in seen.source and "seed 0" in seen.source
+    want = sample_views(layout, 48, 64, 48, seed=0, novel_frac=V.GGDS_NOVEL_FRAC, fov_deg=V.GGDS_FOV_DEG)
+    assert all(np.array_equal(a.camera.pose, b.camera.pose) for a, b in zip(seen.views, want))
+    res = evaluate(_opts(copy, bins=(1.0,), per_bin=1, frames=2, n_seen=2))
+    assert res["run"] is None and "no GGDS run" in res["seen_views_source"]
+    assert "loss.png" not in res["files"] and "fd_effnet_lite0" in res
+
+
+def test_missing_weights_path():
+    st = models.status(None)
+    assert [s["metric"] for s in st] == ["fid_inception", "fd_dinov2", "clip_score"]
+    assert all(s["reason"].startswith("no --weights DIR given") for s in st)
+    with pytest.raises(InputError, match="--weights /nonexistent/w: no such directory"):
+        models.check_weights_dir("/nonexistent/w")
+
+
+@pytest.mark.parametrize("kind,match", [
+    ("missing_scene", "not an lsd3d-usd scene folder"),
+    ("missing_ref", "--reference .*: no such directory"),
+    ("one_ref", "needs at least 2 images"),
+    ("bad_ref", "cannot read image"),
+    ("bad_run", "no GGDS run 'nope'"),
+    ("bins", "--bins"),
+    ("weights", "no such directory"),
+])
+def test_bad_input_is_one_clear_error(tiny_scene, tmp_path, kind, match):
+    ref = tmp_path / "ref"
+    ref.mkdir()
+    kw = {}
+    scene = tiny_scene
+    if kind == "missing_scene":
+        scene = tmp_path / "nothing"
+    elif kind == "missing_ref":
+        kw["reference"] = tmp_path / "nope"
+    elif kind == "one_ref":
+        _write_png(ref / "a.png", np.zeros((20, 20, 3)))
+        kw["reference"] = ref
+    elif kind == "bad_ref":
+        (ref / "a.png").write_bytes(b"garbage")
+        (ref / "b.jpg").write_bytes(b"garbage")
+        kw["reference"] = ref
+    elif kind == "bad_run":
+        kw["run"] = "nope"
+    elif kind == "bins":
+        kw["bins"] = (1.0, 0.0)
+    elif kind == "weights":
+        kw["weights"] = tmp_path / "no_weights"
+    out = tmp_path / "evalout"
+    with pytest.raises(InputError, match=match):
+        evaluate(_opts(scene, out_dir=out, **kw))
+    assert not out.exists()
+
+
+def test_cli_eval_json(tiny_scene, tmp_path, capsys):
+    from lsd3d_usd.cli import main
+    js = tmp_path / "o.json"
+    code = main(["eval", str(tiny_scene), "--json", str(js), "--seen", "2", "--per-bin", "1",
+                 "--bins", "2", "--resolution", "64x48", "--frames", "2", "-o", str(tmp_path / "r"),
+                 "--no-progress"])
+    assert code == 0
+    data = json.loads(js.read_text())
+    for key in ("fd_effnet_lite0", "geometry", "multiview_depth_err", "temporal_warp_err",
+                "unavailable", "counts", "timings"):
+        assert key in data
+    out = capsys.readouterr().out
+    assert "fd_effnet_lite0 seen vs novel" in out and "unavailable" in out
+    assert main(["eval", str(tmp_path / "none")]) == 1
