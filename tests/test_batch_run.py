@@ -166,3 +166,31 @@ test_crash = "exit"
     for name in ("split", "raises-once"):
         assert [e.line() for e in validation.validate(tmp_path / "out" / name)
                 if e.severity == "error"] == []
+
+
+def test_ctrl_c_on_the_cli_stops_cleanly(tmp_path):
+    """SIGINT to the driver of `lsd3d-usd batch`: exit 130 with a one-line hint, the finished
+    tasks recorded, the lock released, no worker left running."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    p = spec_file(tmp_path, '[[scene]]\nname = "s"\nsplit_chunks = true\n')
+    state = tmp_path / "out" / "batch-state.json"
+    proc = subprocess.Popen([sys.executable, "-c", "from lsd3d_usd.cli import run; run()",
+                             "batch", str(p), "--workers", "1"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not state.exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.1)
+    assert state.exists(), proc.communicate()
+    os.kill(proc.pid, signal.SIGINT)
+    out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, (out, err)
+    assert "batch interrupted; finished tasks are recorded in" in err
+    done = json.loads(state.read_text())["tasks"]
+    assert 1 <= len(done) < 5 and all(v["status"] == "done" for v in done.values())
+    assert not (tmp_path / "out" / ".batch.lock").exists()
+    ps = subprocess.run(["ps", "-o", "pid=", "--ppid", str(proc.pid)], capture_output=True, text=True)
+    assert ps.stdout.strip() == ""

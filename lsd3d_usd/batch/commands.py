@@ -48,8 +48,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "batch", help="generate many scenes from a TOML spec, on local processes or Ray",
         description="Generate every scene of a TOML batch spec (docs/batch.md). Scenes run as "
-                    "independent tasks; a scene whose layout spans several proxy chunks is split, "
-                    "one task per chunk, then a scene task for the rest of `generate`. A failed "
+                    "independent tasks; a large scene (8+ proxy chunks, or split_chunks = true) is "
+                    "split: one task per chunk, then a scene task for the rest of `generate`. A failed "
                     "task is retried, the others continue; re-running the command skips tasks "
                     "already done with the same inputs (state in <output>/batch-state.json). "
                     "Exit 0 when every task succeeded, 1 with one line per failed task.")
