@@ -164,10 +164,16 @@ class RayExecutor:
         self._owns = not ray.is_initialized()
         if self._owns:
             kw = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
-            if address:
-                ray.init(address=address, **kw)
-            else:
-                ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **kw)
+            try:
+                if address:
+                    ray.init(address=address, **kw)
+                else:
+                    ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **kw)
+            except Exception as e:  # unreachable address, version mismatch, ...
+                from lsd3d_usd.errors import InputError
+                where = f"--address {address}" if address else "local Ray instance"
+                raise InputError(f"--executor ray: {where}: cannot start or connect: "
+                                 f"{describe(e)}") from None
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.workers = max(1, int(workers or cpus))
         self._remote = ray.remote(_call).options(num_cpus=1, max_retries=0, retry_exceptions=False)
