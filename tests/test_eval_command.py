@@ -61,10 +61,10 @@ def test_eval_end_to_end(tiny_scene, tmp_path):
     runs = V.ggds_runs(S.Scene.open(tiny_scene))
     assert res["run"] == runs[0].name and "training cameras" in res["seen_views_source"]
     assert res["counts"] == {"train_views": 4, "seen": 3, "novel": 4, "novel_per_bin": 2,
-                             "trajectory_frames": 4, "reference": 3}
+                             "heldout_lane": 3, "trajectory_frames": 4, "reference": 3}
     fd = res["fd_effnet_lite0"]
     for r in [fd["seen_vs_novel"]["overall"], *fd["seen_vs_novel"]["per_bin"].values(),
-              fd["vs_reference"]["seen"], fd["vs_reference"]["novel"]]:
+              fd["vs_reference"]["seen"], fd["vs_reference"]["novel"], fd["seen_vs_heldout_lane"]]:
         assert np.isfinite(r["value"]) and r["value"] >= 0 and r["dims"] == 1280
     assert set(fd["seen_vs_novel"]["per_bin"]) == {"0.5", "4"}
     assert fd["seen_vs_novel"]["per_bin"]["4"]["n"] == [3, 2]
@@ -116,8 +116,9 @@ def test_scene_without_ggds_run_uses_sampled_views(tiny_scene, tmp_path):
     assert seen.run is None and "no GGDS run" in seen.source and "seed 0" in seen.source
     want = sample_views(layout, 48, 64, 48, seed=0, novel_frac=V.GGDS_NOVEL_FRAC, fov_deg=V.GGDS_FOV_DEG)
     assert all(np.array_equal(a.camera.pose, b.camera.pose) for a, b in zip(seen.views, want))
-    res = evaluate(_opts(copy, bins=(1.0,), per_bin=1, frames=2, n_seen=2))
+    res = evaluate(_opts(copy, bins=(1.0,), per_bin=1, frames=2, n_seen=2, n_heldout=0))
     assert res["run"] is None and "no GGDS run" in res["seen_views_source"]
+    assert "seen_vs_heldout_lane" not in res["fd_effnet_lite0"] and res["counts"]["heldout_lane"] == 0
     assert "loss.png" not in res["files"] and "fd_effnet_lite0" in res
 
 

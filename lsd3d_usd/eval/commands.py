@@ -32,7 +32,7 @@ def _eval(args) -> int:
     o = EvalOptions(
         scene=Path(args.scene), out_dir=Path(args.out) if args.out else None, run=args.run,
         reference=Path(args.reference) if args.reference else None,
-        weights=Path(args.weights) if args.weights else None, n_seen=args.seen,
+        weights=Path(args.weights) if args.weights else None, n_seen=args.seen, n_heldout=args.heldout,
         per_bin=args.per_bin, bins=_bins(args.bins), resolution=_size(args.resolution),
         seed=args.seed, frames=args.frames, step_m=args.step, tonemap=args.tonemap,
         exposure=args.exposure, max_reference=args.max_reference,
@@ -46,6 +46,9 @@ def _eval(args) -> int:
     per = ", ".join(f"{b} m {v['value']:.1f}" for b, v in fd["per_bin"].items())
     g = res["geometry"]["seen"]["all"]
     print(f"fd_effnet_lite0 seen vs novel: {fd['overall']['value']:.2f} (per bin: {per})")
+    if "seen_vs_heldout_lane" in res["fd_effnet_lite0"]:
+        print(f"fd_effnet_lite0 seen vs other on-lane views: "
+              f"{res['fd_effnet_lite0']['seen_vs_heldout_lane']['value']:.2f}")
     if "vs_reference" in res["fd_effnet_lite0"]:
         r = res["fd_effnet_lite0"]["vs_reference"]
         print(f"fd_effnet_lite0 vs reference: seen {r['seen']['value']:.2f}, novel {r['novel']['value']:.2f}")
@@ -91,6 +94,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--run", metavar="NAME", help="GGDS run whose training cameras are the seen views "
                                                  "(default: the newest unmuted run)")
     p.add_argument("--seen", type=int, default=16, help="seen views to render (default 16)")
+    p.add_argument("--heldout", type=int, default=None,
+                   help="fresh on-lane views (not trained on) rendered as the FD reference for a "
+                        "change of content (default: as many as --seen; 0 = none)")
     p.add_argument("--per-bin", type=int, default=16, help="novel views per distance bin (default 16)")
     p.add_argument("--bins", default="0.5,1,2,4,8",
                    help="novel-view distances from the training cameras in metres (default 0.5,1,2,4,8)")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +31,7 @@ class EvalOptions:
     reference: Path | None = None
     weights: Path | None = None
     n_seen: int = 16
+    n_heldout: int | None = None         # default: n_seen
     per_bin: int = 16
     bins: tuple = V.DEFAULT_BINS
     resolution: tuple = (320, 180)
@@ -42,7 +43,6 @@ class EvalOptions:
     max_reference: int = 500
     progress: bool = True
     log: object = print
-    extra: dict = field(default_factory=dict)
 
 
 # ------------------------------------------------------------------ input checks
@@ -53,6 +53,8 @@ def _check(o: EvalOptions) -> None:
         raise InputError(f"--resolution {w}x{h}: width and height must be at least 16")
     if o.n_seen < 1:
         raise InputError(f"--seen {o.n_seen}: must be >= 1")
+    if o.n_heldout is not None and o.n_heldout < 0:
+        raise InputError(f"--heldout {o.n_heldout}: must be >= 0")
     if o.per_bin < 1:
         raise InputError(f"--per-bin {o.per_bin}: must be >= 1")
     if not o.bins or any(not b > 0 for b in o.bins):
@@ -157,8 +159,8 @@ def evaluate(o: EvalOptions) -> dict:
     timings = {}
     t = time.perf_counter()
     stage = sc.open_stage()
-    field = gather_surfels(stage)
-    if field is None:
+    surfels = gather_surfels(stage)
+    if surfels is None:
         raise InputError(f"{sc.root}: no surfels to render (no visible ParticleField prim)")
     env = read_env(stage)
     layout = read_layout(layout_path)
@@ -169,9 +171,11 @@ def evaluate(o: EvalOptions) -> dict:
     seen_sel = [seen.views[i] for i in pick]
     novel = V.novel_views(seen_sel, o.bins, o.per_bin, o.seed + 1, layout,
                           train_centres=[v.camera.center for v in seen.views])
+    n_held = o.n_seen if o.n_heldout is None else o.n_heldout
+    heldout = V.heldout_lane_views(layout, n_held, w, h, o.seed, seen_sel)
     traj, traj_info = V.lane_trajectory(layout, o.frames, o.step_m, w, h)
     timings["load_s"] = time.perf_counter() - t
-    o.log(f"eval: {field.n:,} surfels; seen: {seen.source}; {len(seen_sel)} seen + "
+    o.log(f"eval: {surfels.n:,} surfels; seen: {seen.source}; {len(seen_sel)} seen + "
           f"{len(novel)} novel views ({len(o.bins)} bins) + {len(traj)} trajectory frames at {w}x{h}")
 
     # --- seen + novel renders, geometry against the proxy
@@ -180,9 +184,9 @@ def evaluate(o: EvalOptions) -> dict:
     seen_img, seen_frames, seen_gb, novel_img = [], [], [], []
     mv_err = {b: [] for b in o.bins}
     mv_shared = {b: [] for b in o.bins}
-    bar = _bar(len(seen_sel) + len(novel) + len(traj), "eval render", o)
+    bar = _bar(len(seen_sel) + len(novel) + len(heldout) + len(traj), "eval render", o)
     for v in seen_sel:
-        fr = render_view(field, env, v.camera)
+        fr = render_view(surfels, env, v.camera)
         gb = render_gbuffer(PV, PF, v.camera, PC)
         agree["seen"].add(fr, gb, v.camera)
         seen_img.append(display(fr["rgb"], o.tonemap, o.exposure))
@@ -190,7 +194,7 @@ def evaluate(o: EvalOptions) -> dict:
         seen_gb.append(gb)
         bar.update(1)
     for nv in novel:
-        fr = render_view(field, env, nv.view.camera)
+        fr = render_view(surfels, env, nv.view.camera)
         gb = render_gbuffer(PV, PF, nv.view.camera, PC)
         agree["novel"].add(fr, gb, nv.view.camera)
         novel_img.append(display(fr["rgb"], o.tonemap, o.exposure))
@@ -200,13 +204,17 @@ def evaluate(o: EvalOptions) -> dict:
             mv_err[nv.bin_m].append(r["errors"])
             mv_shared[nv.bin_m].append(r["shared_frac"])
         bar.update(1)
+    heldout_img = []
+    for cam in heldout:
+        heldout_img.append(display(render_view(surfels, env, cam)["rgb"], o.tonemap, o.exposure))
+        bar.update(1)
     timings["render_seen_novel_s"] = time.perf_counter() - t
 
     # --- trajectory
     t = time.perf_counter()
     traj_frames, traj_img = [], []
     for cam in traj:
-        fr = render_view(field, env, cam)
+        fr = render_view(surfels, env, cam)
         traj_frames.append({k: fr[k] for k in ("alpha", "depth_median", "depth_expected")})
         traj_img.append(display(fr["rgb"], o.tonemap, o.exposure))
         bar.update(1)
@@ -244,9 +252,8 @@ def evaluate(o: EvalOptions) -> dict:
               "seen_vs_novel": {"overall": fd(f_seen, f_novel).to_json(),
                                 "per_bin": {f"{b:g}": fd(f_seen, f_novel[bins_arr == b]).to_json()
                                             for b in o.bins}}}
-    half = len(f_seen) // 2
-    if half >= 2:
-        fd_out["seen_split_half"] = fd(f_seen[:half], f_seen[half:2 * half]).to_json()
+    if heldout_img:
+        fd_out["seen_vs_heldout_lane"] = fd(f_seen, embed(heldout_img)).to_json()
     n_ref = 0
     if ref_imgs is not None:
         f_ref = embed_list(ext, ref_imgs)
@@ -286,13 +293,13 @@ def evaluate(o: EvalOptions) -> dict:
         "run": seen.run,
         "seen_views_source": seen.source,
         "composed_layers": [li.name for li in sc.layers() if not li.muted and li.exists],
-        "surfels": int(field.n),
+        "surfels": int(surfels.n),
         "resolution": [w, h],
         "tonemap": o.tonemap,
         "seed": o.seed,
         "bins_m": [float(b) for b in o.bins],
         "counts": {"train_views": len(seen.views), "seen": len(seen_sel), "novel": len(novel),
-                   "novel_per_bin": o.per_bin, "trajectory_frames": len(traj), "reference": n_ref},
+                   "novel_per_bin": o.per_bin, "heldout_lane": len(heldout), "trajectory_frames": len(traj), "reference": n_ref},
         "novel_views": {f"{b:g}": _bin_stats([nv for nv in novel if nv.bin_m == b]) for b in o.bins},
         "fd_effnet_lite0": fd_out,
         "geometry": {"seen": agree["seen"].result(), "novel": agree["novel"].result()},

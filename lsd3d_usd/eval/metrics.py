@@ -8,8 +8,8 @@ e.g. ``fd_effnet_lite0`` — never "FID".)
 
 tr((Σ1 Σ2)^½) is computed from a symmetric matrix so it stays real and stable:
 Σ1 Σ2 is similar to Σ1^½ Σ2 Σ1^½ (PSD), so tr((Σ1 Σ2)^½) = Σ_i sqrt(λ_i(Σ1^½ Σ2 Σ1^½)), with
-Σ1^½ and the eigenvalues from `eigh` and tiny negative eigenvalues (round-off of a PSD
-matrix) clipped to 0. This holds for rank-deficient covariances, which is the normal case
+Σ1^½ and the eigenvalues from `eigh`, and eigenvalues at round-off level (below d·eps·λ_max,
+negative ones included) set to 0. This holds for rank-deficient covariances, which is the normal case
 with fewer samples than feature dimensions — where scipy's `sqrtm` of the non-symmetric
 Σ1 Σ2 returns complex noise.
 

@@ -179,6 +179,21 @@ def novel_views(sources: list, bins, per_bin: int, seed: int, layout=None,
     return out
 
 
+def heldout_lane_views(layout, n: int, width: int, height: int, seed: int, like: list) -> list:
+    """`n` fresh on-lane cameras (GGDS's lane sampler, another seed, no off-lane views) with
+    the intrinsics of `like[0]`: views of other places in the scene, from the same kind of
+    position as training. Their Fréchet distance to the seen views is the reference for how
+    much FD a mere change of content gives at the same sample counts."""
+    if n <= 0:
+        return []
+    fov = GGDS_FOV_DEG
+    if like:
+        c = like[0].camera
+        fov = float(np.degrees(2.0 * np.arctan(0.5 * c.width / c.fx)))
+    views = sample_views(layout, n, width, height, seed=seed + 104729, novel_frac=0.0, fov_deg=fov)
+    return [v.camera for v in views]
+
+
 # ------------------------------------------------------------------ trajectory
 def _polyline_at(points: np.ndarray, s: np.ndarray):
     seg = np.diff(points, axis=0)
