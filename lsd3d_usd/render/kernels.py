@@ -78,37 +78,89 @@ def bin_tiles(rects, order, tile, ntx, nty):
     return counts, out
 
 
-@njit(inline="always")
-def _alpha_loop(prm, s, pxs, pys, tile, li0, li1, lj0, lj1, near, alpha_max, abuf, zbuf):
-    """alpha and depth of surfel s at the tile pixels of its screen rectangle (branch-free
-    inner loop along rows)."""
-    xb, yb, zc = prm[s, 0], prm[s, 1], prm[s, 2]
-    a1, a2, b1, b2 = prm[s, 3], prm[s, 4], prm[s, 5], prm[s, 6]
-    ex, ey, op = prm[s, 7], prm[s, 8], prm[s, 9]
-    for jj in range(lj0, lj1 + 1):
-        for p in range(jj * tile + li0, jj * tile + li1 + 1):
-            dx = pxs[p] - xb
-            dy = pys[p] - yb
-            uu = a1 * dx + a2 * dy
-            vv = b1 * dx + b2 * dy
-            iw = _ONE / (_ONE + ex * dx + ey * dy)
-            r3 = (uu * uu + vv * vv) * (iw * iw)
-            r2 = _LOWPASS * (dx * dx + dy * dy)
-            use3 = r3 <= r2
-            rho = r3 if use3 else r2
-            z = zc * iw if use3 else zc
-            a = min(alpha_max, op * exp_neg(_HALF * rho))
-            abuf[p] = a if z >= near else _ZERO
-            zbuf[p] = z
-
-
 @njit(parallel=True, cache=True)
+def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
+    """Like bin_tiles for all surfels in depth order, without a global sort: pairs are
+    counted and scattered per tile in index order, then each tile's list is sorted in
+    parallel by the key (depth, index). depth_bits: the float32 depths (all > 0) viewed as
+    int32, which order like the floats; the index breaks ties as a stable sort would.
+
+    Also returns each pair's packed parameters and rectangle, copied in pair order
+    (pair_prm (npairs,16), pair_rect (npairs,4)): the kernels then read memory sequentially
+    instead of one random surfel row per pair (that latency was half the kernel time)."""
+    ntiles = ntx * nty
+    m = rects.shape[0]
+    counts = np.zeros(ntiles + 1, np.int64)
+    for k in range(m):
+        tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
+        for ty in range(rects[k, 2] // tile, rects[k, 3] // tile + 1):
+            for tx in range(tx0, tx1 + 1):
+                counts[ty * ntx + tx + 1] += 1
+    for t in range(ntiles):
+        counts[t + 1] += counts[t]
+    pos = counts[:-1].copy()
+    keys = np.empty(counts[ntiles], np.int64)
+    for k in range(m):
+        key = (np.int64(depth_bits[k]) << 32) | k
+        tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
+        for ty in range(rects[k, 2] // tile, rects[k, 3] // tile + 1):
+            for tx in range(tx0, tx1 + 1):
+                t = ty * ntx + tx
+                keys[pos[t]] = key
+                pos[t] += 1
+    npairs = counts[ntiles]
+    out = np.empty(npairs, np.int32)
+    pair_prm = np.empty((npairs, prm.shape[1]), prm.dtype)
+    pair_rect = np.empty((npairs, 4), rects.dtype)
+    for t in prange(ntiles):
+        seg = keys[counts[t]:counts[t + 1]]
+        seg.sort()
+        for q in range(seg.shape[0]):
+            k = counts[t] + q
+            sidx = np.int32(seg[q] & 0xFFFFFFFF)
+            out[k] = sidx
+            for c in range(prm.shape[1]):
+                pair_prm[k, c] = prm[sidx, c]
+            for c in range(4):
+                pair_rect[k, c] = rects[sidx, c]
+    return counts, out, pair_prm, pair_rect
+
+
+@njit(inline="always", error_model="numpy")
+def _alpha_row(pxs, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max, abuf, zbuf):
+    """alpha and depth of one surfel along a whole tile row (pxs: pixel centre x, dy: the
+    row's y minus the surfel's). Branch-free with a fixed trip count, so it vectorises
+    (error_model numpy: no ZeroDivisionError branch; 1/0 gives inf, which the min() with
+    the low-pass term absorbs)."""
+    for c in range(pxs.shape[0]):
+        dx = pxs[c] - xb
+        uu = a1 * dx + a2 * dy
+        vv = b1 * dx + b2 * dy
+        iw = _ONE / (_ONE + ex * dx + ey * dy)
+        r3 = (uu * uu + vv * vv) * (iw * iw)
+        r2 = _LOWPASS * (dx * dx + dy * dy)
+        use3 = r3 <= r2
+        rho = r3 if use3 else r2
+        z = zc * iw if use3 else zc
+        a = min(alpha_max, op * exp_neg(_HALF * rho))
+        abuf[c] = a if z >= near else _ZERO
+        zbuf[c] = z
+
+
+@njit(parallel=True, cache=True, error_model="numpy")
 def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
             near, alpha_min, alpha_max, t_min):
-    """Front-to-back compositing. Returns (rgb (H,W,3), T_final, depth_acc = sum w z,
+    """Front-to-back compositing; prm and rects are per pair (bin_sorted's pair_prm,
+    pair_rect), tile_splats the surfel of each pair. Returns (rgb (H,W,3), T_final, depth_acc = sum w z,
     normal_acc (H,W,3) = sum w n, depth_median, last (list position + 1 of the last
     contributor, per pixel), med (list position of the median contributor or -1),
-    argmax_w (surfel index of the largest weight or -1), evals per tile)."""
+    argmax_w (surfel index of the largest weight or -1), evals per tile).
+
+    Each surfel is evaluated on the rows of its screen rectangle within the tile, each row
+    across the whole tile width in one branch-free loop (columns outside the rectangle get
+    alpha 0, which leaves every accumulator exactly unchanged): the loop has a fixed trip
+    count and vectorises, which beats a branchy loop over the few pixels of a small splat.
+    A pixel is finished once T < t_min (it composited the surfel that took it there)."""
     rgb = np.zeros((height, width, 3), f32)
     tfin = np.ones((height, width), f32)
     dacc = np.zeros((height, width), f32)
@@ -125,10 +177,10 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
         tx = t - ty * ntx
         x0 = tx * tile
         y0 = ty * tile
-        pxs = np.empty(npx, f32)
-        pys = np.empty(npx, f32)
+        pxs = np.empty(tile, f32)
+        abuf = np.empty(tile, f32)
+        zbuf = np.empty(tile, f32)
         T = np.ones(npx, f32)
-        done = np.zeros(npx, np.bool_)
         c_r = np.zeros(npx, f32)
         c_g = np.zeros(npx, f32)
         c_b = np.zeros(npx, f32)
@@ -141,44 +193,50 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
         l_med = np.full(npx, -1, np.int32)
         l_wmax = np.zeros(npx, f32)
         l_amax = np.full(npx, -1, np.int32)
-        abuf = np.empty(npx, f32)
-        zbuf = np.empty(npx, f32)
+        for c in range(tile):
+            pxs[c] = f32(x0 + c) + _HALF
         ndone = 0
         for p in range(npx):
             i = x0 + p % tile
             j = y0 + p // tile
-            pxs[p] = f32(i) + _HALF
-            pys[p] = f32(j) + _HALF
             if i >= width or j >= height:
-                done[p] = True
+                T[p] = _ZERO  # finished from the start (T < t_min unless t_min is 0)
                 ndone += 1
+        if t_min <= _ZERO:
+            ndone = 0
         k0 = tile_start[t]
         k1 = tile_start[t + 1]
         nev = 0
         for k in range(k0, k1):
-            if ndone == npx:
+            if ndone >= npx:
                 break
             s = tile_splats[k]
-            li0 = max(rects[s, 0] - x0, 0)
-            li1 = min(rects[s, 1] - x0, tile - 1)
-            lj0 = max(rects[s, 2] - y0, 0)
-            lj1 = min(rects[s, 3] - y0, tile - 1)
+            li0 = max(rects[k, 0] - x0, 0)
+            li1 = min(rects[k, 1] - x0, tile - 1)
+            lj0 = max(rects[k, 2] - y0, 0)
+            lj1 = min(rects[k, 3] - y0, tile - 1)
             nev += (li1 - li0 + 1) * (lj1 - lj0 + 1)
-            _alpha_loop(prm, s, pxs, pys, tile, li0, li1, lj0, lj1, near, alpha_max, abuf, zbuf)
-            cr, cg, cb = prm[s, 10], prm[s, 11], prm[s, 12]
-            nx, ny, nz = prm[s, 13], prm[s, 14], prm[s, 15]
+            xb, yb, zc = prm[k, 0], prm[k, 1], prm[k, 2]
+            a1, a2, b1, b2 = prm[k, 3], prm[k, 4], prm[k, 5], prm[k, 6]
+            ex, ey, op = prm[k, 7], prm[k, 8], prm[k, 9]
+            cr, cg, cb = prm[k, 10], prm[k, 11], prm[k, 12]
+            nx, ny, nz = prm[k, 13], prm[k, 14], prm[k, 15]
             for jj in range(lj0, lj1 + 1):
-                for p in range(jj * tile + li0, jj * tile + li1 + 1):
-                    a = abuf[p]
-                    if a < alpha_min or done[p]:
-                        continue
+                dy = (f32(y0 + jj) + _HALF) - yb
+                _alpha_row(pxs, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max,
+                           abuf, zbuf)
+                base = jj * tile
+                for c in range(li0, li1 + 1):
+                    a = abuf[c]
+                    p = base + c
                     tp = T[p]
+                    if a < alpha_min or tp < t_min:
+                        continue
                     tn = tp * (_ONE - a)
                     if tn < t_min:  # composite this one, then stop: residual <= t_min
-                        done[p] = True
                         ndone += 1
                     w = a * tp
-                    z = zbuf[p]
+                    z = zbuf[c]
                     c_r[p] += w * cr
                     c_g[p] += w * cg
                     c_b[p] += w * cb
@@ -215,12 +273,12 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
     return rgb, tfin, dacc, nacc, dmed, last, med, amax, evals
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=True, cache=True, error_model="numpy")
 def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
              near, alpha_min, alpha_max, tfin, last, med,
              g_rgb, g_t, g_d, g_n, g_med):
     """Gradient rows (npairs, 16) w.r.t. the packed parameters, one row per (tile, surfel)
-    pair of tile_splats. g_t is dL/dT_final."""
+    pair of tile_splats (prm, rects: per pair, as forward). g_t is dL/dT_final."""
     npairs = tile_splats.shape[0]
     out = np.zeros((npairs, 16), f32)
     npx = tile * tile
@@ -249,8 +307,9 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
         gny = np.zeros(npx, f32)
         gnz = np.zeros(npx, f32)
         gm = np.zeros(npx, f32)
-        abuf = np.empty(npx, f32)
-        zbuf = np.empty(npx, f32)
+        abuf = np.empty(tile, f32)
+        zbuf = np.empty(tile, f32)
+        pxr = pxs[:tile]  # x of the pixel centres of one tile row
         kmax = k0
         for p in range(npx):
             i = x0 + p % tile
@@ -273,17 +332,15 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
             gm[p] = g_med[j, i]
             kmax = max(kmax, last[j, i])
         for k in range(kmax - 1, k0 - 1, -1):
-            s = tile_splats[k]
-            li0 = max(rects[s, 0] - x0, 0)
-            li1 = min(rects[s, 1] - x0, tile - 1)
-            lj0 = max(rects[s, 2] - y0, 0)
-            lj1 = min(rects[s, 3] - y0, tile - 1)
-            _alpha_loop(prm, s, pxs, pys, tile, li0, li1, lj0, lj1, near, alpha_max, abuf, zbuf)
-            xb, yb, zc = prm[s, 0], prm[s, 1], prm[s, 2]
-            a1, a2, b1, b2 = prm[s, 3], prm[s, 4], prm[s, 5], prm[s, 6]
-            ex, ey, op = prm[s, 7], prm[s, 8], prm[s, 9]
-            cr, cg, cb = prm[s, 10], prm[s, 11], prm[s, 12]
-            nx, ny, nz = prm[s, 13], prm[s, 14], prm[s, 15]
+            li0 = max(rects[k, 0] - x0, 0)
+            li1 = min(rects[k, 1] - x0, tile - 1)
+            lj0 = max(rects[k, 2] - y0, 0)
+            lj1 = min(rects[k, 3] - y0, tile - 1)
+            xb, yb, zc = prm[k, 0], prm[k, 1], prm[k, 2]
+            a1, a2, b1, b2 = prm[k, 3], prm[k, 4], prm[k, 5], prm[k, 6]
+            ex, ey, op = prm[k, 7], prm[k, 8], prm[k, 9]
+            cr, cg, cb = prm[k, 10], prm[k, 11], prm[k, 12]
+            nx, ny, nz = prm[k, 13], prm[k, 14], prm[k, 15]
             d_xb = _ZERO
             d_yb = _ZERO
             d_zc = _ZERO
@@ -301,15 +358,18 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
             d_ny = _ZERO
             d_nz = _ZERO
             for jj in range(lj0, lj1 + 1):
-                for p in range(jj * tile + li0, jj * tile + li1 + 1):
-                    a = abuf[p]
+                _alpha_row(pxr, pys[jj * tile] - yb, xb, zc, a1, a2, b1, b2, ex, ey, op, near,
+                           alpha_max, abuf, zbuf)
+                for c in range(li0, li1 + 1):
+                    p = jj * tile + c
+                    a = abuf[c]
                     if k >= lst[p] or a < alpha_min:
                         continue
                     om = _ONE - a
                     tb = T[p] / om
                     T[p] = tb
                     w = a * tb
-                    z = zbuf[p]
+                    z = zbuf[c]
                     q = cr * gr[p] + cg * gg[p] + cb * gb[p] + z * gd[p] \
                         + nx * gnx[p] + ny * gny[p] + nz * gnz[p]
                     d_a = tb * q - (sg[p] + tg[p]) / om
@@ -324,7 +384,7 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
                     if lmed[p] == k:
                         gz += gm[p]
                     # recompute the geometry of this pixel
-                    dx = pxs[p] - xb
+                    dx = pxr[c] - xb
                     dy = pys[p] - yb
                     uu = a1 * dx + a2 * dy
                     vv = b1 * dx + b2 * dy

@@ -100,125 +100,204 @@ def _arc(A, B, C, D, E, F, near):
     return lo, hi
 
 
-@njit(parallel=True, cache=True)
-def project(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
-            alpha_min, bound_sigma):
-    """Per surfel: packed kernel parameters (N,16) float32, visible (N,) bool, pixel rects
-    (N,4) int64 inclusive [i0, i1, j0, j1], centre depth (N,) float32, and float64 bounds
-    (N,4) [xmin, xmax, ymin, ymax]. bound_sigma <= 0: opacity-aware exact bounds."""
-    n = means.shape[0]
-    prm = np.zeros((n, 16), np.float32)
-    vis = np.zeros(n, np.bool_)
-    rect = np.zeros((n, 4), np.int64)
-    zcs = np.zeros(n, np.float32)
-    bnd = np.zeros((n, 4), np.float64)
+# Surfels per parallel work item: scratch arrays are allocated once per chunk, not per surfel
+# (a heap allocation per surfel cost more than its arithmetic).
+_CHUNK = 1024
+
+
+@njit(inline="always")
+def _extent(A, B, C, D, E, F, near):
+    """min/max of (A + B cos + C sin)/(D + E cos + F sin) over the circle. When the whole
+    circle lies in front of the near plane (D - |(E, F)| > near) the extremes are the roots of
+    one quadratic (tangents of the projected ellipse, no trigonometry): x is attained iff
+    |A - x D| <= |(x E - B, x F - C)|. Written about x0 = A/D so nothing cancels. Otherwise
+    the clipped arc (_arc)."""
+    if D - math.hypot(E, F) > near:
+        x0 = A / D
+        bp = B - x0 * E
+        cp = C - x0 * F
+        qa = E * E + F * F - D * D  # < 0
+        qb = -(bp * E + cp * F)
+        qc = bp * bp + cp * cp
+        sq = math.sqrt(max(qb * qb - qa * qc, 0.0))
+        r1 = (-qb + sq) / qa
+        r2 = (-qb - sq) / qa
+        return x0 + min(r1, r2), x0 + max(r1, r2)
+    return _arc(A, B, C, D, E, F, near)
+
+
+@njit(inline="always")
+def _project_one(i, means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
+                 alpha_min, bound_sigma, R, Y, prm, rect, zcs, bnd, want_bnd):
+    """Project surfel i into row i of prm/rect/zcs (and bnd); True if it is visible."""
     nk = (deg + 1) * (deg + 1)
-    for i in prange(n):
-        R = np.empty((3, 3))
-        Y = np.zeros(16)
-        qx, qy, qz, qw = (np.float64(quats[i, 0]), np.float64(quats[i, 1]),
-                          np.float64(quats[i, 2]), np.float64(quats[i, 3]))
-        qn = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-        if qn == 0.0:
-            continue
-        _rotmat(qx / qn, qy / qn, qz / qn, qw / qn, R)
-        mx = np.float64(means[i, 0]) - C[0]
-        my = np.float64(means[i, 1]) - C[1]
-        mz = np.float64(means[i, 2]) - C[2]
-        p0 = Rv[0, 0] * mx + Rv[0, 1] * my + Rv[0, 2] * mz
-        p1 = Rv[1, 0] * mx + Rv[1, 1] * my + Rv[1, 2] * mz
-        p2 = Rv[2, 0] * mx + Rv[2, 1] * my + Rv[2, 2] * mz
-        op = np.float64(opac[i])
-        if p2 < near or p2 > far or op < alpha_min:
-            continue
-        # camera-space axes: column j of Rv R
-        su = max(np.float64(scales[i, 0]), S_MIN)
-        sv = max(np.float64(scales[i, 1]), S_MIN)
-        au0 = su * (Rv[0, 0] * R[0, 0] + Rv[0, 1] * R[1, 0] + Rv[0, 2] * R[2, 0])
-        au1 = su * (Rv[1, 0] * R[0, 0] + Rv[1, 1] * R[1, 0] + Rv[1, 2] * R[2, 0])
-        au2 = su * (Rv[2, 0] * R[0, 0] + Rv[2, 1] * R[1, 0] + Rv[2, 2] * R[2, 0])
-        av0 = sv * (Rv[0, 0] * R[0, 1] + Rv[0, 1] * R[1, 1] + Rv[0, 2] * R[2, 1])
-        av1 = sv * (Rv[1, 0] * R[0, 1] + Rv[1, 1] * R[1, 1] + Rv[1, 2] * R[2, 1])
-        av2 = sv * (Rv[2, 0] * R[0, 1] + Rv[2, 1] * R[1, 1] + Rv[2, 2] * R[2, 1])
-        n0 = Rv[0, 0] * R[0, 2] + Rv[0, 1] * R[1, 2] + Rv[0, 2] * R[2, 2]
-        n1 = Rv[1, 0] * R[0, 2] + Rv[1, 1] * R[1, 2] + Rv[1, 2] * R[2, 2]
-        n2 = Rv[2, 0] * R[0, 2] + Rv[2, 1] * R[1, 2] + Rv[2, 2] * R[2, 2]
-        ndp = n0 * p0 + n1 * p1 + n2 * p2
-        pn = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
-        if abs(ndp) < EDGE_COS * pn:
-            continue
-        # M = K [a_u a_v p]; rows m0, m1, m2
-        m0u = K[0, 0] * au0 + K[0, 1] * au1 + K[0, 2] * au2
-        m0v = K[0, 0] * av0 + K[0, 1] * av1 + K[0, 2] * av2
-        m0w = K[0, 0] * p0 + K[0, 1] * p1 + K[0, 2] * p2
-        m1u = K[1, 1] * au1 + K[1, 2] * au2
-        m1v = K[1, 1] * av1 + K[1, 2] * av2
-        m1w = K[1, 1] * p1 + K[1, 2] * p2
-        zc = p2
-        xb = m0w / zc
-        yb = m1w / zc
-        # bounds: r-sigma disk clipped at near, united with the low-pass disk
-        if bound_sigma > 0:
-            r = bound_sigma
-        else:
-            r = math.sqrt(2.0 * math.log(max(op / alpha_min, 1.0)))
-        xlo, xhi = _arc(m0w, r * m0u, r * m0v, zc, r * au2, r * av2, near)
-        ylo, yhi = _arc(m1w, r * m1u, r * m1v, zc, r * au2, r * av2, near)
-        rl = r / math.sqrt(LOWPASS_INV_SIGMA2)
-        bx0 = min(xlo, xb - rl)
-        bx1 = max(xhi, xb + rl)
-        by0 = min(ylo, yb - rl)
-        by1 = max(yhi, yb + rl)
-        bx0 -= 1e-3 + 1e-6 * abs(bx0)
-        bx1 += 1e-3 + 1e-6 * abs(bx1)
-        by0 -= 1e-3 + 1e-6 * abs(by0)
-        by1 += 1e-3 + 1e-6 * abs(by1)
+    qx, qy, qz, qw = (np.float64(quats[i, 0]), np.float64(quats[i, 1]),
+                      np.float64(quats[i, 2]), np.float64(quats[i, 3]))
+    qn = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    if qn == 0.0:
+        return False
+    mx = np.float64(means[i, 0]) - C[0]
+    my = np.float64(means[i, 1]) - C[1]
+    mz = np.float64(means[i, 2]) - C[2]
+    p2 = Rv[2, 0] * mx + Rv[2, 1] * my + Rv[2, 2] * mz
+    op = np.float64(opac[i])
+    if p2 < near or p2 > far or op < alpha_min:
+        return False
+    p0 = Rv[0, 0] * mx + Rv[0, 1] * my + Rv[0, 2] * mz
+    p1 = Rv[1, 0] * mx + Rv[1, 1] * my + Rv[1, 2] * mz
+    _rotmat(qx / qn, qy / qn, qz / qn, qw / qn, R)
+    # camera-space axes: column j of Rv R
+    su = max(np.float64(scales[i, 0]), S_MIN)
+    sv = max(np.float64(scales[i, 1]), S_MIN)
+    au0 = su * (Rv[0, 0] * R[0, 0] + Rv[0, 1] * R[1, 0] + Rv[0, 2] * R[2, 0])
+    au1 = su * (Rv[1, 0] * R[0, 0] + Rv[1, 1] * R[1, 0] + Rv[1, 2] * R[2, 0])
+    au2 = su * (Rv[2, 0] * R[0, 0] + Rv[2, 1] * R[1, 0] + Rv[2, 2] * R[2, 0])
+    av0 = sv * (Rv[0, 0] * R[0, 1] + Rv[0, 1] * R[1, 1] + Rv[0, 2] * R[2, 1])
+    av1 = sv * (Rv[1, 0] * R[0, 1] + Rv[1, 1] * R[1, 1] + Rv[1, 2] * R[2, 1])
+    av2 = sv * (Rv[2, 0] * R[0, 1] + Rv[2, 1] * R[1, 1] + Rv[2, 2] * R[2, 1])
+    n0 = Rv[0, 0] * R[0, 2] + Rv[0, 1] * R[1, 2] + Rv[0, 2] * R[2, 2]
+    n1 = Rv[1, 0] * R[0, 2] + Rv[1, 1] * R[1, 2] + Rv[1, 2] * R[2, 2]
+    n2 = Rv[2, 0] * R[0, 2] + Rv[2, 1] * R[1, 2] + Rv[2, 2] * R[2, 2]
+    ndp = n0 * p0 + n1 * p1 + n2 * p2
+    pn = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    if abs(ndp) < EDGE_COS * pn:
+        return False
+    # M = K [a_u a_v p]; rows m0, m1, m2
+    m0u = K[0, 0] * au0 + K[0, 1] * au1 + K[0, 2] * au2
+    m0v = K[0, 0] * av0 + K[0, 1] * av1 + K[0, 2] * av2
+    m0w = K[0, 0] * p0 + K[0, 1] * p1 + K[0, 2] * p2
+    m1u = K[1, 1] * au1 + K[1, 2] * au2
+    m1v = K[1, 1] * av1 + K[1, 2] * av2
+    m1w = K[1, 1] * p1 + K[1, 2] * p2
+    zc = p2
+    xb = m0w / zc
+    yb = m1w / zc
+    # bounds: r-sigma disk clipped at near, united with the low-pass disk
+    if bound_sigma > 0:
+        r = bound_sigma
+    else:
+        r = math.sqrt(2.0 * math.log(max(op / alpha_min, 1.0)))
+    xlo, xhi = _extent(m0w, r * m0u, r * m0v, zc, r * au2, r * av2, near)
+    ylo, yhi = _extent(m1w, r * m1u, r * m1v, zc, r * au2, r * av2, near)
+    rl = r / math.sqrt(LOWPASS_INV_SIGMA2)
+    bx0 = min(xlo, xb - rl)
+    bx1 = max(xhi, xb + rl)
+    by0 = min(ylo, yb - rl)
+    by1 = max(yhi, yb + rl)
+    bx0 -= 1e-3 + 1e-6 * abs(bx0)
+    bx1 += 1e-3 + 1e-6 * abs(bx1)
+    by0 -= 1e-3 + 1e-6 * abs(by0)
+    by1 += 1e-3 + 1e-6 * abs(by1)
+    if want_bnd:
         bnd[i, 0] = bx0
         bnd[i, 1] = bx1
         bnd[i, 2] = by0
         bnd[i, 3] = by1
-        i0 = max(math.ceil(max(bx0, -1e9) - 0.5), 0.0)
-        i1 = min(math.floor(min(bx1, 1e9) - 0.5), width - 1.0)
-        j0 = max(math.ceil(max(by0, -1e9) - 0.5), 0.0)
-        j1 = min(math.floor(min(by1, 1e9) - 0.5), height - 1.0)
-        if i0 > i1 or j0 > j1:
-            continue
-        rect[i, 0] = np.int64(i0)
-        rect[i, 1] = np.int64(i1)
-        rect[i, 2] = np.int64(j0)
-        rect[i, 3] = np.int64(j1)
-        # homography relative to the centre, normalised by its value d at the centre
-        hu0 = xb * au2 - m0u
-        hu1 = xb * av2 - m0v
-        hv0 = yb * au2 - m1u
-        hv1 = yb * av2 - m1v
-        d = hu0 * hv1 - hu1 * hv0
-        prm[i, 0] = xb
-        prm[i, 1] = yb
-        prm[i, 2] = zc
-        prm[i, 3] = -zc * hv1 / d
-        prm[i, 4] = zc * hu1 / d
-        prm[i, 5] = zc * hv0 / d
-        prm[i, 6] = -zc * hu0 / d
-        prm[i, 7] = (au2 * hv1 - av2 * hv0) / d
-        prm[i, 8] = (av2 * hu0 - au2 * hu1) / d
-        prm[i, 9] = op
-        # colour from SH along the world direction camera -> surfel
-        mn = math.sqrt(mx * mx + my * my + mz * mz)
-        mn = max(mn, 1e-30)
-        _sh_basis(mx / mn, my / mn, mz / mn, deg, Y)
-        for c in range(3):
-            acc = 0.5
-            for k in range(nk):
-                acc += Y[k] * np.float64(sh[i, k, c])
-            prm[i, 10 + c] = max(acc, 0.0)
-        sgn = -1.0 if ndp > 0 else 1.0
-        prm[i, 13] = sgn * n0
-        prm[i, 14] = sgn * n1
-        prm[i, 15] = sgn * n2
-        zcs[i] = zc
-        vis[i] = True
+    i0 = max(math.ceil(max(bx0, -1e9) - 0.5), 0.0)
+    i1 = min(math.floor(min(bx1, 1e9) - 0.5), width - 1.0)
+    j0 = max(math.ceil(max(by0, -1e9) - 0.5), 0.0)
+    j1 = min(math.floor(min(by1, 1e9) - 0.5), height - 1.0)
+    if i0 > i1 or j0 > j1:
+        return False
+    rect[i, 0] = i0
+    rect[i, 1] = i1
+    rect[i, 2] = j0
+    rect[i, 3] = j1
+    # homography relative to the centre, normalised by its value d at the centre
+    hu0 = xb * au2 - m0u
+    hu1 = xb * av2 - m0v
+    hv0 = yb * au2 - m1u
+    hv1 = yb * av2 - m1v
+    d = hu0 * hv1 - hu1 * hv0
+    prm[i, 0] = xb
+    prm[i, 1] = yb
+    prm[i, 2] = zc
+    prm[i, 3] = -zc * hv1 / d
+    prm[i, 4] = zc * hu1 / d
+    prm[i, 5] = zc * hv0 / d
+    prm[i, 6] = -zc * hu0 / d
+    prm[i, 7] = (au2 * hv1 - av2 * hv0) / d
+    prm[i, 8] = (av2 * hu0 - au2 * hu1) / d
+    prm[i, 9] = op
+    # colour from SH along the world direction camera -> surfel
+    mn = math.sqrt(mx * mx + my * my + mz * mz)
+    mn = max(mn, 1e-30)
+    _sh_basis(mx / mn, my / mn, mz / mn, deg, Y)
+    for c in range(3):
+        acc = 0.5
+        for k in range(nk):
+            acc += Y[k] * np.float64(sh[i, k, c])
+        prm[i, 10 + c] = max(acc, 0.0)
+    sgn = -1.0 if ndp > 0 else 1.0
+    prm[i, 13] = sgn * n0
+    prm[i, 14] = sgn * n1
+    prm[i, 15] = sgn * n2
+    zcs[i] = zc
+    return True
+
+
+@njit(parallel=True, cache=True)
+def _project_into(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
+                  alpha_min, bound_sigma, prm, vis, rect, zcs, bnd, want_bnd):
+    n = means.shape[0]
+    for ch in prange((n + _CHUNK - 1) // _CHUNK):
+        R = np.empty((3, 3))
+        Y = np.zeros(16)
+        for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
+            vis[i] = _project_one(i, means, quats, scales, opac, sh, deg, Rv, C, K, width,
+                                  height, near, far, alpha_min, bound_sigma, R, Y, prm, rect,
+                                  zcs, bnd, want_bnd)
+
+
+@njit(cache=True)
+def project(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
+            alpha_min, bound_sigma):
+    """Per surfel: packed kernel parameters (N,16) float32, visible (N,) bool, pixel rects
+    (N,4) int32 inclusive [i0, i1, j0, j1], centre depth (N,) float32, and float64 bounds
+    (N,4) [xmin, xmax, ymin, ymax]. bound_sigma <= 0: opacity-aware exact bounds. Rows of
+    invisible surfels are zero."""
+    n = means.shape[0]
+    prm = np.zeros((n, 16), np.float32)
+    vis = np.zeros(n, np.bool_)
+    rect = np.zeros((n, 4), np.int32)
+    zcs = np.zeros(n, np.float32)
+    bnd = np.zeros((n, 4), np.float64)
+    _project_into(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
+                  alpha_min, bound_sigma, prm, vis, rect, zcs, bnd, True)
+    for i in range(n):
+        if not vis[i]:
+            prm[i, :] = 0
+            rect[i, :] = 0
+            zcs[i] = 0
     return prm, vis, rect, zcs, bnd
+
+
+@njit(parallel=True, cache=True)
+def project_visible(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
+                    alpha_min, bound_sigma):
+    """The visible surfels only: (index (M,) int64 ascending, prm (M,16) float32, rect (M,4)
+    int32, centre depth (M,) float32). One pass over all N, then a parallel gather."""
+    n = means.shape[0]
+    prm = np.empty((n, 16), np.float32)
+    vis = np.empty(n, np.bool_)
+    rect = np.empty((n, 4), np.int32)
+    zcs = np.empty(n, np.float32)
+    bnd = np.empty((1, 4), np.float64)
+    _project_into(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
+                  alpha_min, bound_sigma, prm, vis, rect, zcs, bnd, False)
+    idx = np.flatnonzero(vis)
+    m = idx.shape[0]
+    prm_c = np.empty((m, 16), np.float32)
+    rect_c = np.empty((m, 4), np.int32)
+    z_c = np.empty(m, np.float32)
+    for j in prange(m):
+        i = idx[j]
+        for c in range(16):
+            prm_c[j, c] = prm[i, c]
+        for c in range(4):
+            rect_c[j, c] = rect[i, c]
+        z_c[j] = zcs[i]
+    return idx, prm_c, rect_c, z_c
 
 
 @njit(parallel=True, cache=True)

@@ -56,27 +56,23 @@ class _Raster(torch.autograd.Function):
         t0 = time.perf_counter()
         arrs = tuple(np.ascontiguousarray(x.detach().numpy())
                      for x in (means, quats, scales, opacities, sh))
-        prm_all, vis, rects, zc, _ = kprep.project(
+        idx, prm, rects, zc = kprep.project_visible(
             *arrs, plan["deg"], plan["Rv"], plan["C"], plan["K"], plan["width"], plan["height"],
             plan["near"], plan["far"], plan["alpha_min"], plan["bound_sigma"])
-        idx = np.flatnonzero(vis)
-        prm = np.ascontiguousarray(prm_all[idx])
-        rects = np.ascontiguousarray(rects[idx])
-        order = np.argsort(zc[idx], kind="stable")
         t1 = time.perf_counter()
-        tile_start, tile_splats = kernels.bin_tiles(rects, order, plan["tile"], plan["ntx"],
-                                                    plan["nty"])
+        tile_start, tile_splats, pprm, prect = kernels.bin_sorted(
+            rects, zc.view(np.int32), prm, plan["tile"], plan["ntx"], plan["nty"])
         t2 = time.perf_counter()
         rgb, tfin, dacc, nacc, dmed, last, med, amax, evals = kernels.forward(
-            prm, rects, tile_start, tile_splats, plan["tile_order"], plan["width"], plan["height"],
-            plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
+            pprm, prect, tile_start, tile_splats, plan["tile_order"], plan["width"],
+            plan["height"], plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), np.float32(plan["t_min"]))
         t3 = time.perf_counter()
         plan.update(evals=int(evals.sum()), argmax=amax, visible_index=idx,
                     n_pairs=int(tile_splats.shape[0]), project_s=t1 - t0, bin_s=t2 - t1,
                     raster_s=t3 - t2)
         ctx.plan = plan
-        ctx.aux = (arrs, idx, prm, rects, tile_start, tile_splats, tfin, last, med)
+        ctx.aux = (arrs, idx, pprm, prect, tile_start, tile_splats, tfin, last, med)
         alpha = 1.0 - torch.from_numpy(tfin)
         return (torch.from_numpy(rgb), alpha, torch.from_numpy(dacc), torch.from_numpy(nacc),
                 torch.from_numpy(dmed))
@@ -84,19 +80,19 @@ class _Raster(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_d, g_n, g_med):
         plan = ctx.plan
-        arrs, idx, prm, rects, tile_start, tile_splats, tfin, last, med = ctx.aux
+        arrs, idx, pprm, prect, tile_start, tile_splats, tfin, last, med = ctx.aux
         t0 = time.perf_counter()
 
         def arr(g):
             return np.ascontiguousarray(g.detach().to(torch.float32).numpy())
 
         rows = kernels.backward(
-            prm, rects, tile_start, tile_splats, plan["tile_order"], plan["width"], plan["height"],
+            pprm, prect, tile_start, tile_splats, plan["tile_order"], plan["width"], plan["height"],
             plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), tfin, last, med,
             arr(g_rgb), arr(-g_alpha), arr(g_d), arr(g_n), arr(g_med))
         t1 = time.perf_counter()
-        gp = kernels.reduce_pairs(rows, tile_splats, prm.shape[0])
+        gp = kernels.reduce_pairs(rows, tile_splats, idx.shape[0])
         del rows
         grads = kprep.project_backward(idx, gp, *arrs, plan["deg"], plan["Rv"], plan["C"], plan["K"])
         plan.update(bwd_kernel_s=t1 - t0, bwd_total_s=time.perf_counter() - t0)
