@@ -80,41 +80,61 @@ def bin_tiles(rects, order, tile, ntx, nty):
 
 @njit(parallel=True, cache=True)
 def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
-    """Like bin_tiles for all surfels in depth order, without a global sort: pairs are
-    counted and scattered per tile in index order, then each tile's list is sorted in
-    parallel by the key (depth, index). depth_bits: the float32 depths (all > 0) viewed as
-    int32, which order like the floats; the index breaks ties as a stable sort would.
+    """Tile lists of all surfels in depth order, without a global sort: (tile, surfel) pairs
+    are counted and scattered in parallel chunks of surfels, then each tile's list is sorted
+    in parallel by the unique key (depth, index). depth_bits: the float32 depths (all > 0)
+    viewed as int32, which order like the floats; the index breaks ties as a stable sort would.
 
-    Also returns each pair's packed parameters and rectangle, copied in pair order
-    (pair_prm (npairs,16), pair_rect (npairs,4)): the kernels then read memory sequentially
-    instead of one random surfel row per pair (that latency was half the kernel time)."""
+    Returns tile_start (ntiles+1,), tile_splats (npairs,) int32 (surfel of each pair, the
+    same lists as bin_tiles in depth order), each pair's packed parameters and rectangle
+    copied in pair order (pair_prm (npairs,16), pair_rect (npairs,4): the kernels then read
+    memory sequentially instead of one random surfel row per pair, whose latency was half
+    the kernel time), and per surfel its pair positions (surf_off (M+1,), surf_pairs
+    (npairs,), ascending) so the backward sums a surfel's gradient rows without a scan."""
     ntiles = ntx * nty
     m = rects.shape[0]
+    nch = 16
+    step = (m + nch - 1) // nch
+    cnt = np.zeros((nch, ntiles), np.int64)
+    surf_off = np.zeros(m + 1, np.int64)
+    for ch in prange(nch):
+        for k in range(ch * step, min(m, (ch + 1) * step)):
+            tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
+            ty0, ty1 = rects[k, 2] // tile, rects[k, 3] // tile
+            surf_off[k + 1] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
+            for ty in range(ty0, ty1 + 1):
+                for tx in range(tx0, tx1 + 1):
+                    cnt[ch, ty * ntx + tx] += 1
+    for k in range(m):
+        surf_off[k + 1] += surf_off[k]
     counts = np.zeros(ntiles + 1, np.int64)
-    for k in range(m):
-        tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
-        for ty in range(rects[k, 2] // tile, rects[k, 3] // tile + 1):
-            for tx in range(tx0, tx1 + 1):
-                counts[ty * ntx + tx + 1] += 1
     for t in range(ntiles):
-        counts[t + 1] += counts[t]
-    pos = counts[:-1].copy()
-    keys = np.empty(counts[ntiles], np.int64)
-    for k in range(m):
-        key = (np.int64(depth_bits[k]) << 32) | k
-        tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
-        for ty in range(rects[k, 2] // tile, rects[k, 3] // tile + 1):
-            for tx in range(tx0, tx1 + 1):
-                t = ty * ntx + tx
-                keys[pos[t]] = key
-                pos[t] += 1
+        run = counts[t]
+        for ch in range(nch):
+            c = cnt[ch, t]
+            cnt[ch, t] = run
+            run += c
+        counts[t + 1] = run
     npairs = counts[ntiles]
+    keys = np.empty(npairs, np.int64)
+    for ch in prange(nch):
+        for k in range(ch * step, min(m, (ch + 1) * step)):
+            key = (np.int64(depth_bits[k]) << 32) | k
+            tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
+            for ty in range(rects[k, 2] // tile, rects[k, 3] // tile + 1):
+                for tx in range(tx0, tx1 + 1):
+                    t = ty * ntx + tx
+                    keys[cnt[ch, t]] = key
+                    cnt[ch, t] += 1
     out = np.empty(npairs, np.int32)
     pair_prm = np.empty((npairs, prm.shape[1]), prm.dtype)
     pair_rect = np.empty((npairs, 4), rects.dtype)
+    surf_pairs = np.empty(npairs, np.int64)
     for t in prange(ntiles):
         seg = keys[counts[t]:counts[t + 1]]
         seg.sort()
+        ty = t // ntx
+        tx = t - ty * ntx
         for q in range(seg.shape[0]):
             k = counts[t] + q
             sidx = np.int32(seg[q] & 0xFFFFFFFF)
@@ -123,7 +143,10 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
                 pair_prm[k, c] = prm[sidx, c]
             for c in range(4):
                 pair_rect[k, c] = rects[sidx, c]
-    return counts, out, pair_prm, pair_rect
+            tx0, tx1 = rects[sidx, 0] // tile, rects[sidx, 1] // tile
+            ty0 = rects[sidx, 2] // tile
+            surf_pairs[surf_off[sidx] + (ty - ty0) * (tx1 - tx0 + 1) + (tx - tx0)] = k
+    return counts, out, pair_prm, pair_rect, surf_off, surf_pairs
 
 
 @njit(inline="always", error_model="numpy")

@@ -35,16 +35,21 @@ def _as_tensor(x, name, dtype=torch.float32):
     return x
 
 
-def _check(x, name, shape):
-    """shape: tuple with None for free dims."""
+def _check(x, name, shape, negative=False):
+    """shape: tuple with None for free dims. Then no NaN/Inf (and, with negative, no value < 0),
+    found in one numba pass; the index of the first bad element is named."""
     if x.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape)):
         want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
         raise InputError(f"rasterize: {name} has shape {tuple(x.shape)}, expected {want}")
-    bad = ~torch.isfinite(x.detach())
-    if bad.any():
-        where = tuple(int(i) for i in torch.nonzero(bad)[0])
-        index = where[0] if x.dim() > 1 and name not in ("viewmat", "K") else where
-        raise InputError(f"rasterize: {name} has a non-finite value (NaN or Inf) at index {index}")
+    flat = x.detach().reshape(-1).numpy()
+    q = int(kprep.first_bad(flat, negative)) if flat.size else -1
+    if q < 0:
+        return
+    where = np.unravel_index(q, tuple(x.shape))
+    index = int(where[0]) if x.dim() > 1 and name not in ("viewmat", "K") else tuple(int(i) for i in where)
+    if np.isfinite(flat[q]):
+        raise InputError(f"rasterize: {name} has a negative value at index {index}")
+    raise InputError(f"rasterize: {name} has a non-finite value (NaN or Inf) at index {index}")
 
 
 class _Raster(torch.autograd.Function):
@@ -60,7 +65,7 @@ class _Raster(torch.autograd.Function):
             *arrs, plan["deg"], plan["Rv"], plan["C"], plan["K"], plan["width"], plan["height"],
             plan["near"], plan["far"], plan["alpha_min"], plan["bound_sigma"])
         t1 = time.perf_counter()
-        tile_start, tile_splats, pprm, prect = kernels.bin_sorted(
+        tile_start, tile_splats, pprm, prect, soff, spairs = kernels.bin_sorted(
             rects, zc.view(np.int32), prm, plan["tile"], plan["ntx"], plan["nty"])
         t2 = time.perf_counter()
         rgb, tfin, dacc, nacc, dmed, last, med, amax, evals = kernels.forward(
@@ -72,7 +77,7 @@ class _Raster(torch.autograd.Function):
                     n_pairs=int(tile_splats.shape[0]), project_s=t1 - t0, bin_s=t2 - t1,
                     raster_s=t3 - t2)
         ctx.plan = plan
-        ctx.aux = (arrs, idx, pprm, prect, tile_start, tile_splats, tfin, last, med)
+        ctx.aux = (arrs, idx, pprm, prect, tile_start, tile_splats, soff, spairs, tfin, last, med)
         alpha = 1.0 - torch.from_numpy(tfin)
         return (torch.from_numpy(rgb), alpha, torch.from_numpy(dacc), torch.from_numpy(nacc),
                 torch.from_numpy(dmed))
@@ -80,7 +85,7 @@ class _Raster(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_d, g_n, g_med):
         plan = ctx.plan
-        arrs, idx, pprm, prect, tile_start, tile_splats, tfin, last, med = ctx.aux
+        arrs, idx, pprm, prect, tile_start, tile_splats, soff, spairs, tfin, last, med = ctx.aux
         t0 = time.perf_counter()
 
         def arr(g):
@@ -92,9 +97,9 @@ class _Raster(torch.autograd.Function):
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), tfin, last, med,
             arr(g_rgb), arr(-g_alpha), arr(g_d), arr(g_n), arr(g_med))
         t1 = time.perf_counter()
-        gp = kernels.reduce_pairs(rows, tile_splats, idx.shape[0])
+        grads = kprep.project_backward(idx, rows, soff, spairs, *arrs, plan["deg"], plan["Rv"],
+                                       plan["C"], plan["K"])
         del rows
-        grads = kprep.project_backward(idx, gp, *arrs, plan["deg"], plan["Rv"], plan["C"], plan["K"])
         plan.update(bwd_kernel_s=t1 - t0, bwd_total_s=time.perf_counter() - t0)
         out = []
         for g, need in zip(grads, ctx.needs_input_grad[:5]):
@@ -143,7 +148,7 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
     _check(means, "means", (None, 3))
     n = means.shape[0]
     _check(quats, "quats", (n, 4))
-    _check(scales, "scales", (n, 2))
+    _check(scales, "scales", (n, 2), negative=True)
     _check(opacities, "opacities", (n,))
     _check(sh, "sh", (n, None, 3))
     _check(viewmat, "viewmat", (4, 4))
@@ -155,11 +160,8 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
         raise InputError(f"rasterize: need 0 < near < far, got near={near}, far={far}")
     if abs(float(K[2, 0])) > 0 or abs(float(K[2, 1])) > 0 or float(K[2, 2]) != 1.0:
         raise InputError("rasterize: K must be a pinhole intrinsics matrix with last row (0, 0, 1)")
-    if (scales.detach() < 0).any():
-        i = int(torch.nonzero((scales.detach() < 0).any(1))[0])
-        raise InputError(f"rasterize: scales has a negative value at index {i}")
-    if (quats.detach().norm(dim=1) == 0).any():
-        i = int(torch.nonzero(quats.detach().norm(dim=1) == 0)[0])
+    i = int(kprep.first_zero_row(np.ascontiguousarray(quats.detach().numpy())))
+    if i >= 0:
         raise InputError(f"rasterize: quats has a zero quaternion at index {i}")
     try:
         full_deg = sh_degree_of(sh.shape[1])
