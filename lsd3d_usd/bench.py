@@ -41,6 +41,30 @@ register_benchmark(
     _render_args, _render_run)
 
 
+# ------------------------------------------------------------------- ggds ---
+def _ggds_args(p: argparse.ArgumentParser):
+    p.add_argument("--json", metavar="OUT.json", help="write results as JSON (keys s_per_step, "
+                   "psnr_novel, depth_rel_err, normal_err_deg, off_surface_frac, timing, quality)")
+    p.add_argument("--quick", action="store_true", help="small subset (a couple of minutes)")
+    p.add_argument("--layout", help="layout for the timing chunk and quality run "
+                                    "(default samples/layouts/generated_seed7_200x200.usda)")
+    p.add_argument("--steps", type=int, help="GGDS steps of the quality run (default 100)")
+
+
+def _ggds_run(args) -> int:
+    from lsd3d_usd.ggds.benchmark import main
+
+    main(json_path=args.json, quick=args.quick, layout=args.layout, steps=args.steps)
+    return 0
+
+
+register_benchmark(
+    "ggds",
+    "GGDS: seconds per step by surfel count and resolution; held-out PSNR, depth/normal error and "
+    "off-surface fraction after a short run",
+    _ggds_args, _ggds_run)
+
+
 def register(subparsers):
     p = subparsers.add_parser(
         "bench", help="run benchmarks (speed and accuracy numbers)",

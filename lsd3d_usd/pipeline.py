@@ -22,7 +22,7 @@ import numpy as np
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 
-DEFAULT_DENSITY = 2.0          # initial surfels per m² of proxy surface
+DEFAULT_DENSITY = 6.0          # initial surfels per m² of view-weighted proxy surface
 MAX_SURFELS = 4_000_000
 
 
@@ -218,18 +218,21 @@ def _proxy_arrays(sc: S.Scene):
     return np.concatenate(vs), np.concatenate(fs), np.concatenate(ids)
 
 
-def _surfel_step(sc: S.Scene, proxy, light, o: GenerateOptions) -> tuple:
+def _surfel_step(sc: S.Scene, proxy, light, layout, o: GenerateOptions) -> tuple:
     from lsd3d_usd.ggds.conditioning import shadow_map
     from lsd3d_usd.semantics import CLASS_COLORS, CLASSES
     from lsd3d_usd.splats.field import rgb_to_sh_dc
+    from lsd3d_usd.splats.importance import face_weights
     from lsd3d_usd.splats.init import mesh_to_surfels
     from lsd3d_usd.splats.usdio import read_surfel_file, write_surfel_file
     V, F, ids = proxy
-    area = float(0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]),
-                                      axis=1).sum())
-    count = o.surfels or int(min(MAX_SURFELS, max(1000, DEFAULT_DENSITY * area)))
+    face_area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+    area = float(face_area.sum())
+    weights = face_weights(V, F, layout)
+    weighted_area = float((face_area * weights).sum())
+    count = o.surfels or int(min(MAX_SURFELS, max(1000, DEFAULT_DENSITY * weighted_area)))
     inputs = _hash(_file_hash(sc.layer_path("proxy")), count, o.seed, light.exposure,
-                   light.sun_direction.tolist(), "surfels-v1")
+                   light.sun_direction.tolist(), "surfels-v2")
     path = sc.layer_path("surfels")
     faces_path = sc.root / "ggds" / "surfel_faces.npy"
     if path.is_file() and faces_path.is_file():
@@ -239,7 +242,8 @@ def _surfel_step(sc: S.Scene, proxy, light, o: GenerateOptions) -> tuple:
             return read_surfel_file(str(path)), np.load(faces_path), {"reused": True, "count": count}
     t0 = time.perf_counter()
     field, face = mesh_to_surfels(V, F, ids, count=count, seed=o.seed, sh_degree=1,
-                                  semantic_classes=CLASSES, return_face_index=True)
+                                  semantic_classes=CLASSES, return_face_index=True,
+                                  face_weights=weights)
     # Initial colours: class albedo lit by the sky SH and the (shadowed) sun.
     shadow = shadow_map(V, F, light.sun_direction)
     vis = shadow.visibility(field.positions.astype(np.float64) + 0.05 * field.normals()) \
@@ -249,7 +253,8 @@ def _surfel_step(sc: S.Scene, proxy, light, o: GenerateOptions) -> tuple:
     field.sh[:, 0, :] = rgb_to_sh_dc(rgb)
     dt = time.perf_counter() - t0
     write_surfel_file(str(path), field, provenance=S.provenance(
-        "surfels", {"count": count, "proxyArea_m2": round(area, 1), "density": DEFAULT_DENSITY},
+        "surfels", {"count": count, "proxyArea_m2": round(area, 1), "density": DEFAULT_DENSITY,
+                    "viewWeightedArea_m2": round(weighted_area, 1)},
         seed=o.seed, timings={"init_s": round(dt, 2)}, inputsHash=inputs))
     faces_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = faces_path.with_suffix(".tmp.npy")
@@ -368,11 +373,15 @@ def _ggds_step(sc, layout, proxy, field, face, light, params, o: GenerateOptions
                   shadow=shadow, face_index=face, perceptual=perceptual)
     if state is not None:
         run.load_state_dict(state)
+    elif cfg.world_init and run.world_init():
+        o.log("ggds: surfel colours initialised from the world-space prior")
     views_json = [v.to_json() for v in views]
     out_dir = sc.root / "ggds" / run_name
     out_dir.mkdir(parents=True, exist_ok=True)
-    before = [run.render(v.camera, background=light.background(v.camera))["rgb"].detach()
-              for v in held_out[:2]] if state is None else []
+    with torch.no_grad():  # "before" = the initial surfels as authored in surfels.usdc
+        init = GGDSRun(field, proxy, [], prior, light.prior_env, cfg) if state is None else None
+        before = [init.render(v.camera, background=light.background(v.camera))["rgb"]
+                  for v in held_out[:2]] if init is not None else []
     interrupted = False
     bar = None
     if o.progress:
@@ -446,7 +455,7 @@ def generate(o: GenerateOptions) -> dict:
     t = time.perf_counter(); params, light = _env_step(sc, o); timings["env_s"] = time.perf_counter() - t
     o.log(f"env: {params.resolved().variant_name()} (display exposure {light.exposure:.4g})")
     proxy = _proxy_arrays(sc)
-    t = time.perf_counter(); field, face, sinfo = _surfel_step(sc, proxy, light, o)
+    t = time.perf_counter(); field, face, sinfo = _surfel_step(sc, proxy, light, layout, o)
     timings["surfels_s"] = time.perf_counter() - t
     o.log(f"surfels: {field.n:,} ({'reused' if sinfo['reused'] else 'initialised'})")
     summary = {"scene": str(sc.root), "proxy": prep, "surfels": sinfo}

@@ -132,3 +132,19 @@ def test_bad_input():
         mesh_to_surfels(np.zeros((3, 3)), np.array([[0, 1, 2]]), count=10)
     with pytest.raises(InputError, match="face_semantic_ids"):
         mesh_to_surfels(V, F, np.zeros(3), count=10)
+
+
+def test_face_weights_shift_density_and_keep_coverage():
+    # Two equal unit squares; the second weighted 4x: ~4x the surfels, each 1/4 the area.
+    V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0],
+                  [5, 0, 0], [6, 0, 0], [6, 1, 0], [5, 1, 0]], float)
+    F = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    f, face = mesh_to_surfels(V, F, count=1000, seed=1, face_weights=[1, 1, 4, 4],
+                              return_face_index=True)
+    n_heavy = int((face >= 2).sum())
+    assert 790 <= n_heavy <= 810
+    disk = np.pi * f.scales[:, 0].astype(np.float64) * f.scales[:, 1]
+    np.testing.assert_allclose(disk[face < 2].sum(), 1.0, rtol=1e-4)   # each square still tiled
+    np.testing.assert_allclose(disk[face >= 2].sum(), 1.0, rtol=1e-4)
+    with pytest.raises(Exception, match="face_weights"):
+        mesh_to_surfels(V, F, count=10, face_weights=[1, -1, 1, 1])

@@ -125,6 +125,35 @@ class ProceduralPrior(Prior):
         haze = torch.exp(-4.0 * dirs[..., 2:3].abs().float())
         return base * (1.0 + 0.6 * haze)
 
+    def _diffuse(self, albedo, n, vis, env, dev):
+        sdir = env.sun_direction.to(dev)
+        e_sun = env.sun_irradiance.to(dev) * _smoothstep(-0.02, 0.02, float(sdir[2]))
+        ndl = (n @ sdir).clamp_min(0) * vis
+        e_sky = (sh_basis9(n) @ env.sh_irradiance.to(dev)).clamp_min(0)
+        return albedo / math.pi * (ndl[..., None] * e_sun + e_sky), ndl, e_sun, sdir
+
+    @torch.no_grad()
+    def shade_at(self, points, normals, semantic, env: PriorEnv, view_dirs=None,
+                 sun_visibility=None) -> torch.Tensor:
+        """Radiance of the materials at world points (N,3) seen along `view_dirs` (N,3) (default:
+        head-on), display scaled, without fog: the prior evaluated in 3D, which lets GGDS start
+        each surfel at the colour views will ask of it (the prior is world-space by design)."""
+        pts = torch.as_tensor(points, dtype=torch.float64).reshape(-1, 1, 3)
+        nrm = torch.nn.functional.normalize(torch.as_tensor(normals, dtype=torch.float32).reshape(-1, 1, 3), dim=-1)
+        n = pts.shape[0]
+        v = -nrm if view_dirs is None else torch.nn.functional.normalize(
+            torch.as_tensor(view_dirs, dtype=torch.float32).reshape(-1, 1, 3), dim=-1)
+        gb = GBuffer(depth=torch.ones(n, 1), normal=nrm, semantic=torch.as_tensor(semantic).reshape(n, 1).long(),
+                     world_pos=pts.float(), view_dirs=v, camera_position=torch.zeros(3),
+                     sun_visibility=None if sun_visibility is None
+                     else torch.as_tensor(sun_visibility, dtype=torch.float32).reshape(n, 1))
+        fog = env.fog_density
+        env.fog_density = 0.0  # fog belongs to the view, not to the surface
+        try:
+            return self.render(gb, env).reshape(n, 3)
+        finally:
+            env.fog_density = fog
+
     def render(self, gb: GBuffer, env: PriorEnv) -> torch.Tensor:
         """The procedural image P (H, W, 3) in display range (exposure applied, clamped to [0, 1])."""
         gb.validate()
@@ -133,12 +162,8 @@ class ProceduralPrior(Prior):
         V = torch.nn.functional.normalize(gb.view_dirs.float(), dim=-1)
         n = torch.nn.functional.normalize(gb.normal.float(), dim=-1)
         n = torch.where(((n * V).sum(-1, keepdim=True) > 0), -n, n)     # face the camera
-        sdir = env.sun_direction.to(dev)
-        e_sun = env.sun_irradiance.to(dev) * _smoothstep(-0.02, 0.02, float(sdir[2]))
         vis = gb.sun_visibility.float() if gb.sun_visibility is not None else torch.ones_like(gb.depth)
-        ndl = (n @ sdir).clamp_min(0) * vis
-        e_sky = (sh_basis9(n) @ env.sh_irradiance.to(dev)).clamp_min(0)
-        diffuse = albedo / math.pi * (ndl[..., None] * e_sun + e_sky)
+        diffuse, ndl, e_sun, sdir = self._diffuse(albedo, n, vis, env, dev)
         # specular: Schlick Fresnel, sky reflection (glossy / wet) and a normalised Blinn-Phong sun lobe
         cos_v = (-(V * n).sum(-1)).clamp(0, 1)
         F = spec + (1 - spec) * (1 - cos_v) ** 5

@@ -54,6 +54,7 @@ class GGDSConfig:
     seed: int = 0
     noise_scale: float = 0.5
     relocate_every: int = 50
+    world_init: bool = True         # start colours from a world-space prior evaluated in 3D
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -171,12 +172,15 @@ class GGDSRun:
         vi = int(self.rng.integers(len(self.views)))
         vd = self.view_data(vi)
         cam = vd.view.camera
+        t_view = time.perf_counter()
         out = self.render(cam, background=vd.background, normal_space="camera")
         x = out["rgb"]
+        t_render = time.perf_counter()
         t = float(self.rng.uniform(self.t_min(k), cfg.t_max))
         with torch.no_grad():
             x_hat = self.prior.target(x.detach().clamp(0, None), vd.gbuffer, self.env, t,
                                       n_steps=cfg.n_denoise, seed=cfg.seed * 100003 + k)
+        t_prior = time.perf_counter()
         w = losses.omega(t)
         terms = {"l1": losses.l1_loss(x, x_hat)}
         if self.perceptual is not None and cfg.w_perceptual > 0:
@@ -195,7 +199,9 @@ class GGDSRun:
         loss = image + terms["normal"] + terms["disparity"] + terms["normal_consistency"] + terms["tv"]
         for p in self.params.values():
             p.grad = None
+        t_loss = time.perf_counter()
         loss.backward()
+        t_backward = time.perf_counter()
         rows = out["stats"]["visible_index"]
         lrs = self._lrs(k)
         self.optimizer.lrs = lrs
@@ -204,11 +210,15 @@ class GGDSRun:
         if info["relocated"] and self.face_index is not None:
             self._track_relocation()
         self.step_index += 1
-        dt = time.perf_counter() - t0
+        t_end = time.perf_counter()
+        dt = t_end - t0
+        timing = {"view_s": t_view - t0, "render_s": t_render - t_view, "prior_s": t_prior - t_render,
+                  "loss_s": t_loss - t_prior, "backward_s": t_backward - t_loss,
+                  "update_s": t_end - t_backward}
         self.seconds += dt
         rec = {"step": k, "view": vi, "t": round(t, 4), "loss": float(loss.detach()), "seconds": dt,
                "visible": int(rows.numel()), "psnr_target": psnr(x.detach(), x_hat),
-               **{kk: float(v.detach()) for kk, v in terms.items()}, **info}
+               **{kk: float(v.detach()) for kk, v in terms.items()}, **info, **timing}
         self.history.append(rec)
         return rec
 
@@ -216,6 +226,48 @@ class GGDSRun:
         # A relocated surfel sits on its source's disk: it inherits the source's seed face.
         dead, src = self.strategy.last_relocation
         self.face_index[dead.numpy()] = self.face_index[src.numpy()]
+
+    @torch.no_grad()
+    def world_init(self, offsets_sigma: float = 0.7, batch: int = 400_000) -> bool:
+        """Set every surfel's DC colour to the prior's colour averaged over its disk (centre and
+        four points at ±offsets_sigma·σ along its axes), seen from the nearest training camera,
+        when the prior can be evaluated in world space (`shade_at`; the procedural prior can, a
+        diffusion prior cannot). Image-space GGDS steps refine from there. Returns whether it ran."""
+        fn = getattr(self.prior, "shade_at", None)
+        sem = self.init_field.semantic_ids
+        if fn is None or sem is None:
+            return False
+        from lsd3d_usd.splats.field import SH_C0, quat_to_matrix
+        f = self.field()
+        R = quat_to_matrix(f.orientations)
+        s = f.scales.astype(np.float64) * offsets_sigma
+        offs = np.stack([np.zeros((f.n, 3)), R[..., 0] * s[:, :1], -R[..., 0] * s[:, :1],
+                         R[..., 1] * s[:, 1:], -R[..., 1] * s[:, 1:]], axis=1)  # (N,5,3)
+        pts = f.positions.astype(np.float64)[:, None, :] + offs
+        nrm = np.repeat(R[:, None, :, 2], 5, axis=1)
+        ids = np.repeat(sem[:, None], 5, axis=1)
+        flat_p, flat_n, flat_i = pts.reshape(-1, 3), nrm.reshape(-1, 3), ids.reshape(-1)
+        vis = None
+        if self.shadow is not None:
+            vis = self.shadow.visibility(flat_p + 0.05 * flat_n)
+        view = flat_p - self._nearest_eye(flat_p)
+        cols = np.empty((len(flat_p), 3), np.float32)
+        for a in range(0, len(flat_p), batch):
+            b = slice(a, a + batch)
+            cols[b] = fn(flat_p[b], flat_n[b], flat_i[b], self.env, view_dirs=view[b],
+                         sun_visibility=None if vis is None else vis[b]).numpy()
+        rgb = cols.reshape(f.n, 5, 3).mean(axis=1)
+        self.params["sh"][:, 0, :] = torch.from_numpy((rgb - 0.5) / SH_C0)
+        return True
+
+    def _nearest_eye(self, points: np.ndarray) -> np.ndarray:
+        """Centre of the nearest training camera per point (or a point 10 m above)."""
+        if not self.views:
+            return points + np.array([0.0, 0.0, 10.0])
+        from scipy.spatial import cKDTree
+        eyes = np.array([v.camera.center for v in self.views])
+        _, k = cKDTree(eyes).query(points, k=1)
+        return eyes[k]
 
     # ------------------------------------------------------------ results
     def field(self) -> SurfelField:

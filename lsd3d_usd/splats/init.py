@@ -104,7 +104,7 @@ def _heitz_triangle(u1, u2):
 def mesh_to_surfels(vertices, faces, face_semantic_ids=None, *, count: int = 2_000_000,
                     seed: int = 0, color="semantic", opacity: float = 0.8, sh_degree: int = 0,
                     scale_factor: float = 1.0, semantic_classes=None, max_count: int = MAX_SURFELS,
-                    return_face_index: bool = False):
+                    return_face_index: bool = False, face_weights=None):
     """Surfels on a triangle mesh.
 
     vertices (V,3), faces (F,3) int, face_semantic_ids (F,) int or None.
@@ -112,8 +112,10 @@ def mesh_to_surfels(vertices, faces, face_semantic_ids=None, *, count: int = 2_0
     distributed over faces by area. ``color``: "semantic" (class colour from
     lsd3d_usd.semantics.CLASS_COLORS; unlabelled faces grey), or an RGB triple
     (monochrome, linear). ``scale_factor`` multiplies both scales (1 = the
-    1-sigma disks tile the mesh area). Returns a SurfelField (and the source
-    face index per surfel if ``return_face_index``).
+    1-sigma disks tile the mesh area). ``face_weights`` (F,) >= 0 scales each
+    face's surfel density (e.g. more near the lanes a camera drives); surfel
+    sizes follow, so the disks still tile every face. Returns a SurfelField (and
+    the source face index per surfel if ``return_face_index``).
     """
     from lsd3d_usd import semantics
 
@@ -130,6 +132,12 @@ def mesh_to_surfels(vertices, faces, face_semantic_ids=None, *, count: int = 2_0
         raise InputError(f"mesh -> surfels: sh_degree must be 0..3, got {sh_degree}")
 
     area, normal, major, sd, ok = face_frames(V, F)
+    density = np.ones(len(F))
+    if face_weights is not None:
+        density = np.asarray(face_weights, dtype=np.float64).reshape(-1)
+        if density.shape != (len(F),) or not np.all(np.isfinite(density)) or np.any(density < 0):
+            raise InputError(f"mesh -> surfels: face_weights must be {len(F)} finite values >= 0")
+    area = area * density  # sampling measure: weighted area
     total = float(area.sum())
     if count > 0 and not total > 0.0:
         raise InputError("mesh -> surfels: the mesh has no face with non-zero area")
@@ -165,7 +173,8 @@ def mesh_to_surfels(vertices, faces, face_semantic_ids=None, *, count: int = 2_0
     mf = np.maximum(m[fidx], 1).astype(np.float64)
     aspect = sd[fidx, 0] / np.maximum(sd[fidx, 1], 1e-300)
     ratio = np.clip(aspect / mf, 1.0, 1e4)
-    share = total / max(count, 1)
+    # A surfel's share of its face's true area: (weighted total / count) / face weight.
+    share = total / max(count, 1) / np.maximum(density[fidx], 1e-300)
     s_short = np.sqrt(share / (np.pi * ratio))
     scales = np.stack([ratio * s_short, s_short], axis=1) * scale_factor
 
