@@ -1,0 +1,182 @@
+#!/usr/bin/env python
+"""Time one GGDS step (GGDSRun.step) and its parts on a synthetic street.
+
+Builds a 100 m street chunk (road, sidewalks, building façades on both sides, parked cars) as
+a proxy mesh, seeds N surfels on it with mesh_to_surfels (default 500 k), samples views along
+its lanes at WxH (default 480x270) and runs GGDSRun.step with the ProceduralPrior (or the
+constant class-colour test prior with --prior class-colour), printing per step:
+
+    render   rasterize forward (incl. parameter activation) ; rast_fwd = the rasteriser alone
+    prior    prior.target
+    percept  the EfficientNet perceptual loss forward (with --perceptual, the default as in
+             `generate`)
+    backward loss.backward(); rast_bwd = the rasteriser's numba backward inside it
+    optim    SelectiveAdam.step;  strategy: MCMC noise / relocation
+    rest     the other loss terms and bookkeeping (total minus the above)
+
+The per-view G-buffers are built (and cached by GGDSRun) before timing, as a real run builds
+each once. Medians over the timed steps are printed last, with the machine load.
+
+    python tools/profile_ggds_step.py [--n 500000] [--size 480x270] [--steps 6] [--no-perceptual]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+import numpy as np
+import torch
+
+
+def street_mesh(length=100.0):
+    """Proxy of one 100 m chunk: road |y|<4 with sidewalks to 7 m, façades at |y| = 7 m
+    (12-20 m high, split into 10 m bays), terrain strips, a few parked cars (boxes)."""
+    from lsd3d_usd.semantics import CLASS_ID
+    v, f, ids = [], [], []
+
+    def quad(p0, p1, p2, p3, cls):
+        b = len(v)
+        v.extend([p0, p1, p2, p3])
+        f.extend([[b, b + 1, b + 2], [b, b + 2, b + 3]])
+        ids.extend([CLASS_ID[cls]] * 2)
+
+    def box(x0, y0, x1, y1, h, cls):
+        quad((x0, y0, h), (x1, y0, h), (x1, y1, h), (x0, y1, h), cls)
+        quad((x0, y0, 0), (x1, y0, 0), (x1, y0, h), (x0, y0, h), cls)
+        quad((x1, y1, 0), (x0, y1, 0), (x0, y1, h), (x1, y1, h), cls)
+        quad((x0, y1, 0), (x0, y0, 0), (x0, y0, h), (x0, y1, h), cls)
+        quad((x1, y0, 0), (x1, y1, 0), (x1, y1, h), (x1, y0, h), cls)
+
+    rng = np.random.default_rng(0)
+    for x in np.arange(0.0, length, 5.0):
+        quad((x, -4, 0), (x + 5, -4, 0), (x + 5, 4, 0), (x, 4, 0), "road")
+        for s in (-1, 1):
+            quad((x, 4 * s, 0.15), (x + 5, 4 * s, 0.15), (x + 5, 7 * s, 0.15), (x, 7 * s, 0.15), "sidewalk")
+    for x in np.arange(0.0, length, 10.0):
+        for s in (-1, 1):
+            h = float(rng.uniform(12, 20))
+            quad((x, 7 * s, 0), (x + 10, 7 * s, 0), (x + 10, 7 * s, h), (x, 7 * s, h), "building")
+    for x in np.arange(5.0, length - 5.0, 17.0):
+        s = 1 if rng.uniform() < 0.5 else -1
+        box(x, 2.2 * s, x + 4.5, 3.9 * s, 1.5, "vehicle")
+    return np.array(v, float), np.array(f, np.int64), np.array(ids, np.int32)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--n", type=int, default=500_000, help="surfel count (default 500000)")
+    ap.add_argument("--size", default="480x270", help="render resolution WxH (default 480x270)")
+    ap.add_argument("--steps", type=int, default=6, help="timed steps (default 6, after 1 warm-up)")
+    ap.add_argument("--prior", choices=("procedural", "class-colour"), default="procedural")
+    ap.add_argument("--no-perceptual", action="store_true", help="without the perceptual loss")
+    ap.add_argument("--views", type=int, default=8, help="training views (default 8)")
+    a = ap.parse_args(argv)
+    w, h = (int(x) for x in a.size.lower().split("x"))
+
+    import lsd3d_usd  # noqa: F401  (schema registration; torch first as in the CLI)
+    from lsd3d_usd.ggds import run as run_mod
+    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.ggds.prior_base import Prior, PriorEnv
+    from lsd3d_usd.ggds.run import GGDSConfig, GGDSRun
+    from lsd3d_usd.layout.model import LaneCenter, Layout
+    from lsd3d_usd.semantics import CLASS_COLORS
+    from lsd3d_usd.splats.init import mesh_to_surfels
+
+    torch.manual_seed(0)
+    t0 = time.perf_counter()
+    V, F, ids = street_mesh()
+    field, face = mesh_to_surfels(V, F, ids, count=a.n, seed=0, sh_degree=1, return_face_index=True)
+    layout = Layout(lanes=[LaneCenter(id="l0", points=[[2, -2, 0], [98, -2, 0]]),
+                           LaneCenter(id="l1", points=[[98, 2, 0], [2, 2, 0]])])
+    views = sample_views(layout, a.views, w, h, seed=0, novel_frac=0.25)
+    sky = torch.tensor([0.55, 0.65, 0.85])
+    if a.prior == "procedural":
+        from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+        prior = ProceduralPrior()
+    else:
+        class ClassColour(Prior):
+            name = "class-colour"
+
+            def target(self, x, gbuffer, env, t, n_steps=5, seed=None):
+                col = torch.from_numpy(CLASS_COLORS)[gbuffer.semantic.clamp(min=0)]
+                return torch.where((gbuffer.semantic >= 0)[..., None], col, sky)
+        prior = ClassColour()
+    perceptual = None
+    cfg = GGDSConfig(steps=1000, width=w, height=h, n_views=a.views, seed=0,
+                     w_perceptual=0.0 if a.no_perceptual else GGDSConfig.w_perceptual)
+    if cfg.w_perceptual > 0:
+        from lsd3d_usd.ggds.perceptual import EffNetPerceptualLoss
+        perceptual = EffNetPerceptualLoss()
+    run = GGDSRun(field, (V, F, ids), views, prior, PriorEnv(), cfg, face_index=face,
+                  background_fn=lambda cam: sky.expand(cam.height, cam.width, 3).contiguous(),
+                  perceptual=perceptual)
+    t_setup = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    for i in range(len(views)):
+        run.view_data(i)
+    t_views = time.perf_counter() - t0
+    print(f"setup {t_setup:.2f} s ({len(field.positions)} surfels, {len(F)} faces); "
+          f"G-buffers of {len(views)} views {t_views:.2f} s (once per view, cached)")
+
+    timers: dict[str, float] = {}
+    stats: dict = {}
+
+    def timed(name, fn):
+        def wrapper(*args, **kw):
+            t = time.perf_counter()
+            try:
+                return fn(*args, **kw)
+            finally:
+                timers[name] = timers.get(name, 0.0) + time.perf_counter() - t
+        return wrapper
+
+    orig_rasterize = run_mod.rasterize
+
+    def rasterize_spy(*args, **kw):
+        t = time.perf_counter()
+        out = orig_rasterize(*args, **kw)
+        timers["rast_fwd"] = timers.get("rast_fwd", 0.0) + time.perf_counter() - t
+        stats["plan"] = out["stats"]["plan"]
+        return out
+
+    run_mod.rasterize = rasterize_spy
+    run.render = timed("render", run.render)
+    run.prior.target = timed("prior", run.prior.target)
+    if run.perceptual is not None:
+        run.perceptual = timed("percept", run.perceptual)
+    run.optimizer.step = timed("optim", run.optimizer.step)
+    run.strategy.step_post_backward = timed("strategy", run.strategy.step_post_backward)
+    orig_backward = torch.Tensor.backward
+    torch.Tensor.backward = timed("backward", orig_backward)
+    cols = ("total", "render", "rast_fwd", "prior", "percept", "backward", "rast_bwd", "optim",
+            "strategy", "rest")
+    rows = []
+    try:
+        print(" ".join(f"{c:>9}" for c in ("step", "visible") + cols))
+        for k in range(a.steps + 1):
+            timers.clear()
+            t = time.perf_counter()
+            rec = run.step()
+            timers["total"] = time.perf_counter() - t
+            timers["rast_bwd"] = stats["plan"].get("bwd_total_s", float("nan"))
+            timers.setdefault("percept", 0.0)
+            timers["rest"] = timers["total"] - sum(timers.get(c, 0.0) for c in
+                                                   ("render", "prior", "percept", "backward",
+                                                    "optim", "strategy"))
+            tag = "warm-up" if k == 0 else str(k)
+            print(f"{tag:>9} {rec['visible']:>9} " + " ".join(f"{timers.get(c, 0.0):9.3f}" for c in cols),
+                  flush=True)
+            if k > 0:
+                rows.append([timers.get(c, 0.0) for c in cols])
+    finally:
+        torch.Tensor.backward = orig_backward
+        run_mod.rasterize = orig_rasterize
+    med = np.median(np.array(rows), axis=0)
+    print(f"{'median':>9} {'':>9} " + " ".join(f"{v:9.3f}" for v in med))
+    print(f"load average {os.getloadavg()} on {os.cpu_count()} cores (timings are wall seconds; "
+          f"a loaded machine inflates them)")
+
+
+if __name__ == "__main__":
+    main()
