@@ -181,3 +181,22 @@ def test_cli_eval_json(tiny_scene, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "fd_effnet_lite0 seen vs novel" in out and "unavailable" in out
     assert main(["eval", str(tmp_path / "none")]) == 1
+
+
+def test_reference_images_resized_on_load_give_the_same_features(tmp_path):
+    import torch
+
+    from lsd3d_usd.eval.evaluate import load_reference, reference_images
+    from lsd3d_usd.ggds.effnet import EffNetFeatureExtractor
+    rng = np.random.default_rng(1)
+    full = [rng.uniform(size=(300, 410, 3)), np.repeat(rng.uniform(size=(90, 120, 1)), 3, axis=2)]
+    for i, im in enumerate(full):
+        _write_png(tmp_path / f"{i}.png", im)
+    files = reference_images(tmp_path, 10)
+    small = load_reference(files)
+    assert all(s.shape == (224, 224, 3) for s in small)
+    ext = EffNetFeatureExtractor()
+    q = [(np.clip(im, 0, 1) * 255).astype(np.uint8) / 255.0 for im in full]   # as in the 8-bit PNG
+    direct = torch.cat([ext.embed(torch.from_numpy(im).float().permute(2, 0, 1)[None]) for im in q])
+    pre = ext.embed(torch.from_numpy(np.stack(small)).permute(0, 3, 1, 2))
+    np.testing.assert_allclose(pre.numpy(), direct.numpy(), rtol=1e-4, atol=1e-4)

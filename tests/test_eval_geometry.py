@@ -167,3 +167,16 @@ def test_lane_trajectory_is_smooth_and_evenly_spaced(layout):
     turn = np.degrees(np.arccos(np.clip(np.sum(fwd[1:] * fwd[:-1], axis=1), -1, 1)))
     assert turn.max() < 5.0
     assert info["frames"] == 12 and info["lane"]
+
+
+def test_sample_depth_bilinear_on_smooth_surfaces_nearest_at_edges():
+    yy, xx = np.mgrid[0:8, 0:10].astype(np.float64)
+    depth = 10.0 + 0.1 * xx + 0.05 * yy          # a smooth slope
+    valid = np.ones_like(depth, bool)
+    u, v = np.array([3.25, 7.9]), np.array([2.75, 4.5])
+    np.testing.assert_allclose(G.sample_depth(depth, valid, u, v),
+                               10.0 + 0.1 * (u - 0.5) + 0.05 * (v - 0.5), rtol=1e-12)
+    # a depth edge between columns 4 and 5: no blending, the nearest pixel's depth
+    step = np.where(xx >= 5, 30.0, 10.0)
+    assert G.sample_depth(step, valid, np.array([5.2]), np.array([3.0]))[0] == 30.0
+    assert G.sample_depth(step, valid, np.array([4.9]), np.array([3.0]))[0] == 10.0

@@ -79,8 +79,13 @@ def reference_images(ref, limit: int) -> list[Path]:
     return files[:limit]
 
 
-def load_reference(files: list[Path]) -> list[np.ndarray]:
-    """sRGB images in [0, 1], (H,W,3) float32 (grey expanded, alpha dropped)."""
+def load_reference(files: list[Path], size: int = 224) -> list[np.ndarray]:
+    """sRGB images in [0, 1] (grey expanded, alpha dropped), each resized at once to the
+    feature extractor's size×size exactly as it would resize them (bilinear, antialiased),
+    so hundreds of large photos never sit in memory at full size."""
+    import torch
+    import torch.nn.functional as F
+
     from lsd3d_usd.render.preview import read_image
     out = []
     for f in files:
@@ -93,7 +98,9 @@ def load_reference(files: list[Path]) -> list[np.ndarray]:
         img = np.repeat(img[..., :1], 3, axis=2) if img.shape[2] < 3 else img[..., :3]
         if min(img.shape[:2]) < 8:
             raise InputError(f"--reference: {f}: image too small ({img.shape[1]}x{img.shape[0]})")
-        out.append(np.clip(img, 0.0, 1.0).astype(np.float32))
+        x = torch.from_numpy(np.ascontiguousarray(np.clip(img, 0.0, 1.0), np.float32)).permute(2, 0, 1)[None]
+        x = F.interpolate(x, size=(size, size), mode="bilinear", align_corners=False, antialias=True)
+        out.append(x[0].permute(1, 2, 0).numpy())
     return out
 
 
@@ -256,7 +263,7 @@ def evaluate(o: EvalOptions) -> dict:
         fd_out["seen_vs_heldout_lane"] = fd(f_seen, embed(heldout_img)).to_json()
     n_ref = 0
     if ref_imgs is not None:
-        f_ref = embed_list(ext, ref_imgs)
+        f_ref = embed(ref_imgs)
         n_ref = len(f_ref)
         fd_out["vs_reference"] = {
             "seen": fd(f_seen, f_ref).to_json(), "novel": fd(f_novel, f_ref).to_json(),
@@ -317,13 +324,6 @@ def evaluate(o: EvalOptions) -> dict:
     result["files"] = {k: str(v) for k, v in files.items()}
     report.write_json(out_dir / "eval.json", result)
     return result
-
-
-def embed_list(ext, imgs: list[np.ndarray]) -> np.ndarray:
-    """Embeddings of images of differing sizes (one at a time; each resized to 224²)."""
-    import torch
-    return np.concatenate([ext.embed(torch.from_numpy(np.ascontiguousarray(im)).permute(2, 0, 1)[None],
-                                     linear=False, size=224).double().numpy() for im in imgs])
 
 
 def _bin_stats(nvs: list) -> dict:

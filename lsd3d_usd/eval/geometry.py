@@ -95,6 +95,29 @@ def unproject(camera: Camera, depth: np.ndarray, index: np.ndarray) -> np.ndarra
     return x_cam @ camera.pose[:3, :3].T + camera.pose[:3, 3]
 
 
+def sample_depth(depth: np.ndarray, valid: np.ndarray, u: np.ndarray, v: np.ndarray,
+                 edge: float = 0.05) -> np.ndarray:
+    """Depth at continuous pixel coords (centres at +0.5): bilinear where the 4 neighbours are
+    valid and within `edge` (relative) of each other — a smooth surface, where nearest-pixel
+    sampling alone would leave an error of up to half a pixel's depth slope (large on ground
+    seen at grazing angles) — else the nearest pixel (depth edges are not blended)."""
+    h, w = depth.shape
+    x = np.clip(u - 0.5, 0.0, w - 1.0)
+    y = np.clip(v - 0.5, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(w - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(h - 2, 0))
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    d = np.stack([depth[y0, x0], depth[y0, x1], depth[y1, x0], depth[y1, x1]])
+    ok = valid[y0, x0] & valid[y0, x1] & valid[y1, x0] & valid[y1, x1]
+    lo, hi = d.min(0), d.max(0)
+    ok &= (lo > 0) & (hi - lo <= edge * np.maximum(lo, 1e-12))
+    fx, fy = x - x0, y - y0
+    bil = (d[0] * (1 - fx) + d[1] * fx) * (1 - fy) + (d[2] * (1 - fx) + d[3] * fx) * fy
+    ni = np.clip(np.floor(u).astype(np.int64), 0, w - 1)
+    nj = np.clip(np.floor(v).astype(np.int64), 0, h - 1)
+    return np.where(ok, bil, depth[nj, ni])
+
+
 def _pixel_of(camera: Camera, points: np.ndarray):
     uv, z = camera.project(points)
     ok = np.isfinite(uv).all(1) & (z > camera.near)
@@ -106,8 +129,8 @@ def _pixel_of(camera: Camera, points: np.ndarray):
 
 def reprojection_depth_error(cam_a: Camera, frame_a: dict, gbuf_a, cam_b: Camera, frame_b: dict,
                              gbuf_b, visibility_tol: float = 0.02) -> dict | None:
-    """Reproject view a's surfel depth into view b and compare with b's surfel depth where
-    both see the same surface. Visibility comes from the proxy (independent of the surfels'
+    """Reproject view a's surfel depth into view b and compare with b's surfel depth (sampled
+    with `sample_depth`) where both see the same surface. Visibility comes from the proxy (independent of the surfels'
     own errors): a pixel of a counts when the proxy point it shows projects into b at a
     proxy depth within `visibility_tol` (relative) of its own — i.e. not occluded in b and
     not outside b's frame. Returns relative errors |z_ab − d_b| / z_ab summarised, or None
@@ -125,8 +148,12 @@ def reprojection_depth_error(cam_a: Camera, frame_a: dict, gbuf_a, cam_b: Camera
     # surfel point of a, seen from b
     p_s = unproject(cam_a, d_a[idx], idx)
     ok, pix, z = _pixel_of(cam_b, p_s)
-    d_b = surfel_depth(frame_b).reshape(-1)[pix]
-    ok &= vis & (frame_b["alpha"].reshape(-1)[pix] > ALPHA_MIN) & (d_b > 0)
+    depth_b = surfel_depth(frame_b)
+    valid_b = (frame_b["alpha"] > ALPHA_MIN) & (depth_b > 0)
+    uv, _ = cam_b.project(p_s)
+    uv = np.where(ok[:, None], uv, 0.5)
+    d_b = sample_depth(depth_b, valid_b, uv[:, 0], uv[:, 1])
+    ok &= vis & valid_b.reshape(-1)[pix] & (d_b > 0)
     if not ok.any():
         return None
     rel = np.abs(z[ok] - d_b[ok]) / z[ok]
