@@ -170,6 +170,33 @@ def _alpha_row(pxs, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max, abu
         zbuf[c] = z
 
 
+@njit(inline="always", error_model="numpy")
+def _geom_row(pxs, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max, abuf, zbuf, gbuf,
+              ubuf, vbuf, wbuf, sbuf):
+    """_alpha_row plus what the backward needs per pixel (Gaussian value, u, v, 1/W and
+    whether the ray-splat term won over the low-pass one), all in one vectorised loop so the
+    per-pixel backward does not recompute them one pixel at a time."""
+    for c in range(pxs.shape[0]):
+        dx = pxs[c] - xb
+        uu = a1 * dx + a2 * dy
+        vv = b1 * dx + b2 * dy
+        iw = _ONE / (_ONE + ex * dx + ey * dy)
+        r3 = (uu * uu + vv * vv) * (iw * iw)
+        r2 = _LOWPASS * (dx * dx + dy * dy)
+        use3 = r3 <= r2
+        rho = r3 if use3 else r2
+        z = zc * iw if use3 else zc
+        gk = exp_neg(_HALF * rho)
+        a = min(alpha_max, op * gk)
+        abuf[c] = a if z >= near else _ZERO
+        zbuf[c] = z
+        gbuf[c] = gk
+        ubuf[c] = uu * iw
+        vbuf[c] = vv * iw
+        wbuf[c] = iw
+        sbuf[c] = use3
+
+
 @njit(parallel=True, cache=True, error_model="numpy")
 def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
             near, alpha_min, alpha_max, t_min):
@@ -333,6 +360,11 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
         abuf = np.empty(tile, f32)
         zbuf = np.empty(tile, f32)
         pxr = pxs[:tile]  # x of the pixel centres of one tile row
+        gbuf = np.empty(tile, f32)
+        ubuf = np.empty(tile, f32)
+        vbuf = np.empty(tile, f32)
+        wbuf = np.empty(tile, f32)
+        sbuf = np.empty(tile, np.bool_)
         kmax = k0
         for p in range(npx):
             i = x0 + p % tile
@@ -381,8 +413,9 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
             d_ny = _ZERO
             d_nz = _ZERO
             for jj in range(lj0, lj1 + 1):
-                _alpha_row(pxr, pys[jj * tile] - yb, xb, zc, a1, a2, b1, b2, ex, ey, op, near,
-                           alpha_max, abuf, zbuf)
+                dy = pys[jj * tile] - yb
+                _geom_row(pxr, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max, abuf,
+                          zbuf, gbuf, ubuf, vbuf, wbuf, sbuf)
                 for c in range(li0, li1 + 1):
                     p = jj * tile + c
                     a = abuf[c]
@@ -406,22 +439,16 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
                     gz = w * gd[p]
                     if lmed[p] == k:
                         gz += gm[p]
-                    # recompute the geometry of this pixel
+                    # the geometry of this pixel, from the vectorised row
                     dx = pxr[c] - xb
-                    dy = pys[p] - yb
-                    uu = a1 * dx + a2 * dy
-                    vv = b1 * dx + b2 * dy
-                    iw = _ONE / (_ONE + ex * dx + ey * dy)
-                    u = uu * iw
-                    v = vv * iw
-                    r3 = (uu * uu + vv * vv) * (iw * iw)  # exactly as in _alpha_loop
-                    r2 = _LOWPASS * (dx * dx + dy * dy)
+                    iw = wbuf[c]
+                    u = ubuf[c]
+                    v = vbuf[c]
                     g_rho = _ZERO
                     if a < alpha_max:  # not clamped
-                        gk = exp_neg(_HALF * (r3 if r3 <= r2 else r2))
-                        d_op += d_a * gk
+                        d_op += d_a * gbuf[c]
                         g_rho = -_HALF * d_a * a
-                    if r3 <= r2:
+                    if sbuf[c]:
                         du = _TWO * u * g_rho
                         dv = _TWO * v * g_rho
                         dU = du * iw
