@@ -3,7 +3,6 @@ from the GGDS run's provenance, the --steps 0 fallback, the missing-weights path
 input (one clear error, nothing half-written)."""
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest

@@ -130,11 +130,12 @@ def _pixel_of(camera: Camera, points: np.ndarray):
 def reprojection_depth_error(cam_a: Camera, frame_a: dict, gbuf_a, cam_b: Camera, frame_b: dict,
                              gbuf_b, visibility_tol: float = 0.02) -> dict | None:
     """Reproject view a's surfel depth into view b and compare with b's surfel depth (sampled
-    with `sample_depth`) where both see the same surface. Visibility comes from the proxy (independent of the surfels'
-    own errors): a pixel of a counts when the proxy point it shows projects into b at a
-    proxy depth within `visibility_tol` (relative) of its own — i.e. not occluded in b and
-    not outside b's frame. Returns relative errors |z_ab − d_b| / z_ab summarised, or None
-    when the views share no surface."""
+    with `sample_depth`) where both see the same surface. Visibility comes from the proxy
+    (independent of the surfels' own errors): a pixel of a counts when the proxy point it
+    shows projects into b at a proxy depth within `visibility_tol` (relative) of its own —
+    i.e. not occluded in b and not outside b's frame. Returns relative errors
+    |z_ab − d_b| / z_ab summarised, or None when the views share no surface.
+    """
     d_a = surfel_depth(frame_a).reshape(-1)
     ok_a = (frame_a["alpha"].reshape(-1) > ALPHA_MIN) & (d_a > 0) & gbuf_a.mask.reshape(-1)
     idx = np.flatnonzero(ok_a)

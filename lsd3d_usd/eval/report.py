@@ -8,7 +8,6 @@ from __future__ import annotations
 import html
 import io
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
@@ -181,7 +180,10 @@ def html_report(result: dict, images: dict) -> str:
     unav = "".join(f"<li><b>{html.escape(u['metric'])}</b>: unavailable: {html.escape(u['reason'])}</li>"
                    for u in result["unavailable"])
     warn = "".join(f"<li>{html.escape(w)}</li>" for w in result["warnings"])
-    img = lambda key, alt: (f'<p><img src="{images[key]}" alt="{alt}"></p>' if key in images else "")  # noqa: E731
+
+    def img(key, alt):
+        return f'<p><img src="{images[key]}" alt="{alt}"></p>' if key in images else ""
+
     c = result["counts"]
     return f"""<!doctype html>
 <html><head><meta charset="utf-8"><title>lsd3d-usd eval: {html.escape(Path(result['scene']).name)}</title>
@@ -193,7 +195,8 @@ img{{max-width:100%}}code{{background:#f4f4f4}}</style></head><body>
 <p>Seen views: {html.escape(result['seen_views_source'])}. {c['seen']} seen and {c['novel']} novel views
 ({c['novel_per_bin']} per distance bin), {c['trajectory_frames']} trajectory frames at
 {result['resolution'][0]}×{result['resolution'][1]}, {result['surfels']:,} surfels, layers
-{html.escape(', '.join(result['composed_layers']))}; tone map {html.escape(result['tonemap'])}; seed {result['seed']}.</p>
+{html.escape(', '.join(result['composed_layers']))}; tone map {html.escape(result['tonemap'])};
+seed {result['seed']}.</p>
 <h2>Seen and novel views</h2>{img('contact_sheet', 'contact sheet')}
 <h2>Fréchet distance of EfficientNet-Lite0 features (fd_effnet_lite0; not FID)</h2>
 {fd_table}{img('fd_plot', 'FD by distance')}{ref}

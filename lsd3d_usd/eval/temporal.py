@@ -68,5 +68,6 @@ def trajectory_warp_errors(cams: list, images: list, frames: list, tol: float = 
     return {"warp_err": None if mean is None else round(mean, 5),
             "naive_err": round(float(np.mean([p["naive_err"] for p in pairs])), 5) if pairs else None,
             "valid_frac": round(float(np.mean([p["valid_frac"] for p in pairs])), 4) if pairs else None,
-            "pairs": len(pairs), "per_pair": [None if p["err"] is None else round(p["err"], 5) for p in pairs],
+            "pairs": len(pairs),
+            "per_pair": [None if p["err"] is None else round(p["err"], 5) for p in pairs],
             "tol": tol}
