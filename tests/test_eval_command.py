@@ -78,7 +78,7 @@ def test_eval_end_to_end(tiny_scene, tmp_path):
     assert t["pairs"] == 3 and t["warp_err"] is not None and 0 <= t["warp_err"] < 1
     # Weight-based metrics: never computed here, always with a reason.
     un = {u["metric"]: u["reason"] for u in res["unavailable"]}
-    assert set(un) == {"fid_inception", "fd_dinov2", "clip_score"}
+    assert set(un) == {"fid_inception", "fd_dinov2", "clip_score", "fvd"}
     assert "not implemented" in un["fd_dinov2"] and "none of" in un["fid_inception"]
     # Report files: HTML referencing PNGs next to it, JSON equal to what was returned.
     out = tiny_scene / "eval"
@@ -119,11 +119,13 @@ def test_scene_without_ggds_run_uses_sampled_views(tiny_scene, tmp_path):
     assert res["run"] is None and "no GGDS run" in res["seen_views_source"]
     assert "seen_vs_heldout_lane" not in res["fd_effnet_lite0"] and res["counts"]["heldout_lane"] == 0
     assert "loss.png" not in res["files"] and "fd_effnet_lite0" in res
+    assert res["unavailable"][0] == {"metric": "fd_effnet_lite0.vs_reference",
+                                     "reason": "no --reference DIR of images given"}
 
 
 def test_missing_weights_path():
     st = models.status(None)
-    assert [s["metric"] for s in st] == ["fid_inception", "fd_dinov2", "clip_score"]
+    assert [s["metric"] for s in st] == ["fid_inception", "fd_dinov2", "clip_score", "fvd"]
     assert all(s["reason"].startswith("no --weights DIR given") for s in st)
     with pytest.raises(InputError, match="--weights /nonexistent/w: no such directory"):
         models.check_weights_dir("/nonexistent/w")

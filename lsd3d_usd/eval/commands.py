@@ -81,15 +81,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "called FID) seen vs novel per distance bin and against --reference images, "
                     "depth/normal agreement with the proxy per class, multi-view depth consistency, "
                     "and frame-to-frame warp error along a lane. Writes SCENE/eval/report.html with "
-                    "PNGs and eval.json. Inception FID, FD-DINOv2 and CLIP score need local weight "
-                    "files (--weights) and are otherwise reported as unavailable. See docs/eval.md.")
+                    "PNGs and eval.json. Inception FID, FD-DINOv2, CLIP score and FVD need local weight"
+                    " files (--weights) and are otherwise reported as unavailable. See docs/eval.md.")
     p.add_argument("scene", help="scene folder (holding scene.usda)")
     p.add_argument("--json", metavar="FILE", help="also write the metrics JSON here "
                                                    "(always written to SCENE/eval/eval.json)")
     p.add_argument("--reference", metavar="DIR",
                    help="folder of reference images (png/jpg/...; at least 2) to compare against")
     p.add_argument("--weights", metavar="DIR",
-                   help="folder of local weight files for Inception FID / FD-DINOv2 / CLIP score "
+                   help="folder of local weight files for Inception FID / FD-DINOv2 / CLIP score / FVD "
                         "(expected names in docs/eval.md); nothing is downloaded")
     p.add_argument("--run", metavar="NAME", help="GGDS run whose training cameras are the seen views "
                                                  "(default: the newest unmuted run)")

@@ -294,6 +294,9 @@ def evaluate(o: EvalOptions) -> dict:
             f"smallest set {min(smallest)}): covariances are rank-deficient and values are biased "
             "upwards; compare only values computed with equal sample counts")
     unavailable = models.status(weights)
+    if ref_imgs is None:
+        unavailable.insert(0, {"metric": "fd_effnet_lite0.vs_reference",
+                               "reason": "no --reference DIR of images given"})
     timings["total_s"] = time.perf_counter() - t_start
     result = {
         "scene": str(sc.root),

@@ -1,10 +1,11 @@
-"""The paper's metrics that need third-party network weights: Inception FID, FD-DINOv2 and
-CLIP score. Nothing is ever downloaded: they are computed only from local files in
+"""The paper's metrics that need third-party network weights: Inception FID, FD-DINOv2,
+CLIP score and FVD. Nothing is ever downloaded: they are computed only from local files in
 `--weights DIR`, under these names:
 
     inception FID : pt_inception-2015-12-05-6726825d.pth   (the FID Inception-v3 of pytorch-fid)
     FD-DINOv2     : dinov2_vitl14_pretrain.pth / dinov2_vitb14_pretrain.pth / dinov2_vits14_pretrain.pth
     CLIP score    : ViT-L-14.pt / ViT-B-32.pt / ViT-B-16.pt     (OpenAI CLIP TorchScript archives)
+    FVD           : i3d_torchscript.pt                          (the StyleGAN-V / FVD I3D export)
 
 This version has none of these network architectures (no torchvision / timm / open_clip in
 the environment, and our own re-implementations are not verified against the reference
@@ -22,9 +23,11 @@ WEIGHT_FILES = {
     "fd_dinov2": ("dinov2_vitl14_pretrain.pth", "dinov2_vitb14_pretrain.pth",
                   "dinov2_vits14_pretrain.pth"),
     "clip_score": ("ViT-L-14.pt", "ViT-B-32.pt", "ViT-B-16.pt"),
+    "fvd": ("i3d_torchscript.pt",),
 }
 _NETWORK = {"fid_inception": "Inception-v3 (FID variant)", "fd_dinov2": "DINOv2 ViT",
-            "clip_score": "CLIP (image and text towers, BPE tokenizer)"}
+            "clip_score": "CLIP (image and text towers, BPE tokenizer)",
+            "fvd": "I3D video network (Kinetics-400)"}
 
 
 def check_weights_dir(weights) -> Path | None:
