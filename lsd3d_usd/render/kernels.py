@@ -89,8 +89,8 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
     same lists as bin_tiles in depth order), each pair's packed parameters and rectangle
     copied in pair order (pair_prm (npairs,16), pair_rect (npairs,4): the kernels then read
     memory sequentially instead of one random surfel row per pair, whose latency was half
-    the kernel time), and per surfel its pair positions (surf_off (M+1,), surf_pairs
-    (npairs,), ascending) so the backward sums a surfel's gradient rows without a scan."""
+    the kernel time), and surf_off (M+1,): where each surfel's pairs start in surfel_pairs'
+    output (its pair count is the number of tiles its rectangle covers)."""
     ntiles = ntx * nty
     m = rects.shape[0]
     nch = 16
@@ -129,12 +129,9 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
     out = np.empty(npairs, np.int32)
     pair_prm = np.empty((npairs, prm.shape[1]), prm.dtype)
     pair_rect = np.empty((npairs, 4), rects.dtype)
-    surf_pairs = np.empty(npairs, np.int64)
     for t in prange(ntiles):
         seg = keys[counts[t]:counts[t + 1]]
         seg.sort()
-        ty = t // ntx
-        tx = t - ty * ntx
         for q in range(seg.shape[0]):
             k = counts[t] + q
             sidx = np.int32(seg[q] & 0xFFFFFFFF)
@@ -143,10 +140,25 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
                 pair_prm[k, c] = prm[sidx, c]
             for c in range(4):
                 pair_rect[k, c] = rects[sidx, c]
-            tx0, tx1 = rects[sidx, 0] // tile, rects[sidx, 1] // tile
-            ty0 = rects[sidx, 2] // tile
-            surf_pairs[surf_off[sidx] + (ty - ty0) * (tx1 - tx0 + 1) + (tx - tx0)] = k
-    return counts, out, pair_prm, pair_rect, surf_off, surf_pairs
+    return counts, out, pair_prm, pair_rect, surf_off
+
+
+@njit(parallel=True, cache=True)
+def surfel_pairs(tile_start, tile_splats, pair_rect, surf_off, tile, ntx):
+    """Per visible surfel the positions of its pairs, ascending (surfel j owns
+    [surf_off[j], surf_off[j+1])): the slot of a pair is its tile's row-major place in the
+    surfel's rectangle of tiles, so this needs no sort and no atomics. Only the backward
+    needs it (random writes: kept out of the forward)."""
+    out = np.empty(tile_splats.shape[0], np.int64)
+    for t in prange(tile_start.shape[0] - 1):
+        ty = t // ntx
+        tx = t - ty * ntx
+        for k in range(tile_start[t], tile_start[t + 1]):
+            tx0 = pair_rect[k, 0] // tile
+            tx1 = pair_rect[k, 1] // tile
+            ty0 = pair_rect[k, 2] // tile
+            out[surf_off[tile_splats[k]] + (ty - ty0) * (tx1 - tx0 + 1) + (tx - tx0)] = k
+    return out
 
 
 @njit(inline="always", error_model="numpy")

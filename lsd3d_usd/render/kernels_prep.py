@@ -499,11 +499,18 @@ def first_bad(flat, negative_too):
     nch = (n + 65535) // 65536
     found = np.full(max(nch, 1), -1, np.int64)
     for ch in prange(nch):
-        for q in range(ch * 65536, min(n, (ch + 1) * 65536)):
+        lo = ch * 65536
+        hi = min(n, (ch + 1) * 65536)
+        bad = 0
+        for q in range(lo, hi):  # branch-free (vectorises): x - x is NaN iff x is NaN or Inf
             v = flat[q]
-            if not np.isfinite(v) or (negative_too and v < 0):
-                found[ch] = q
-                break
+            bad |= (v - v != 0) | (negative_too & (v < 0))
+        if bad:
+            for q in range(lo, hi):
+                v = flat[q]
+                if not np.isfinite(v) or (negative_too and v < 0):
+                    found[ch] = q
+                    break
     for ch in range(nch):
         if found[ch] >= 0:
             return found[ch]

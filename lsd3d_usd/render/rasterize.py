@@ -65,7 +65,7 @@ class _Raster(torch.autograd.Function):
             *arrs, plan["deg"], plan["Rv"], plan["C"], plan["K"], plan["width"], plan["height"],
             plan["near"], plan["far"], plan["alpha_min"], plan["bound_sigma"])
         t1 = time.perf_counter()
-        tile_start, tile_splats, pprm, prect, soff, spairs = kernels.bin_sorted(
+        tile_start, tile_splats, pprm, prect, soff = kernels.bin_sorted(
             rects, zc.view(np.int32), prm, plan["tile"], plan["ntx"], plan["nty"])
         t2 = time.perf_counter()
         rgb, tfin, dacc, nacc, dmed, last, med, amax, evals = kernels.forward(
@@ -77,7 +77,7 @@ class _Raster(torch.autograd.Function):
                     n_pairs=int(tile_splats.shape[0]), project_s=t1 - t0, bin_s=t2 - t1,
                     raster_s=t3 - t2)
         ctx.plan = plan
-        ctx.aux = (arrs, idx, pprm, prect, tile_start, tile_splats, soff, spairs, tfin, last, med)
+        ctx.aux = (arrs, idx, pprm, prect, tile_start, tile_splats, soff, tfin, last, med)
         alpha = 1.0 - torch.from_numpy(tfin)
         return (torch.from_numpy(rgb), alpha, torch.from_numpy(dacc), torch.from_numpy(nacc),
                 torch.from_numpy(dmed))
@@ -85,7 +85,7 @@ class _Raster(torch.autograd.Function):
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_d, g_n, g_med):
         plan = ctx.plan
-        arrs, idx, pprm, prect, tile_start, tile_splats, soff, spairs, tfin, last, med = ctx.aux
+        arrs, idx, pprm, prect, tile_start, tile_splats, soff, tfin, last, med = ctx.aux
         t0 = time.perf_counter()
 
         def arr(g):
@@ -97,6 +97,8 @@ class _Raster(torch.autograd.Function):
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), tfin, last, med,
             arr(g_rgb), arr(-g_alpha), arr(g_d), arr(g_n), arr(g_med))
         t1 = time.perf_counter()
+        spairs = kernels.surfel_pairs(tile_start, tile_splats, prect, soff, plan["tile"],
+                                      plan["ntx"])
         grads = kprep.project_backward(idx, rows, soff, spairs, *arrs, plan["deg"], plan["Rv"],
                                        plan["C"], plan["K"])
         del rows
