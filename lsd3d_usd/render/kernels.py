@@ -161,35 +161,28 @@ def surfel_pairs(tile_start, tile_splats, pair_rect, surf_off, tile, ntx):
     return out
 
 
-@njit(inline="always", error_model="numpy")
-def _alpha_row(pxs, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max, abuf, zbuf):
-    """alpha and depth of one surfel along a whole tile row (pxs: pixel centre x, dy: the
-    row's y minus the surfel's). Branch-free with a fixed trip count, so it vectorises
-    (error_model numpy: no ZeroDivisionError branch; 1/0 gives inf, which the min() with
-    the low-pass term absorbs)."""
-    for c in range(pxs.shape[0]):
-        dx = pxs[c] - xb
-        uu = a1 * dx + a2 * dy
-        vv = b1 * dx + b2 * dy
-        iw = _ONE / (_ONE + ex * dx + ey * dy)
-        r3 = (uu * uu + vv * vv) * (iw * iw)
-        r2 = _LOWPASS * (dx * dx + dy * dy)
-        use3 = r3 <= r2
-        rho = r3 if use3 else r2
-        z = zc * iw if use3 else zc
-        a = min(alpha_max, op * exp_neg(_HALF * rho))
-        abuf[c] = a if z >= near else _ZERO
-        zbuf[c] = z
+@njit(inline="always")
+def _span(li0, li1):
+    """Smallest power-of-two aligned column span [c0, c0 + 2^sh) holding [li0, li1]."""
+    sh = 0
+    while (li0 >> sh) != (li1 >> sh):
+        sh += 1
+    return (li0 >> sh) << sh, sh
 
 
 @njit(inline="always", error_model="numpy")
-def _geom_row(pxs, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max, abuf, zbuf, gbuf,
-              ubuf, vbuf, wbuf, sbuf):
-    """_alpha_row plus what the backward needs per pixel (Gaussian value, u, v, 1/W and
-    whether the ray-splat term won over the low-pass one), all in one vectorised loop so the
-    per-pixel backward does not recompute them one pixel at a time."""
-    for c in range(pxs.shape[0]):
-        dx = pxs[c] - xb
+def _geom_block(x0, y0, c0, sh, lj0, nq, xb, yb, zc, a1, a2, b1, b2, ex, ey, op, near,
+                alpha_max, abuf, zbuf, gbuf, ubuf, vbuf, wbuf, sbuf, full):
+    """alpha and depth (and with full, what the backward needs: Gaussian value, u, v, 1/W,
+    ray-splat branch) of one surfel on a block of its rows x an aligned 2^sh column span,
+    in one branch-free loop over nq = rows << sh entries (block-local index q = row << sh |
+    column - c0). Small splats get small spans, so little is evaluated outside their
+    rectangle, and the single loop vectorises (error_model numpy: no ZeroDivisionError
+    branch; 1/0 gives inf, which the min() with the low-pass term absorbs)."""
+    m = (1 << sh) - 1
+    for q in range(nq):
+        dx = (f32(x0 + c0 + (q & m)) + _HALF) - xb
+        dy = (f32(y0 + lj0 + (q >> sh)) + _HALF) - yb
         uu = a1 * dx + a2 * dy
         vv = b1 * dx + b2 * dy
         iw = _ONE / (_ONE + ex * dx + ey * dy)
@@ -200,13 +193,14 @@ def _geom_row(pxs, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max, abuf
         z = zc * iw if use3 else zc
         gk = exp_neg(_HALF * rho)
         a = min(alpha_max, op * gk)
-        abuf[c] = a if z >= near else _ZERO
-        zbuf[c] = z
-        gbuf[c] = gk
-        ubuf[c] = uu * iw
-        vbuf[c] = vv * iw
-        wbuf[c] = iw
-        sbuf[c] = use3
+        abuf[q] = a if z >= near else _ZERO
+        zbuf[q] = z
+        if full:
+            gbuf[q] = gk
+            ubuf[q] = uu * iw
+            vbuf[q] = vv * iw
+            wbuf[q] = iw
+            sbuf[q] = use3
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
@@ -240,9 +234,10 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
         x0 = tx * tile
         y0 = ty * tile
         pxs = np.empty(tile, f32)
-        abuf = np.empty(tile, f32)
-        zbuf = np.empty(tile, f32)
+        abuf = np.empty(npx, f32)
+        zbuf = np.empty(npx, f32)
         T = np.ones(npx, f32)
+        done = np.zeros(1, np.bool_)  # unused stand-in for the backward-only buffer
         c_r = np.zeros(npx, f32)
         c_g = np.zeros(npx, f32)
         c_b = np.zeros(npx, f32)
@@ -283,13 +278,15 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
             ex, ey, op = prm[k, 7], prm[k, 8], prm[k, 9]
             cr, cg, cb = prm[k, 10], prm[k, 11], prm[k, 12]
             nx, ny, nz = prm[k, 13], prm[k, 14], prm[k, 15]
+            c0, sh = _span(li0, li1)
+            _geom_block(x0, y0, c0, sh, lj0, (lj1 - lj0 + 1) << sh, xb, yb, zc, a1, a2, b1, b2,
+                        ex, ey, op, near, alpha_max, abuf, zbuf, abuf, abuf, abuf, abuf, done,
+                        False)
             for jj in range(lj0, lj1 + 1):
-                dy = (f32(y0 + jj) + _HALF) - yb
-                _alpha_row(pxs, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max,
-                           abuf, zbuf)
                 base = jj * tile
+                qb = ((jj - lj0) << sh) - c0
                 for c in range(li0, li1 + 1):
-                    a = abuf[c]
+                    a = abuf[qb + c]
                     p = base + c
                     tp = T[p]
                     if a < alpha_min or tp < t_min:
@@ -298,7 +295,7 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
                     if tn < t_min:  # composite this one, then stop: residual <= t_min
                         ndone += 1
                     w = a * tp
-                    z = zbuf[c]
+                    z = zbuf[qb + c]
                     c_r[p] += w * cr
                     c_g[p] += w * cg
                     c_b[p] += w * cb
@@ -369,14 +366,14 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
         gny = np.zeros(npx, f32)
         gnz = np.zeros(npx, f32)
         gm = np.zeros(npx, f32)
-        abuf = np.empty(tile, f32)
-        zbuf = np.empty(tile, f32)
+        abuf = np.empty(npx, f32)
+        zbuf = np.empty(npx, f32)
         pxr = pxs[:tile]  # x of the pixel centres of one tile row
-        gbuf = np.empty(tile, f32)
-        ubuf = np.empty(tile, f32)
-        vbuf = np.empty(tile, f32)
-        wbuf = np.empty(tile, f32)
-        sbuf = np.empty(tile, np.bool_)
+        gbuf = np.empty(npx, f32)
+        ubuf = np.empty(npx, f32)
+        vbuf = np.empty(npx, f32)
+        wbuf = np.empty(npx, f32)
+        sbuf = np.empty(npx, np.bool_)
         kmax = k0
         for p in range(npx):
             i = x0 + p % tile
@@ -424,20 +421,23 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
             d_nx = _ZERO
             d_ny = _ZERO
             d_nz = _ZERO
+            c0, sh = _span(li0, li1)
+            _geom_block(x0, y0, c0, sh, lj0, (lj1 - lj0 + 1) << sh, xb, yb, zc, a1, a2, b1, b2,
+                        ex, ey, op, near, alpha_max, abuf, zbuf, gbuf, ubuf, vbuf, wbuf, sbuf,
+                        True)
             for jj in range(lj0, lj1 + 1):
                 dy = pys[jj * tile] - yb
-                _geom_row(pxr, dy, xb, zc, a1, a2, b1, b2, ex, ey, op, near, alpha_max, abuf,
-                          zbuf, gbuf, ubuf, vbuf, wbuf, sbuf)
+                qb = ((jj - lj0) << sh) - c0
                 for c in range(li0, li1 + 1):
                     p = jj * tile + c
-                    a = abuf[c]
+                    a = abuf[qb + c]
                     if k >= lst[p] or a < alpha_min:
                         continue
                     om = _ONE - a
                     tb = T[p] / om
                     T[p] = tb
                     w = a * tb
-                    z = zbuf[c]
+                    z = zbuf[qb + c]
                     q = cr * gr[p] + cg * gg[p] + cb * gb[p] + z * gd[p] \
                         + nx * gnx[p] + ny * gny[p] + nz * gnz[p]
                     d_a = tb * q - (sg[p] + tg[p]) / om
@@ -453,14 +453,14 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
                         gz += gm[p]
                     # the geometry of this pixel, from the vectorised row
                     dx = pxr[c] - xb
-                    iw = wbuf[c]
-                    u = ubuf[c]
-                    v = vbuf[c]
+                    iw = wbuf[qb + c]
+                    u = ubuf[qb + c]
+                    v = vbuf[qb + c]
                     g_rho = _ZERO
                     if a < alpha_max:  # not clamped
-                        d_op += d_a * gbuf[c]
+                        d_op += d_a * gbuf[qb + c]
                         g_rho = -_HALF * d_a * a
-                    if sbuf[c]:
+                    if sbuf[qb + c]:
                         du = _TWO * u * g_rho
                         dv = _TWO * v * g_rho
                         dU = du * iw
