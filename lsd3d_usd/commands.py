@@ -84,15 +84,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_scene)
 
 
-def _size(text: str, what: str) -> tuple[int, int]:
-    from lsd3d_usd.errors import InputError
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"{what} {text!r}: expected WxH, e.g. 480x270") from None
-    return w, h
-
-
 def _extent(text: str) -> tuple[float, float]:
     from lsd3d_usd.errors import InputError
     try:
@@ -106,14 +97,15 @@ def _generate(args) -> int:
     import json
     from pathlib import Path
 
+    from lsd3d_usd.cliutil import parse_size
     from lsd3d_usd.pipeline import GenerateOptions, generate
 
     opts = GenerateOptions(
         out=Path(args.output), layout=Path(args.layout) if args.layout else None, seed=args.seed,
         extent=_extent(args.extent), style=args.style, prompt=args.prompt, when=args.when,
         lat=args.lat, lon=args.lon, weather=args.weather, season=args.season,
-        env_resolution=_size(args.env_resolution, "--env-resolution"), surfels=args.surfels,
-        steps=args.steps, prior=args.prior, resolution=_size(args.resolution, "--resolution"),
+        env_resolution=parse_size(args.env_resolution, "--env-resolution"), surfels=args.surfels,
+        steps=args.steps, prior=args.prior, resolution=parse_size(args.resolution, "--resolution"),
         views=args.views, checkpoint_every=args.checkpoint_every, perceptual=not args.no_perceptual,
         parked=0 if args.no_actors else args.parked, moving=0 if args.no_actors else args.moving,
         actor_seconds=args.actor_seconds,

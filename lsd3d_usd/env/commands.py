@@ -2,18 +2,12 @@
 from __future__ import annotations
 
 import argparse
-import re
 import sys
+
+from lsd3d_usd.cliutil import size_type
 
 WEATHERS = ("clear", "partly-cloudy", "overcast", "fog", "rain", "snow")
 SEASONS = ("spring", "summer", "autumn", "winter")
-
-
-def _resolution(text: str) -> tuple[int, int]:
-    m = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", text)
-    if not m:
-        raise argparse.ArgumentTypeError(f"{text!r}: expected WIDTHxHEIGHT, e.g. 2048x1024")
-    return int(m.group(1)), int(m.group(2))
 
 
 def _env(args) -> int:
@@ -77,7 +71,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--season", choices=SEASONS,
                    help="season: sets the date (hemisphere-aware) unless --when is given, and the "
                         "ground / vegetation hints")
-    p.add_argument("--resolution", type=_resolution, default=(2048, 1024),
+    p.add_argument("--resolution", type=size_type("--resolution"), default=(2048, 1024),
                    help="WIDTHxHEIGHT, 2:1")
     p.add_argument("--seed", type=int, default=0, help="seed of the cloud noise")
     p.add_argument("--turbidity", type=float, help="atmospheric turbidity 1.7..10 (default per weather)")

@@ -4,14 +4,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-
-def _size(text: str) -> tuple[int, int]:
-    from lsd3d_usd.errors import InputError
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--resolution {text!r}: expected WxH, e.g. 320x180") from None
-    return w, h
+from lsd3d_usd.cliutil import parse_size
 
 
 def _bins(text: str) -> tuple[float, ...]:
@@ -33,7 +26,7 @@ def _eval(args) -> int:
         scene=Path(args.scene), out_dir=Path(args.out) if args.out else None, run=args.run,
         reference=Path(args.reference) if args.reference else None,
         weights=Path(args.weights) if args.weights else None, n_seen=args.seen, n_heldout=args.heldout,
-        per_bin=args.per_bin, bins=_bins(args.bins), resolution=_size(args.resolution),
+        per_bin=args.per_bin, bins=_bins(args.bins), resolution=parse_size(args.resolution),
         seed=args.seed, frames=args.frames, step_m=args.step, tonemap=args.tonemap,
         exposure=args.exposure, max_reference=args.max_reference,
         progress=not args.no_progress and sys.stderr.isatty(),

@@ -4,6 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lsd3d_usd.cliutil import size_type
+
 from lsd3d_usd.errors import InputError
 
 
@@ -69,16 +71,6 @@ def _preview(args) -> int:
     return 0
 
 
-def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-        if w < 16 or h < 16:
-            raise ValueError
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"--size {text!r}: expected WxH, e.g. 1600x1000")
-    return w, h
-
-
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "proxy", help="coarse proxy geometry (meshes with semantic labels), chunk by chunk",
@@ -136,7 +128,7 @@ def register(subparsers) -> None:
     v.add_argument("-o", "--output", required=True, metavar="IMAGE.png", help="PNG to write")
     v.add_argument("--view", choices=("top", "perspective"), default="perspective",
                    help="camera (default perspective)")
-    v.add_argument("--size", type=_size, default=(1600, 1000), metavar="WxH",
+    v.add_argument("--size", type=size_type("--size", minimum=16), default=(1600, 1000), metavar="WxH",
                    help="image size in pixels (default 1600x1000)")
     v.add_argument("--chunk", type=parse_chunk, action="append", metavar="I,J",
                    help="only these chunks (repeatable)")

@@ -5,16 +5,7 @@ import argparse
 import re
 import sys
 
-
-def _parse_resolution(text):
-    from lsd3d_usd.errors import InputError
-
-    if text is None:
-        return None
-    m = re.fullmatch(r"\s*(\d+)\s*(?:[xX]\s*(\d+))?\s*", text)
-    if not m or int(m.group(1)) < 1 or (m.group(2) is not None and int(m.group(2)) < 1):
-        raise InputError(f"--resolution {text!r}: use WIDTHxHEIGHT (e.g. 960x540) or WIDTH")
-    return int(m.group(1)), (int(m.group(2)) if m.group(2) else None)
+from lsd3d_usd.cliutil import parse_size
 
 
 def _parse_times(args):
@@ -46,7 +37,7 @@ def _render(args) -> int:
         raise InputError("render: give --camera PRIM_PATH (or --rig with --route/--trajectory)")
 
     files = render_preview(args.scene, args.camera, args.output, times=_parse_times(args),
-                           resolution=_parse_resolution(args.resolution), fmt=args.format,
+                           resolution=parse_size(args.resolution, width_only=True), fmt=args.format,
                            exposure=args.exposure, tonemap_method=args.tonemap, use_env=not args.no_env,
                            sh_degree=args.sh_degree, progress=sys.stderr.isatty())
     for f in files:
