@@ -25,8 +25,13 @@ import argparse
 import os
 import time
 
-import numpy as np
-import torch
+# torch's and numba's OpenMP pools otherwise spin-wait after each parallel region and steal
+# the cores from each other; must be set before torch loads (see the report / --spin).
+if "--spin" not in __import__("sys").argv:
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
 
 
 def street_mesh(length=100.0):
@@ -71,6 +76,9 @@ def main(argv=None):
     ap.add_argument("--prior", choices=("procedural", "class-colour"), default="procedural")
     ap.add_argument("--no-perceptual", action="store_true", help="without the perceptual loss")
     ap.add_argument("--views", type=int, default=8, help="training views (default 8)")
+    ap.add_argument("--spin", action="store_true",
+                    help="leave OMP_WAIT_POLICY unset (OpenMP threads spin-wait; the default "
+                         "without this tool's setting)")
     a = ap.parse_args(argv)
     w, h = (int(x) for x in a.size.lower().split("x"))
 
@@ -174,8 +182,9 @@ def main(argv=None):
         run_mod.rasterize = orig_rasterize
     med = np.median(np.array(rows), axis=0)
     print(f"{'median':>9} {'':>9} " + " ".join(f"{v:9.3f}" for v in med))
-    print(f"load average {os.getloadavg()} on {os.cpu_count()} cores (timings are wall seconds; "
-          f"a loaded machine inflates them)")
+    print(f"load average {os.getloadavg()} on {os.cpu_count()} cores, OMP_WAIT_POLICY="
+          f"{os.environ.get('OMP_WAIT_POLICY', 'unset')} (timings are wall seconds; a loaded "
+          f"machine inflates them)")
 
 
 if __name__ == "__main__":

@@ -268,7 +268,9 @@ def main(json_path=None, quick=False, png_path=None, seed=0, log=print):
     from lsd3d_usd.render.rasterize import rasterize
 
     torch.set_num_threads(max(1, os.cpu_count() or 1))
-    log(f"cores: {os.cpu_count()}, numba threads: {__import__('numba').get_num_threads()}")
+    log(f"cores: {os.cpu_count()}, numba threads: {__import__('numba').get_num_threads()}, "
+        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}, "
+        f"load average {os.getloadavg()[0]:.2f}")
     # compile / load the numba kernels outside the timings
     a = driving_scene(2000, seed=seed)
     vm, K = driving_camera(64, 48)
@@ -299,7 +301,9 @@ def main(json_path=None, quick=False, png_path=None, seed=0, log=print):
             f"{100 * rec['peak_fraction']:6.1f}%{rec['peak_rss_mb']:8.0f}"
             f"{rec['max_abs_err']:10.2e}{rec['mean_abs_err']:10.2e}{rec['depth_max_abs_err']:10.2e}")
     result = dict(machine=dict(cores=os.cpu_count(), float32_peak_flops=peak,
-                               flops_per_eval=FLOPS_PER_EVAL),
+                               flops_per_eval=FLOPS_PER_EVAL,
+                               omp_wait_policy=os.environ.get("OMP_WAIT_POLICY"),
+                               load_average=os.getloadavg()),
                   notes=("evals_per_s = kernel-counted splat-pixel evaluations / forward kernel "
                          "time; evals_per_s_total uses the whole forward (projection, binning). "
                          "Errors vs the float64 reference (no early stop) on two 32x32 crops. "
