@@ -15,7 +15,7 @@ from lsd3d_usd.render.benchmark import driving_camera, driving_scene, reference_
 from lsd3d_usd.render.rasterize import rasterize
 
 
-def _sampled_extent(A, B, C, D, E, F, near, n=200_001):
+def _sampled_extent(A, B, C, D, E, F, near, n=50_001):
     th = np.linspace(0, 2 * np.pi, n)
     z = D + E * np.cos(th) + F * np.sin(th)
     x = (A + B * np.cos(th) + C * np.sin(th)) / z
@@ -26,7 +26,7 @@ def _sampled_extent(A, B, C, D, E, F, near, n=200_001):
 def test_quadratic_extent_matches_arc_and_sampling():
     rng = np.random.default_rng(0)
     checked = 0
-    for _ in range(400):
+    for _ in range(300):
         A, B, C = rng.normal(0, 50, 3)
         D = rng.uniform(0.5, 20)
         E, F = rng.normal(0, D / 3, 2)
@@ -41,7 +41,7 @@ def test_quadratic_extent_matches_arc_and_sampling():
             # exact extremes contain every sample and are attained to sampling accuracy
             assert lo <= slo + 1e-9 and hi >= shi - 1e-9
             assert slo - lo < 1e-3 * (1 + abs(lo)) and hi - shi < 1e-3 * (1 + abs(hi))
-    assert checked > 300  # the closed form was really exercised
+    assert checked > 200  # the closed form was really exercised
 
 
 def test_tiny_far_splat_bounds_keep_precision():
