@@ -1,15 +1,19 @@
 """numba kernels of the tile rasteriser: binning, forward compositing, hand-written backward.
 
-Per surfel the kernels read the 16 packed parameters of projection.PARAM_NAMES. Everything in
-the hot loops is float32 (a float64 literal would promote the loop): constants are np.float32.
+Per (tile, surfel) pair the kernels read the 16 packed parameters of projection.PARAM_NAMES,
+copied in pair order by bin_sorted so the reads are sequential (a random surfel row per pair
+was half the kernel time). Everything in the hot loops is float32 (a float64 literal would
+promote the loop): constants are np.float32. The kernels use error_model="numpy": Python's
+ZeroDivisionError check puts a branch in every division and stops LLVM from vectorising.
 Tiles run in parallel (prange); inside a tile the surfel loop is outside and the pixel loop
-inside, with the alpha of all pixels computed in one branch-free loop and the compositing in
-a second. The backward recomputes alpha, walks each pixel's contributors back to front from the
-stored final transmittance and last contributor (as the CUDA rasterisers do), and writes one
-gradient row per (tile, surfel) pair; rows are summed per surfel afterwards, so the result does
-not depend on thread scheduling. Tiles are visited in a fixed shuffled order (tile_order):
-prange hands each thread a contiguous block of iterations, and image rows differ in work
-(horizon vs sky), so a shuffle balances the threads.
+inside: alpha (and for the backward the per-pixel geometry) of a surfel is computed on its
+rows x an aligned power-of-two column span in one branch-free, vectorised loop, and the
+compositing runs over its exact rectangle in a second loop. The backward walks each pixel's
+contributors back to front from the stored final transmittance and last contributor (as the
+CUDA rasterisers do) and writes one gradient row per pair; rows are summed per surfel
+afterwards in a fixed order, so the result does not depend on thread scheduling. Tiles are
+visited in a fixed shuffled order (tile_order): prange hands each thread a contiguous block
+of iterations, and image rows differ in work (horizon vs sky), so a shuffle balances them.
 """
 from __future__ import annotations
 
@@ -51,6 +55,7 @@ def exp_neg(y):
 
 @njit(cache=True)
 def bin_tiles(rects, order, tile, ntx, nty):
+    # The plain version of bin_sorted (a given global order, serial): tests compare them.
     """(tile_start (ntiles+1,), tile_splats (npairs,) int32): per tile the surfels touching it in
     the given (depth) order. rects are inclusive pixel ranges [i0, i1, j0, j1]."""
     ntiles = ntx * nty
@@ -501,7 +506,8 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
 
 @njit(cache=True)
 def reduce_pairs(rows, tile_splats, n):
-    """Sum the per-pair gradient rows into (n, 16) per-surfel gradients (float32)."""
+    """Sum the per-pair gradient rows into (n, 16) per-surfel gradients (float32): the plain
+    serial version of what project_backward does through surfel_pairs (tests compare them)."""
     g = np.zeros((n, rows.shape[1]), f32)
     for k in range(tile_splats.shape[0]):
         s = tile_splats[k]

@@ -14,9 +14,11 @@ so the kernels evaluate 9 numbers per surfel (xb, yb, zc, a1, a2, b1, b2, ex, ey
 with their screen bounds by kernels_prep.project (numba); the reference renderer
 (reference.py) uses the torch helpers here and explicit ray-plane intersection instead.
 
-Screen bounds (kernels_prep._arc): x(theta) along the circle of radius r (in sigma units) is
-linear-fractional, so its extremes over the disk part in front of the near plane are at the
-arc's stationary points or where the arc meets the near plane: exact, hence conservative.
+Screen bounds (kernels_prep._extent): x(theta) along the circle of radius r (in sigma units) is
+linear-fractional. When the whole circle is in front of the near plane its extremes are the
+two roots of one quadratic (x is reached iff |A - x D| <= |(x E - B, x F - C)|); otherwise
+(kernels_prep._arc) they are at the arc's stationary points or where the arc meets the near
+plane. Exact either way, hence conservative.
 r^2 = 2 ln(opacity/alpha_min) (opacity-aware), united with the low-pass disk r/sqrt(2) px.
 
 Positions are made camera-relative in float64 (p - camera centre) before anything else, so a

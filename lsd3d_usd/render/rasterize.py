@@ -1,10 +1,12 @@
 """Differentiable CPU rasteriser of 2D Gaussian surfels (2DGS, Huang et al. 2024): the one
 functional entry point, `rasterize`.
 
-Pipeline: per-surfel projection in torch (float64, camera-relative; autograd carries gradients
-from the packed kernel parameters back to means, quats, scales, opacities and SH), exact screen
-bounds and 16x16 tile binning in numpy/numba, then the numba forward kernel and its hand-written
-backward inside one torch.autograd.Function (no per-pixel autograd graph).
+Pipeline, all numba inside one torch.autograd.Function (no torch ops over the N surfels, no
+per-pixel autograd graph): input validation in one pass; per-surfel projection, culling, SH
+colour and exact screen bounds (float64 per surfel, camera-relative) compacted to the visible
+set; 16x16 tile binning with a parallel per-tile depth sort; the forward tile kernel. The
+backward: the tile kernel's hand-written backward (per pair), then the projection's chain rule
+for the visible surfels only, scattered into the N-size gradients in the same pass.
 
 Outputs are documented in `rasterize`; the float64 reference is render/reference.py.
 """
