@@ -83,12 +83,48 @@ def bin_tiles(rects, order, tile, ntx, nty):
     return counts, out
 
 
+@njit(inline="always")
+def _radix_by_depth(a, depth_bits):
+    """Stable in-place LSD radix sort of the indices a by depth_bits[a] (non-negative int32),
+    8-bit digits; a digit all entries share is skipped."""
+    n = a.shape[0]
+    b = np.empty(n, np.int32)
+    ka = np.empty(n, np.int32)
+    kb = np.empty(n, np.int32)
+    for q in range(n):
+        ka[q] = depth_bits[a[q]]
+    src, dst, ks, kd = a.copy(), b, ka, kb
+    cnt = np.empty(256, np.int64)
+    for sh in range(0, 32, 8):
+        cnt[:] = 0
+        for q in range(n):
+            cnt[(ks[q] >> sh) & 255] += 1
+        if cnt[(ks[0] >> sh) & 255] == n:
+            continue
+        run = 0
+        for d in range(256):
+            c = cnt[d]
+            cnt[d] = run
+            run += c
+        for q in range(n):
+            d = (ks[q] >> sh) & 255
+            j = cnt[d]
+            cnt[d] = j + 1
+            dst[j] = src[q]
+            kd[j] = ks[q]
+        src, dst = dst, src
+        ks, kd = kd, ks
+    for q in range(n):
+        a[q] = src[q]
+
+
 @njit(parallel=True, cache=True)
 def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
     """Tile lists of all surfels in depth order, without a global sort: (tile, surfel) pairs
-    are counted and scattered in parallel chunks of surfels, then each tile's list is sorted
-    in parallel by the unique key (depth, index). depth_bits: the float32 depths (all > 0)
-    viewed as int32, which order like the floats; the index breaks ties as a stable sort would.
+    are counted and scattered in parallel chunks of surfels (so each tile's list is in index
+    order), then each tile's list is sorted in parallel by a stable LSD radix sort (8-bit
+    digits, 4x faster than a quicksort here) on depth_bits: the float32 depths (all > 0)
+    viewed as int32, which order like the floats; ties keep index order, as a stable sort.
 
     Returns tile_start (ntiles+1,), tile_splats (npairs,) int32 (surfel of each pair, the
     same lists as bin_tiles in depth order), each pair's packed parameters and rectangle
@@ -121,26 +157,26 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
             run += c
         counts[t + 1] = run
     npairs = counts[ntiles]
-    keys = np.empty(npairs, np.int64)
+    out = np.empty(npairs, np.int32)
     for ch in prange(nch):
         for k in range(ch * step, min(m, (ch + 1) * step)):
-            key = (np.int64(depth_bits[k]) << 32) | k
             tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
             for ty in range(rects[k, 2] // tile, rects[k, 3] // tile + 1):
                 for tx in range(tx0, tx1 + 1):
                     t = ty * ntx + tx
-                    keys[cnt[ch, t]] = key
+                    out[cnt[ch, t]] = k
                     cnt[ch, t] += 1
-    out = np.empty(npairs, np.int32)
     pair_prm = np.empty((npairs, prm.shape[1]), prm.dtype)
     pair_rect = np.empty((npairs, 4), rects.dtype)
     for t in prange(ntiles):
-        seg = keys[counts[t]:counts[t + 1]]
-        seg.sort()
-        for q in range(seg.shape[0]):
-            k = counts[t] + q
-            sidx = np.int32(seg[q] & 0xFFFFFFFF)
-            out[k] = sidx
+        lo = counts[t]
+        n = counts[t + 1] - lo
+        if n == 0:
+            continue
+        _radix_by_depth(out[lo:lo + n], depth_bits)
+        for q in range(n):
+            k = lo + q
+            sidx = out[k]
             for c in range(prm.shape[1]):
                 pair_prm[k, c] = prm[sidx, c]
             for c in range(4):
