@@ -169,35 +169,49 @@ def reference_on_crops(arrays, vm, K, width, height, *, sh_degree, near=0.05, fa
 
 # ------------------------------------------------------------ one config ---
 def run_config(n, width, height, *, seed=0, sh_degree=1, bound_sigma=None, t_min=1e-4,
-               alpha_min=1.0 / 255.0, reference=True, peak_flops=None, label="default"):
+               alpha_min=1.0 / 255.0, reference=True, peak_flops=None, label="default",
+               repeats=3):
+    """One configuration: forward + backward `repeats` times (timings are medians, with the
+    minimum and the list kept: shared cores are noisy), peak RSS over all of them, then the
+    error against the float64 reference."""
     from lsd3d_usd.render.rasterize import rasterize
 
     arrays = driving_scene(n, seed=seed, sh_degree=max(sh_degree, 1) if sh_degree else 0)
     vm, K = driving_camera(width, height)
     names = ("means", "quats", "scales", "opacities", "sh")
+    runs = []
     with RssPeak() as mem:
-        params = {k: torch.from_numpy(a).requires_grad_(True) for k, a in zip(names, arrays)}
-        t0 = time.perf_counter()
-        out = rasterize(**params, viewmat=torch.from_numpy(vm), K=torch.from_numpy(K),
-                        width=width, height=height, sh_degree=sh_degree, bound_sigma=bound_sigma,
-                        t_min=t_min, alpha_min=alpha_min)
-        fwd_s = time.perf_counter() - t0
-        g = torch.Generator().manual_seed(1)
-        loss = ((out["rgb"] * torch.rand(out["rgb"].shape, generator=g)).sum()
-                + out["alpha"].sum() + 0.01 * out["depth_expected"].sum() + out["normal"].sum())
-        t0 = time.perf_counter()
-        loss.backward()
-        bwd_s = time.perf_counter() - t0
-    st = out["stats"]
+        for _ in range(max(1, int(repeats))):
+            params = {k: torch.from_numpy(a).requires_grad_(True) for k, a in zip(names, arrays)}
+            t0 = time.perf_counter()
+            out = rasterize(**params, viewmat=torch.from_numpy(vm), K=torch.from_numpy(K),
+                            width=width, height=height, sh_degree=sh_degree,
+                            bound_sigma=bound_sigma, t_min=t_min, alpha_min=alpha_min)
+            fwd_s = time.perf_counter() - t0
+            g = torch.Generator().manual_seed(1)
+            loss = ((out["rgb"] * torch.rand(out["rgb"].shape, generator=g)).sum()
+                    + out["alpha"].sum() + 0.01 * out["depth_expected"].sum() + out["normal"].sum())
+            t0 = time.perf_counter()
+            loss.backward()
+            bwd_s = time.perf_counter() - t0
+            st = out["stats"]
+            runs.append(dict(fwd_s=fwd_s, bwd_s=bwd_s, kernel_s=st["raster_s"],
+                             project_s=st["project_s"], bin_s=st["bin_s"],
+                             bwd_kernel_s=st["plan"].get("bwd_kernel_s"),
+                             bwd_numba_s=st["plan"].get("bwd_total_s")))
+            del params, loss
+    med = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
     evals = st["evals"]
-    kernel_s = st["raster_s"]
     rec = dict(label=label, n=n, width=width, height=height, sh_degree=sh_degree,
                bound_sigma=bound_sigma, t_min=t_min, alpha_min=alpha_min,
-               fwd_s=fwd_s, bwd_s=bwd_s, evals=evals,
-               evals_per_s=evals / kernel_s, evals_per_s_total=evals / fwd_s,
-               fwd_kernel_s=kernel_s, fwd_project_s=st["project_s"], fwd_bin_s=st["bin_s"],
-               bwd_kernel_s=st["plan"].get("bwd_kernel_s"), bwd_numba_s=st["plan"].get("bwd_total_s"),
-               n_visible=st["n_visible"], n_pairs=st["n_pairs"], peak_rss_mb=mem.peak)
+               fwd_s=med["fwd_s"], bwd_s=med["bwd_s"], repeats=len(runs),
+               fwd_s_min=min(r["fwd_s"] for r in runs), bwd_s_min=min(r["bwd_s"] for r in runs),
+               fwd_s_all=[r["fwd_s"] for r in runs], bwd_s_all=[r["bwd_s"] for r in runs],
+               evals=evals, evals_per_s=evals / med["kernel_s"], evals_per_s_total=evals / med["fwd_s"],
+               fwd_kernel_s=med["kernel_s"], fwd_project_s=med["project_s"], fwd_bin_s=med["bin_s"],
+               bwd_kernel_s=med["bwd_kernel_s"], bwd_numba_s=med["bwd_numba_s"],
+               n_visible=st["n_visible"], n_pairs=st["n_pairs"], peak_rss_mb=mem.peak,
+               load_average=os.getloadavg()[0])
     if peak_flops:
         rec["peak_fraction"] = rec["evals_per_s"] * FLOPS_PER_EVAL / peak_flops
     if reference:
@@ -283,7 +297,7 @@ def main(json_path=None, quick=False, png_path=None, seed=0, log=print):
         f"at {FLOPS_PER_EVAL} flops/eval")
     records = []
     hdr = (f"{'config':<28}{'fwd s':>8}{'bwd s':>8}{'Mev/s':>8}{'peak%':>7}{'rss MB':>8}"
-           f"{'rgb max':>10}{'rgb mean':>10}{'dep max':>10}")
+           f"{'rgb max':>10}{'rgb mean':>10}{'dep max':>10}{'load':>6}")
     log(hdr)
     for label, kw in configs(quick):
         rec = run_config(seed=seed, peak_flops=peak, label=label, **kw)
@@ -299,12 +313,14 @@ def main(json_path=None, quick=False, png_path=None, seed=0, log=print):
             name += f" deg={rec['sh_degree']}"
         log(f"{name:<28}{rec['fwd_s']:8.3f}{rec['bwd_s']:8.3f}{rec['evals_per_s'] / 1e6:8.0f}"
             f"{100 * rec['peak_fraction']:6.1f}%{rec['peak_rss_mb']:8.0f}"
-            f"{rec['max_abs_err']:10.2e}{rec['mean_abs_err']:10.2e}{rec['depth_max_abs_err']:10.2e}")
+            f"{rec['max_abs_err']:10.2e}{rec['mean_abs_err']:10.2e}{rec['depth_max_abs_err']:10.2e}"
+            f"{rec['load_average']:6.1f}")
     result = dict(machine=dict(cores=os.cpu_count(), float32_peak_flops=peak,
                                flops_per_eval=FLOPS_PER_EVAL,
                                omp_wait_policy=os.environ.get("OMP_WAIT_POLICY"),
                                load_average=os.getloadavg()),
-                  notes=("evals_per_s = kernel-counted splat-pixel evaluations / forward kernel "
+                  notes=("fwd_s/bwd_s: medians of `repeats` runs (fwd_s_all/bwd_s_all: each run). "
+                         "evals_per_s = kernel-counted splat-pixel evaluations / forward kernel "
                          "time; evals_per_s_total uses the whole forward (projection, binning). "
                          "Errors vs the float64 reference (no early stop) on two 32x32 crops. "
                          "Measured on shared cores: timings are noisy."),
