@@ -7,7 +7,13 @@ silently ignored by USD, so we check and say so.
 """
 from __future__ import annotations
 
+import os
 import warnings
+
+# torch's and numba's OpenMP pools spin after each parallel section and take the cores from
+# each other: a GGDS step measured 13.95 s spinning vs 1.25 s passive on 2 cores. Must be set
+# before torch loads; an explicit user setting wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 from pathlib import Path
 
 __version__ = "0.1.0"

@@ -22,7 +22,7 @@ import numpy as np
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 
-DEFAULT_DENSITY = 6.0          # initial surfels per m² of view-weighted proxy surface
+DEFAULT_DENSITY = 18.0         # initial surfels per m² of view-weighted proxy surface
 MAX_SURFELS = 4_000_000
 
 

@@ -2,9 +2,11 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-import pytest
-import torch  # noqa: F401
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads (see lsd3d_usd/__init__)
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402,F401
 
 import lsd3d_usd  # registers the schema before any stage is opened  # noqa: F401
 

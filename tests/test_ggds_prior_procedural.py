@@ -172,3 +172,21 @@ def test_bad_env_is_a_clear_error():
     with pytest.raises(InputError, match="sh_irradiance"):
         PriorEnv(sh_irradiance=torch.zeros(4, 3))
     assert default_sky_sh().shape == (9, 3)
+
+
+def test_view_render_is_cached_per_gbuffer_and_env():
+    import torch
+    from lsd3d_usd.ggds.prior_base import PriorEnv
+    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    from lsd3d_usd.ggds.synthetic import street_gbuffer
+    prior, env = ProceduralPrior(), PriorEnv()
+    gb = street_gbuffer(48, 32, eye=(0.0, -6.0, 1.6), target=(20.0, -6.0, 1.2))
+    x = torch.rand(32, 48, 3)
+    calls = []
+    real = prior.render
+    prior.render = lambda g, e: (calls.append(1), real(g, e))[1]
+    a = prior.target(x, gb, env, 1.0)
+    b = prior.target(x * 0.5, gb, env, 1.0)
+    assert len(calls) == 1 and torch.equal(a, b)        # t = 1: the view's render, once
+    prior.target(x, gb, PriorEnv(wetness=0.8), 1.0)      # another env: rendered again
+    assert len(calls) == 2

@@ -11,8 +11,11 @@ import torch
 class SelectiveAdam:
     def __init__(self, params: dict[str, torch.Tensor], lrs: dict[str, float],
                  betas=(0.9, 0.999), eps: float = 1e-15,
-                 lr_scales: dict[str, torch.Tensor] | None = None):
+                 lr_scales: dict[str, torch.Tensor] | None = None,
+                 eps_by_key: dict[str, float] | None = None):
         self.params, self.lrs = params, dict(lrs)
+        # eps per key: with eps ~ 0 Adam turns a tiny, noisy gradient into a full-size step.
+        self.eps_by_key = dict(eps_by_key or {})
         # Optional per-element lr factors broadcast over a row (e.g. SH DC vs higher orders).
         self.lr_scales = dict(lr_scales or {})
         self.b1, self.b2, self.eps = betas[0], betas[1], eps
@@ -40,7 +43,7 @@ class SelectiveAdam:
             shape = (-1,) + (1,) * (p.dim() - 1)
             mhat = m / c1.view(shape)
             vhat = v / c2.view(shape)
-            update = self.lrs[k] * mhat / (vhat.sqrt() + self.eps)
+            update = self.lrs[k] * mhat / (vhat.sqrt() + self.eps_by_key.get(k, self.eps))
             if k in self.lr_scales:
                 update = update * self.lr_scales[k]
             p[rows] -= update

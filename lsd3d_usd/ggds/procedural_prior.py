@@ -199,5 +199,19 @@ class ProceduralPrior(Prior):
         kept = guided_filter(x, r, eps) if w < 1 else torch.zeros_like(x)
         if w <= 0:
             return kept
-        P = self.render(gbuffer, env).to(x.device)
+        P = self.cached_render(gbuffer, env).to(x.device)
         return (1 - w) * kept + w * P
+
+    def cached_render(self, gbuffer: GBuffer, env: PriorEnv) -> torch.Tensor:
+        """render(), remembered per (G-buffer, env) object: P depends only on the view, and GGDS
+        keeps one G-buffer object per training view, so each view's P is computed once."""
+        cache = self.__dict__.setdefault("_render_cache", {})
+        key = (id(gbuffer), id(env))
+        hit = cache.get(key)
+        if hit is not None and hit[0] is gbuffer and hit[1] is env:
+            return hit[2]
+        P = self.render(gbuffer, env)
+        if len(cache) >= 256:  # bounded: drop the oldest entry
+            cache.pop(next(iter(cache)))
+        cache[key] = (gbuffer, env, P)
+        return P

@@ -45,6 +45,8 @@ class GGDSConfig:
     lr_opacities: float = 5e-2
     lr_sh: float = 2.5e-2           # SH DC; higher orders get lr_sh * sh_rest_factor
     sh_rest_factor: float = 0.05    # as 3DGS (rest = DC / 20)
+    lr_sh_end: float | None = None  # if set, SH lr decays log-linearly to this
+    adam_eps_sh: float = 1e-15
     w_perceptual: float = 0.05
     w_normal: float = 0.1
     w_disparity: float = 1.0
@@ -122,7 +124,8 @@ class GGDSRun:
         k = self.params["sh"].shape[1]
         sh_scale = torch.full((k, 1), float(config.sh_rest_factor))
         sh_scale[0] = 1.0
-        self.optimizer = SelectiveAdam(self.params, self._lrs(0), lr_scales={"sh": sh_scale})
+        self.optimizer = SelectiveAdam(self.params, self._lrs(0), lr_scales={"sh": sh_scale},
+                                       eps_by_key={"sh": config.adam_eps_sh})
         self.strategy = MCMCStrategy(noise_scale=config.noise_scale,
                                      relocate_every=config.relocate_every, seed=config.seed)
         self.prior, self.env = prior, env
@@ -142,7 +145,8 @@ class GGDSRun:
     def _lrs(self, step: int) -> dict:
         c = self.cfg
         return {"means": lr_at(step, c.steps, *c.lr_means), "quats": c.lr_quats, "scales": c.lr_scales,
-                "opacities": c.lr_opacities, "sh": c.lr_sh}
+                "opacities": c.lr_opacities,
+                "sh": c.lr_sh if c.lr_sh_end is None else lr_at(step, c.steps, c.lr_sh, c.lr_sh_end)}
 
     def t_min(self, step: int) -> float:
         c = self.cfg
