@@ -107,6 +107,7 @@ def _generate(args) -> int:
         env_resolution=parse_size(args.env_resolution, "--env-resolution"), surfels=args.surfels,
         steps=args.steps, prior=args.prior, resolution=parse_size(args.resolution, "--resolution"),
         views=args.views, checkpoint_every=args.checkpoint_every, perceptual=not args.no_perceptual,
+        perceptual_weight=args.perceptual_weight,
         parked=0 if args.no_actors else args.parked, moving=0 if args.no_actors else args.moving,
         actor_seconds=args.actor_seconds,
         resume=args.resume, force=args.force, progress=not args.no_progress and sys.stderr.isatty(),
@@ -150,6 +151,9 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", type=int, default=48, help="training views sampled along and off the lanes")
     p.add_argument("--checkpoint-every", type=int, default=50, help="steps between checkpoints (default 50)")
     p.add_argument("--no-perceptual", action="store_true", help="skip the EfficientNet perceptual loss")
+    p.add_argument("--perceptual-weight", type=float,
+                   help="weight of the EfficientNet-Lite0 perceptual loss (default: 0 with the "
+                        "procedural prior, whose targets are exact per pixel; 0.05 with a diffusion prior)")
     p.add_argument("--parked", type=int, default=12, help="parked actors along the curbs (default 12)")
     p.add_argument("--moving", type=int, default=8,
                    help="moving actors driven by IDM traffic over the lane graph (default 8)")

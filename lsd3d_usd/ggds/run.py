@@ -47,7 +47,7 @@ class GGDSConfig:
     sh_rest_factor: float = 0.05    # as 3DGS (rest = DC / 20)
     lr_sh_end: float | None = None  # if set, SH lr decays log-linearly to this
     adam_eps_sh: float = 1e-15
-    w_perceptual: float = 0.05
+    w_perceptual: float = 0.05      # generate picks 0 for the procedural prior (docs/ggds.md)
     w_normal: float = 0.1
     w_disparity: float = 1.0
     w_normal_consistency: float = 0.05
