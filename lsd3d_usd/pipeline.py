@@ -69,7 +69,7 @@ def _file_hash(path: Path) -> str:
 
 
 # ------------------------------------------------------------------ checks before writing
-def _check_options(o: GenerateOptions):
+def check_options(o: GenerateOptions):
     w, h = o.resolution
     if w <= 0 or h <= 0:
         raise InputError(f"--resolution {w}x{h}: width and height must be positive")
@@ -114,7 +114,7 @@ def perceptual_weight(o: GenerateOptions) -> float:
     return 0.0 if o.prior == "procedural" else 0.05
 
 
-def _read_layout(o: GenerateOptions):
+def read_layout_for(o: GenerateOptions):
     from lsd3d_usd.layout import generator
     from lsd3d_usd.layout.usdio import read_layout
     if o.layout is not None:
@@ -132,7 +132,7 @@ def _read_layout(o: GenerateOptions):
     return layout, source
 
 
-def _prepare_scene(o: GenerateOptions, layout_hash: str) -> S.Scene:
+def prepare_scene(o: GenerateOptions, layout_hash: str) -> S.Scene:
     out = Path(o.out)
     if (out / S.ROOT_FILE).is_file():
         sc = S.Scene.open(out)
@@ -437,16 +437,16 @@ def _ggds_step(sc, layout, proxy, field, face, light, params, o: GenerateOptions
 # --------------------------------------------------------------------------- driver
 def generate(o: GenerateOptions) -> dict:
     """Run the whole pipeline; returns a summary dict (also written to ggds/<run>/)."""
-    _check_options(o)
+    check_options(o)
     t0 = time.perf_counter()
-    layout, source = _read_layout(o)
+    layout, source = read_layout_for(o)
     from lsd3d_usd.proxy.usdio import layout_hash
     lhash = layout_hash(layout)
     if o.steps > 0 or o.resume:
         make_prior_check = o.prior  # fail on a bad prior before writing anything
         if make_prior_check != "procedural":
             make_prior(make_prior_check)
-    sc = _prepare_scene(o, lhash)
+    sc = prepare_scene(o, lhash)
     root = S.Sdf.Layer.FindOrOpen(str(sc.root_layer_path))
     if S.read_provenance(root).get("layoutHash") != lhash:
         data = dict(root.customLayerData)

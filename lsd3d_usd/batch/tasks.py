@@ -85,9 +85,9 @@ def _json_options(options: dict) -> dict:
             for k, v in options.items()}
 
 
-def _read_layout(opts):
-    from lsd3d_usd.pipeline import _read_layout
-    return _read_layout(opts)[0]
+def read_layout_for(opts):
+    from lsd3d_usd.pipeline import read_layout_for
+    return read_layout_for(opts)[0]
 
 
 def chunk_file(scene_out: Path, key) -> Path:
@@ -100,14 +100,14 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
     """Tasks of one scene. Reads (or generates) the layout and checks the options, so bad
     input is refused here, before any task runs."""
     import lsd3d_usd
-    from lsd3d_usd.pipeline import _check_options
+    from lsd3d_usd.pipeline import check_options
     from lsd3d_usd.proxy.chunks import ProxyBuilder, ProxyParams
     from lsd3d_usd.proxy.usdio import layout_hash
 
     opts = generate_options(sc.options, sc.output, progress=False)
     try:
-        _check_options(opts)
-        layout = _read_layout(opts)
+        check_options(opts)
+        layout = read_layout_for(opts)
     except InputError as e:
         raise InputError(f"{sc.where}: {e}") from None
     lhash = layout_hash(layout)
@@ -154,10 +154,10 @@ def plan_batch(spec: BatchSpec) -> list[ScenePlan]:
 def prepare_scene(plan: ScenePlan) -> None:
     """Create (or check) the scene folder before its tasks run: a split scene's chunk tasks
     write into it, and generate refuses a non-empty folder that is not a scene."""
-    from lsd3d_usd.pipeline import _prepare_scene
+    from lsd3d_usd.pipeline import prepare_scene
     opts = generate_options(plan.scene.options, plan.scene.output, progress=False)
     try:
-        _prepare_scene(opts, plan.layout_hash)
+        prepare_scene(opts, plan.layout_hash)
     except InputError as e:
         raise InputError(f"{plan.scene.where}: {e}") from None
 
@@ -195,7 +195,7 @@ def _run_chunk(p: dict, log) -> dict:
     from lsd3d_usd.proxy.chunks import ProxyBuilder, ProxyParams
     from lsd3d_usd.proxy.usdio import _chunk_file_hash, write_chunk_layer
     opts = generate_options(p["options"], p["out"], progress=False, log=log)
-    layout = _read_layout(opts)
+    layout = read_layout_for(opts)
     params = ProxyParams()
     builder = ProxyBuilder(layout, params)
     key = tuple(p["chunk"])
