@@ -48,6 +48,8 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    from lsd3d_usd.memtune import reuse_large_buffers
+    reuse_large_buffers()  # per-frame render buffers reused, not page-faulted in again
     try:
         return int(args.func(args) or 0)
     except Lsd3dError as e:

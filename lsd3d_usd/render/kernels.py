@@ -313,14 +313,15 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
             li1 = min(rects[k, 1] - x0, tile - 1)
             lj0 = max(rects[k, 2] - y0, 0)
             lj1 = min(rects[k, 3] - y0, tile - 1)
-            nev += (li1 - li0 + 1) * (lj1 - lj0 + 1)
             xb, yb, zc = prm[k, 0], prm[k, 1], prm[k, 2]
             a1, a2, b1, b2 = prm[k, 3], prm[k, 4], prm[k, 5], prm[k, 6]
             ex, ey, op = prm[k, 7], prm[k, 8], prm[k, 9]
             cr, cg, cb = prm[k, 10], prm[k, 11], prm[k, 12]
             nx, ny, nz = prm[k, 13], prm[k, 14], prm[k, 15]
             c0, sh = _span(li0, li1)
-            _geom_block(x0, y0, c0, sh, lj0, (lj1 - lj0 + 1) << sh, xb, yb, zc, a1, a2, b1, b2,
+            nq = (lj1 - lj0 + 1) << sh
+            nev += nq  # Gaussians evaluated: the rectangle's rows x the aligned span
+            _geom_block(x0, y0, c0, sh, lj0, nq, xb, yb, zc, a1, a2, b1, b2,
                         ex, ey, op, near, alpha_max, abuf, zbuf, abuf, abuf, abuf, abuf, done,
                         False)
             for jj in range(lj0, lj1 + 1):
