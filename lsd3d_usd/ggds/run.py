@@ -52,6 +52,7 @@ class GGDSConfig:
     w_disparity: float = 1.0
     w_normal_consistency: float = 0.05
     w_tv: float = 0.01
+    w_distortion: float = 0.0       # 2DGS depth distortion (mean over the image)
     checkpoint_every: int = 50
     seed: int = 0
     noise_scale: float = 0.5
@@ -177,7 +178,8 @@ class GGDSRun:
         vd = self.view_data(vi)
         cam = vd.view.camera
         t_view = time.perf_counter()
-        out = self.render(cam, background=vd.background, normal_space="camera")
+        dist_kw = {"distortion": True} if cfg.w_distortion > 0 else {}
+        out = self.render(cam, background=vd.background, normal_space="camera", **dist_kw)
         x = out["rgb"]
         t_render = time.perf_counter()
         t = float(self.rng.uniform(self.t_min(k), cfg.t_max))
@@ -201,6 +203,9 @@ class GGDSRun:
             out["normal"], out["depth_expected"], out["alpha"], torch.from_numpy(cam.K))
         terms["tv"] = cfg.w_tv * losses.tv_loss(x)
         loss = image + terms["normal"] + terms["disparity"] + terms["normal_consistency"] + terms["tv"]
+        if cfg.w_distortion > 0:
+            terms["distortion"] = cfg.w_distortion * out["distortion"].mean()
+            loss = loss + terms["distortion"]
         for p in self.params.values():
             p.grad = None
         t_loss = time.perf_counter()
