@@ -1,5 +1,10 @@
 """2DGS regularisers computed from the rasteriser's outputs (Huang et al. 2024): normal
-consistency between the rendered surfel normals and the normals of the rendered depth map."""
+consistency between the rendered surfel normals and the normals of the rendered depth map.
+
+The other 2DGS regulariser, depth distortion (sum over a pixel's contributor pairs of
+w_i w_j (m_i - m_j)^2, m the NDC-like depth), needs every contributor's depth, so the tile
+kernels compute it: rasterize(..., distortion=True)["distortion"] per pixel, with its
+hand-written backward; GGDS adds GGDSConfig.w_distortion times its image mean."""
 from __future__ import annotations
 
 import torch

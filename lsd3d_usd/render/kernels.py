@@ -14,6 +14,10 @@ CUDA rasterisers do) and writes one gradient row per pair; rows are summed per s
 afterwards in a fixed order, so the result does not depend on thread scheduling. Tiles are
 visited in a fixed shuffled order (tile_order): prange hands each thread a contiguous block
 of iterations, and image rows differ in work (horizon vs sky), so a shuffle balances them.
+The 2DGS depth distortion is an optional argument of forward/backward (None or arrays): numba
+compiles one variant per argument type and prunes `if dist is not None` branches at compile
+time, so the default kernels are the plain ones (bitwise-identical outputs; the compiled
+code differs from the pre-distortion kernels by a few instructions).
 """
 from __future__ import annotations
 
@@ -246,7 +250,7 @@ def _geom_block(x0, y0, c0, sh, lj0, nq, xb, yb, zc, a1, a2, b1, b2, ex, ey, op,
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
-            near, alpha_min, alpha_max, t_min):
+            near, alpha_min, alpha_max, t_min, dist):
     """Front-to-back compositing; prm and rects are per pair (bin_sorted's pair_prm,
     pair_rect), tile_splats the surfel of each pair. Returns (rgb (H,W,3), T_final, depth_acc = sum w z,
     normal_acc (H,W,3) = sum w n, depth_median, last (list position + 1 of the last
@@ -257,7 +261,12 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
     across the whole tile width in one branch-free loop (columns outside the rectangle get
     alpha 0, which leaves every accumulator exactly unchanged): the loop has a fixed trip
     count and vectorises, which beats a branchy loop over the few pixels of a small splat.
-    A pixel is finished once T < t_min (it composited the surfel that took it there)."""
+    A pixel is finished once T < t_min (it composited the surfel that took it there).
+
+    dist: None, or a (3,H,W) float32 array that receives per pixel the depth-distortion
+    moments of the contributors in u = 1/z: A = sum w, mu = sum w u / A, S = sum w (u - mu)^2
+    (Welford's weighted update: every term is >= 0, no cancellation). With None numba prunes
+    every use at compile time, so the default variant is the plain kernel."""
     rgb = np.zeros((height, width, 3), f32)
     tfin = np.ones((height, width), f32)
     dacc = np.zeros((height, width), f32)
@@ -291,6 +300,9 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
         l_med = np.full(npx, -1, np.int32)
         l_wmax = np.zeros(npx, f32)
         l_amax = np.full(npx, -1, np.int32)
+        m_a = np.zeros(npx, f32)
+        m_mu = np.zeros(npx, f32)
+        m_s = np.zeros(npx, f32)
         for c in range(tile):
             pxs[c] = f32(x0 + c) + _HALF
         ndone = 0
@@ -351,6 +363,15 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
                     if w > l_wmax[p]:
                         l_wmax[p] = w
                         l_amax[p] = s
+                    if dist is not None:
+                        if w > _ZERO:
+                            iz = _ONE / z
+                            an = m_a[p] + w
+                            dl = iz - m_mu[p]
+                            mu = m_mu[p] + dl * (w / an)
+                            m_s[p] += w * dl * (iz - mu)
+                            m_mu[p] = mu
+                            m_a[p] = an
                     T[p] = tn
                     l_last[p] = k + 1
         evals[t] = nev
@@ -371,15 +392,24 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
             last[j, i] = l_last[p]
             med[j, i] = l_med[p]
             amax[j, i] = l_amax[p]
+            if dist is not None:
+                dist[0, j, i] = m_a[p]
+                dist[1, j, i] = m_mu[p]
+                dist[2, j, i] = m_s[p]
     return rgb, tfin, dacc, nacc, dmed, last, med, amax, evals
 
 
 @njit(parallel=True, cache=True, error_model="numpy")
 def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
              near, alpha_min, alpha_max, tfin, last, med,
-             g_rgb, g_t, g_d, g_n, g_med):
+             g_rgb, g_t, g_d, g_n, g_med, dist, g_dist):
     """Gradient rows (npairs, 16) w.r.t. the packed parameters, one row per (tile, surfel)
-    pair of tile_splats (prm, rects: per pair, as forward). g_t is dL/dT_final."""
+    pair of tile_splats (prm, rects: per pair, as forward). g_t is dL/dT_final.
+
+    dist, g_dist: None (pruned at compile time), or forward's (3,H,W) moments A, mu, S and
+    dL/dD_u per pixel for D_u = A S = sum_{i>j} w_i w_j (u_i - u_j)^2, u = 1/z. With the final
+    moments, dD_u/dw_k = A (u_k - mu)^2 + S (goes into q = dL/dw_k like every other output)
+    and dD_u/du_k = 2 w_k A (u_k - mu), times du/dz = -1/z^2 into gz."""
     npairs = tile_splats.shape[0]
     out = np.zeros((npairs, 16), f32)
     npx = tile * tile
@@ -408,6 +438,10 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
         gny = np.zeros(npx, f32)
         gnz = np.zeros(npx, f32)
         gm = np.zeros(npx, f32)
+        m_a = np.zeros(npx, f32)
+        m_mu = np.zeros(npx, f32)
+        m_s = np.zeros(npx, f32)
+        g_u = np.zeros(npx, f32)
         abuf = np.empty(npx, f32)
         zbuf = np.empty(npx, f32)
         pxr = pxs[:tile]  # x of the pixel centres of one tile row
@@ -436,6 +470,11 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
             gny[p] = g_n[j, i, 1]
             gnz[p] = g_n[j, i, 2]
             gm[p] = g_med[j, i]
+            if dist is not None:
+                m_a[p] = dist[0, j, i]
+                m_mu[p] = dist[1, j, i]
+                m_s[p] = dist[2, j, i]
+                g_u[p] = g_dist[j, i]
             kmax = max(kmax, last[j, i])
         for k in range(kmax - 1, k0 - 1, -1):
             li0 = max(rects[k, 0] - x0, 0)
@@ -482,6 +521,13 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
                     z = zbuf[qb + c]
                     q = cr * gr[p] + cg * gg[p] + cb * gb[p] + z * gd[p] \
                         + nx * gnx[p] + ny * gny[p] + nz * gnz[p]
+                    gzd = _ZERO
+                    if dist is not None:
+                        if w > _ZERO:  # as forward: w = 0 (then z may be < near) adds nothing
+                            iz = _ONE / z
+                            e = iz - m_mu[p]
+                            q += g_u[p] * (m_a[p] * e * e + m_s[p])
+                            gzd = -_TWO * g_u[p] * w * m_a[p] * e * iz * iz
                     d_a = tb * q - (sg[p] + tg[p]) / om
                     sg[p] += w * q
                     d_cr += w * gr[p]
@@ -491,6 +537,8 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
                     d_ny += w * gny[p]
                     d_nz += w * gnz[p]
                     gz = w * gd[p]
+                    if dist is not None:
+                        gz += gzd
                     if lmed[p] == k:
                         gz += gm[p]
                     # the geometry of this pixel, from the vectorised row

@@ -7,6 +7,8 @@ colour and exact screen bounds (float64 per surfel, camera-relative) compacted t
 set; 16x16 tile binning with a parallel per-tile depth sort; the forward tile kernel. The
 backward: the tile kernel's hand-written backward (per pair), then the projection's chain rule
 for the visible surfels only, scattered into the N-size gradients in the same pass.
+With distortion=True the tile kernels also carry the 2DGS depth-distortion moments per pixel
+(a separately compiled variant: the default kernels do not see them).
 
 Outputs are documented in `rasterize`; the float64 reference is render/reference.py.
 """
@@ -54,9 +56,18 @@ def _check(x, name, shape, negative=False):
     raise InputError(f"rasterize: {name} has a non-finite value (NaN or Inf) at index {index}")
 
 
+def _ndc_scale2(plan):
+    """s^2 with m = far/(far-near) (1 - near/z) = far/(far-near) - s/z: the distortion of m
+    is s^2 times that of u = 1/z (it only sees differences), which float32 holds to full
+    relative precision where m itself crowds against 1."""
+    near, far = plan["near"], plan["far"]
+    return (far * near / (far - near)) ** 2
+
+
 class _Raster(torch.autograd.Function):
-    """(means, quats, scales, opacities, sh) -> (rgb, alpha, depth_acc, normal_acc, depth_median):
-    numba projection + tile kernels forward, their hand-written backward."""
+    """(means, quats, scales, opacities, sh) -> (rgb, alpha, depth_acc, normal_acc, depth_median,
+    distortion): numba projection + tile kernels forward, their hand-written backward.
+    distortion is (H,W) with plan["distortion"], else an empty non-differentiable tensor."""
 
     @staticmethod
     def forward(ctx, means, quats, scales, opacities, sh, plan):
@@ -70,34 +81,43 @@ class _Raster(torch.autograd.Function):
         tile_start, tile_splats, pprm, prect, soff = kernels.bin_sorted(
             rects, zc.view(np.int32), prm, plan["tile"], plan["ntx"], plan["nty"])
         t2 = time.perf_counter()
+        moments = (np.zeros((3, plan["height"], plan["width"]), np.float32)
+                   if plan["distortion"] else None)
         rgb, tfin, dacc, nacc, dmed, last, med, amax, evals = kernels.forward(
             pprm, prect, tile_start, tile_splats, plan["tile_order"], plan["width"],
             plan["height"], plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
-            np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), np.float32(plan["t_min"]))
+            np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), np.float32(plan["t_min"]),
+            moments)
+        if moments is None:
+            dist = torch.zeros(0)
+            ctx.mark_non_differentiable(dist)
+        else:  # D = s^2 A S (kernels.forward: moments of u = 1/z; m = const - s u)
+            dist = torch.from_numpy(np.float32(_ndc_scale2(plan)) * moments[0] * moments[2])
         t3 = time.perf_counter()
         plan.update(evals=int(evals.sum()), argmax=amax, visible_index=idx,
                     n_pairs=int(tile_splats.shape[0]), project_s=t1 - t0, bin_s=t2 - t1,
                     raster_s=t3 - t2)
         ctx.plan = plan
-        ctx.aux = (arrs, idx, pprm, prect, tile_start, tile_splats, soff, tfin, last, med)
+        ctx.aux = (arrs, idx, pprm, prect, tile_start, tile_splats, soff, tfin, last, med, moments)
         alpha = 1.0 - torch.from_numpy(tfin)
         return (torch.from_numpy(rgb), alpha, torch.from_numpy(dacc), torch.from_numpy(nacc),
-                torch.from_numpy(dmed))
+                torch.from_numpy(dmed), dist)
 
     @staticmethod
-    def backward(ctx, g_rgb, g_alpha, g_d, g_n, g_med):
+    def backward(ctx, g_rgb, g_alpha, g_d, g_n, g_med, g_dist):
         plan = ctx.plan
-        arrs, idx, pprm, prect, tile_start, tile_splats, soff, tfin, last, med = ctx.aux
+        arrs, idx, pprm, prect, tile_start, tile_splats, soff, tfin, last, med, moments = ctx.aux
         t0 = time.perf_counter()
 
         def arr(g):
             return np.ascontiguousarray(g.detach().to(torch.float32).numpy())
 
+        g_u = None if moments is None else arr(g_dist * _ndc_scale2(plan))  # dL/dD_u
         rows = kernels.backward(
             pprm, prect, tile_start, tile_splats, plan["tile_order"], plan["width"], plan["height"],
             plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), tfin, last, med,
-            arr(g_rgb), arr(-g_alpha), arr(g_d), arr(g_n), arr(g_med))
+            arr(g_rgb), arr(-g_alpha), arr(g_d), arr(g_n), arr(g_med), moments, g_u)
         t1 = time.perf_counter()
         spairs = kernels.surfel_pairs(tile_start, tile_splats, prect, soff, plan["tile"],
                                       plan["ntx"])
@@ -114,7 +134,7 @@ class _Raster(torch.autograd.Function):
 def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
               near=0.05, far=1e4, background=None, sh_degree=None, semantic_ids=None,
               tile=16, alpha_min=1.0 / 255.0, t_min=1e-4, alpha_max=0.99, bound_sigma=None,
-              normal_space="camera", return_extras=True):
+              normal_space="camera", return_extras=True, distortion=False):
     """Render 2D Gaussian surfels (gsplat-style arrays in, dict out).
 
     means (N,3), quats (N,4) xyzw, scales (N,2) linear std-devs along the local x/y axes,
@@ -137,9 +157,13 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
                              camera; OpenCV camera axes, or world axes with normal_space="world";
       semantic (H,W) int64   semantic id of the largest-weight contributor, -1 if none (None
                              without semantic_ids);
+      distortion (H,W)       only with distortion=True: the 2DGS depth distortion (Huang et al.
+                             2024) sum_i w_i sum_{j<i} w_j (m_i - m_j)^2 over the contributors,
+                             m = far/(far-near) (1 - near/z) (NDC-like depth in [0,1) on
+                             [near, far)); the default path compiles without it;
       stats (dict)           n_visible, n_pairs, evals, timings (with return_extras).
-    Gradients flow from rgb, alpha, depth_acc/depth_expected, depth_median and normal to
-    means, quats, scales, opacities, sh (and background).
+    Gradients flow from rgb, alpha, depth_acc/depth_expected, depth_median, normal and
+    distortion to means, quats, scales, opacities, sh (and background).
     """
     t_start = time.perf_counter()
     means = _as_tensor(means, "means")
@@ -191,9 +215,10 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
                 height=height, tile=tile, ntx=ntx, nty=nty, near=float(near), far=float(far),
                 alpha_min=float(alpha_min), alpha_max=float(alpha_max), t_min=float(t_min),
                 bound_sigma=-1.0 if bound_sigma is None else float(bound_sigma),
-                tile_order=np.random.default_rng(0).permutation(ntx * nty))
+                tile_order=np.random.default_rng(0).permutation(ntx * nty),
+                distortion=bool(distortion))
     f32 = torch.float32
-    rgb, alpha, dacc, nacc, dmed = _Raster.apply(means.to(f32), quats.to(f32), scales.to(f32),
+    rgb, alpha, dacc, nacc, dmed, dist = _Raster.apply(means.to(f32), quats.to(f32), scales.to(f32),
                                                  opacities.to(f32), sh.to(f32), plan)
 
     if background is not None:
@@ -204,6 +229,8 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
         nacc = nacc @ rot_c.to(torch.float32)
     out = dict(rgb=rgb, alpha=alpha, depth_expected=depth, depth_acc=dacc, depth_median=dmed,
                normal=nacc, semantic=None)
+    if distortion:
+        out["distortion"] = dist
     amax = plan["argmax"]
     idx = torch.from_numpy(plan["visible_index"])
     if semantic_ids is not None:

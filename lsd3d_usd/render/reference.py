@@ -14,7 +14,10 @@ Documented rules shared with the fast path:
     first term is used, else the centre depth; alpha = min(alpha_max, opacity exp(-rho/2)),
     zero when alpha < alpha_min or the depth is < near;
   * colour = max(0, 0.5 + SH(direction camera -> surfel)), normal oriented towards the camera;
-  * median depth = depth of the last contributor entered with transmittance > 0.5.
+  * median depth = depth of the last contributor entered with transmittance > 0.5;
+  * depth distortion (distortion=True) = sum_i w_i sum_{j<i} w_j (m_i - m_j)^2 over the
+    contributors (alpha > 0), m = far/(far-near) (1 - near/z): here literally, pairwise in
+    blocks of surfels, plus each block against the running sums of all earlier surfels.
 """
 from __future__ import annotations
 
@@ -27,11 +30,11 @@ from lsd3d_usd.render.sh import eval_sh, sh_degree_of
 def render_reference(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
                      near=0.05, far=1e4, background=None, sh_degree=None,
                      alpha_min=1.0 / 255.0, alpha_max=0.99, t_min=0.0,
-                     pixels=None, chunk=4096, normal_space="camera"):
+                     pixels=None, chunk=4096, normal_space="camera", distortion=False):
     """Render in float64. pixels: optional (P,2) long tensor of (i, j) pixel indices, then all
     outputs are per listed pixel ((P,3) / (P,)) instead of images. Returns a dict like
     rasterize(): rgb, alpha, depth_expected, depth_median, normal, weight_argmax (surfel index
-    of the largest weight, -1 if none)."""
+    of the largest weight, -1 if none), and with distortion=True "distortion"."""
     dt = torch.float64
     means, quats, scales = means.to(dt), quats.to(dt), scales.to(dt)
     opacities, sh = opacities.to(dt), sh.to(dt)
@@ -74,6 +77,11 @@ def render_reference(means, quats, scales, opacities, sh, viewmat, K, width, hei
     dmed = torch.zeros(P, dtype=dt)
     wmax = torch.zeros(P, dtype=dt)
     amax = torch.full((P,), -1, dtype=torch.long)
+    dist = torch.zeros(P, dtype=dt)
+    s_w = torch.zeros(P, dtype=dt)    # sum w, sum w m, sum w m^2 of the surfels so far
+    s_wm = torch.zeros(P, dtype=dt)
+    s_wm2 = torch.zeros(P, dtype=dt)
+    ndc = far / (far - near)
     for c0 in range(0, idx.numel(), chunk):
         sl = slice(c0, c0 + chunk)
         n_dot_p = (n_f[sl] * p_c[sl]).sum(1)                       # (S,)
@@ -113,6 +121,21 @@ def render_reference(means, quats, scales, opacities, sh, viewmat, K, width, hei
         better = cw > wmax
         wmax = torch.where(better, cw, wmax)
         amax = torch.where(better & (cw > 0), idx[sl][ci], amax)
+        if distortion:
+            # m only where the surfel contributes (z may be 0 elsewhere: keep the graph finite)
+            m = ndc * (1 - near / torch.where(alpha > 0, z, torch.ones_like(z)))
+            m = torch.where(alpha > 0, m, torch.zeros_like(m))
+            for b0 in range(0, m.shape[1], 64):
+                wb, mb = w[:, b0:b0 + 64], m[:, b0:b0 + 64]
+                diff2 = (mb[:, :, None] - mb[:, None, :]) ** 2          # (P,i,j)
+                later = torch.tril(torch.ones(diff2.shape[1:], dtype=torch.bool), -1)  # j < i
+                pair = (wb[:, :, None] * wb[:, None, :] * diff2 * later).sum((1, 2))
+                cross = (wb * (mb * mb * s_w[:, None] - 2 * mb * s_wm[:, None]
+                               + s_wm2[:, None])).sum(1)
+                dist = dist + pair + cross
+                s_w = s_w + wb.sum(1)
+                s_wm = s_wm + (wb * mb).sum(1)
+                s_wm2 = s_wm2 + (wb * mb * mb).sum(1)
         T = t_after[:, -1]
         if t_min > 0:
             alive = alive & ~stopped
@@ -128,6 +151,8 @@ def render_reference(means, quats, scales, opacities, sh, viewmat, K, width, hei
         nacc = nacc @ rot_c
     out = dict(rgb=rgb, alpha=alpha_out, depth_expected=depth, depth_acc=dacc,
                depth_median=dmed, normal=nacc, weight_argmax=amax)
+    if distortion:
+        out["distortion"] = dist
     if pixels is None:
         for k, val in out.items():
             out[k] = val.reshape(height, width, *val.shape[1:])
