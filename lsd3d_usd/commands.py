@@ -137,7 +137,7 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, help="scene folder to create or update")
     p.add_argument("--prompt", help='scene description, e.g. "rainy autumn evening in Seattle" '
                                     "(time of day, weather, season, place; see docs/env.md)")
-    p.add_argument("--steps", type=int, default=150, help="GGDS steps (0 = no optimisation; default 150)")
+    p.add_argument("--steps", type=int, default=250, help="GGDS steps (0 = no optimisation; default 250)")
     p.add_argument("--prior", default="procedural",
                    help="image prior: 'procedural' (default, runs on CPU) or 'diffusers:DIR' "
                         "(a local latent-diffusion + depth ControlNet directory; never downloads)")
@@ -148,7 +148,7 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
                    help="use an output folder that holds another scene or other files")
     p.add_argument("--surfels", type=int, help="initial surfel count (default: 2 per m² of proxy "
                                                "surface, at most 4 M)")
-    p.add_argument("--views", type=int, default=48, help="training views sampled along and off the lanes")
+    p.add_argument("--views", type=int, default=96, help="training views sampled along and off the lanes (default 96)")
     p.add_argument("--checkpoint-every", type=int, default=50, help="steps between checkpoints (default 50)")
     p.add_argument("--no-perceptual", action="store_true", help="skip the EfficientNet perceptual loss")
     p.add_argument("--perceptual-weight", type=float,

@@ -20,7 +20,7 @@ import numpy as np
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 
-DEFAULT_DENSITY = 18.0         # initial surfels per m² of view-weighted proxy surface
+DEFAULT_DENSITY = 54.0         # initial surfels per m² of view-weighted proxy surface (docs/ggds.md)
 MAX_SURFELS = 4_000_000
 
 
@@ -39,10 +39,10 @@ class GenerateOptions:
     season: str | None = None
     env_resolution: tuple[int, int] = (2048, 1024)
     surfels: int | None = None                     # None: DEFAULT_DENSITY × proxy area
-    steps: int = 150
+    steps: int = 250
     prior: str = "procedural"
     resolution: tuple[int, int] = (480, 270)
-    views: int = 48
+    views: int = 96
     checkpoint_every: int = 50
     perceptual: bool = True
     perceptual_weight: float | None = None         # None: the prior's default (see below)

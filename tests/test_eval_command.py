@@ -113,7 +113,7 @@ def test_scene_without_ggds_run_uses_sampled_views(tiny_scene, tmp_path):
     layout = read_layout(sc.layer_path("layout"))
     seen = V.seen_views(sc, layout, None, 64, 48)
     assert seen.run is None and "no GGDS run" in seen.source and "seed 0" in seen.source
-    want = sample_views(layout, 48, 64, 48, seed=0, novel_frac=V.GGDS_NOVEL_FRAC, fov_deg=V.GGDS_FOV_DEG)
+    want = sample_views(layout, V.GGDS_N_VIEWS, 64, 48, seed=0, novel_frac=V.GGDS_NOVEL_FRAC, fov_deg=V.GGDS_FOV_DEG)
     assert all(np.array_equal(a.camera.pose, b.camera.pose) for a, b in zip(seen.views, want))
     res = evaluate(_opts(copy, bins=(1.0,), per_bin=1, frames=2, n_seen=2, n_heldout=0))
     assert res["run"] is None and "no GGDS run" in res["seen_views_source"]

@@ -21,15 +21,17 @@ import numpy as np
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.cameras import View, sample_views
+from lsd3d_usd.ggds.run import GGDSConfig
 from lsd3d_usd.render.camera import Camera, look_at
 
 DEFAULT_BINS = (0.5, 1.0, 2.0, 4.0, 8.0)
 HEADING_DEG_PER_M = 7.5
 MAX_HEADING_DEG = 45.0
 MAX_DROP_M = 0.5
-# GGDS's camera sampler defaults (ggds/run.py GGDSConfig), used for scenes without a run.
-GGDS_FOV_DEG = 70.0
-GGDS_NOVEL_FRAC = 0.25
+# GGDS's camera sampler defaults, used for scenes without a run.
+GGDS_FOV_DEG = GGDSConfig.fov_deg
+GGDS_NOVEL_FRAC = GGDSConfig.novel_frac
+GGDS_N_VIEWS = GGDSConfig.n_views
 
 
 @dataclass
@@ -70,7 +72,7 @@ def seen_views(sc: S.Scene, layout, run: str | None, width: int, height: int) ->
         info = active[0] if active else None
     if info is None:
         seed = scene_seed(sc)
-        n = 48
+        n = GGDS_N_VIEWS
         views = sample_views(layout, n, width, height, seed=seed, novel_frac=GGDS_NOVEL_FRAC,
                              fov_deg=GGDS_FOV_DEG)
         return SeenSet(views, None, f"no GGDS run in the scene: {n} views sampled as GGDS would "

@@ -29,10 +29,10 @@ from lsd3d_usd.splats.field import SurfelField
 
 @dataclass
 class GGDSConfig:
-    steps: int = 200
+    steps: int = 250
     width: int = 480
     height: int = 270
-    n_views: int = 48
+    n_views: int = 96
     novel_frac: float = 0.25
     fov_deg: float = 70.0
     t_max: float = 0.98
@@ -43,7 +43,7 @@ class GGDSConfig:
     lr_quats: float = 2e-3
     lr_scales: float = 5e-3
     lr_opacities: float = 5e-2
-    lr_sh: float = 2.5e-2           # SH DC; higher orders get lr_sh * sh_rest_factor
+    lr_sh: float = 1.5e-2           # SH DC (2.5e-2 random-walked rarely seen colours); rest * sh_rest_factor
     sh_rest_factor: float = 0.05    # as 3DGS (rest = DC / 20)
     lr_sh_end: float | None = None  # if set, SH lr decays log-linearly to this
     adam_eps_sh: float = 1e-15
