@@ -46,9 +46,10 @@ def _ggds_args(p: argparse.ArgumentParser):
     p.add_argument("--json", metavar="OUT.json", help="write results as JSON (keys s_per_step, "
                    "psnr_novel, depth_rel_err, normal_err_deg, off_surface_frac, timing, quality)")
     p.add_argument("--quick", action="store_true", help="small subset (a couple of minutes)")
-    p.add_argument("--layout", help="layout for the timing chunk and quality run "
-                                    "(default samples/layouts/generated_seed7_200x200.usda)")
-    p.add_argument("--steps", type=int, help="GGDS steps of the quality run (default 100)")
+    p.add_argument("--layout", help="layout for the timing chunk and the quality run (default: "
+                                    "timing on samples/layouts/generated_seed7_200x200.usda, "
+                                    "quality on hand_crossing.usda, the README sample, and on it)")
+    p.add_argument("--steps", type=int, help="GGDS steps of the quality run (default: generate's, 250)")
 
 
 def _ggds_run(args) -> int:
