@@ -146,9 +146,10 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--resume", action="store_true", help="continue the newest GGDS run from its checkpoint")
     p.add_argument("--force", action="store_true",
                    help="use an output folder that holds another scene or other files")
-    p.add_argument("--surfels", type=int, help="initial surfel count (default: 2 per m² of proxy "
-                                               "surface, at most 4 M)")
-    p.add_argument("--views", type=int, default=96, help="training views sampled along and off the lanes (default 96)")
+    p.add_argument("--surfels", type=int, help="initial surfel count (default: 80 per m² of proxy "
+                                               "surface weighted by nearness to the lanes, "
+                                               "at most 4 M)")
+    p.add_argument("--views", type=int, default=128, help="training views sampled along and off the lanes (default 128)")
     p.add_argument("--checkpoint-every", type=int, default=50, help="steps between checkpoints (default 50)")
     p.add_argument("--no-perceptual", action="store_true", help="skip the EfficientNet perceptual loss")
     p.add_argument("--perceptual-weight", type=float,

@@ -20,7 +20,7 @@ import numpy as np
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 
-DEFAULT_DENSITY = 54.0         # initial surfels per m² of view-weighted proxy surface (docs/ggds.md)
+DEFAULT_DENSITY = 80.0         # initial surfels per m² of view-weighted proxy surface (docs/ggds.md)
 MAX_SURFELS = 4_000_000
 
 
@@ -42,7 +42,7 @@ class GenerateOptions:
     steps: int = 250
     prior: str = "procedural"
     resolution: tuple[int, int] = (480, 270)
-    views: int = 96
+    views: int = 128
     checkpoint_every: int = 50
     perceptual: bool = True
     perceptual_weight: float | None = None         # None: the prior's default (see below)

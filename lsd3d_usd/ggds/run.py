@@ -3,7 +3,8 @@
 Each step: pick a view; render the surfels x; ask the prior for a target x̂ at a noise level
 t ~ U[t_min, t_max] (t_min annealed linearly down, as in the paper) from the view's proxy
 G-buffer; minimise ω(t)(|x − x̂|₁ + L_perceptual) + proxy normal and disparity losses + the
-2DGS normal-consistency regulariser + TV on the render; update only the surfels the view
+2DGS normal-consistency and (optional, w_distortion) depth-distortion regularisers + TV on the
+render; update only the surfels the view
 touched (selective Adam); then the MCMC strategy adds opacity-gated SGLD noise in each
 surfel's tangent plane and relocates dead surfels.
 """
@@ -32,7 +33,7 @@ class GGDSConfig:
     steps: int = 250
     width: int = 480
     height: int = 270
-    n_views: int = 96
+    n_views: int = 128
     novel_frac: float = 0.25
     fov_deg: float = 70.0
     t_max: float = 0.98
