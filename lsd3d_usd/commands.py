@@ -108,6 +108,8 @@ def _generate(args) -> int:
         steps=args.steps, prior=args.prior, resolution=parse_size(args.resolution, "--resolution"),
         views=args.views, checkpoint_every=args.checkpoint_every, perceptual=not args.no_perceptual,
         perceptual_weight=args.perceptual_weight,
+        lpips=Path(args.lpips) if args.lpips else None,
+        lpips_lin=Path(args.lpips_lin) if args.lpips_lin else None,
         parked=0 if args.no_actors else args.parked, moving=0 if args.no_actors else args.moving,
         actor_seconds=args.actor_seconds,
         resume=args.resume, force=args.force, progress=not args.no_progress and sys.stderr.isatty(),
@@ -155,6 +157,13 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--perceptual-weight", type=float,
                    help="weight of the EfficientNet-Lite0 perceptual loss (default: 0 with the "
                         "procedural prior, whose targets are exact per pixel; 0.05 with a diffusion prior)")
+    p.add_argument("--lpips", metavar="BACKBONE.pth",
+                   help="use LPIPS as the perceptual term instead of EfficientNet-Lite0: a local "
+                        "torchvision AlexNet or VGG16 state dict (never downloaded; needs "
+                        "--perceptual-weight > 0)")
+    p.add_argument("--lpips-lin", metavar="LIN.pth",
+                   help="LPIPS linear weights (the lpips package's weights/v0.1/alex.pth or vgg.pth; "
+                        "default: found in an installed lpips package)")
     p.add_argument("--parked", type=int, default=12, help="parked actors along the curbs (default 12)")
     p.add_argument("--moving", type=int, default=8,
                    help="moving actors driven by IDM traffic over the lane graph (default 8)")

@@ -46,6 +46,8 @@ class GenerateOptions:
     checkpoint_every: int = 50
     perceptual: bool = True
     perceptual_weight: float | None = None         # None: the prior's default (see below)
+    lpips: Path | None = None                      # torchvision AlexNet/VGG16 weights: LPIPS term
+    lpips_lin: Path | None = None                  # LPIPS linear weights (None: installed lpips pkg)
     parked: int = 12                               # actors parked along the curbs
     moving: int = 8                                # actors driven by the IDM traffic model
     actor_seconds: float = 8.0
@@ -85,6 +87,19 @@ def check_options(o: GenerateOptions):
         raise InputError("--resume and --force exclude each other")
     if o.parked < 0 or o.moving < 0:
         raise InputError(f"--parked {o.parked} / --moving {o.moving}: counts must be >= 0")
+    if o.lpips is not None:
+        for flag, f in (("--lpips", o.lpips), ("--lpips-lin", o.lpips_lin)):
+            if f is not None and not Path(f).is_file():
+                raise InputError(f"{flag} {f}: no such file (LPIPS loads local weights only; "
+                                 "nothing is downloaded)")
+        if not o.perceptual or perceptual_weight(o) <= 0:
+            raise InputError(f"--lpips {o.lpips}: the perceptual weight is 0 (--no-perceptual, or "
+                             "the procedural prior's default), so LPIPS would not be used; "
+                             "pass --perceptual-weight W")
+        from lsd3d_usd.ggds.lpips import check_lpips_files
+        check_lpips_files(o.lpips, o.lpips_lin)  # keys, shapes, lin weights: fail before writing
+    elif o.lpips_lin is not None:
+        raise InputError("--lpips-lin needs --lpips BACKBONE.pth")
 
 
 def make_prior(spec: str):
@@ -374,7 +389,11 @@ def _ggds_step(sc, layout, proxy, field, face, light, params, o: GenerateOptions
     held_out = sample_views(layout, 8, cfg.width, cfg.height, seed=cfg.seed + 7919,
                             novel_frac=0.5, fov_deg=cfg.fov_deg)
     perceptual = None
-    if cfg.w_perceptual > 0:
+    if cfg.w_perceptual > 0 and o.lpips is not None:
+        from lsd3d_usd.ggds.lpips import LPIPSLoss
+        perceptual = LPIPSLoss.from_files(o.lpips, o.lpips_lin, linear=True)  # renders are linear
+        o.log(f"ggds: perceptual term = LPIPS ({perceptual.net}, {o.lpips})")
+    elif cfg.w_perceptual > 0:
         from lsd3d_usd.ggds.perceptual import EffNetPerceptualLoss
         perceptual = EffNetPerceptualLoss()
     shadow = shadow_map(proxy[0], proxy[1], light.sun_direction)

@@ -8,7 +8,7 @@ term lies in [0, 4], so the loss does too.
 
 True LPIPS (Zhang et al. 2018) needs a VGG/AlexNet backbone *and* its learned per-channel
 linear weights; neither ships with any installed package and nothing is ever downloaded,
-so LPIPS is not provided (docs/priors.md).
+so it is offered only from the user's local files (lpips.py, docs/priors.md).
 """
 from __future__ import annotations
 
