@@ -96,8 +96,10 @@ def check_options(o: GenerateOptions):
             raise InputError(f"--lpips {o.lpips}: the perceptual weight is 0 (--no-perceptual, or "
                              "the procedural prior's default), so LPIPS would not be used; "
                              "pass --perceptual-weight W")
-        from lsd3d_usd.ggds.lpips import check_lpips_files
-        check_lpips_files(o.lpips, o.lpips_lin)  # keys, shapes, lin weights: fail before writing
+        from lsd3d_usd.ggds.lpips import LPIPSLoss
+        # keys, shapes, lin weights checked before anything is written; the loaded loss is
+        # kept for the GGDS step so the weights are read once
+        o.extra["lpips_loss"] = LPIPSLoss.from_files(o.lpips, o.lpips_lin, linear=True)  # renders are linear
     elif o.lpips_lin is not None:
         raise InputError("--lpips-lin needs --lpips BACKBONE.pth")
 
@@ -390,8 +392,10 @@ def _ggds_step(sc, layout, proxy, field, face, light, params, o: GenerateOptions
                             novel_frac=0.5, fov_deg=cfg.fov_deg)
     perceptual = None
     if cfg.w_perceptual > 0 and o.lpips is not None:
-        from lsd3d_usd.ggds.lpips import LPIPSLoss
-        perceptual = LPIPSLoss.from_files(o.lpips, o.lpips_lin, linear=True)  # renders are linear
+        perceptual = o.extra.get("lpips_loss")
+        if perceptual is None:  # options not checked by check_options
+            from lsd3d_usd.ggds.lpips import LPIPSLoss
+            perceptual = LPIPSLoss.from_files(o.lpips, o.lpips_lin, linear=True)
         o.log(f"ggds: perceptual term = LPIPS ({perceptual.net}, {o.lpips})")
     elif cfg.w_perceptual > 0:
         from lsd3d_usd.ggds.perceptual import EffNetPerceptualLoss

@@ -6,7 +6,7 @@ import torch
 
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.render.reference import render_reference
-from test_render_raster import _loss, _loss_weights, scene
+from test_render_raster import _loss, _loss_weights, degenerate_params, scene
 
 NAMES = ("means", "quats", "scales", "opacities", "sh")
 NEAR, FAR = 0.5, 50.0  # a depth range where m spreads over [0, 1) in the test scenes
@@ -144,21 +144,7 @@ def test_zero_distortion_weight_leaves_the_other_gradients_unchanged():
 
 def test_degenerate_surfels_give_finite_distortion_and_gradients():
     s, _, _ = scene(n=12, seed=6)
-    m, q, sc, op = s["means"].clone(), s["quats"].clone(), s["scales"].clone(), s["opacities"].clone()
-    sc[0] = 0.0                                   # zero scale
-    sc[1, 0] = 0.0                                # zero along one axis
-    m[2] = torch.tensor([0.0, 0.0, 3.0])          # exactly edge-on: normal along x, seen along z
-    q[2] = torch.tensor([0.0, 0.7071068, 0.0, 0.7071068])
-    m[3] = 0.0                                    # centre on the camera
-    m[4] = torch.tensor([0.2, 0.1, -2.0])         # behind the camera
-    m[5] = torch.tensor([0.0, 0.0, 0.3])          # large surfel crossing the camera plane
-    sc[5] = 2.0
-    op[6] = 0.0
-    op[7] = 1.0
-    sc[7] = 5.0                                   # opaque, covering the view
-    m[8] = torch.tensor([0.0, 0.0, 0.0501])       # just beyond near
-    p = dict(means=m, quats=q, scales=sc, opacities=op, sh=s["sh"].clone())
-    p = {k: v.requires_grad_(True) for k, v in p.items()}
+    p = degenerate_params(s)
     out = rasterize(**{**s, **p}, distortion=True)
     assert torch.isfinite(out["distortion"]).all() and (out["distortion"] >= 0).all()
     assert out["distortion"].max() > 0

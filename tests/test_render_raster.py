@@ -169,8 +169,9 @@ def test_screen_bounds_are_conservative_for_near_large_oblique_splats():
     assert worst3 >= 1.0 / 255.0
 
 
-def test_degenerate_surfels_give_finite_outputs_and_gradients():
-    s, means64, _ = scene(n=12, seed=6)
+def degenerate_params(s):
+    """Leaf copies of scene s's surfel parameters with surfels 0-8 made degenerate (shared by
+    the distortion tests)."""
     m, q, sc, op = s["means"].clone(), s["quats"].clone(), s["scales"].clone(), s["opacities"].clone()
     sc[0] = 0.0                                   # zero scale
     sc[1, 0] = 0.0                                # zero along one axis
@@ -186,6 +187,12 @@ def test_degenerate_surfels_give_finite_outputs_and_gradients():
     m[8] = torch.tensor([0.0, 0.0, 0.0501])       # just beyond near
     p = dict(means=m, quats=q, scales=sc, opacities=op, sh=s["sh"].clone())
     p = {k: v.requires_grad_(True) for k, v in p.items()}
+    return p
+
+
+def test_degenerate_surfels_give_finite_outputs_and_gradients():
+    s, means64, _ = scene(n=12, seed=6)
+    p = degenerate_params(s)
     out = rasterize(**{**s, **p}, background=torch.tensor([0.5, 0.5, 0.5]))
     wts = _loss_weights(24, 32, 3)
     _loss(out, wts).backward()

@@ -262,8 +262,3 @@ class LPIPSLoss(nn.Module):
 
     def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         return self.distance(x, y).mean()
-
-
-def check_lpips_files(backbone_path, lin_path=None) -> str:
-    """Load and validate both files (before generate writes anything); returns the net name."""
-    return LPIPSLoss.from_files(backbone_path, lin_path).net
