@@ -133,3 +133,47 @@ def test_driving_scene_within_1e3_of_float64_reference():
     assert n_ref > 100
     rgb = out["rgb"][pix[:, 1], pix[:, 0]].double()
     assert (rgb - ref["rgb"]).abs().max().item() <= 1e-3
+
+
+def test_exp_neg_against_float64():
+    from numba import njit
+
+    @njit
+    def run(y):
+        out = np.empty_like(y)
+        for i in range(y.shape[0]):
+            out[i] = kernels.exp_neg(y[i])
+        return out
+
+    y = np.concatenate([np.linspace(0, 20, 400_001), [0.0, 1e-30, 15.9999, 16.0, 1e30, np.inf]])
+    y = y.astype(np.float32)
+    got = run(y).astype(np.float64)
+    want = np.exp(-np.minimum(y.astype(np.float64), 16.0))
+    assert got[0] == 1.0  # alpha at a surfel centre is exactly its opacity
+    assert np.abs(got - want).max() < 2e-7
+    small = y <= 8  # where alpha can exceed 1/255: relative accuracy
+    assert (np.abs(got - want) / want)[small].max() < 1e-6
+    assert np.isfinite(run(np.array([np.nan], np.float32))).all()  # never a NaN alpha
+
+
+def test_tile_must_be_a_multiple_of_the_lane_block_and_sizes_agree():
+    arrays = [torch.from_numpy(a) for a in driving_scene(3000, seed=1)]
+    vm, K = driving_camera(100, 60)
+    kw = dict(viewmat=torch.from_numpy(vm), K=torch.from_numpy(K), width=100, height=60)
+    with pytest.raises(InputError, match=r"tile must be a positive multiple of 8, not 12"):
+        rasterize(*arrays, **kw, tile=12)
+    a = rasterize(*arrays, **kw, tile=16)
+    b = rasterize(*arrays, **kw, tile=32)
+    assert a["stats"]["evals_rect"] <= a["stats"]["evals"]
+    for k in ("rgb", "alpha", "depth_median", "normal"):
+        assert torch.allclose(a[k], b[k], atol=1e-6), k
+
+
+def test_too_many_surfels_in_one_tile_is_refused(monkeypatch):
+    # list positions are held in float32 in the kernel: exact only below MAX_TILE_PAIRS
+    arrays = [torch.from_numpy(a) for a in driving_scene(3000, seed=1)]
+    vm, K = driving_camera(100, 60)
+    monkeypatch.setattr(kernels, "MAX_TILE_PAIRS", 50)
+    with pytest.raises(InputError, match=r"more than 50 surfels overlap one 16x16 tile"):
+        rasterize(*arrays, viewmat=torch.from_numpy(vm), K=torch.from_numpy(K), width=100,
+                  height=60)

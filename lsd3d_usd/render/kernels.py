@@ -6,9 +6,13 @@ was half the kernel time). Everything in the hot loops is float32 (a float64 lit
 promote the loop): constants are np.float32. The kernels use error_model="numpy": Python's
 ZeroDivisionError check puts a branch in every division and stops LLVM from vectorising.
 Tiles run in parallel (prange); inside a tile the surfel loop is outside and the pixel loop
-inside: alpha (and for the backward the per-pixel geometry) of a surfel is computed on its
-rows x an aligned power-of-two column span in one branch-free, vectorised loop, and the
-compositing runs over its exact rectangle in a second loop. The backward walks each pixel's
+inside. The forward evaluates a surfel on each row of its rectangle in blocks of LANES = 8
+adjacent pixels (one AVX2 vector) and composites them branch-free with masks; per-pixel state
+lives in one array in blocks of constant-offset planes, so LLVM vectorises the lane loop.
+Alpha is latency-bound (each block waits on one chain of divide, exp and compare), hence the
+short exp_neg and the FMA contraction. The backward computes alpha and the per-pixel geometry
+of a surfel on its rows x an aligned power-of-two column span in one vectorised loop
+(_geom_block), then runs its scalar chain rule over the exact rectangle. The backward walks each pixel's
 contributors back to front from the stored final transmittance and last contributor (as the
 CUDA rasterisers do) and writes one gradient row per pair; rows are summed per surfel
 afterwards in a fixed order, so the result does not depend on thread scheduling. Tiles are
@@ -30,31 +34,34 @@ _ONE = np.float32(1.0)
 _ZERO = np.float32(0.0)
 _TWO = np.float32(2.0)
 _EXP_CLAMP = np.float32(16.0)
-_INV64 = np.float32(1.0 / 64.0)
-# Taylor coefficients of exp(-t), t in [0, 0.25]; result squared 6 times = exp(-64 t).
-_E2 = np.float32(1.0 / 2.0)
-_E3 = np.float32(1.0 / 6.0)
-_E4 = np.float32(1.0 / 24.0)
-_E5 = np.float32(1.0 / 120.0)
-_E6 = np.float32(1.0 / 720.0)
-_E7 = np.float32(1.0 / 5040.0)
+_LOG2E = np.float32(1.4426950408889634)
+_TWO_M24 = np.float32(2.0 ** -24)
+# 2^-f on [0, 1): p(f) = 1 + f (P1 + f (P2 + ...)), relative-error weighted least-squares fit
+# (fitted here, float64, then rounded): 1.0e-8 in float64, 2.1e-7 evaluated in float32.
+_P1 = np.float32(-6.93147004e-01)
+_P2 = np.float32(2.40224183e-01)
+_P3 = np.float32(-5.54907322e-02)
+_P4 = np.float32(9.58027784e-03)
+_P5 = np.float32(-1.27655233e-03)
+_P6 = np.float32(1.09857116e-04)
 _LOWPASS = np.float32(2.0)  # 1/sigma^2, sigma = sqrt(2)/2 px
+_M1 = np.float32(-1.0)
 
 
-@njit(inline="always", fastmath=False)
+@njit(inline="always")
 def exp_neg(y):
-    """exp(-y) for y >= 0 in plain float32 arithmetic (vectorises; libm expf does not).
-    Relative error ~1e-6 for y <= 16; beyond, exp(-16) = 1.1e-7 is returned (far below any
-    alpha threshold)."""
-    t = min(y, _EXP_CLAMP) * _INV64
-    p = _ONE - t * (_ONE - t * (_E2 - t * (_E3 - t * (_E4 - t * (_E5 - t * (_E6 - t * _E7))))))
-    p = p * p
-    p = p * p
-    p = p * p
-    p = p * p
-    p = p * p
-    p = p * p
-    return p
+    """exp(-y) for y >= 0 in float32 arithmetic that vectorises (libm expf does not):
+    y log2(e) = n + f, 2^-n exactly from an integer shift, 2^-f by a degree-6 polynomial in
+    Estrin form. Relative error ~3e-7 for small y, ~1e-6 (from rounding y log2 e) near 16,
+    absolute error < 1.1e-7 everywhere. y >= 16 (and NaN) give exp(-16) = 1.1e-7, far below
+    any alpha threshold. The dependency chain is short (about 8 operations deep): in the
+    kernels alpha is latency-bound, and the former Taylor series + 6 squarings was 20 deep."""
+    x = (y if y < _EXP_CLAMP else _EXP_CLAMP) * _LOG2E
+    n = np.int32(x)  # x >= 0: truncation is floor
+    f = x - f32(n)
+    f2 = f * f
+    p = (_ONE + _P1 * f) + f2 * ((_P2 + _P3 * f) + f2 * ((_P4 + _P5 * f) + f2 * _P6))
+    return p * (f32(np.int32(1) << (np.int32(24) - n)) * _TWO_M24)
 
 
 @njit(cache=True)
@@ -248,21 +255,38 @@ def _geom_block(x0, y0, c0, sh, lj0, nq, xb, yb, zc, a1, a2, b1, b2, ex, ey, op,
             sbuf[q] = use3
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+LANES = 8  # pixels per block: 8 adjacent pixels of one tile row (one AVX2 vector)
+# Per-block state planes (LANES floats each, block after block): the offsets are constants, so
+# LLVM sees the planes never overlap and vectorises the lane loop without runtime checks. The
+# integer state (last / median contributor, argmax) is held as float32 list positions within
+# the tile (exact below 2^24, checked by the caller): one array, no aliasing between types.
+(_Q_T, _Q_R, _Q_G, _Q_B, _Q_D, _Q_NX, _Q_NY, _Q_NZ, _Q_MED, _Q_LAST, _Q_LMED, _Q_WM, _Q_AM,
+ _Q_MA, _Q_MMU, _Q_MS) = [np.uint64(i * LANES) for i in range(16)]
+_NQ = 16
+_BLOCK = np.uint64(_NQ * LANES)
+MAX_TILE_PAIRS = 1 << 24  # list positions held exactly in float32
+
+
+@njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
 def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
-            near, alpha_min, alpha_max, t_min, dist):
+            near, alpha_min, alpha_max, t_min, dist, amax):
     """Front-to-back compositing; prm and rects are per pair (bin_sorted's pair_prm,
-    pair_rect), tile_splats the surfel of each pair. Returns (rgb (H,W,3), T_final, depth_acc = sum w z,
-    normal_acc (H,W,3) = sum w n, depth_median, last (list position + 1 of the last
-    contributor, per pixel), med (list position of the median contributor or -1),
-    argmax_w (surfel index of the largest weight or -1), evals per tile).
+    pair_rect), tile_splats the surfel of each pair; tile a multiple of LANES. Returns (rgb
+    (H,W,3), T_final, depth_acc = sum w z, normal_acc (H,W,3) = sum w n, depth_median, last
+    (list position + 1 of the last contributor, per pixel), med (list position of the median
+    contributor or -1), evals (ntiles, 2): per tile the Gaussians evaluated (rows x blocks x
+    LANES) and the pixels inside the surfels' exact rectangles (the useful part of them)).
 
-    Each surfel is evaluated on the rows of its screen rectangle within the tile, each row
-    across the whole tile width in one branch-free loop (columns outside the rectangle get
-    alpha 0, which leaves every accumulator exactly unchanged): the loop has a fixed trip
-    count and vectorises, which beats a branchy loop over the few pixels of a small splat.
-    A pixel is finished once T < t_min (it composited the surfel that took it there).
+    Each surfel is evaluated on the rows of its screen rectangle within the tile, each row on
+    the blocks of LANES pixels the rectangle touches, in one branch-free loop over the lanes:
+    alpha, then a masked composite (lanes outside the rectangle, below alpha_min or finished
+    (T < t_min) add exactly nothing). That loop vectorises; the scalar version with a branch
+    per pixel mispredicted on every alpha test. The accumulators take w * value with w = 0
+    for masked lanes, so they store unconditionally; FMA contraction is allowed (the
+    reference tests bound the error).
 
+    amax: None, or an (H,W) int32 array that receives the surfel with the largest weight
+    (-1 if none); with None that tracking is compiled out.
     dist: None, or a (3,H,W) float32 array that receives per pixel the depth-distortion
     moments of the contributors in u = 1/z: A = sum w, mu = sum w u / A, S = sum w (u - mu)^2
     (Welford's weighted update: every term is >= 0, no cancellation). With None numba prunes
@@ -274,53 +298,38 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
     dmed = np.zeros((height, width), f32)
     last = np.zeros((height, width), np.int32)
     med = np.full((height, width), -1, np.int32)
-    amax = np.full((height, width), -1, np.int32)
-    evals = np.zeros(ntx * nty, np.int64)
-    npx = tile * tile
+    evals = np.zeros((ntx * nty, 2), np.int64)
+    nbr = tile // LANES  # blocks per tile row
+    nblk = nbr * tile
     for it in prange(ntx * nty):
         t = tile_order[it]
         ty = t // ntx
         tx = t - ty * ntx
         x0 = tx * tile
         y0 = ty * tile
-        pxs = np.empty(tile, f32)
-        abuf = np.empty(npx, f32)
-        zbuf = np.empty(npx, f32)
-        T = np.ones(npx, f32)
-        done = np.zeros(1, np.bool_)  # unused stand-in for the backward-only buffer
-        c_r = np.zeros(npx, f32)
-        c_g = np.zeros(npx, f32)
-        c_b = np.zeros(npx, f32)
-        c_d = np.zeros(npx, f32)
-        c_nx = np.zeros(npx, f32)
-        c_ny = np.zeros(npx, f32)
-        c_nz = np.zeros(npx, f32)
-        c_med = np.zeros(npx, f32)
-        l_last = np.zeros(npx, np.int32)
-        l_med = np.full(npx, -1, np.int32)
-        l_wmax = np.zeros(npx, f32)
-        l_amax = np.full(npx, -1, np.int32)
-        m_a = np.zeros(npx, f32)
-        m_mu = np.zeros(npx, f32)
-        m_s = np.zeros(npx, f32)
-        for c in range(tile):
-            pxs[c] = f32(x0 + c) + _HALF
-        ndone = 0
-        for p in range(npx):
-            i = x0 + p % tile
-            j = y0 + p // tile
-            if i >= width or j >= height:
-                T[p] = _ZERO  # finished from the start (T < t_min unless t_min is 0)
-                ndone += 1
-        if t_min <= _ZERO:
-            ndone = 0
+        st = np.zeros(nblk * _NQ * LANES, f32)
+        for b in range(nblk):
+            jj = b // nbr
+            ib = (b - jj * nbr) * LANES
+            o = np.uint64(b) * _BLOCK
+            for c in range(LANES):
+                inside = (y0 + jj < height) & (x0 + ib + c < width)
+                st[o + _Q_T + np.uint64(c)] = _ONE if inside else _ZERO  # outside: finished
+                st[o + _Q_LMED + np.uint64(c)] = _M1
+                st[o + _Q_AM + np.uint64(c)] = _M1
         k0 = tile_start[t]
         k1 = tile_start[t + 1]
         nev = 0
+        nrect = 0
         for k in range(k0, k1):
-            if ndone >= npx:
-                break
-            s = tile_splats[k]
+            if t_min > _ZERO and (k - k0) & 31 == 31:  # every 32 surfels: is the tile finished?
+                tmax = _ZERO
+                for b in range(nblk):
+                    o = np.uint64(b) * _BLOCK
+                    for c in range(LANES):
+                        tmax = max(tmax, st[o + _Q_T + np.uint64(c)])
+                if tmax < t_min:
+                    break
             li0 = max(rects[k, 0] - x0, 0)
             li1 = min(rects[k, 1] - x0, tile - 1)
             lj0 = max(rects[k, 2] - y0, 0)
@@ -330,76 +339,103 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
             ex, ey, op = prm[k, 7], prm[k, 8], prm[k, 9]
             cr, cg, cb = prm[k, 10], prm[k, 11], prm[k, 12]
             nx, ny, nz = prm[k, 13], prm[k, 14], prm[k, 15]
-            c0, sh = _span(li0, li1)
-            nq = (lj1 - lj0 + 1) << sh
-            nev += nq  # Gaussians evaluated: the rectangle's rows x the aligned span
-            _geom_block(x0, y0, c0, sh, lj0, nq, xb, yb, zc, a1, a2, b1, b2,
-                        ex, ey, op, near, alpha_max, abuf, zbuf, abuf, abuf, abuf, abuf, done,
-                        False)
+            kl = f32(k - k0)
+            kl1 = f32(k - k0 + 1)
+            bb0 = li0 // LANES
+            bb1 = li1 // LANES
+            nev += (lj1 - lj0 + 1) * (bb1 - bb0 + 1) * LANES
+            nrect += (lj1 - lj0 + 1) * (li1 - li0 + 1)
             for jj in range(lj0, lj1 + 1):
-                base = jj * tile
-                qb = ((jj - lj0) << sh) - c0
-                for c in range(li0, li1 + 1):
-                    a = abuf[qb + c]
-                    p = base + c
-                    tp = T[p]
-                    if a < alpha_min or tp < t_min:
-                        continue
-                    tn = tp * (_ONE - a)
-                    if tn < t_min:  # composite this one, then stop: residual <= t_min
-                        ndone += 1
-                    w = a * tp
-                    z = zbuf[qb + c]
-                    c_r[p] += w * cr
-                    c_g[p] += w * cg
-                    c_b[p] += w * cb
-                    c_d[p] += w * z
-                    c_nx[p] += w * nx
-                    c_ny[p] += w * ny
-                    c_nz[p] += w * nz
-                    if tp > _HALF:
-                        c_med[p] = z
-                        l_med[p] = k
-                    if w > l_wmax[p]:
-                        l_wmax[p] = w
-                        l_amax[p] = s
-                    if dist is not None:
-                        if w > _ZERO:
-                            iz = _ONE / z
-                            an = m_a[p] + w
-                            dl = iz - m_mu[p]
-                            mu = m_mu[p] + dl * (w / an)
-                            m_s[p] += w * dl * (iz - mu)
-                            m_mu[p] = mu
-                            m_a[p] = an
-                    T[p] = tn
-                    l_last[p] = k + 1
-        evals[t] = nev
-        for p in range(npx):
-            i = x0 + p % tile
-            j = y0 + p // tile
-            if i >= width or j >= height:
-                continue
-            rgb[j, i, 0] = c_r[p]
-            rgb[j, i, 1] = c_g[p]
-            rgb[j, i, 2] = c_b[p]
-            tfin[j, i] = T[p]
-            dacc[j, i] = c_d[p]
-            nacc[j, i, 0] = c_nx[p]
-            nacc[j, i, 1] = c_ny[p]
-            nacc[j, i, 2] = c_nz[p]
-            dmed[j, i] = c_med[p]
-            last[j, i] = l_last[p]
-            med[j, i] = l_med[p]
-            amax[j, i] = l_amax[p]
-            if dist is not None:
-                dist[0, j, i] = m_a[p]
-                dist[1, j, i] = m_mu[p]
-                dist[2, j, i] = m_s[p]
-    return rgb, tfin, dacc, nacc, dmed, last, med, amax, evals
+                dy = (f32(y0 + jj) + _HALF) - yb
+                for bb in range(bb0, bb1 + 1):
+                    ib = bb * LANES
+                    o = np.uint64(jj * nbr + bb) * _BLOCK
+                    for c in range(LANES):
+                        cc = ib + c
+                        dx = (f32(x0 + cc) + _HALF) - xb
+                        uu = a1 * dx + a2 * dy
+                        vv = b1 * dx + b2 * dy
+                        iw = _ONE / (_ONE + ex * dx + ey * dy)
+                        r3 = (uu * uu + vv * vv) * (iw * iw)
+                        r2 = _LOWPASS * (dx * dx + dy * dy)
+                        use3 = r3 <= r2
+                        rho = r3 if use3 else r2
+                        z = zc * iw if use3 else zc
+                        a = min(alpha_max, op * exp_neg(_HALF * rho))
+                        q = o + np.uint64(c)
+                        tp = st[q + _Q_T]
+                        live = ((cc >= li0) & (cc <= li1) & (tp >= t_min) & (z >= near)
+                                & (a >= alpha_min))
+                        ae = a if live else _ZERO
+                        ze = z if live else _ZERO
+                        w = ae * tp
+                        st[q + _Q_R] += w * cr
+                        st[q + _Q_G] += w * cg
+                        st[q + _Q_B] += w * cb
+                        st[q + _Q_D] += w * ze
+                        st[q + _Q_NX] += w * nx
+                        st[q + _Q_NY] += w * ny
+                        st[q + _Q_NZ] += w * nz
+                        st[q + _Q_T] = tp * (_ONE - ae)
+                        st[q + _Q_LAST] = max(st[q + _Q_LAST], kl1 if live else _ZERO)
+                        um = live & (tp > _HALF)
+                        omed = st[q + _Q_MED]
+                        st[q + _Q_MED] = z if um else omed
+                        st[q + _Q_LMED] = max(st[q + _Q_LMED], kl if um else _M1)
+                        if amax is not None:
+                            owm = st[q + _Q_WM]
+                            better = w > owm
+                            st[q + _Q_WM] = w if better else owm
+                            oam = st[q + _Q_AM]
+                            st[q + _Q_AM] = kl if better else oam
+                        if dist is not None:
+                            oa = st[q + _Q_MA]
+                            omu = st[q + _Q_MMU]
+                            an = oa + w
+                            iz = _ONE / (z if live else _ONE)
+                            dl = iz - omu
+                            mu = omu + dl * (w / (an if w > _ZERO else _ONE))
+                            ds = w * dl * (iz - mu)
+                            upd = w > _ZERO
+                            st[q + _Q_MA] = an if upd else oa
+                            st[q + _Q_MMU] = mu if upd else omu
+                            st[q + _Q_MS] += ds if upd else _ZERO
+        evals[t, 0] = nev
+        evals[t, 1] = nrect
+        for b in range(nblk):
+            jj = b // nbr
+            j = y0 + jj
+            ib = (b - jj * nbr) * LANES
+            o = np.uint64(b) * _BLOCK
+            for c in range(LANES):
+                i = x0 + ib + c
+                if i >= width or j >= height:
+                    continue
+                q = o + np.uint64(c)
+                rgb[j, i, 0] = st[q + _Q_R]
+                rgb[j, i, 1] = st[q + _Q_G]
+                rgb[j, i, 2] = st[q + _Q_B]
+                tfin[j, i] = st[q + _Q_T]
+                dacc[j, i] = st[q + _Q_D]
+                nacc[j, i, 0] = st[q + _Q_NX]
+                nacc[j, i, 1] = st[q + _Q_NY]
+                nacc[j, i, 2] = st[q + _Q_NZ]
+                dmed[j, i] = st[q + _Q_MED]
+                fl = st[q + _Q_LAST]
+                last[j, i] = np.int32(k0 + np.int64(fl)) if fl > _ZERO else 0
+                fm = st[q + _Q_LMED]
+                med[j, i] = np.int32(k0 + np.int64(fm)) if fm >= _ZERO else -1
+                if amax is not None:
+                    fa = st[q + _Q_AM]
+                    amax[j, i] = tile_splats[k0 + np.int64(fa)] if fa >= _ZERO else -1
+                if dist is not None:
+                    dist[0, j, i] = st[q + _Q_MA]
+                    dist[1, j, i] = st[q + _Q_MMU]
+                    dist[2, j, i] = st[q + _Q_MS]
+    return rgb, tfin, dacc, nacc, dmed, last, med, evals
 
 
-@njit(parallel=True, cache=True, error_model="numpy")
+@njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
 def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
              near, alpha_min, alpha_max, tfin, last, med,
              g_rgb, g_t, g_d, g_n, g_med, dist, g_dist):

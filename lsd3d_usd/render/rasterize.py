@@ -83,18 +83,24 @@ class _Raster(torch.autograd.Function):
         t2 = time.perf_counter()
         moments = (np.zeros((3, plan["height"], plan["width"]), np.float32)
                    if plan["distortion"] else None)
-        rgb, tfin, dacc, nacc, dmed, last, med, amax, evals = kernels.forward(
+        if int(np.diff(tile_start).max(initial=0)) >= kernels.MAX_TILE_PAIRS:
+            raise InputError(f"rasterize: more than {kernels.MAX_TILE_PAIRS} surfels overlap one "
+                             f"{plan['tile']}x{plan['tile']} tile; use a smaller tile")
+        amax = (np.empty((plan["height"], plan["width"]), np.int32)
+                if plan["argmax"] else None)
+        rgb, tfin, dacc, nacc, dmed, last, med, evals = kernels.forward(
             pprm, prect, tile_start, tile_splats, plan["tile_order"], plan["width"],
             plan["height"], plan["tile"], plan["ntx"], plan["nty"], np.float32(plan["near"]),
             np.float32(plan["alpha_min"]), np.float32(plan["alpha_max"]), np.float32(plan["t_min"]),
-            moments)
+            moments, amax)
         if moments is None:
             dist = torch.zeros(0)
             ctx.mark_non_differentiable(dist)
         else:  # D = s^2 A S (kernels.forward: moments of u = 1/z; m = const - s u)
             dist = torch.from_numpy(np.float32(_ndc_scale2(plan)) * moments[0] * moments[2])
         t3 = time.perf_counter()
-        plan.update(evals=int(evals.sum()), argmax=amax, visible_index=idx,
+        plan.update(evals=int(evals[:, 0].sum()), evals_rect=int(evals[:, 1].sum()),
+                    argmax_surfel=amax, visible_index=idx,
                     n_pairs=int(tile_splats.shape[0]), project_s=t1 - t0, bin_s=t2 - t1,
                     raster_s=t3 - t2)
         ctx.plan = plan
@@ -161,7 +167,9 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
                              2024) sum_i w_i sum_{j<i} w_j (m_i - m_j)^2 over the contributors,
                              m = far/(far-near) (1 - near/z) (NDC-like depth in [0,1) on
                              [near, far)); the default path compiles without it;
-      stats (dict)           n_visible, n_pairs, evals, timings (with return_extras).
+      stats (dict)           n_visible, n_pairs, evals (Gaussians the kernel evaluated),
+                             evals_rect (those inside the surfels' exact rectangles),
+                             timings (with return_extras).
     Gradients flow from rgb, alpha, depth_acc/depth_expected, depth_median, normal and
     distortion to means, quats, scales, opacities, sh (and background).
     """
@@ -182,8 +190,10 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
     _check(viewmat, "viewmat", (4, 4))
     _check(K, "K", (3, 3))
     width, height, tile = int(width), int(height), int(tile)
-    if width <= 0 or height <= 0 or tile <= 0:
-        raise InputError(f"rasterize: bad image size {width}x{height} or tile {tile}")
+    if width <= 0 or height <= 0:
+        raise InputError(f"rasterize: bad image size {width}x{height}")
+    if tile <= 0 or tile % kernels.LANES:
+        raise InputError(f"rasterize: tile must be a positive multiple of {kernels.LANES}, not {tile}")
     if not (0 < near < far):
         raise InputError(f"rasterize: need 0 < near < far, got near={near}, far={far}")
     if abs(float(K[2, 0])) > 0 or abs(float(K[2, 1])) > 0 or float(K[2, 2]) != 1.0:
@@ -216,7 +226,7 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
                 alpha_min=float(alpha_min), alpha_max=float(alpha_max), t_min=float(t_min),
                 bound_sigma=-1.0 if bound_sigma is None else float(bound_sigma),
                 tile_order=np.random.default_rng(0).permutation(ntx * nty),
-                distortion=bool(distortion))
+                distortion=bool(distortion), argmax=semantic_ids is not None)
     f32 = torch.float32
     rgb, alpha, dacc, nacc, dmed, dist = _Raster.apply(means.to(f32), quats.to(f32), scales.to(f32),
                                                  opacities.to(f32), sh.to(f32), plan)
@@ -231,17 +241,18 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
                normal=nacc, semantic=None)
     if distortion:
         out["distortion"] = dist
-    amax = plan["argmax"]
     idx = torch.from_numpy(plan["visible_index"])
     if semantic_ids is not None:
         sem = torch.as_tensor(semantic_ids).long()
         if sem.shape != (n,):
             raise InputError(f"rasterize: semantic_ids has shape {tuple(sem.shape)}, expected ({n},)")
         vis_sem = torch.cat([sem[idx], torch.tensor([-1])])
+        amax = plan["argmax_surfel"]  # visible-set index of the largest weight, -1 if none
         out["semantic"] = vis_sem[torch.from_numpy(amax.astype(np.int64))]  # -1 -> last = -1
     if return_extras:
         out["stats"] = dict(
             n_visible=int(idx.numel()), n_pairs=plan["n_pairs"], evals=plan["evals"],
+            evals_rect=plan["evals_rect"],
             project_s=plan["project_s"], bin_s=plan["bin_s"], raster_s=plan["raster_s"],
             total_s=time.perf_counter() - t_start, plan=plan, visible_index=idx)
     return out
