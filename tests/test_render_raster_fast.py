@@ -177,3 +177,24 @@ def test_too_many_surfels_in_one_tile_is_refused(monkeypatch):
     with pytest.raises(InputError, match=r"more than 50 surfels overlap one 16x16 tile"):
         rasterize(*arrays, viewmat=torch.from_numpy(vm), K=torch.from_numpy(K), width=100,
                   height=60)
+
+
+def test_validation_of_strided_and_float64_inputs():
+    # the one-scan check takes any layout; float64 inputs take the per-array path
+    means, quats, scales, op, sh = [torch.from_numpy(a) for a in driving_scene(500, seed=0)]
+    vm, K = driving_camera(64, 48)
+    kw = dict(viewmat=torch.from_numpy(vm), K=torch.from_numpy(K), width=64, height=48)
+    strided = torch.stack([op, op], 1)[:, 0]
+    assert not strided.is_contiguous()
+    ok = rasterize(means, quats, scales, strided, sh, **kw)
+    assert torch.equal(ok["rgb"], rasterize(means, quats, scales, op, sh, **kw)["rgb"])
+    bad = strided.clone()
+    bad[7] = float("nan")
+    with pytest.raises(InputError, match=r"opacities has a non-finite value \(NaN or Inf\) at index 7$"):
+        rasterize(means, quats, scales, bad, sh, **kw)
+    m64 = means.double()
+    m64[3, 1] = float("inf")
+    with pytest.raises(InputError, match=r"means has a non-finite value .* at index 3$"):
+        rasterize(m64, quats, scales, op, sh, **kw)
+    assert kprep.first_bad_array((np.zeros(3, np.float32), np.full(2, -1.0, np.float32)),
+                                 (False, True)) == 1

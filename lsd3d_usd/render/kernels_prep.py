@@ -512,6 +512,40 @@ def first_bad(flat, negative_too):
     return -1
 
 
+_SCAN = 65536
+
+
+@njit(parallel=True, cache=True)
+def first_bad_array(arrs, negative):
+    """Index into arrs (a tuple of 1-D float32 arrays) of the first one holding a non-finite
+    value (or, where negative[i], a value < 0), -1 if none: one parallel scan over blocks of
+    all of them (one thread wake-up for the whole input, where a parallel region per array
+    cost more than its scan). first_bad then finds the index within that array."""
+    na = len(arrs)
+    start = np.zeros(na + 1, np.int64)
+    for i in range(na):
+        start[i + 1] = start[i] + (arrs[i].shape[0] + _SCAN - 1) // _SCAN
+    flags = np.zeros(start[na], np.bool_)
+    for b in prange(start[na]):
+        i = 0
+        while b >= start[i + 1]:
+            i += 1
+        a = arrs[i]
+        lo = (b - start[i]) * _SCAN
+        hi = min(a.shape[0], lo + _SCAN)
+        neg = negative[i]
+        bad = False
+        for q in range(lo, hi):  # x - x is NaN iff x is NaN or Inf
+            v = a[q]
+            bad |= (v - v != 0) | (neg & (v < 0))
+        flags[b] = bad
+    for i in range(na):
+        for b in range(start[i], start[i + 1]):
+            if flags[b]:
+                return i
+    return -1
+
+
 @njit(cache=True)
 def first_zero_row(q):
     """Smallest row index of an all-zero row of q (N,4), -1 if none."""

@@ -39,18 +39,23 @@ def _as_tensor(x, name, dtype=torch.float32):
     return x
 
 
-def _check(x, name, shape, negative=False):
-    """shape: tuple with None for free dims. Then no NaN/Inf (and, with negative, no value < 0),
-    found in one numba pass; the index of the first bad element is named."""
+def _check_shape(x, name, shape):
+    """shape: tuple with None for free dims."""
     if x.dim() != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape)):
         want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
         raise InputError(f"rasterize: {name} has shape {tuple(x.shape)}, expected {want}")
+
+
+def _check(x, name, shape, negative=False):
+    """shape: tuple with None for free dims. Then no NaN/Inf (and, with negative, no value < 0),
+    found in one numba pass; the index of the first bad element is named."""
+    _check_shape(x, name, shape)
     flat = x.detach().reshape(-1).numpy()
     q = int(kprep.first_bad(flat, negative)) if flat.size else -1
     if q < 0:
         return
     where = np.unravel_index(q, tuple(x.shape))
-    index = int(where[0]) if x.dim() > 1 and name not in ("viewmat", "K") else tuple(int(i) for i in where)
+    index = tuple(int(i) for i in where) if name in ("viewmat", "K") else int(where[0])
     if np.isfinite(flat[q]):
         raise InputError(f"rasterize: {name} has a negative value at index {index}")
     raise InputError(f"rasterize: {name} has a non-finite value (NaN or Inf) at index {index}")
@@ -181,12 +186,21 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
     sh = _as_tensor(sh, "sh")
     viewmat = _as_tensor(viewmat, "viewmat")
     K = _as_tensor(K, "K")
-    _check(means, "means", (None, 3))
+    _check_shape(means, "means", (None, 3))
     n = means.shape[0]
-    _check(quats, "quats", (n, 4))
-    _check(scales, "scales", (n, 2), negative=True)
-    _check(opacities, "opacities", (n,))
-    _check(sh, "sh", (n, None, 3))
+    checks = ((means, "means", (n, 3), False), (quats, "quats", (n, 4), False),
+              (scales, "scales", (n, 2), True), (opacities, "opacities", (n,), False),
+              (sh, "sh", (n, None, 3), False))
+    for x, name, shape, _ in checks:
+        _check_shape(x, name, shape)
+    flats = tuple(np.ascontiguousarray(x.detach().reshape(-1).numpy()) for x, *_ in checks)
+    if all(f.dtype == np.float32 for f in flats):  # the usual case: one parallel scan of all
+        bad = int(kprep.first_bad_array(flats, tuple(c[3] for c in checks)))
+        if bad >= 0:
+            _check(*checks[bad])  # names the array and the index
+    else:
+        for c in checks:
+            _check(*c)
     _check(viewmat, "viewmat", (4, 4))
     _check(K, "K", (3, 3))
     width, height, tile = int(width), int(height), int(tile)
