@@ -12,8 +12,12 @@ lives in one array in blocks of constant-offset planes, so LLVM vectorises the l
 Alpha is latency-bound (each block waits on one chain of divide, exp and compare), hence the
 short exp_neg and the FMA contraction. The backward computes alpha and the per-pixel geometry
 of a surfel on its rows x an aligned power-of-two column span in one vectorised loop
-(_geom_block), then runs its scalar chain rule over the exact rectangle. The backward walks each pixel's
-contributors back to front from the stored final transmittance and last contributor (as the
+(_geom_block), then runs its scalar chain rule over the exact rectangle (a lane-masked
+backward in the forward's layout was measured 1.4x slower, probably because the scalar loop
+skips the many pixels past their last contributor). With contraction the two loop shapes may
+round alpha an ulp apart (a check of 37 M surfel-pixel pairs: 0.1 % differ, one crosses the
+alpha threshold); gradients agree with the uncontracted kernels to 1e-5 relative. The
+backward walks each pixel's contributors back to front from the stored final transmittance and last contributor (as the
 CUDA rasterisers do) and writes one gradient row per pair; rows are summed per surfel
 afterwards in a fixed order, so the result does not depend on thread scheduling. Tiles are
 visited in a fixed shuffled order (tile_order): prange hands each thread a contiguous block
