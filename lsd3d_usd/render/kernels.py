@@ -227,6 +227,23 @@ def _span(li0, li1):
 
 
 @njit(inline="always", error_model="numpy")
+def _splat_at(dx, dy, zc, a1, a2, b1, b2, ex, ey):
+    """The surfel at pixel offset (dx, dy) from its projected centre: (rho, z, use3, uu, vv,
+    iw). rho: squared Mahalanobis distance, the ray-splat intersection's (homography rows a, b,
+    e; 1/W = iw) or the screen low-pass filter's, whichever is smaller (use3: the first); z:
+    depth there. One definition for both kernels, so they compute the same alpha."""
+    uu = a1 * dx + a2 * dy
+    vv = b1 * dx + b2 * dy
+    iw = _ONE / (_ONE + ex * dx + ey * dy)
+    r3 = (uu * uu + vv * vv) * (iw * iw)
+    r2 = _LOWPASS * (dx * dx + dy * dy)
+    use3 = r3 <= r2
+    rho = r3 if use3 else r2
+    z = zc * iw if use3 else zc
+    return rho, z, use3, uu, vv, iw
+
+
+@njit(inline="always", error_model="numpy")
 def _geom_block(x0, y0, c0, sh, lj0, nq, xb, yb, zc, a1, a2, b1, b2, ex, ey, op, near,
                 alpha_max, abuf, zbuf, gbuf, ubuf, vbuf, wbuf, sbuf, full):
     """alpha and depth (and with full, what the backward needs: Gaussian value, u, v, 1/W,
@@ -239,14 +256,7 @@ def _geom_block(x0, y0, c0, sh, lj0, nq, xb, yb, zc, a1, a2, b1, b2, ex, ey, op,
     for q in range(nq):
         dx = (f32(x0 + c0 + (q & m)) + _HALF) - xb
         dy = (f32(y0 + lj0 + (q >> sh)) + _HALF) - yb
-        uu = a1 * dx + a2 * dy
-        vv = b1 * dx + b2 * dy
-        iw = _ONE / (_ONE + ex * dx + ey * dy)
-        r3 = (uu * uu + vv * vv) * (iw * iw)
-        r2 = _LOWPASS * (dx * dx + dy * dy)
-        use3 = r3 <= r2
-        rho = r3 if use3 else r2
-        z = zc * iw if use3 else zc
+        rho, z, use3, uu, vv, iw = _splat_at(dx, dy, zc, a1, a2, b1, b2, ex, ey)
         gk = exp_neg(_HALF * rho)
         a = min(alpha_max, op * gk)
         abuf[q] = a if z >= near else _ZERO
@@ -357,14 +367,7 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
                     for c in range(LANES):
                         cc = ib + c
                         dx = (f32(x0 + cc) + _HALF) - xb
-                        uu = a1 * dx + a2 * dy
-                        vv = b1 * dx + b2 * dy
-                        iw = _ONE / (_ONE + ex * dx + ey * dy)
-                        r3 = (uu * uu + vv * vv) * (iw * iw)
-                        r2 = _LOWPASS * (dx * dx + dy * dy)
-                        use3 = r3 <= r2
-                        rho = r3 if use3 else r2
-                        z = zc * iw if use3 else zc
+                        rho, z, _, _, _, _ = _splat_at(dx, dy, zc, a1, a2, b1, b2, ex, ey)
                         a = min(alpha_max, op * exp_neg(_HALF * rho))
                         q = o + np.uint64(c)
                         tp = st[q + _Q_T]
