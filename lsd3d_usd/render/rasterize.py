@@ -155,7 +155,8 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
     map per pixel direction). sh_degree: degree to use (default: all coefficients).
     semantic_ids: optional (N,) int per surfel. bound_sigma: None = exact opacity-aware screen
     bounds (conservative: no pixel with alpha >= alpha_min is missed); a number = fixed k-sigma
-    bounds (faster, lossy). t_min: early stop when transmittance falls below it.
+    bounds (faster, lossy). t_min: early stop when transmittance falls below it. tile: tile
+    size in pixels, a multiple of 8 (the kernels' lane block).
 
     Returns a dict of float32 tensors:
       rgb (H,W,3)            colour, background included;
