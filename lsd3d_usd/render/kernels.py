@@ -17,11 +17,12 @@ backward in the forward's layout was measured 1.4x slower, probably because the 
 skips the many pixels past their last contributor). With contraction the two loop shapes may
 round alpha an ulp apart (a check of 37 M surfel-pixel pairs: 0.1 % differ, one crosses the
 alpha threshold); gradients agree with the uncontracted kernels to 1e-5 relative. The
-backward walks each pixel's contributors back to front from the stored final transmittance and last contributor (as the
-CUDA rasterisers do) and writes one gradient row per pair; rows are summed per surfel
-afterwards in a fixed order, so the result does not depend on thread scheduling. Tiles are
-visited in a fixed shuffled order (tile_order): prange hands each thread a contiguous block
-of iterations, and image rows differ in work (horizon vs sky), so a shuffle balances them.
+backward walks each pixel's contributors back to front from the stored final transmittance
+and last contributor (as the CUDA rasterisers do) and writes one gradient row per pair; rows
+are summed per surfel afterwards in a fixed order, so the result does not depend on thread
+scheduling. Tiles are visited in a fixed shuffled order (tile_order): prange hands each
+thread a contiguous block of iterations, and image rows differ in work (horizon vs sky), so
+a shuffle balances them.
 The 2DGS depth distortion is an optional argument of forward/backward (None or arrays): numba
 compiles one variant per argument type and prunes `if dist is not None` branches at compile
 time, so the default kernels are the plain ones (bitwise-identical outputs; the compiled
@@ -40,8 +41,8 @@ _TWO = np.float32(2.0)
 _EXP_CLAMP = np.float32(16.0)
 _LOG2E = np.float32(1.4426950408889634)
 _TWO_M24 = np.float32(2.0 ** -24)
-# 2^-f on [0, 1): p(f) = 1 + f (P1 + f (P2 + ...)), relative-error weighted least-squares fit
-# (fitted here, float64, then rounded): 1.0e-8 in float64, 2.1e-7 evaluated in float32.
+# 2^-f on [0, 1) as p(f) = 1 + P1 f + P2 f^2 + ... + P6 f^6: relative-error weighted
+# least-squares fit (fitted here in float64, then rounded): 1.0e-8 in float64, 2.1e-7 in float32.
 _P1 = np.float32(-6.93147004e-01)
 _P2 = np.float32(2.40224183e-01)
 _P3 = np.float32(-5.54907322e-02)
@@ -330,7 +331,8 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
                 inside = (y0 + jj < height) & (x0 + ib + c < width)
                 st[o + _Q_T + np.uint64(c)] = _ONE if inside else _ZERO  # outside: finished
                 st[o + _Q_LMED + np.uint64(c)] = _M1
-                st[o + _Q_AM + np.uint64(c)] = _M1
+                if amax is not None:
+                    st[o + _Q_AM + np.uint64(c)] = _M1
         k0 = tile_start[t]
         k1 = tile_start[t + 1]
         nev = 0

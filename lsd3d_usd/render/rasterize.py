@@ -208,7 +208,8 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
     if width <= 0 or height <= 0:
         raise InputError(f"rasterize: bad image size {width}x{height}")
     if tile <= 0 or tile % kernels.LANES:
-        raise InputError(f"rasterize: tile must be a positive multiple of {kernels.LANES}, not {tile}")
+        raise InputError(f"rasterize: tile must be a positive multiple of {kernels.LANES}, "
+                         f"not {tile}")
     if not (0 < near < far):
         raise InputError(f"rasterize: need 0 < near < far, got near={near}, far={far}")
     if abs(float(K[2, 0])) > 0 or abs(float(K[2, 1])) > 0 or float(K[2, 2]) != 1.0:
