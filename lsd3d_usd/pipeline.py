@@ -304,6 +304,7 @@ def _surfel_step(sc: S.Scene, p: Plan, proxy, light) -> tuple:
                                         max_count=c.max_count, sh_degree=c.sh_degree,
                                         seed=p.cfg.seed)
     dt = time.perf_counter() - t0
+    sc.guard_step_layer("surfels", p.surfels_hash)   # (runs were retired up front if allowed)
     write_surfel_file(str(path), field, provenance=S.provenance(
         "surfels", {**info, "density": c.density}, seed=p.cfg.seed,
         timings={"init_s": round(dt, 2)}, inputsHash=p.surfels_hash))

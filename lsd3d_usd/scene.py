@@ -62,6 +62,8 @@ STEP_LAYERS: dict[str, str] = {
     "surfels": "surfels.usdc",
 }
 GGDS_PREFIX = "ggds_"
+# Step layers GGDS runs are optimised on (a run records their inputs hashes as dependsOn).
+DEPENDED_ON = ("surfels", "env")
 _RUN_RE = re.compile(r"^ggds_[A-Za-z0-9_.-]+\.usdc$")
 _LAYER_FILE_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*\.(usda|usdc|usd)$")
 _TMP_RE = re.compile(r"^\..+\.tmp-(\d+)-[0-9a-f]{8}(\.[A-Za-z0-9]+)?$")
@@ -446,8 +448,12 @@ class Scene:
         layer.customLayerData = data
         save_layer(layer, self.root_layer_path)
 
-    def write_layer(self, name: str, stage_or_layer, provenance: dict | None = None) -> Path:
-        """Atomically write a step's layer and put it in the stack (unmuted)."""
+    def write_layer(self, name: str, stage_or_layer, provenance: dict | None = None, *,
+                    retire_runs: bool = False) -> Path:
+        """Atomically write a step's layer and put it in the stack (unmuted). A layer that GGDS
+        runs depend on (DEPENDED_ON) is guarded: see :meth:`guard_step_layer`."""
+        if name in DEPENDED_ON:
+            self.guard_step_layer(name, (provenance or {}).get("inputsHash"), retire_runs)
         layer = stage_or_layer.GetRootLayer() if isinstance(stage_or_layer, Usd.Stage) else stage_or_layer
         path = save_layer(layer, self.layer_path(name), provenance)
         root = self._root_layer()
@@ -552,6 +558,21 @@ class Scene:
                     out.append(li.name)
                     break
         return out
+
+    def guard_step_layer(self, name: str, new_hash: str | None, retire_runs: bool = False) -> None:
+        """Before step layer ``name`` is replaced by one made from inputs ``new_hash`` (None:
+        unknown, so different): refuse if active GGDS runs were optimised on the current one,
+        or with ``retire_runs`` retire them (muted, marked stale)."""
+        new = new_hash or f"unhashed-{uuid.uuid4().hex}"
+        stale = self.dependent_runs({name: new})
+        if not stale:
+            return
+        if not retire_runs:
+            raise InputError(f"{self.root}: this would replace the scene's {name}, which GGDS "
+                             f"run(s) {', '.join(stale)} were optimised on; pass --retire-runs "
+                             "to do it (the runs are muted and marked stale), or write "
+                             "elsewhere")
+        self.retire_runs(stale, f"{name} replaced (inputs {new[:16]})")
 
     def retire_runs(self, names: Iterable[str], reason: str) -> None:
         """Mute runs and mark them stale in their own provenance (kept, visibly, for
