@@ -11,7 +11,6 @@ with its own recorded configuration.
 """
 from __future__ import annotations
 
-import hashlib
 import io
 import json
 import time
@@ -25,6 +24,7 @@ from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.config import GenerateConfig
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.hashing import content_hash
 
 SURFELS_VERSION = "surfels-v3"
 
@@ -58,13 +58,6 @@ class Plan:
     resume_run: str | None = None
     stop_at: int | None = None
     term_state: dict | None = None
-
-
-def _hash(*parts) -> str:
-    h = hashlib.sha256()
-    for p in parts:
-        h.update(json.dumps(p, sort_keys=True, default=str).encode())
-    return h.hexdigest()[:16]
 
 
 # ------------------------------------------------------------------ checks before writing
@@ -138,7 +131,7 @@ def _prior_default_weight(entry, term: str) -> float:
 
 def _surfels_hash(layout_hash: str, env_hash: str, cfg: GenerateConfig) -> str:
     from lsd3d_usd.proxy.chunks import ProxyParams
-    return _hash(SURFELS_VERSION, layout_hash, ProxyParams().as_dict(), env_hash, cfg.seed,
+    return content_hash(SURFELS_VERSION, layout_hash, ProxyParams().as_dict(), env_hash, cfg.seed,
                  ct.to_dict(cfg.surfels))
 
 

@@ -16,7 +16,6 @@ returns plain dicts, so it pickles anywhere.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import time
@@ -25,10 +24,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.hashing import content_hash, file_hash
 
 from .spec import BatchSpec, SceneSpec
 
-TASK_VERSION = "batch-task-v1"
+TASK_VERSION = "batch-task-v2"
 # split_chunks = "auto" splits a scene whose layout spans at least this many proxy chunks:
 # below it, building the chunks in one task costs less than starting more workers.
 AUTO_SPLIT_MIN_CHUNKS = 8
@@ -55,17 +55,6 @@ class ScenePlan:
     chunk_keys: list[tuple[int, int]] = field(default_factory=list)
     chunk_hashes: dict = field(default_factory=dict)       # key -> chunk inputs hash
     tasks: list[Task] = field(default_factory=list)
-
-
-def _hash(*parts) -> str:
-    h = hashlib.sha256()
-    for p in parts:
-        h.update(json.dumps(p, sort_keys=True, default=str).encode())
-    return h.hexdigest()[:20]
-
-
-def _file_hash(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:20]
 
 
 def scene_config(options: dict):
@@ -114,7 +103,7 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
     plan = ScenePlan(sc, lhash)
     jopts = _json_options(sc.options)
     layout_file = sc.options.get("layout")
-    layout_id = _file_hash(layout_file) if layout_file else None
+    layout_id = file_hash(layout_file) if layout_file else None
     base = {"scene": sc.name, "out": str(sc.output), "options": jopts, "force": sc.force,
             "test_crash": sc.test_crash, "marker_dir": str(logs_dir)}
     builder = ProxyBuilder(layout, ProxyParams())
@@ -131,7 +120,7 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
             cid = f"{sc.name}/{chunk_prim_name(*key).lower()}"
             cfile = chunk_file(sc.output, key)
             plan.tasks.append(Task(
-                cid, "chunk", sc.name, _hash(TASK_VERSION, "chunk", h, str(cfile)),
+                cid, "chunk", sc.name, content_hash(TASK_VERSION, "chunk", h, str(cfile)),
                 {**base, "kind": "chunk", "chunk": list(key), "id": cid,
                  "log": str(logs_dir / f"{sc.name}.{chunk_prim_name(*key).lower()}.log")},
                 outputs=(str(cfile),)))
@@ -140,7 +129,7 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
     from lsd3d_usd import scene as S
     plan.tasks.append(Task(
         sid, "scene", sc.name,
-        _hash(TASK_VERSION, "scene", jopts, sc.force, layout_id, lhash, str(sc.output),
+        content_hash(TASK_VERSION, "scene", jopts, sc.force, layout_id, lhash, str(sc.output),
               lsd3d_usd.__version__),
         {**base, "kind": "scene", "id": sid, "log": str(logs_dir / f"{sc.name}.scene.log")},
         deps=tuple(deps), outputs=(str(Path(sc.output) / S.ROOT_FILE),)))

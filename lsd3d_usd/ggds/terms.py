@@ -12,17 +12,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-import numpy as np
-import torch
-
-from lsd3d_usd.ggds import losses
 from lsd3d_usd.registry import Registry
+
+# torch and the loss functions are imported inside the terms: the registry (and with it the
+# configuration's default weights, needed by `--help`) must load without them.
 
 
 @dataclass
 class StepContext:
-    x: torch.Tensor                 # (H,W,3) rendered colour (differentiable)
-    target: torch.Tensor            # (H,W,3) the prior's target (detached)
+    x: Any                          # (H,W,3) torch tensor: rendered colour (differentiable)
+    target: Any                     # (H,W,3) the prior's target (detached)
     render: Any                     # the rasteriser's full result for this view
     gbuffer: Any                    # prior_base.GBuffer of the view
     camera: Any                     # render.camera.Camera
@@ -30,7 +29,7 @@ class StepContext:
     config: Any                     # GGDSConfig
     state: dict = field(default_factory=dict)
 
-    def covered(self) -> torch.Tensor:
+    def covered(self):
         """(H,W) pixels where both the proxy and the surfels are present."""
         return self.gbuffer.valid & (self.render["alpha"] > 0.5)
 
@@ -38,7 +37,7 @@ class StepContext:
 @dataclass(frozen=True)
 class LossTerm:
     name: str
-    fn: Callable[[StepContext], torch.Tensor]
+    fn: Callable[[StepContext], Any]     # -> scalar torch tensor
     default_weight: float | None = 0.0     # None: decided per prior (see the perceptual term)
     image: bool = False                    # scaled by ω(t): compares the render to the target
     needs: tuple[str, ...] = ()            # extra render outputs, e.g. ("distortion",)
@@ -47,11 +46,12 @@ class LossTerm:
 
 
 # ----------------------------------------------------------------------------- built-ins
-def _l1(ctx: StepContext) -> torch.Tensor:
+def _l1(ctx: StepContext):
+    from lsd3d_usd.ggds import losses
     return losses.l1_loss(ctx.x, ctx.target)
 
 
-def _perceptual(ctx: StepContext) -> torch.Tensor:
+def _perceptual(ctx: StepContext):
     return ctx.state["perceptual"](ctx.x.clamp(0, 1), ctx.target.clamp(0, 1))
 
 
@@ -63,28 +63,36 @@ def _perceptual_setup(cfg, prior):
     return EffNetPerceptualLoss()
 
 
-def _normal(ctx: StepContext) -> torch.Tensor:
+def _normal(ctx: StepContext):
+    import numpy as np
+    import torch
+
+    from lsd3d_usd.ggds import losses
     R = torch.from_numpy(ctx.camera.viewmat[:3, :3].astype(np.float32))
     proxy_n_cam = ctx.gbuffer.normal @ R.T
     return losses.normal_loss(ctx.render["normal"], proxy_n_cam, ctx.covered(), two_sided=True)
 
 
-def _disparity(ctx: StepContext) -> torch.Tensor:
+def _disparity(ctx: StepContext):
+    from lsd3d_usd.ggds import losses
     return losses.disparity_loss(ctx.render["depth_expected"], ctx.gbuffer.depth, ctx.covered())
 
 
-def _normal_consistency(ctx: StepContext) -> torch.Tensor:
+def _normal_consistency(ctx: StepContext):
+    import torch
+
     from lsd3d_usd.ggds.regularizers import normal_consistency
     r = ctx.render
     return normal_consistency(r["normal"], r["depth_expected"], r["alpha"],
                               torch.from_numpy(ctx.camera.K))
 
 
-def _tv(ctx: StepContext) -> torch.Tensor:
+def _tv(ctx: StepContext):
+    from lsd3d_usd.ggds import losses
     return losses.tv_loss(ctx.x)
 
 
-def _distortion(ctx: StepContext) -> torch.Tensor:
+def _distortion(ctx: StepContext):
     return ctx.render["distortion"].mean()
 
 

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import hashlib
 import time
 from pathlib import Path
 
@@ -160,10 +159,11 @@ def _init(args) -> int:
 
 def _import_ply(args) -> int:
     from lsd3d_usd import scene
+    from lsd3d_usd.hashing import file_hash
     from lsd3d_usd.splats.ply import read_ply
 
     field = read_ply(args.input)
-    digest = hashlib.sha256(Path(args.input).read_bytes()).hexdigest()[:16]
+    digest = file_hash(args.input)
     prov = scene.provenance("splats.import-ply", {"source": str(Path(args.input).name)},
                             inputsHash=f"ply-{digest}")
     path = _write_surfels(field, args.output, args.prim, prov, args.retire_runs)
