@@ -1,0 +1,184 @@
+"""Surfels stored per chunk: one payload per chunk of the scene's grid, so a scene of any
+extent opens with nothing heavy loaded, and GGDS runs that add per-chunk opinions the same way.
+
+On disk (a scene's layers/ folder; file names follow the proxy's ``<stem>_chunks`` rule)::
+
+    surfels.usdc                          /World/Surfels (Xform)
+                                            Chunk_<i>_<j> (Lsd3dSurfelField, payload arc)
+    surfels_chunks/chunk_<i>_<j>.usdc     Chunk_<i>_<j> (defaultPrim): the initial surfels
+    ggds_<run>.usdc                       over /World/Surfels/Chunk_<i>_<j> (prepend payload),
+                                          one per chunk the run has finished
+    ggds_<run>_chunks/chunk_<i>_<j>.usdc  over Chunk_<i>_<j>: the optimised attributes
+
+A surfel belongs to the chunk that holds its centre (floor(x / size), floor(y / size)): no
+duplicates at seams. The run's payload sits on a stronger sublayer, so its attribute opinions
+win over the initial chunk's; muting or removing the run layer reverts every chunk at once;
+with ``Usd.Stage.LoadNone`` neither file is read until the chunk is loaded. Nothing is authored
+on the chunk prims of the root layers themselves: a local opinion there would beat every
+payload. Per-chunk bookkeeping (surfel count, bounds, inputs hash) is in the root layer's
+``customLayerData["lsd3d"]["chunks"]``.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Iterable
+
+import numpy as np
+
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.splats.field import SurfelField
+
+SURFEL_API_SCHEMAS = (    # explicit, so readers without our plugin still see a 2DGS field
+    "ParticleFieldPositionAttributeAPI", "ParticleFieldOrientationAttributeAPI",
+    "ParticleFieldScaleAttributeAPI", "ParticleFieldOpacityAttributeAPI",
+    "ParticleFieldSphericalHarmonicsAttributeAPI", "ParticleFieldKernelGaussianSurfletAPI")
+
+
+def chunk_keys(positions: np.ndarray, chunk_size: float) -> np.ndarray:
+    """(N, 2) int64 chunk index of each position (floor of x / size, y / size)."""
+    p = np.asarray(positions, np.float64)
+    return np.floor(p[:, :2] / float(chunk_size)).astype(np.int64)
+
+
+def split_by_chunk(positions: np.ndarray, chunk_size: float) -> dict[tuple[int, int], np.ndarray]:
+    """{chunk key: sorted indices of the positions inside it}."""
+    keys = chunk_keys(positions, chunk_size)
+    if not len(keys):
+        return {}
+    order = np.lexsort((keys[:, 1], keys[:, 0]))
+    k = keys[order]
+    starts = np.flatnonzero(np.r_[True, np.any(k[1:] != k[:-1], axis=1)])
+    ends = np.r_[starts[1:], len(k)]
+    return {(int(k[s, 0]), int(k[s, 1])): np.sort(order[s:e]) for s, e in zip(starts, ends)}
+
+
+def chunk_file_name(key) -> str:
+    from lsd3d_usd.scene import chunk_prim_name
+    return chunk_prim_name(*key).lower() + ".usdc"
+
+
+def chunks_dir(root_path) -> Path:
+    p = Path(root_path)
+    return p.with_name(f"{p.stem}_chunks")
+
+
+def chunk_path(root_path, key) -> Path:
+    return chunks_dir(root_path) / chunk_file_name(key)
+
+
+def _stage():
+    from pxr import Usd, UsdGeom
+    stage = Usd.Stage.CreateInMemory()
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    return stage
+
+
+def write_chunk(root_path, key, field: SurfelField, provenance: dict | None = None) -> Path:
+    """The initial surfels of one chunk to its own file (atomic), defaultPrim Chunk_<i>_<j>."""
+    from pxr import Sdf
+
+    from lsd3d_usd.scene import chunk_prim_name, save_layer
+    from lsd3d_usd.splats.usdio import write_surfels
+    name = chunk_prim_name(*key)
+    stage = _stage()
+    prim = write_surfels(stage, f"/{name}", field)
+    prim.SetMetadata("apiSchemas", Sdf.TokenListOp.Create(prependedItems=list(SURFEL_API_SCHEMAS)))
+    stage.SetDefaultPrim(prim)
+    return save_layer(stage.GetRootLayer(), chunk_path(root_path, key), provenance)
+
+
+def write_run_chunk(run_root_path, key, field: SurfelField, attributes: tuple[str, ...],
+                    provenance: dict | None = None) -> Path:
+    """One chunk's optimised attributes of a GGDS run: overs only (atomic)."""
+    from lsd3d_usd.scene import chunk_prim_name, save_layer
+    from lsd3d_usd.splats.usdio import write_surfels
+    name = chunk_prim_name(*key)
+    stage = _stage()
+    prim = write_surfels(stage, f"/{name}", field, over=True, attributes=attributes)
+    stage.SetDefaultPrim(prim)
+    return save_layer(stage.GetRootLayer(), chunk_path(run_root_path, key), provenance)
+
+
+def _root(chunks: Iterable, folder_name: str, *, define: bool):
+    """Root layer (Sdf, no composition): /World/Surfels with a payload per chunk; ``define``
+    for the initial surfels (defs), else overs (a run layer)."""
+    from pxr import Sdf, UsdGeom
+
+    import lsd3d_usd
+    from lsd3d_usd.scene import SURFELS_PATH, WORLD, chunk_prim_name
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    spec_kind = Sdf.SpecifierDef if define else Sdf.SpecifierOver
+    if define:
+        layer.defaultPrim = WORLD.strip("/")
+        layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.z)
+        layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
+    for path in (WORLD, SURFELS_PATH):
+        spec = Sdf.CreatePrimInLayer(layer, path)
+        spec.specifier = spec_kind
+        if define:
+            spec.typeName = "Xform"
+    parent = layer.GetPrimAtPath(SURFELS_PATH)
+    for key in sorted(chunks):
+        spec = Sdf.PrimSpec(parent, chunk_prim_name(*key), spec_kind,
+                            lsd3d_usd.SURFEL_TYPE if define else "")
+        spec.payloadList.Prepend(Sdf.Payload(f"./{folder_name}/{chunk_file_name(key)}"))
+    return layer
+
+
+def chunk_info(key, field: SurfelField, inputs_hash: str = "") -> dict:
+    lo = field.positions.min(0) if field.n else np.zeros(3)
+    hi = field.positions.max(0) if field.n else np.zeros(3)
+    return {"count": int(field.n), "bounds": [float(v) for v in (*lo, *hi)],
+            "inputsHash": inputs_hash}
+
+
+def write_root(root_path, chunks: dict, provenance: dict | None = None, *,
+               define: bool = True) -> Path:
+    """The root layer listing ``chunks`` ({key: chunk_info}), atomically."""
+    from lsd3d_usd.scene import chunk_prim_name, save_layer
+    path = Path(root_path)
+    layer = _root(chunks, chunks_dir(path).name, define=define)
+    prov = dict(provenance or {})
+    prov["chunks"] = json.dumps({chunk_prim_name(*k): v for k, v in sorted(chunks.items())})
+    return save_layer(layer, path, prov)
+
+
+def read_chunk_map(root_path) -> dict[tuple[int, int], dict]:
+    """{key: chunk_info} recorded in a root layer ({} for none, or a monolithic layer)."""
+    from pxr import Sdf
+
+    from lsd3d_usd.scene import parse_chunk_prim_name
+    p = Path(root_path)
+    if not p.is_file():
+        return {}
+    layer = Sdf.Layer.OpenAsAnonymous(str(p), metadataOnly=True)
+    raw = layer.customLayerData.get("lsd3d", {}).get("chunks") if layer else None
+    if not raw:
+        return {}
+    try:
+        data = json.loads(raw) if isinstance(raw, str) else dict(raw)
+        return {parse_chunk_prim_name(k): dict(v) for k, v in data.items()}
+    except (ValueError, TypeError) as e:
+        raise InputError(f"{p}: unreadable chunk table ({e})") from None
+
+
+def read_chunk(root_path, key, run_roots: Iterable = ()) -> SurfelField:
+    """One chunk's surfels: the initial file with the given run chunk files (strongest first,
+    those that exist) composed over it — without opening the scene."""
+    from pxr import Sdf, Usd
+
+    from lsd3d_usd.scene import chunk_prim_name
+    from lsd3d_usd.splats.usdio import read_surfels
+    base = chunk_path(root_path, key)
+    if not base.is_file():
+        raise InputError(f"{base}: no such surfel chunk file")
+    layers = [str(chunk_path(r, key)) for r in run_roots if chunk_path(r, key).is_file()]
+    root = Sdf.Layer.CreateAnonymous(".usda")
+    root.subLayerPaths = layers + [str(base)]
+    stage = Usd.Stage.Open(root)
+    prim = stage.GetPrimAtPath(f"/{chunk_prim_name(*key)}")
+    if not prim:
+        raise InputError(f"{base}: no prim /{chunk_prim_name(*key)}")
+    return read_surfels(prim)
