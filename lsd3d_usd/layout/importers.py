@@ -1,0 +1,198 @@
+"""Map importers, registered by name: the one front behind ``lsd3d-usd layout import``.
+
+An importer is a name, a one-line description, a content sniffer and a read function. The
+built-in table holds OpenDRIVE, Lanelet2 and OpenStreetMap; a third-party package adds one
+through the Python entry point group ``lsd3d_usd.layout_importers`` (the entry point loads an
+:class:`Importer`). The format of a file is chosen by its content: every importer's sniffer
+sees the first bytes of the file (and may read more), the first one to claim it in
+``priority`` order wins; the file's extension only breaks ties and names the format in errors.
+"""
+from __future__ import annotations
+
+import re
+import warnings
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+from typing import Callable
+
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.layout import model as m
+
+ENTRY_POINT_GROUP = "lsd3d_usd.layout_importers"
+HEAD_BYTES = 64 * 1024
+
+
+class MapWarning(UserWarning):
+    """A part of a map was skipped or changed on import; the message names the element."""
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """Options of ``layout import``; each importer uses the ones that apply to its format.
+
+    ``origin`` is (lat, lon) in degrees for geographic formats (None: the file's own);
+    ``bbox`` is (min_lon, min_lat, max_lon, max_lat) for cutting an OpenStreetMap file.
+    """
+    tolerance: float = 0.02
+    strict: bool = False
+    origin: tuple[float, float] | None = None
+    bbox: tuple[float, float, float, float] | None = None
+
+
+@dataclass(frozen=True)
+class Importer:
+    """``sniff(path, head)`` says whether ``head`` (the first HEAD_BYTES of the file) is this
+    format; ``read(path, options)`` returns the Layout. Lower ``priority`` is asked first."""
+    name: str
+    description: str
+    extensions: tuple[str, ...]
+    sniff: Callable[[Path, bytes], bool]
+    read: Callable[[Path, ImportOptions], m.Layout]
+    priority: int = 500
+
+
+# ================================================================ built-ins
+
+_XML_ROOT = re.compile(rb"<([A-Za-z_][\w.:-]*)[\s/>]")
+
+
+def xml_root_name(head: bytes) -> str | None:
+    """Name of the first element of an XML document's head (after declaration, comments,
+    doctype); None if the head does not look like XML."""
+    text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    pos = 0
+    while True:
+        text = text[pos:].lstrip()
+        if text.startswith(b"<?"):
+            pos = text.find(b"?>") + 2
+        elif text.startswith(b"<!--"):
+            pos = text.find(b"-->") + 3
+        elif text.startswith(b"<!"):
+            pos = text.find(b">") + 1
+        else:
+            break
+        if pos <= 1:
+            return None
+    mt = _XML_ROOT.match(text)
+    return mt.group(1).decode("ascii", "replace").split(":")[-1] if mt else None
+
+
+def _sniff_opendrive(path: Path, head: bytes) -> bool:
+    return xml_root_name(head) == "OpenDRIVE"
+
+
+def _read_opendrive(path: Path, options: ImportOptions) -> m.Layout:
+    from lsd3d_usd.layout import opendrive
+    return opendrive.read_opendrive(path, tolerance=options.tolerance, strict=options.strict)
+
+
+def _sniff_lanelet2(path: Path, head: bytes) -> bool:
+    from lsd3d_usd.layout import lanelet2_import
+    return lanelet2_import.sniff(path, head)
+
+
+def _read_lanelet2(path: Path, options: ImportOptions) -> m.Layout:
+    from lsd3d_usd.layout import lanelet2_import
+    return lanelet2_import.read_lanelet2(path, options)
+
+
+def _sniff_osm(path: Path, head: bytes) -> bool:
+    from lsd3d_usd.layout import osm_import
+    return osm_import.sniff(path, head)
+
+
+def _read_osm(path: Path, options: ImportOptions) -> m.Layout:
+    from lsd3d_usd.layout import osm_import
+    return osm_import.read_osm(path, options)
+
+
+BUILTIN = (
+    Importer("opendrive", "ASAM OpenDRIVE 1.4-1.8 (.xodr): roads, lanes, marks, junctions",
+             (".xodr",), _sniff_opendrive, _read_opendrive, priority=100),
+    Importer("lanelet2", "Lanelet2 map (.osm XML with lanelet relations), read with lanelet2",
+             (".osm",), _sniff_lanelet2, _read_lanelet2, priority=200),
+    Importer("osm", "OpenStreetMap (.osm XML, .osm.pbf), read with osmium: highways, "
+             "buildings, trees, parks", (".osm", ".pbf", ".osm.pbf"), _sniff_osm, _read_osm,
+             priority=300),
+)
+
+
+# ================================================================ registry
+
+def registered() -> list[Importer]:
+    """Built-in importers and those of installed packages (entry points), in priority order.
+    An entry point that fails to load warns and is left out; one that reuses a name is an error."""
+    found = {imp.name: imp for imp in BUILTIN}
+    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
+        try:
+            imp = ep.load()
+            if callable(imp) and not isinstance(imp, Importer):
+                imp = imp()
+        except Exception as e:   # a broken plugin must not break the built-in formats
+            warnings.warn(f"map importer entry point {ep.name!r} ({ep.value}) failed to load: {e}",
+                          MapWarning, stacklevel=2)
+            continue
+        if not isinstance(imp, Importer):
+            warnings.warn(f"map importer entry point {ep.name!r} does not give an Importer",
+                          MapWarning, stacklevel=2)
+            continue
+        if imp.name in found:
+            raise InputError(f"map importer {imp.name!r} of entry point {ep.value} clashes with "
+                             f"one already registered")
+        found[imp.name] = imp
+    return sorted(found.values(), key=lambda i: (i.priority, i.name))
+
+
+def get(name: str) -> Importer:
+    imps = registered()
+    for imp in imps:
+        if imp.name == name:
+            return imp
+    raise InputError(f"unknown map format {name!r}; known: {', '.join(i.name for i in imps)}")
+
+
+def detect(path: str | Path) -> Importer:
+    """The importer whose sniffer claims the file's content."""
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{path}: no such file")
+    with open(p, "rb") as f:
+        head = f.read(HEAD_BYTES)
+    if not head:
+        raise InputError(f"{path}: empty file")
+    imps = registered()
+    claims = [imp for imp in imps if imp.sniff(p, head)]
+    if not claims:
+        raise InputError(f"{path}: not a map format lsd3d-usd reads (tried "
+                         f"{', '.join(i.name for i in imps)})")
+    name = p.name.lower()
+    # equal priorities: the one whose extension matches the name wins
+    claims.sort(key=lambda i: (i.priority, not any(name.endswith(e) for e in i.extensions)))
+    return claims[0]
+
+
+def read_map(path: str | Path, options: ImportOptions | None = None,
+             format: str | None = None) -> tuple[m.Layout, Importer]:
+    """Import ``path`` with the named importer, or the one that claims its content."""
+    options = options or ImportOptions()
+    if not (options.tolerance > 0):
+        raise InputError(f"tolerance must be > 0, got {options.tolerance}")
+    imp = get(format) if format else detect(path)
+    if format and not Path(path).is_file():
+        raise InputError(f"{path}: no such file")
+    if format:
+        with open(path, "rb") as f:
+            head = f.read(HEAD_BYTES)
+        if not imp.sniff(Path(path), head):
+            raise InputError(f"{path}: is not a {imp.name} file ({imp.description})")
+    layout = imp.read(Path(path), options)
+    src = layout.metadata.setdefault("source", {})
+    src.setdefault("format", imp.name)
+    src.setdefault("file", Path(path).name)
+    return layout, imp
+
+
+def formats_help() -> str:
+    """One line per registered format, for ``layout import --help``."""
+    return "\n".join(f"  {imp.name:10s} {imp.description}" for imp in registered())
