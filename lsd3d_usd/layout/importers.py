@@ -162,14 +162,14 @@ def detect(path: str | Path) -> Importer:
     if not head:
         raise InputError(f"{path}: empty file")
     imps = registered()
-    claims = [imp for imp in imps if imp.sniff(p, head)]
-    if not claims:
-        raise InputError(f"{path}: not a map format lsd3d-usd reads (tried "
-                         f"{', '.join(i.name for i in imps)})")
     name = p.name.lower()
-    # equal priorities: the one whose extension matches the name wins
-    claims.sort(key=lambda i: (i.priority, not any(name.endswith(e) for e in i.extensions)))
-    return claims[0]
+    # equal priorities: the one whose extension matches the name is asked first
+    imps.sort(key=lambda i: (i.priority, not any(name.endswith(e) for e in i.extensions)))
+    for imp in imps:
+        if imp.sniff(p, head):
+            return imp
+    raise InputError(f"{path}: not a map format lsd3d-usd reads (tried "
+                     f"{', '.join(i.name for i in imps)})")
 
 
 def read_map(path: str | Path, options: ImportOptions | None = None,
