@@ -128,9 +128,88 @@ def lanelet2_crossing(path: str | Path, origin=KARLSRUHE) -> Path:
     return path
 
 
+MUNICH = (48.137, 11.575)        # origin of the OSM sample
+
+
+def _latlon(origin, x, y) -> tuple[float, float]:
+    """Local metres → degrees on a sphere (plenty for a sample; the importer projects exactly)."""
+    lat = origin[0] + y / 111_195.0
+    return lat, origin[1] + x / (111_195.0 * np.cos(np.radians(origin[0])))
+
+
+def osm_town(path: str | Path, origin=MUNICH, bounds: bool = True) -> Path:
+    """Write the OSM sample (OSM XML 0.6 as text): a main street with two side streets, a
+    one-way street, a service road, a zebra crossing, a stop sign, buildings, trees, a park."""
+    nodes: list[str] = []
+    ways: list[str] = []
+    ids: dict = {}
+
+    def node(x, y, **tags):
+        key = (x, y) if not tags else None
+        if key in ids:
+            return ids[key]
+        nid = 1000 + len(nodes)
+        lat, lon = _latlon(origin, x, y)
+        body = "".join(f'<tag k="{k.replace("_", ":")}" v="{v}"/>' for k, v in tags.items())
+        nodes.append(f'  <node id="{nid}" version="1" lat="{lat:.9f}" lon="{lon:.9f}">{body}</node>'
+                     if body else f'  <node id="{nid}" version="1" lat="{lat:.9f}" lon="{lon:.9f}"/>')
+        if key is not None:
+            ids[key] = nid
+        return nid
+
+    def way(refs, **tags):
+        wid = 5000 + len(ways)
+        nds = "".join(f'<nd ref="{r}"/>' for r in refs)
+        tg = "".join(f'<tag k="{k.replace("__", ":")}" v="{v}"/>' for k, v in tags.items())
+        ways.append(f'  <way id="{wid}" version="1">{nds}{tg}</way>')
+        return wid
+
+    def ring(pts, **tags):
+        refs = [node(x, y) for x, y in pts]
+        return way(refs + refs[:1], **tags)
+
+    crossing = node(0.0, 0.0, highway="crossing", crossing="zebra")
+    ids[(0.0, 0.0)] = crossing
+    stop = node(-50.0, -12.0, highway="stop")
+    ids[(-50.0, -12.0)] = stop
+    way([node(x, 0.0) for x in (-150.0, -50.0, 0.0, 50.0, 150.0)], highway="primary", lanes="4",
+        sidewalk="both", maxspeed="50", name="Hauptstrasse")
+    way([node(-50.0, y) for y in (-120.0, -12.0, 0.0, 120.0)], highway="residential", sidewalk="both")
+    way([node(50.0, y) for y in (120.0, 60.0, 0.0, -120.0)], highway="residential", oneway="yes",
+        lanes="1", width="4")
+    way([node(50.0, 60.0), node(95.0, 70.0), node(140.0, 60.0)], highway="service")
+    way([node(-150.0, 30.0), node(-60.0, 30.0)], highway="footway")        # not a road
+    ring([(-40.0, 12.0), (-10.0, 12.0), (-10.0, 35.0), (-40.0, 35.0)], building="apartments", height="18")
+    ring([(5.0, 12.0), (40.0, 12.0), (40.0, 30.0), (5.0, 30.0)], building="yes", building__levels="4")
+    ring([(-140.0, -15.0), (-65.0, -15.0), (-65.0, -40.0), (-140.0, -40.0)], building="retail")
+    ring([(65.0, -20.0), (140.0, -20.0), (140.0, -110.0), (65.0, -110.0)], leisure="park")
+    for x in (-130.0, -100.0, -70.0, 70.0, 100.0, 130.0):
+        node(x, 9.0, natural="tree", height="11", diameter_crown="6")
+    way([node(-35.0, -30.0), node(-35.0, -110.0)], natural="tree_row")
+    lat0, lon0 = _latlon(origin, -160.0, -130.0)
+    lat1, lon1 = _latlon(origin, 160.0, 130.0)
+    head = (f'  <bounds minlat="{lat0:.9f}" minlon="{lon0:.9f}" maxlat="{lat1:.9f}" maxlon="{lon1:.9f}"/>\n'
+            if bounds else "")
+    text = ('<?xml version="1.0" encoding="UTF-8"?>\n<osm version="0.6" generator="lsd3d-usd samples">\n'
+            + head + "\n".join(nodes + ways) + "\n</osm>\n")
+    path = Path(path)
+    path.write_text(text)
+    return path
+
+
+def opendrive_from_layout(path: str | Path, layout_path: str | Path) -> Path:
+    """The README crossing exported with ``layout export``."""
+    from lsd3d_usd.layout import opendrive_export, usdio
+    opendrive_export.write_opendrive(usdio.read_layout(layout_path), path)
+    return Path(path)
+
+
 def main(out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
     print(lanelet2_crossing(out / "crossing_lanelet2.osm"))
+    print(osm_town(out / "town.osm"))
+    here = Path(__file__).resolve().parent
+    print(opendrive_from_layout(out / "hand_crossing.xodr", here.parent / "layouts" / "hand_crossing.usda"))
 
 
 if __name__ == "__main__":
