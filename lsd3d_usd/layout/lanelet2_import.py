@@ -172,11 +172,16 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
     drive = {ll.id for ll in lanelets if vehicle.canPass(ll)}
     bike = {ll.id for ll in lanelets if ll.id not in drive and bicycle.canPass(ll)
             and _attr(ll, "subtype") == "bicycle_lane"}
+    # lanelet2's RoutingGraph crashes the process on lanelets with broken bounds: it gets a
+    # map of the usable lanelets only
+    from lanelet2.core import createMapFromLanelets
+    graph_map = createMapFromLanelets([ll for ll in lanelets if ll.id in drive or ll.id in bike]) \
+        if (drive or bike) else None
     graphs = {}
     if drive:
-        graphs["vehicle"] = routing.RoutingGraph(lmap, vehicle)
+        graphs["vehicle"] = routing.RoutingGraph(graph_map, vehicle)
     if bike:
-        graphs["bicycle"] = routing.RoutingGraph(lmap, bicycle)
+        graphs["bicycle"] = routing.RoutingGraph(graph_map, bicycle)
 
     def lid(x) -> str:
         return f"ll{x.id}"

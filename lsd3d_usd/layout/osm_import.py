@@ -370,10 +370,12 @@ def _highways(path, roads, coords, clip, layout, points, xy, options) -> None:
             if tg.get("highway") == "crossing":
                 u = d * CROSSWALK_DEPTH / 2
                 poly = np.stack([pxy - u - hw * n_, pxy + u - hw * n_, pxy + u + hw * n_, pxy - u + hw * n_])
-                layout.add(m.Crosswalk(f"crossing{nid}", polygon=R.xyz(poly)))
+                if clip is None or clip.contains(Polygon(poly)):      # not one cut by the area
+                    layout.add(m.Crosswalk(f"crossing{nid}", polygon=R.xyz(poly)))
             else:
-                layout.add(m.StopSign(f"stop{nid}", position=R.xyz((pxy - (hw + 1.0) * n_)[None])[0],
-                                      lane_ids=list(ids_f)))
+                pos = pxy - (hw + 1.0) * n_
+                if clip is None or clip.contains(Point(pos)):
+                    layout.add(m.StopSign(f"stop{nid}", position=R.xyz(pos[None])[0], lane_ids=list(ids_f)))
     by_id = {ln.id: ln for ln in layout.lanes}
     for node, ends in at_node.items():
         if len(ends) > 2:

@@ -150,7 +150,7 @@ def osm_town(path: str | Path, origin=MUNICH, bounds: bool = True) -> Path:
             return ids[key]
         nid = 1000 + len(nodes)
         lat, lon = _latlon(origin, x, y)
-        body = "".join(f'<tag k="{k.replace("_", ":")}" v="{v}"/>' for k, v in tags.items())
+        body = "".join(f'<tag k="{k.replace("__", ":")}" v="{v}"/>' for k, v in tags.items())
         nodes.append(f'  <node id="{nid}" version="1" lat="{lat:.9f}" lon="{lon:.9f}">{body}</node>'
                      if body else f'  <node id="{nid}" version="1" lat="{lat:.9f}" lon="{lon:.9f}"/>')
         if key is not None:
