@@ -2,6 +2,7 @@
 OpenStreetMap, or a registered importer), export OpenDRIVE, show a summary."""
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 
@@ -29,7 +30,6 @@ def register(subparsers) -> None:
     g.set_defaults(func=_generate)
 
     from lsd3d_usd.layout import importers
-    import argparse
     i = sub.add_parser(
         "import", help="import a map (OpenDRIVE, Lanelet2, OpenStreetMap, ...)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
