@@ -53,7 +53,7 @@ def _ggds_args(p: argparse.ArgumentParser):
 
 
 def _ggds_run(args) -> int:
-    from lsd3d_usd.ggds.benchmark import main
+    from lsd3d_usd.benchmarks.ggds import main
 
     main(json_path=args.json, quick=args.quick, layout=args.layout, steps=args.steps)
     return 0

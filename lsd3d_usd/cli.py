@@ -43,7 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except Lsd3dError as e:   # e.g. a broken third-party plugin (lsd3d_usd.registry)
+        if "--debug" in (sys.argv[1:] if argv is None else argv):
+            raise
+        print(f"lsd3d-usd: error: {e}", file=sys.stderr)
+        return 1
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()

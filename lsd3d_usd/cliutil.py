@@ -36,3 +36,16 @@ def size_type(flag: str, minimum: int = 1):
         except InputError as e:
             raise argparse.ArgumentTypeError(str(e).split(": ", 1)[1]) from None
     return parse
+
+
+def check_output_file(path, flag: str) -> None:
+    """An output file path that can be written: its folder exists and it is not a folder.
+    Checked before long work, so a bad path fails at once rather than after the run."""
+    from pathlib import Path
+    p = Path(path)
+    if p.is_dir():
+        raise InputError(f"{flag} {path}: is a folder, not a file")
+    parent = p.parent if str(p.parent) else Path(".")
+    if not parent.is_dir():
+        what = "is a file" if parent.exists() else "does not exist"
+        raise InputError(f"{flag} {path}: its folder {parent} {what}")

@@ -84,100 +84,94 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=_scene)
 
 
-def _extent(text: str) -> tuple[float, float]:
-    from lsd3d_usd.errors import InputError
-    try:
-        w, h = (float(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--extent {text!r}: expected WxH in metres, e.g. 200x200") from None
-    return w, h
+GROUP_TITLES = {"env": "environment (docs/env.md)", "surfels": "initial surfels",
+                "prior": "image prior (docs/priors.md)", "ggds": "GGDS (docs/ggds.md)",
+                "actors": "actors (docs/actors.md)"}
 
 
 def _generate(args) -> int:
     import json
     from pathlib import Path
 
-    from lsd3d_usd.cliutil import parse_size
-    from lsd3d_usd.pipeline import GenerateOptions, generate
+    from lsd3d_usd import config as C
+    from lsd3d_usd import configtree as ct
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.pipeline import RunOptions, generate
 
-    opts = GenerateOptions(
-        out=Path(args.output), layout=Path(args.layout) if args.layout else None, seed=args.seed,
-        extent=_extent(args.extent), style=args.style, prompt=args.prompt, when=args.when,
-        lat=args.lat, lon=args.lon, weather=args.weather, season=args.season,
-        env_resolution=parse_size(args.env_resolution, "--env-resolution"), surfels=args.surfels,
-        steps=args.steps, prior=args.prior, resolution=parse_size(args.resolution, "--resolution"),
-        views=args.views, checkpoint_every=args.checkpoint_every, perceptual=not args.no_perceptual,
-        perceptual_weight=args.perceptual_weight,
-        lpips=Path(args.lpips) if args.lpips else None,
-        lpips_lin=Path(args.lpips_lin) if args.lpips_lin else None,
-        parked=0 if args.no_actors else args.parked, moving=0 if args.no_actors else args.moving,
-        actor_seconds=args.actor_seconds,
-        resume=args.resume, force=args.force, progress=not args.no_progress and sys.stderr.isatty(),
-        log=(lambda *a: print(*a, file=sys.stderr)))
+    if args.list_options:
+        for row in ct.describe(C.GenerateConfig):
+            names = " / ".join(x for x in (row["flag"], row["alias"]) if x)
+            print(f"{row['key']:32s} {row['type']:6s} {row['default'] or '-':>14s}  "
+                  f"{row['help']}" + (f"  [{names}]" if names else ""))
+        return 0
+    if not args.output:
+        raise InputError("generate: -o/--output SCENE is required")
+    layers = []
+    if args.config:
+        layers.append((f"{Path(args.config).name}: ", C.load_config_file(args.config)))
+    flags = C.resolve_paths(ct.from_args(args), Path.cwd())
+    layers.append(("", flags))
+    layers.append(("--set ", ct.parse_assignments(args.set, C.GenerateConfig)))
+    cfg = C.build(layers)
+    if args.json:   # checked now, not after the whole run
+        from lsd3d_usd.cliutil import check_output_file
+        check_output_file(args.json, "--json")
+    run = RunOptions(out=Path(args.output), resume=args.resume, force=args.force,
+                     retire_runs=args.retire_runs, keep_checkpoint=args.keep_checkpoint,
+                     progress=not args.no_progress and sys.stderr.isatty(),
+                     log=(lambda *a: print(*a, file=sys.stderr)),
+                     explicit=frozenset(k for _, values in layers for k in values))
     try:
-        summary = generate(opts)
+        summary = generate(cfg, run)
     except KeyboardInterrupt:
         print("lsd3d-usd: interrupted: the scene is valid; continue with --resume", file=sys.stderr)
         return 130
+    text = json.dumps(summary, indent=2, default=str)
     if args.json:
-        Path(args.json).write_text(json.dumps(summary, indent=2, default=str))
-    print(json.dumps(summary, indent=2, default=str))
+        from lsd3d_usd.scene import atomic_write_text
+        atomic_write_text(args.json, text)
+    print(text)
     return 0
 
 
 def register_generate(sub: argparse._SubParsersAction) -> None:
+    from lsd3d_usd import configtree as ct
+    from lsd3d_usd.config import GenerateConfig
+
     p = sub.add_parser(
         "generate", help="build a scene: layout → proxy → environment → surfels → GGDS",
         description="Generate a driving scene as a USD stage folder. Builds (or reuses, when "
                     "unchanged) the layout, proxy, environment and surfel layers, then runs GGDS "
-                    "and writes layers/ggds_<run>.usdc holding only overs of the optimised "
-                    "surfel attributes (layers/surfels.usdc is never rewritten). --steps 0 stops "
+                    "and writes layers/ggds_<run>.usdc holding overs of the optimised surfel "
+                    "attributes (layers/surfels.usdc is never rewritten by it). --steps 0 stops "
                     "before GGDS: a complete scene without optimisation. Ctrl-C leaves a valid "
-                    "scene that --resume continues.")
-    p.add_argument("--layout", help="layout layer (.usda/.usdc; see docs/layout.md). Without it a "
-                                    "layout is generated from --seed, --extent and --style")
-    p.add_argument("-o", "--output", required=True, help="scene folder to create or update")
-    p.add_argument("--prompt", help='scene description, e.g. "rainy autumn evening in Seattle" '
-                                    "(time of day, weather, season, place; see docs/env.md)")
-    p.add_argument("--steps", type=int, default=250, help="GGDS steps (0 = no optimisation; default 250)")
-    p.add_argument("--prior", default="procedural",
-                   help="image prior: 'procedural' (default, runs on CPU) or 'diffusers:DIR' "
-                        "(a local latent-diffusion + depth ControlNet directory; never downloads)")
-    p.add_argument("--resolution", default="480x270", help="GGDS render size WxH (default 480x270)")
-    p.add_argument("--seed", type=int, default=0, help="random seed of every step (default 0)")
-    p.add_argument("--resume", action="store_true", help="continue the newest GGDS run from its checkpoint")
+                    "scene that --resume continues. Every setting has a key (--list-options): "
+                    "set it in a TOML file (--config) or with --set KEY=VALUE.")
+    p.add_argument("-o", "--output", help="scene folder to create or update")
+    p.add_argument("--config", metavar="FILE.toml",
+                   help="settings from a TOML file: flat keys (steps = 100) or tables / dotted "
+                        "keys ([ggds.lr] sh_dc = 0.01); flags and --set win over it")
+    p.add_argument("--set", action="append", metavar="KEY=VALUE",
+                   help="set any setting by key, e.g. --set ggds.lr.sh_dc=0.01 (repeatable; "
+                        "wins over flags and --config)")
+    p.add_argument("--list-options", action="store_true",
+                   help="print every setting's key, type, default and flag, and exit")
+    p.add_argument("--resume", action="store_true",
+                   help="continue the newest unfinished GGDS run with its recorded settings "
+                        "(--steps N stops it at step N)")
     p.add_argument("--force", action="store_true",
                    help="use an output folder that holds another scene or other files")
-    p.add_argument("--surfels", type=int, help="initial surfel count (default: 80 per m² of proxy "
-                                               "surface weighted by nearness to the lanes, "
-                                               "at most 4 M)")
-    p.add_argument("--views", type=int, default=128, help="training views sampled along and off the lanes (default 128)")
-    p.add_argument("--checkpoint-every", type=int, default=50, help="steps between checkpoints (default 50)")
-    p.add_argument("--no-perceptual", action="store_true", help="skip the EfficientNet perceptual loss")
-    p.add_argument("--perceptual-weight", type=float,
-                   help="weight of the EfficientNet-Lite0 perceptual loss (default: 0 with the "
-                        "procedural prior, whose targets are exact per pixel; 0.05 with a diffusion prior)")
-    p.add_argument("--lpips", metavar="BACKBONE.pth",
-                   help="use LPIPS as the perceptual term instead of EfficientNet-Lite0: a local "
-                        "torchvision AlexNet or VGG16 state dict (never downloaded; needs "
-                        "--perceptual-weight > 0)")
-    p.add_argument("--lpips-lin", metavar="LIN.pth",
-                   help="LPIPS linear weights (the lpips package's weights/v0.1/alex.pth or vgg.pth; "
-                        "default: found in an installed lpips package)")
-    p.add_argument("--parked", type=int, default=12, help="parked actors along the curbs (default 12)")
-    p.add_argument("--moving", type=int, default=8,
-                   help="moving actors driven by IDM traffic over the lane graph (default 8)")
-    p.add_argument("--actor-seconds", type=float, default=8.0, help="traffic duration in seconds (default 8)")
-    p.add_argument("--no-actors", action="store_true", help="no actors layer")
-    p.add_argument("--extent", default="200x200", help="generated layout size WxH m (no --layout)")
-    p.add_argument("--style", default="urban", choices=("urban", "suburban", "highway"),
-                   help="generated layout style (no --layout)")
-    p.add_argument("--when", help="local date/time, e.g. 2026-06-21T13:00+02:00 (overrides the prompt)")
-    p.add_argument("--lat", type=float, help="latitude (with --lon; overrides the prompt's place)")
-    p.add_argument("--lon", type=float, help="longitude")
-    p.add_argument("--weather", help="clear|partly-cloudy|overcast|fog|rain|snow (overrides the prompt)")
-    p.add_argument("--season", help="spring|summer|autumn|winter (overrides the prompt)")
-    p.add_argument("--env-resolution", default="2048x1024", help="environment map size (default 2048x1024)")
+    p.add_argument("--retire-runs", action="store_true",
+                   help="allow rebuilding surfels / environment that existing GGDS runs were "
+                        "optimised on: those runs are muted and marked stale")
+    p.add_argument("--keep-checkpoint", action="store_true",
+                   help="keep a finished run's optimiser checkpoint (default: dropped; the "
+                        "run layer holds the result)")
     p.add_argument("--json", help="also write the summary JSON here")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    groups = ct.add_arguments(p, GenerateConfig, titles=GROUP_TITLES)
+    ct.add_entry_flag(groups["ggds"], "--perceptual-weight", "ggds.weights.perceptual",
+                      "weight of the perceptual loss (default: the prior's: 0 for the "
+                      "procedural prior, whose targets are exact per pixel; 0.05 for a "
+                      "diffusion prior)")
     p.set_defaults(func=_generate)

@@ -6,11 +6,21 @@ The one place that knows where things live in a scene folder::
       scene.usda          root layer: metadata + subLayers (strongest first)
       layers/ggds_<run>.usdc, surfels.usdc, actors.usda, env.usda, proxy.usdc, layout.usda
       textures/  assets/
+      ggds/<run>/         a run's checkpoint (while unfinished), summary.json, plots
 
 A step reads the layers below it and writes its own; it never rewrites another
-step's layer. Every write is atomic (temp file in the same folder + os.replace).
+step's layer. Every write is atomic (temp file in the same folder, fsync, os.replace).
 Muting is persistent: a muted layer leaves the root's subLayers (so every USD
 tool sees it muted) and is remembered in customLayerData["lsd3d"]["mutedLayers"].
+
+Paths read from a scene (sublayer entries, muted-layer names) are only ever plain file
+names inside layers/: anything else is refused before it is written or deleted.
+
+Dependencies: a step layer records the hash of its inputs (provenance ``inputsHash``) and a
+GGDS run records the hashes of the layers it was optimised on (``dependsOn``). A step that
+would change a layer that active runs depend on refuses, or with permission retires those
+runs (muted and marked ``stale`` in their provenance): a run is never silently active on
+top of surfels or light it was not made for.
 """
 from __future__ import annotations
 
@@ -41,6 +51,7 @@ ROOT_FILE = "scene.usda"
 LAYERS_DIR = "layers"
 TEXTURES_DIR = "textures"
 ASSETS_DIR = "assets"
+RUNS_DIR = "ggds"
 
 # Fixed step layers, weakest first. GGDS runs stack above all of them, newest strongest.
 STEP_LAYERS: dict[str, str] = {
@@ -51,7 +62,11 @@ STEP_LAYERS: dict[str, str] = {
     "surfels": "surfels.usdc",
 }
 GGDS_PREFIX = "ggds_"
+# Step layers GGDS runs are optimised on (a run records their inputs hashes as dependsOn).
+DEPENDED_ON = ("surfels", "env")
 _RUN_RE = re.compile(r"^ggds_[A-Za-z0-9_.-]+\.usdc$")
+_LAYER_FILE_RE = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*\.(usda|usdc|usd)$")
+_TMP_RE = re.compile(r"^\..+\.tmp-(\d+)-[0-9a-f]{8}(\.[A-Za-z0-9]+)?$")
 
 
 def chunk_prim_name(i: int, j: int) -> str:
@@ -144,6 +159,7 @@ def save_layer(layer: Sdf.Layer, path: str | os.PathLike, provenance: dict | Non
     try:
         if not layer.Export(str(tmp)):
             raise OSError(f"USD could not write {path}")
+        _fsync(tmp)
         os.replace(tmp, path)
     finally:
         if tmp.exists():
@@ -155,9 +171,49 @@ def save_layer(layer: Sdf.Layer, path: str | os.PathLike, provenance: dict | Non
     return path
 
 
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def clean_stale_temp_files(folder: Path) -> list[Path]:
+    """Remove our temp files (``.<name>.tmp-<pid>-<hex><ext>``) whose writer process is gone
+    (left by a kill -9 between write and rename). Returns what was removed."""
+    removed = []
+    if not Path(folder).is_dir():
+        return removed
+    for f in Path(folder).iterdir():
+        m = _TMP_RE.match(f.name)
+        if not m or not f.is_file():
+            continue
+        pid = int(m.group(1))
+        if pid == os.getpid() or _alive(pid):
+            continue
+        f.unlink(missing_ok=True)
+        removed.append(f)
+    return removed
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def save_stage(stage: Usd.Stage, path: str | os.PathLike, provenance: dict | None = None) -> Path:
     """Atomically write the stage's root layer to `path` (format from the extension)."""
     return save_layer(stage.GetRootLayer(), path, provenance)
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    return atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
@@ -213,6 +269,27 @@ class LayerInfo:
     muted: bool
     provenance: dict
 
+    @property
+    def is_run(self) -> bool:
+        return self.name.startswith(GGDS_PREFIX)
+
+    @property
+    def stale(self) -> bool:
+        return bool(self.provenance.get("stale"))
+
+
+@dataclass(frozen=True)
+class RunFiles:
+    """Where one GGDS run keeps its files beside its layer (all inside ggds/<run>/)."""
+    dir: Path
+    meta: Path              # checkpoint JSON (step, RNG state, history, configuration, and
+                            # the name of its state-<step>.safetensors), while resumable
+    summary: Path           # summary.json of a finished run
+    legacy_state: Path      # state.pt of older versions (pickle: never loaded)
+
+    def plot(self, name: str) -> Path:
+        return self.dir / name
+
 
 def order_layers(files: Iterable[str]) -> list[str]:
     """Strongest first: GGDS runs (newest first: run names sort by time), then fixed steps
@@ -246,6 +323,35 @@ class Scene:
     @staticmethod
     def _rel(file_name: str) -> str:
         return f"./{LAYERS_DIR}/{file_name}"
+
+    def inside(self, path: str | os.PathLike, what: str = "path") -> Path:
+        """``path`` resolved, refused with one line unless it lies inside the scene folder."""
+        p = Path(path)
+        p = (p if p.is_absolute() else self.root / p).resolve()
+        if not p.is_relative_to(self.root.resolve()):
+            raise InputError(f"{self.root}: {what} {str(path)!r} lies outside the scene folder; "
+                             "refusing to read, write or delete it")
+        return p
+
+    def run_files(self, run: str) -> RunFiles:
+        run = Path(run).stem if run.endswith(".usdc") else run
+        if not _RUN_RE.match(f"{run}.usdc"):
+            raise InputError(f"{self.root}: {run!r} is not a GGDS run name (ggds_<name>)")
+        d = self.root / RUNS_DIR / run
+        return RunFiles(d, d / "state.json", d / "summary.json", d / "state.pt")
+
+    @property
+    def surfel_faces_path(self) -> Path:
+        """Seed proxy face of every initial surfel (int32 .npy), beside the surfel layer."""
+        return self.root / RUNS_DIR / "surfel_faces.npy"
+
+    @property
+    def assets_dir(self) -> Path:
+        return self.root / ASSETS_DIR
+
+    @property
+    def textures_dir(self) -> Path:
+        return self.root / TEXTURES_DIR
 
     # ---- create / open
     @classmethod
@@ -290,6 +396,8 @@ class Scene:
         if not scene.root_layer_path.is_file():
             raise InputError(f"{scene.root}: not an lsd3d-usd scene folder (no {ROOT_FILE})")
         scene._root_layer()  # fail early and clearly if unreadable
+        for d in (scene.root, scene.root / LAYERS_DIR):
+            clean_stale_temp_files(d)
         return scene
 
     def _root_layer(self) -> Sdf.Layer:
@@ -303,11 +411,29 @@ class Scene:
         return layer
 
     # ---- the layer stack
+    def _layer_file(self, entry: str, what: str) -> str:
+        """A stack entry ("./layers/x.usdc") or muted name ("x.usdc") → its plain file name
+        inside layers/; anything pointing elsewhere is refused."""
+        e = str(entry)
+        for prefix in (f"./{LAYERS_DIR}/", f"{LAYERS_DIR}/"):
+            if e.startswith(prefix):
+                e = e[len(prefix):]
+                break
+        if not _LAYER_FILE_RE.match(e):
+            raise InputError(f"{self.root_layer_path}: {what} {str(entry)!r} is not a layer file "
+                             f"inside {LAYERS_DIR}/; refusing to use it (edit {ROOT_FILE})")
+        return e
+
     def _stack_files(self, layer: Sdf.Layer) -> list[str]:
-        return [Path(p).name for p in layer.subLayerPaths]
+        return [self._layer_file(p, "sublayer") for p in layer.subLayerPaths]
 
     def _muted_files(self, layer: Sdf.Layer) -> list[str]:
-        return list(layer.customLayerData.get("lsd3d", {}).get("mutedLayers", []))
+        muted = layer.customLayerData.get("lsd3d", {}).get("mutedLayers", []) or []
+        return [self._layer_file(m, "muted layer") for m in muted]
+
+    def muted_files(self) -> list[str]:
+        """File names of the persistently muted layers."""
+        return self._muted_files(self._root_layer())
 
     def _write_root(self, layer: Sdf.Layer, stack: Iterable[str], muted: Iterable[str]) -> None:
         layer.subLayerPaths = [self._rel(f) for f in order_layers(stack)]
@@ -322,8 +448,12 @@ class Scene:
         layer.customLayerData = data
         save_layer(layer, self.root_layer_path)
 
-    def write_layer(self, name: str, stage_or_layer, provenance: dict | None = None) -> Path:
-        """Atomically write a step's layer and put it in the stack (unmuted)."""
+    def write_layer(self, name: str, stage_or_layer, provenance: dict | None = None, *,
+                    retire_runs: bool = False) -> Path:
+        """Atomically write a step's layer and put it in the stack (unmuted). A layer that GGDS
+        runs depend on (DEPENDED_ON) is guarded: see :meth:`guard_step_layer`."""
+        if name in DEPENDED_ON:
+            self.guard_step_layer(name, (provenance or {}).get("inputsHash"), retire_runs)
         layer = stage_or_layer.GetRootLayer() if isinstance(stage_or_layer, Usd.Stage) else stage_or_layer
         path = save_layer(layer, self.layer_path(name), provenance)
         root = self._root_layer()
@@ -383,7 +513,75 @@ class Scene:
         self._write_root(root, [s for s in self._stack_files(root) if s != f],
                          [m for m in self._muted_files(root) if m != f])
         if delete_file:
-            (self.root / LAYERS_DIR / f).unlink(missing_ok=True)
+            self.inside(self.root / LAYERS_DIR / f, "layer").unlink(missing_ok=True)
+            if f.startswith(GGDS_PREFIX):
+                rf = self.run_files(f)
+                if rf.dir.is_dir():
+                    import shutil
+                    shutil.rmtree(self.inside(rf.dir, "run folder"))
+
+    # ---- GGDS runs and what they depend on
+    def runs(self) -> list[LayerInfo]:
+        """GGDS run layers (muted ones included), newest first."""
+        return [li for li in self.layers() if li.is_run]
+
+    def unfinished_runs(self) -> list[str]:
+        """Runs with a resumable checkpoint, newest first."""
+        d = self.root / RUNS_DIR
+        if not d.is_dir():
+            return []
+        names = [p.name for p in d.iterdir() if p.is_dir() and p.name.startswith(GGDS_PREFIX)
+                 and ((p / "state.json").is_file() or (p / "state.pt").is_file())]
+        return sorted(names, reverse=True)
+
+    def layer_inputs_hash(self, name: str) -> str | None:
+        path = self.layer_path(name)
+        if not path.is_file():
+            return None
+        return read_provenance(Sdf.Layer.FindOrOpen(str(path))).get("inputsHash")
+
+    def dependent_runs(self, changes: dict[str, str]) -> list[str]:
+        """Active, not yet stale GGDS runs that depend on a step layer whose inputs hash would
+        change: ``changes`` maps a step name ("surfels", "env", ...) to its new inputs hash.
+        A run without a recorded ``dependsOn`` (older versions) is taken to depend on the
+        layers as they are now."""
+        out = []
+        current = {k: self.layer_inputs_hash(k) for k in changes}
+        for li in self.runs():
+            if li.muted or li.stale or not li.exists:
+                continue
+            dep = li.provenance.get("dependsOn")
+            dep = json.loads(dep) if isinstance(dep, str) else dict(dep or {})
+            for step, new in changes.items():
+                old = dep.get(step, current.get(step))
+                if old is not None and old != new:
+                    out.append(li.name)
+                    break
+        return out
+
+    def guard_step_layer(self, name: str, new_hash: str | None, retire_runs: bool = False) -> None:
+        """Before step layer ``name`` is replaced by one made from inputs ``new_hash`` (None:
+        unknown, so different): refuse if active GGDS runs were optimised on the current one,
+        or with ``retire_runs`` retire them (muted, marked stale)."""
+        new = new_hash or f"unhashed-{uuid.uuid4().hex}"
+        stale = self.dependent_runs({name: new})
+        if not stale:
+            return
+        if not retire_runs:
+            raise InputError(f"{self.root}: this would replace the scene's {name}, which GGDS "
+                             f"run(s) {', '.join(stale)} were optimised on; pass --retire-runs "
+                             "to do it (the runs are muted and marked stale), or write "
+                             "elsewhere")
+        self.retire_runs(stale, f"{name} replaced (inputs {new[:16]})")
+
+    def retire_runs(self, names: Iterable[str], reason: str) -> None:
+        """Mute runs and mark them stale in their own provenance (kept, visibly, for
+        comparison; `scene unmute` brings one back on purpose)."""
+        for name in names:
+            path = self.layer_path(f"{name}.usdc")
+            layer = Sdf.Layer.FindOrOpen(str(path))
+            save_layer(layer, path, {"stale": reason})
+            self.mute(name)
 
     def new_run_name(self, prefix: str = "ggds") -> str:
         """A fresh, sortable GGDS run name: ggds_<UTC time>[_<k>]."""

@@ -26,7 +26,7 @@ def test_sample_spec_parses_and_plans():
     assert spec.output == (ROOT / "samples" / "batch" / "small_out").resolve()
     morning = spec.scenes[0]
     assert morning.options["layout"] == LAYOUT.resolve()
-    assert morning.options["steps"] == 20 and morning.options["resolution"] == (240, 135)
+    assert morning.options["ggds.steps"] == 20 and morning.options["ggds.resolution"] == (240, 135)
     assert spec.scenes[2].split_chunks == "always" and "layout" not in spec.scenes[2].options
     plans = plan_batch(spec)
     # hand_crossing spans 4 chunks: below the auto threshold, so one scene task each;
@@ -59,8 +59,10 @@ output = "/{tmp_path.as_posix().strip('/')}/elsewhere"
     one, two = spec.scenes
     assert spec.output == tmp_path / "res"
     assert one.output == tmp_path / "res" / "one"
-    assert one.options == {"steps": 3, "resolution": (64, 48), "layout": tmp_path / "lay" / "x.usda"}
-    assert two.options == {"steps": 0, "resolution": (64, 48), "extent": (300.0, 200.0)}
+    assert one.options == {"ggds.steps": 3, "ggds.resolution": (64, 48),
+                           "layout": tmp_path / "lay" / "x.usda"}
+    assert two.options == {"ggds.steps": 0, "ggds.resolution": (64, 48), "extent": (300.0, 200.0)}
+    assert one.config().ggds.steps == 3 and one.config().layout == tmp_path / "lay" / "x.usda"
     assert two.output == tmp_path / "elsewhere"
     assert spec.state_path == tmp_path / "res" / "batch-state.json"
 
@@ -74,14 +76,17 @@ output = "/{tmp_path.as_posix().strip('/')}/elsewhere"
     ('[[scene]]\nname = "a b"', r"scene\[0\] \('a b'\)\.name: 'a b' must start"),
     ('[[scene]]\nname = "a"\n[[scene]]\nname = "a"', r"scene\[1\] \('a'\)\.name: 'a' already used"),
     ('[[scene]]\nname = "a"\nlayout = "nope.usda"', r"scene\[0\] \('a'\)\.layout: no such file"),
-    ('[defaults]\nsurfels = 0\n[[scene]]\nname = "a"', r"defaults\.surfels: must be >= 1"),
+    ('[defaults]\nsurfels = 0\n[[scene]]\nname = "a"', r"defaults\.surfels: must be in \[1, 4000000\], got 0"),
     ('[batch]\nworkers = 0\n[[scene]]\nname = "a"', r"batch\.workers: must be >= 1"),
     ('[batch]\noutput = "o"\n[[scene]]\nname = "a"\noutput = "."', r"into the batch output folder"),
     ('[scenes]\nname = "a"', r"unknown key 'scenes' \(did you mean 'scene'\?\)"),
     ('[batch]\nretries = 1', r"no scenes"),
     ('[[scene]\nname = "a"', r"not valid TOML"),
     ('[[scene]]\nname = "a"\nlat = 91', r"\.lat: must be in \[-90.0, 90.0\]"),
-    ('[[scene]]\nname = "a"\nprior = "magic"', r"\.prior: expected 'procedural' or 'diffusers:DIR'"),
+    ('[[scene]]\nname = "a"\nprior = "magic"', r"\.prior 'magic': use 'procedural' or 'diffusers:DIR'"),
+    ('[[scene]]\nname = "a"\nggds.lr.sh_dcc = 0.1', r"unknown key 'ggds.lr.sh_dcc' \(did you mean 'ggds.lr.sh_dc'\?\)"),
+    ('[[scene]]\nname = "a"\nggds.weights.tv = -1', r"\.ggds.weights.tv: must be >= 0.0"),
+    ('[[scene]]\nname = "a"\nweather = "sunny"', r"\.weather: expected one of clear, "),
     ('[[scene]]\nname = "a"\nresume = true', r"unknown key 'resume'"),
 ])
 def test_bad_specs_name_the_key(tmp_path, body, match):

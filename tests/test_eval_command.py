@@ -15,7 +15,8 @@ from lsd3d_usd.eval import views as V
 from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
 from lsd3d_usd.ggds.cameras import sample_views
 from lsd3d_usd.layout.usdio import read_layout
-from lsd3d_usd.pipeline import GenerateOptions, generate
+from lsd3d_usd.config import generate_config
+from lsd3d_usd.pipeline import RunOptions, generate
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
 
@@ -23,9 +24,9 @@ LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
 @pytest.fixture(scope="module")
 def tiny_scene(tmp_path_factory):
     out = tmp_path_factory.mktemp("eval") / "scene"
-    generate(GenerateOptions(out=out, layout=LAYOUT, steps=2, surfels=3000, env_resolution=(128, 64),
-                             resolution=(64, 48), views=4, progress=False, perceptual=False,
-                             parked=0, moving=0, log=lambda *a: None))
+    generate(generate_config(layout=LAYOUT, steps=2, surfels=3000, env_resolution=(128, 64),
+                             resolution=(64, 48), views=4, perceptual=False, actors=False),
+             RunOptions(out=out, progress=False, log=lambda *a: None))
     return out
 
 
@@ -57,7 +58,7 @@ def test_eval_end_to_end(tiny_scene, tmp_path):
     (weights / "dinov2_vits14_pretrain.pth").write_bytes(b"not really weights")
     res = evaluate(_opts(tiny_scene, reference=ref, weights=weights))
 
-    runs = V.ggds_runs(S.Scene.open(tiny_scene))
+    runs = S.Scene.open(tiny_scene).runs()
     assert res["run"] == runs[0].name and "training cameras" in res["seen_views_source"]
     assert res["counts"] == {"train_views": 4, "seen": 3, "novel": 4, "novel_per_bin": 2,
                              "heldout_lane": 3, "trajectory_frames": 4, "reference": 3}
@@ -93,7 +94,7 @@ def test_eval_end_to_end(tiny_scene, tmp_path):
 
 def test_seen_views_come_from_the_run_provenance(tiny_scene):
     sc = S.Scene.open(tiny_scene)
-    info = V.ggds_runs(sc)[0]
+    info = sc.runs()[0]
     stored = json.loads(info.provenance["trainViews"])
     seen = V.seen_views(sc, read_layout(sc.layer_path("layout")), None, 128, 96)
     assert seen.run == info.name and len(seen.views) == len(stored)
@@ -109,7 +110,7 @@ def test_scene_without_ggds_run_uses_sampled_views(tiny_scene, tmp_path):
     copy = tmp_path / "scene"
     shutil.copytree(tiny_scene, copy, ignore=shutil.ignore_patterns("eval"))
     sc = S.Scene.open(copy)
-    sc.remove_layer(V.ggds_runs(sc)[0].name)   # as after `generate --steps 0`
+    sc.remove_layer(sc.runs()[0].name)   # as after `generate --steps 0`
     layout = read_layout(sc.layer_path("layout"))
     seen = V.seen_views(sc, layout, None, 64, 48)
     assert seen.run is None and "no GGDS run" in seen.source and "seed 0" in seen.source

@@ -2,7 +2,7 @@
 generate on the README sample."""
 import math
 
-from lsd3d_usd.ggds.benchmark import SAMPLES, quality
+from lsd3d_usd.benchmarks.ggds import SAMPLES, quality
 
 
 def test_quality_run_reports_the_issue_keys(tmp_path):

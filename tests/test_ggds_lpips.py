@@ -200,19 +200,21 @@ def test_matches_float64_reference(files, net):
 
 
 def test_generate_refuses_missing_lpips_path(tmp_path, files):
-    from lsd3d_usd.pipeline import GenerateOptions, check_options
-    o = GenerateOptions(out=tmp_path / "scene", lpips=tmp_path / "absent.pth", perceptual_weight=0.1)
+    from lsd3d_usd.config import generate_config
+    from lsd3d_usd.pipeline import check_config
+
+    def check(**kw):
+        return check_config(generate_config(**{"ggds": {"weights": {"perceptual": 0.1}}, **kw}))
     with pytest.raises(InputError) as e:
-        check_options(o)
+        check(lpips=tmp_path / "absent.pth")
     msg = str(e.value)
     assert msg.count("\n") == 0 and "--lpips" in msg and "absent.pth" in msg and "no such file" in msg
     assert not (tmp_path / "scene").exists()
-    # a good pair passes; with a zero perceptual weight --lpips would do nothing: refused
-    check_options(GenerateOptions(out=tmp_path / "s2", lpips=files["alex"][0],
-                                  lpips_lin=files["alex"][1], perceptual_weight=0.1))
+    # a good pair passes (and is loaded once, for the run); with a zero perceptual weight
+    # --lpips would do nothing: refused
+    state = check(lpips=files["alex"][0], lpips_lin=files["alex"][1])
+    assert isinstance(state["perceptual"], LPIPSLoss)
     with pytest.raises(InputError, match="--lpips.*perceptual weight is 0"):
-        check_options(GenerateOptions(out=tmp_path / "s3", lpips=files["alex"][0],
-                                      lpips_lin=files["alex"][1]))
+        check_config(generate_config(lpips=files["alex"][0], lpips_lin=files["alex"][1]))
     with pytest.raises(InputError, match=r"--lpips-lin .*absent_lin\.pth: no such file"):
-        check_options(GenerateOptions(out=tmp_path / "s4", lpips=files["alex"][0],
-                                      lpips_lin=tmp_path / "absent_lin.pth", perceptual_weight=0.1))
+        check(lpips=files["alex"][0], lpips_lin=tmp_path / "absent_lin.pth")

@@ -8,7 +8,8 @@ from lsd3d_usd.ggds import params as P
 from lsd3d_usd.ggds.adam import SelectiveAdam
 from lsd3d_usd.ggds.cameras import View, sample_views
 from lsd3d_usd.ggds.prior_base import Prior, PriorEnv
-from lsd3d_usd.ggds.run import GGDSConfig, GGDSRun, point_triangle_distance
+from lsd3d_usd.ggds.config import GGDSConfig, StrategyConfig
+from lsd3d_usd.ggds.run import GGDSRun, point_triangle_distance
 from lsd3d_usd.ggds.strategy import MCMCStrategy
 from lsd3d_usd.layout.model import LaneCenter, Layout
 from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
@@ -60,8 +61,8 @@ def make_run(steps=20, seed=0, n=4000, far_extra=0):
         field = SurfelField.concat([field, far])
         face = np.concatenate([face, face[:far_extra]])
     views = sample_views(layout(), 6, 64, 48, seed=seed, novel_frac=0.3)
-    cfg = GGDSConfig(steps=steps, width=64, height=48, seed=seed, relocate_every=10,
-                     w_perceptual=0.0)
+    cfg = GGDSConfig(steps=steps, resolution=(64, 48), seed=seed, perceptual=False,
+                     strategy=StrategyConfig(relocate_every=10))
     return GGDSRun(field, (V, F, ids), views, ClassColourTestPrior(), PriorEnv(), cfg,
                    face_index=face, background_fn=lambda cam: SKY.expand(cam.height, cam.width, 3))
 
@@ -97,9 +98,13 @@ def test_checkpoint_resume_matches_uninterrupted_run():
     b = make_run(steps=12)
     for _ in range(6):
         b.step()
-    state = b.state_dict()
+    tensors, meta = b.checkpoint()
+    # the checkpoint round-trips through its files: safetensors + JSON, no pickle
+    import json
+    from safetensors.torch import load, save
+    tensors, meta = load(save(tensors)), json.loads(json.dumps(meta))
     c = make_run(steps=12)
-    c.load_state_dict(state)
+    c.restore(tensors, meta)
     for _ in range(6):
         c.step()
     for k in P.KEYS:

@@ -2,8 +2,10 @@
 of docs/extending.md), bad input, and `generate --layout` end to end on a layout imported from
 each format."""
 import importlib.util
+import os
 import re
-from importlib import metadata
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -59,7 +61,7 @@ def test_not_the_claimed_format_and_unknown_files(maps, tmp_path):
         importers.read_map(maps["osm"], format="opendrive")
     with pytest.raises(InputError, match="is not a lanelet2 file"):
         importers.read_map(maps["osm"], format="lanelet2")
-    with pytest.raises(InputError, match="unknown map format 'shapefile'.*opendrive"):
+    with pytest.raises(InputError, match="unknown map importer 'shapefile'.*opendrive"):
         importers.read_map(maps["osm"], format="shapefile")
     junk = tmp_path / "junk.xodr"
     junk.write_text("<html><body>not a map</body></html>")
@@ -75,46 +77,58 @@ def test_not_the_claimed_format_and_unknown_files(maps, tmp_path):
         importers.read_map(maps["opendrive"], importers.ImportOptions(tolerance=0))
 
 
-def extending_example() -> str:
+def install_doc_importer(tmp_path) -> Path:
+    """docs/extending.md's map importer as an installed package: its `# file:` block written
+    out, its entry point declared in a dist-info folder; returns the folder for PYTHONPATH."""
     text = (ROOT / "docs/extending.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", text, flags=re.S)
-    assert len(blocks) == 1
-    return blocks[0]
+    section = text[text.index("## Add a map importer"):]
+    code = re.search(r"```python\n# file: (\S+)\n(.*?)```", section, flags=re.S)
+    ep = re.search(r'```toml\n\[project.entry-points."lsd3d_usd.layout_importers"\]\n(.*?)```',
+                   section, flags=re.S)
+    assert code and ep
+    f = tmp_path / code.group(1)
+    f.parent.mkdir(parents=True)
+    (f.parent / "__init__.py").touch()
+    f.write_text(code.group(2))
+    dist = tmp_path / "lanes_txt_example-0.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: lanes-txt-example\nVersion: 0.0\n")
+    (dist / "entry_points.txt").write_text(
+        f"[{importers.ENTRY_POINT_GROUP}]\n" + ep.group(1).replace('"', ""))
+    return tmp_path
 
 
-def test_plugin_from_docs_registers_and_imports(monkeypatch, tmp_path):
-    (tmp_path / "my_lanes_importer.py").write_text(extending_example())
-    monkeypatch.syspath_prepend(str(tmp_path))
-    ep = metadata.EntryPoint("lanes_txt", "my_lanes_importer:IMPORTER", importers.ENTRY_POINT_GROUP)
-    real = metadata.entry_points
-    monkeypatch.setattr(importers.metadata, "entry_points",
-                        lambda group=None: [ep] if group == importers.ENTRY_POINT_GROUP else real(group=group))
-    assert "lanes-txt" in importers.formats_help()
-    f = tmp_path / "city.txt"
+def test_plugin_from_docs_registers_and_imports(tmp_path):
+    plugin = install_doc_importer(tmp_path / "plugin")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(plugin), str(ROOT)]))
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "lsd3d_usd", *map(str, args)], cwd=ROOT,
+                              capture_output=True, text=True, env=env)
+
+    r = cli("layout", "import", "--help")
+    assert r.returncode == 0 and "lanes-txt" in r.stdout, r.stderr
+    f = tmp_path / "city.txt"                      # not the importer's extension: content decides
     f.write_text("# lanes-txt 1\nin 3.5 0,0 50,0\nout 3.25 50,0 100,10\n")
-    layout, imp = importers.read_map(f)
-    assert imp.name == "lanes-txt" and [ln.id for ln in layout.lanes] == ["in", "out"]
-    assert layout.lanes[1].widths.tolist() == [3.25, 3.25]
-    assert layout.metadata["source"]["format"] == "lanes-txt"
-    usdio.write_layout(layout, tmp_path / "l.usda")
-    assert len(usdio.read_layout(tmp_path / "l.usda").lanes) == 2
+    r = cli("layout", "import", f, "-o", tmp_path / "l.usda")
+    assert r.returncode == 0, r.stderr
+    layout = usdio.read_layout(tmp_path / "l.usda")
+    assert [ln.id for ln in layout.lanes] == ["in", "out"] and layout.lanes[1].widths.tolist() == [3.25, 3.25]
+    assert read_provenance(Sdf.Layer.FindOrOpen(str(tmp_path / "l.usda")))["params"]["format"] == "lanes-txt"
     bad = tmp_path / "bad.txt"
     bad.write_text("# lanes-txt 1\nx 3.5 0,0 nope\n")
-    with pytest.raises(InputError, match=r"bad.txt:2: lane x"):
-        importers.read_map(bad)
-    # a built-in format is still found first for its files
-    assert importers.detect(ROOT / "samples/layouts/xodr/curved_road.xodr").name == "opendrive"
+    r = cli("layout", "import", bad, "-o", tmp_path / "b.usda")
+    assert r.returncode != 0 and "bad.txt:2: lane x" in r.stderr
+    # the built-in formats are still found for their files
+    r = cli("layout", "import", ROOT / "samples/layouts/xodr/curved_road.xodr", "-o", tmp_path / "c.usda")
+    assert r.returncode == 0, r.stderr
 
 
-def test_broken_plugin_warns_and_name_clash_fails(monkeypatch):
-    broken = metadata.EntryPoint("broken", "no_such_module_xyz:IMPORTER", importers.ENTRY_POINT_GROUP)
-    monkeypatch.setattr(importers.metadata, "entry_points", lambda group=None: [broken])
-    with pytest.warns(importers.MapWarning, match="'broken'.*failed to load"):
-        names = [i.name for i in importers.registered()]
-    assert names == ["opendrive", "lanelet2", "osm"]
-    clash = metadata.EntryPoint("osm2", "lsd3d_usd.layout.importers:BUILTIN", importers.ENTRY_POINT_GROUP)
-    monkeypatch.setattr(importers.metadata, "entry_points", lambda group=None: [clash])
-    with pytest.warns(importers.MapWarning, match="does not give an Importer"):
+def test_entry_point_that_is_not_an_importer_is_an_error(monkeypatch):
+    monkeypatch.setattr(importers, "IMPORTERS", importers.Registry(
+        importers.ENTRY_POINT_GROUP, "map importer",
+        {"opendrive": "lsd3d_usd.layout.importers:OPENDRIVE", "odd": "lsd3d_usd.layout.importers:ImportOptions"}))
+    with pytest.raises(InputError, match="'odd'.*not a lsd3d_usd.layout.importers.Importer"):
         importers.registered()
 
 

@@ -5,9 +5,10 @@
     workers = 2             # optional; the CLI's --workers wins
     retries = 2             # optional; the CLI's --retries wins
 
-    [defaults]              # optional: generate options shared by every scene
+    [defaults]              # optional: generate settings shared by every scene
     steps = 50
     resolution = "480x270"
+    ggds.lr.sh_dc = 0.01    # any setting by its key (lsd3d-usd generate --list-options)
 
     [[scene]]
     name = "crossing"
@@ -33,7 +34,6 @@ from pathlib import Path
 
 from lsd3d_usd.errors import InputError
 
-STYLES = ("urban", "suburban", "highway")
 SPLIT_CHOICES = ("auto", "always", "never")
 # Injected failures, for tests of retry and reporting only (documented as such).
 TEST_CRASH_MODES = ("raise-once", "exit-once", "raise", "exit")
@@ -85,40 +85,10 @@ def _choice(choices):
     return check
 
 
-def _pair(kind):
-    """[w, h] or "WxH" → (w, h) of ``kind`` (int or float), both positive."""
-    def check(v, where, base):
-        if isinstance(v, str):
-            try:
-                parts = [kind(p) for p in v.lower().split("x")]
-            except ValueError:
-                parts = []
-        elif isinstance(v, list) and all(isinstance(p, (int, float)) and not isinstance(p, bool)
-                                         for p in v):
-            parts = [kind(p) for p in v]
-            if kind is int and any(p != q for p, q in zip(parts, v)):
-                parts = []
-        else:
-            parts = []
-        if len(parts) != 2 or not all(p > 0 for p in parts):
-            eg = "[480, 270] or \"480x270\"" if kind is int else "[200, 200] or \"200x200\""
-            raise InputError(f"{where}: expected two positive {'integers' if kind is int else 'numbers'}"
-                             f" as {eg}, got {v!r}")
-        return tuple(parts)
-    return check
-
-
 def _path(v, where, base):
     v = _str(v, where, base)
     p = Path(v).expanduser()
     return p if p.is_absolute() else (base / p).resolve()
-
-
-def _prior(v, where, base):
-    v = _str(v, where, base)
-    if v != "procedural" and not (v.startswith("diffusers:") and len(v) > len("diffusers:")):
-        raise InputError(f"{where}: expected 'procedural' or 'diffusers:DIR', got {v!r}")
-    return v
 
 
 def _split(v, where, base):
@@ -127,32 +97,9 @@ def _split(v, where, base):
     return _choice(SPLIT_CHOICES)(v, where, base)
 
 
-# generate options a scene (or [defaults]) may set → checker. Names follow GenerateOptions.
-OPTION_KEYS = {
-    "layout": _path,
-    "seed": _int(),
-    "extent": _pair(float),
-    "style": _choice(STYLES),
-    "prompt": _str,
-    "when": _str,
-    "lat": _float(lo=-90.0, hi=90.0),
-    "lon": _float(lo=-180.0, hi=180.0),
-    "weather": _str,
-    "season": _str,
-    "env_resolution": _pair(int),
-    "surfels": _int(1),
-    "steps": _int(0),
-    "prior": _prior,
-    "resolution": _pair(int),
-    "views": _int(1),
-    "checkpoint_every": _int(1),
-    "perceptual": _bool,
-    "parked": _int(0),
-    "moving": _int(0),
-    "actor_seconds": _float(positive=True),
-    "actor_fps": _float(positive=True),
-    "force": _bool,
-}
+# Run control a scene (or [defaults]) may set besides the generate settings of the
+# configuration tree (lsd3d_usd.config.GenerateConfig: flat keys such as steps, tables).
+RUN_KEYS = {"force": _bool}
 # batch-only keys of a scene (and of [defaults], except name/output)
 SCENE_KEYS = {"name": _str, "output": _path, "split_chunks": _split,
               "test_crash": _choice(TEST_CRASH_MODES)}
@@ -164,10 +111,17 @@ TOP_KEYS = ("batch", "defaults", "scene")
 class SceneSpec:
     name: str
     output: Path                     # absolute scene folder
-    options: dict                    # GenerateOptions keyword arguments (no out/log/progress)
+    options: dict                    # {setting key: value} given for this scene (config tree)
+    force: bool = False
     split_chunks: str = "auto"       # auto: split large layouts (tasks.AUTO_SPLIT_MIN_CHUNKS)
     test_crash: str | None = None
     index: int = 0
+
+    def config(self):
+        """The scene's GenerateConfig (defaults + the spec's settings)."""
+        from lsd3d_usd import configtree as ct
+        from lsd3d_usd.config import GenerateConfig
+        return ct.apply(GenerateConfig(), self.options, f"{self.where}.")
 
     @property
     def where(self) -> str:
@@ -209,6 +163,27 @@ def _options(table: dict, where: str, base: Path, allowed: dict) -> dict:
     return out
 
 
+def _settings(table: dict, where: str, base: Path, extra: dict) -> tuple[dict, dict]:
+    """Split a [defaults] / [[scene]] table into (generate settings checked against the
+    configuration tree, {key: value} of the batch-only keys in ``extra``)."""
+    from lsd3d_usd import configtree as ct
+    from lsd3d_usd.config import GenerateConfig, resolve_paths
+    own = _options({k: v for k, v in table.items() if k in extra}, where, base, extra)
+    rest = {k: v for k, v in table.items() if k not in extra}
+    try:
+        settings = ct.check_table(GenerateConfig, rest, where,
+                                  base=lambda vals: resolve_paths(vals, base))
+    except ct.UnknownKey as e:   # name the batch-only keys too
+        flat = {lf.meta["alias"] for lf in ct.leaves(GenerateConfig) if lf.meta["alias"]}
+        every = flat | set(extra) | {lf.key for lf in ct.leaves(GenerateConfig)}
+        near = difflib.get_close_matches(e.key, sorted(every), n=1)
+        hint = f" (did you mean {near[0]!r}?)" if near else ""
+        raise InputError(f"{where}: unknown key {e.key!r}{hint}; known keys: "
+                         f"{', '.join(sorted(flat | set(extra)))}, or any setting by its "
+                         "dotted key (lsd3d-usd generate --list-options)") from None
+    return settings, own
+
+
 def parse_spec(data: dict, path: Path) -> BatchSpec:
     """Validate a parsed TOML document; ``path`` is the spec file (relative paths resolve
     against its folder)."""
@@ -220,9 +195,9 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
             raise _unknown(key, TOP_KEYS, w)
     batch = _options(_table(data.get("batch", {}), f"{w}: [batch]"), f"{w}: batch", base, BATCH_KEYS)
     output = batch.get("output", base / f"{path.stem}_out")
-    default_keys = {**OPTION_KEYS, "split_chunks": _split, "test_crash": SCENE_KEYS["test_crash"]}
-    defaults = _options(_table(data.get("defaults", {}), f"{w}: [defaults]"), f"{w}: defaults",
-                        base, default_keys)
+    default_keys = {**RUN_KEYS, "split_chunks": _split, "test_crash": SCENE_KEYS["test_crash"]}
+    defaults, default_own = _settings(_table(data.get("defaults", {}), f"{w}: [defaults]"),
+                                      f"{w}: defaults", base, default_keys)
     scenes_raw = data.get("scene", [])
     if not isinstance(scenes_raw, list) or not scenes_raw:
         raise InputError(f"{w}: no scenes: add at least one [[scene]] table with a name")
@@ -233,10 +208,9 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
         raw = _table(raw, where)
         if "name" in raw and isinstance(raw["name"], str):
             where = f"{w}: scene[{i}] ({raw['name']!r})"
-        own = _options(raw, where, output, {**OPTION_KEYS, **SCENE_KEYS})
-        # layout is relative to the spec file, output to [batch].output (re-resolve layout).
-        if "layout" in raw:
-            own["layout"] = _path(raw["layout"], f"{where}.layout", base)
+        # layout is relative to the spec file, output to [batch].output.
+        settings, own = _settings(raw, where, base, {**RUN_KEYS, **SCENE_KEYS,
+                                                     "output": lambda v, wh, b: _path(v, wh, output)})
         name = own.pop("name", None)
         if name is None:
             raise InputError(f"{where}: missing key 'name' (a short folder-safe scene name)")
@@ -246,12 +220,13 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
         if name in names:
             raise InputError(f"{where}.name: {name!r} already used by scene[{names[name]}]")
         names[name] = i
-        merged = {**defaults, **own}
-        if "layout" in own:  # a scene's own layout wins over generator defaults
+        merged = {**defaults, **settings}
+        if "layout" in settings:  # a scene's own layout wins over generator defaults
             for k in ("extent", "style"):
-                if k not in own:
+                if k not in settings:
                     merged.pop(k, None)
-        out_dir = merged.pop("output", output / name)
+        own = {**default_own, **own}
+        out_dir = own.pop("output", output / name)
         if out_dir in outputs:
             raise InputError(f"{where}.output: {out_dir} is also the output of scene "
                              f"{outputs[out_dir]!r}")
@@ -259,11 +234,12 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
         if out_dir.resolve() == output.resolve():
             raise InputError(f"{where}.output: a scene cannot be written into the batch output "
                              f"folder itself ({output}); use a subfolder")
-        split = merged.pop("split_chunks", "auto")
-        crash = merged.pop("test_crash", None)
+        split = own.pop("split_chunks", "auto")
+        crash = own.pop("test_crash", None)
+        force = own.pop("force", False)
         if "layout" in merged and not Path(merged["layout"]).is_file():
             raise InputError(f"{where}.layout: no such file: {merged['layout']}")
-        spec.scenes.append(SceneSpec(name, out_dir, merged, split, crash, i))
+        spec.scenes.append(SceneSpec(name, out_dir, merged, force, split, crash, i))
     return spec
 
 

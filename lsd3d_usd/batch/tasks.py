@@ -16,7 +16,6 @@ returns plain dicts, so it pickles anywhere.
 """
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import time
@@ -25,10 +24,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.hashing import content_hash, file_hash
 
 from .spec import BatchSpec, SceneSpec
 
-TASK_VERSION = "batch-task-v1"
+TASK_VERSION = "batch-task-v2"
 # split_chunks = "auto" splits a scene whose layout spans at least this many proxy chunks:
 # below it, building the chunks in one task costs less than starting more workers.
 AUTO_SPLIT_MIN_CHUNKS = 8
@@ -57,27 +57,16 @@ class ScenePlan:
     tasks: list[Task] = field(default_factory=list)
 
 
-def _hash(*parts) -> str:
-    h = hashlib.sha256()
-    for p in parts:
-        h.update(json.dumps(p, sort_keys=True, default=str).encode())
-    return h.hexdigest()[:20]
+def scene_config(options: dict):
+    """The GenerateConfig of a scene's settings ({key: value}, JSON-able or checked)."""
+    from lsd3d_usd import configtree as ct
+    from lsd3d_usd.config import GenerateConfig
+    return ct.apply(GenerateConfig(), options, "")
 
 
-def _file_hash(path: Path) -> str:
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:20]
-
-
-def generate_options(options: dict, out: Path, **kw):
-    """GenerateOptions from a scene's option dict (paths and tuples restored)."""
-    from lsd3d_usd.pipeline import GenerateOptions
-    o = dict(options)
-    if o.get("layout") is not None:
-        o["layout"] = Path(o["layout"])
-    for k in ("extent", "env_resolution", "resolution"):
-        if k in o:
-            o[k] = tuple(o[k])
-    return GenerateOptions(out=Path(out), **o, **kw)
+def run_options(out, force: bool = False, log=None):
+    from lsd3d_usd.pipeline import RunOptions
+    return RunOptions(out=Path(out), force=force, progress=False, log=log or (lambda *a: None))
 
 
 def _json_options(options: dict) -> dict:
@@ -85,9 +74,9 @@ def _json_options(options: dict) -> dict:
             for k, v in options.items()}
 
 
-def read_layout_for(opts):
+def read_layout_for(cfg):
     from lsd3d_usd.pipeline import read_layout_for
-    return read_layout_for(opts)[0]
+    return read_layout_for(cfg)[0]
 
 
 def chunk_file(scene_out: Path, key) -> Path:
@@ -100,22 +89,22 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
     """Tasks of one scene. Reads (or generates) the layout and checks the options, so bad
     input is refused here, before any task runs."""
     import lsd3d_usd
-    from lsd3d_usd.pipeline import check_options
+    from lsd3d_usd.pipeline import check_config
     from lsd3d_usd.proxy.chunks import ProxyBuilder, ProxyParams
     from lsd3d_usd.proxy.usdio import layout_hash
 
-    opts = generate_options(sc.options, sc.output, progress=False)
     try:
-        check_options(opts)
-        layout = read_layout_for(opts)
+        cfg = sc.config()
+        check_config(cfg)
+        layout = read_layout_for(cfg)
     except InputError as e:
         raise InputError(f"{sc.where}: {e}") from None
     lhash = layout_hash(layout)
     plan = ScenePlan(sc, lhash)
     jopts = _json_options(sc.options)
     layout_file = sc.options.get("layout")
-    layout_id = _file_hash(layout_file) if layout_file else None
-    base = {"scene": sc.name, "out": str(sc.output), "options": jopts,
+    layout_id = file_hash(layout_file) if layout_file else None
+    base = {"scene": sc.name, "out": str(sc.output), "options": jopts, "force": sc.force,
             "test_crash": sc.test_crash, "marker_dir": str(logs_dir)}
     builder = ProxyBuilder(layout, ProxyParams())
     keys = sorted(builder.chunks())
@@ -131,7 +120,7 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
             cid = f"{sc.name}/{chunk_prim_name(*key).lower()}"
             cfile = chunk_file(sc.output, key)
             plan.tasks.append(Task(
-                cid, "chunk", sc.name, _hash(TASK_VERSION, "chunk", h, str(cfile)),
+                cid, "chunk", sc.name, content_hash(TASK_VERSION, "chunk", h, str(cfile)),
                 {**base, "kind": "chunk", "chunk": list(key), "id": cid,
                  "log": str(logs_dir / f"{sc.name}.{chunk_prim_name(*key).lower()}.log")},
                 outputs=(str(cfile),)))
@@ -140,7 +129,8 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
     from lsd3d_usd import scene as S
     plan.tasks.append(Task(
         sid, "scene", sc.name,
-        _hash(TASK_VERSION, "scene", jopts, layout_id, lhash, str(sc.output), lsd3d_usd.__version__),
+        content_hash(TASK_VERSION, "scene", jopts, sc.force, layout_id, lhash, str(sc.output),
+              lsd3d_usd.__version__),
         {**base, "kind": "scene", "id": sid, "log": str(logs_dir / f"{sc.name}.scene.log")},
         deps=tuple(deps), outputs=(str(Path(sc.output) / S.ROOT_FILE),)))
     return plan
@@ -155,9 +145,9 @@ def prepare_scene(plan: ScenePlan) -> None:
     """Create (or check) the scene folder before its tasks run: a split scene's chunk tasks
     write into it, and generate refuses a non-empty folder that is not a scene."""
     from lsd3d_usd.pipeline import prepare_scene
-    opts = generate_options(plan.scene.options, plan.scene.output, progress=False)
+    sc = plan.scene
     try:
-        prepare_scene(opts, plan.layout_hash)
+        prepare_scene(sc.config(), run_options(sc.output, sc.force), plan.layout_hash)
     except InputError as e:
         raise InputError(f"{plan.scene.where}: {e}") from None
 
@@ -193,15 +183,14 @@ def _inject_crash(p: dict) -> None:
 
 def _run_chunk(p: dict, log) -> dict:
     from lsd3d_usd.proxy.chunks import ProxyBuilder, ProxyParams
-    from lsd3d_usd.proxy.usdio import _chunk_file_hash, write_chunk_layer
-    opts = generate_options(p["options"], p["out"], progress=False, log=log)
-    layout = read_layout_for(opts)
+    from lsd3d_usd.proxy.usdio import chunk_file_hash, write_chunk_layer
+    layout = read_layout_for(scene_config(p["options"]))
     params = ProxyParams()
     builder = ProxyBuilder(layout, params)
     key = tuple(p["chunk"])
     inp = builder.inputs(key)
     cfile = chunk_file(p["out"], key)
-    if _chunk_file_hash(cfile) == inp.hash:
+    if chunk_file_hash(cfile) == inp.hash:
         log(f"{p['id']}: chunk file up to date")
         return {"chunk": list(key), "hash": inp.hash, "built": False}
     parts = builder.build(key, inp)
@@ -213,7 +202,7 @@ def _run_chunk(p: dict, log) -> dict:
 
 def _run_scene(p: dict, log) -> dict:
     from lsd3d_usd.pipeline import generate
-    return generate(generate_options(p["options"], p["out"], progress=False, log=log))
+    return generate(scene_config(p["options"]), run_options(p["out"], p.get("force", False), log))
 
 
 def run_task(payload: dict) -> dict:

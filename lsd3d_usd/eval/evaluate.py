@@ -159,7 +159,7 @@ def evaluate(o: EvalOptions) -> dict:
     from lsd3d_usd.eval import metrics as M
     from lsd3d_usd.eval import temporal as T
     from lsd3d_usd.layout.usdio import read_layout
-    from lsd3d_usd.pipeline import _proxy_arrays
+    from lsd3d_usd.proxy.usdio import proxy_arrays
     from lsd3d_usd.render.gbuffer import render_gbuffer
     from lsd3d_usd.render.preview import gather_surfels, read_env
 
@@ -171,7 +171,7 @@ def evaluate(o: EvalOptions) -> dict:
         raise InputError(f"{sc.root}: no surfels to render (no visible ParticleField prim)")
     env = read_env(stage)
     layout = read_layout(layout_path)
-    PV, PF, PC = _proxy_arrays(sc)
+    PV, PF, PC = proxy_arrays(sc.layer_path("proxy"))
     w, h = o.resolution
     seen = V.seen_views(sc, layout, o.run, w, h)
     pick = V.pick(len(seen.views), o.n_seen, o.seed)

@@ -21,7 +21,7 @@ import numpy as np
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.cameras import View, sample_views
-from lsd3d_usd.ggds.run import GGDSConfig
+from lsd3d_usd.ggds.config import GGDSConfig
 from lsd3d_usd.render.camera import Camera, look_at
 
 DEFAULT_BINS = (0.5, 1.0, 2.0, 4.0, 8.0)
@@ -29,9 +29,9 @@ HEADING_DEG_PER_M = 7.5
 MAX_HEADING_DEG = 45.0
 MAX_DROP_M = 0.5
 # GGDS's camera sampler defaults, used for scenes without a run.
-GGDS_FOV_DEG = GGDSConfig.fov_deg
-GGDS_NOVEL_FRAC = GGDSConfig.novel_frac
-GGDS_N_VIEWS = GGDSConfig.n_views
+GGDS_FOV_DEG = GGDSConfig().fov_deg
+GGDS_NOVEL_FRAC = GGDSConfig().novel_frac
+GGDS_N_VIEWS = GGDSConfig().views
 
 
 @dataclass
@@ -51,16 +51,11 @@ class NovelView:
     nearest_train_m: float
 
 
-def ggds_runs(sc: S.Scene) -> list:
-    """GGDS run layers of the scene (LayerInfo), newest first (muted ones included)."""
-    return [li for li in sc.layers() if li.name.startswith(S.GGDS_PREFIX)]
-
-
 def seen_views(sc: S.Scene, layout, run: str | None, width: int, height: int) -> SeenSet:
     """The training cameras of `run` (default: the newest unmuted GGDS run) rescaled to
     width×height (same field of view). A scene without any GGDS run gets the views GGDS would
     have sampled with the scene's seed and the default GGDS camera settings (and says so)."""
-    runs = ggds_runs(sc)
+    runs = sc.runs()
     if run is not None:
         match = [li for li in runs if run in (li.name, li.path.name)]
         if not match:

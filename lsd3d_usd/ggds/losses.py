@@ -21,23 +21,19 @@ import math
 import torch
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.ggds.config import OMEGA_KINDS
 from lsd3d_usd.ggds.ddim import DDIMSchedule
 
-OMEGA_KINDS = ("uniform", "sds", "signal")
-_DEFAULT_SCHEDULE: DDIMSchedule | None = None
+DEFAULT_SCHEDULE = DDIMSchedule()   # SD 1.x/2.x scaled-linear betas (ggds/ddim.py)
 
 
 def omega(t: float, kind: str = "uniform", schedule: DDIMSchedule | None = None) -> float:
     """Weight of the image losses at noise level t in [0, 1] (see module doc)."""
-    global _DEFAULT_SCHEDULE
     if kind not in OMEGA_KINDS:
         raise InputError(f"unknown omega weighting {kind!r}; choose one of {', '.join(OMEGA_KINDS)}")
     if kind == "uniform":
         return 1.0
-    if schedule is None:
-        if _DEFAULT_SCHEDULE is None:
-            _DEFAULT_SCHEDULE = DDIMSchedule()
-        schedule = _DEFAULT_SCHEDULE
+    schedule = DEFAULT_SCHEDULE if schedule is None else schedule
     ab = schedule.alpha_bar(schedule.level(t))
     if kind == "sds":
         return 2.0 * math.sqrt(ab * (1.0 - ab))

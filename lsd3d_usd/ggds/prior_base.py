@@ -156,6 +156,18 @@ class Prior:
     """Base class: subclasses implement `target`; `name` goes into provenance."""
 
     name = "prior"
+    # Weights of loss terms configured as None (ggds/terms.py): a diffusion prior's loose
+    # targets are where the perceptual term earns its place.
+    default_weights = {"perceptual": 0.05}
+
+    def default_weight(self, term: str) -> float:
+        return float(self.default_weights.get(term, 0.0))
+
+    def shade_at(self, points, normals, semantic, env: PriorEnv, view_dirs=None,
+                 sun_visibility=None) -> torch.Tensor | None:
+        """Optional: the prior's radiance at world points (N,3), when it can be evaluated in
+        3D (GGDS then starts surfel colours from it). None: image space only."""
+        return None
 
     def target(self, x: torch.Tensor, gbuffer: GBuffer, env: PriorEnv, t: float,
                n_steps: int = 5, seed: int | None = None) -> torch.Tensor:

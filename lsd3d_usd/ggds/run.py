@@ -1,74 +1,34 @@
-"""The GGDS optimisation loop (geometry-grounded distillation sampling).
+"""One GGDS optimisation (geometry-grounded distillation sampling): its state and its step.
 
 Each step: pick a view; render the surfels x; ask the prior for a target x̂ at a noise level
 t ~ U[t_min, t_max] (t_min annealed linearly down, as in the paper) from the view's proxy
-G-buffer; minimise ω(t)(|x − x̂|₁ + L_perceptual) + proxy normal and disparity losses + the
-2DGS normal-consistency and (optional, w_distortion) depth-distortion regularisers + TV on the
-render; update only the surfels the view
-touched (selective Adam); then the MCMC strategy adds opacity-gated SGLD noise in each
-surfel's tangent plane and relocates dead surfels.
+G-buffer; minimise the configured loss terms (ggds/terms.py: ω(t)(|x − x̂|₁ + perceptual) +
+proxy normal and disparity losses + the 2DGS normal-consistency and depth-distortion
+regularisers + TV on the render); update only the surfels the view touched (selective Adam);
+then the MCMC strategy adds opacity-gated SGLD noise in each surfel's tangent plane and
+relocates dead surfels. The run's lifecycle (loop, checkpoints, resume, held-out evaluation)
+is ggds/runner.py.
 """
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
+from lsd3d_usd.configtree import to_dict
 from lsd3d_usd.ggds import losses, params as P
 from lsd3d_usd.ggds.adam import SelectiveAdam, lr_at
 from lsd3d_usd.ggds.cameras import View
 from lsd3d_usd.ggds.conditioning import ShadowMap, view_gbuffer
+from lsd3d_usd.ggds.config import GGDSConfig
 from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv
-from lsd3d_usd.ggds.regularizers import normal_consistency
 from lsd3d_usd.ggds.strategy import MCMCStrategy
+from lsd3d_usd.ggds.terms import StepContext, active_terms
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.splats.field import SurfelField
-
-
-@dataclass
-class GGDSConfig:
-    steps: int = 250
-    width: int = 480
-    height: int = 270
-    n_views: int = 128
-    novel_frac: float = 0.25
-    fov_deg: float = 70.0
-    t_max: float = 0.98
-    t_min_start: float = 0.9        # t_min anneals linearly from here ...
-    t_min_end: float = 0.2          # ... to here over the run
-    n_denoise: int = 5
-    lr_means: tuple = (2e-3, 2e-5)  # metres, log-linear decay
-    lr_quats: float = 2e-3
-    lr_scales: float = 5e-3
-    lr_opacities: float = 5e-2
-    lr_sh: float = 1.5e-2           # SH DC (2.5e-2 random-walked rarely seen colours); rest * sh_rest_factor
-    sh_rest_factor: float = 0.05    # as 3DGS (rest = DC / 20)
-    lr_sh_end: float | None = None  # if set, SH lr decays log-linearly to this
-    adam_eps_sh: float = 1e-15
-    w_perceptual: float = 0.05      # generate picks 0 for the procedural prior (docs/ggds.md)
-    w_normal: float = 0.1
-    w_disparity: float = 1.0
-    w_normal_consistency: float = 0.05
-    w_tv: float = 0.01
-    w_distortion: float = 0.0       # 2DGS depth distortion (mean over the image)
-    checkpoint_every: int = 50
-    seed: int = 0
-    noise_scale: float = 0.5
-    relocate_every: int = 50
-    world_init: bool = True         # start colours from a world-space prior evaluated in 3D
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "GGDSConfig":
-        known = {k: v for k, v in d.items() if k in cls.__dataclass_fields__}
-        if "lr_means" in known:
-            known["lr_means"] = tuple(known["lr_means"])
-        return cls(**known)
 
 
 @dataclass
@@ -112,30 +72,41 @@ def psnr(x: torch.Tensor, y: torch.Tensor) -> float:
 
 
 class GGDSRun:
-    """State of one GGDS run: parameters, optimizer, strategy, views and history."""
+    """State of one GGDS run: parameters, optimizer, strategy, views and history.
+
+    ``terms``: (LossTerm, weight) pairs (default: ggds.terms.active_terms(config, prior));
+    per-term state (e.g. the perceptual network) is built once here by each term's setup."""
 
     def __init__(self, field: SurfelField, proxy: tuple[np.ndarray, np.ndarray, np.ndarray | None],
                  views: list[View], prior: Prior, env: PriorEnv, config: GGDSConfig, *,
                  background_fn=None, shadow: ShadowMap | None = None,
-                 face_index: np.ndarray | None = None, perceptual=None, progress=None):
+                 face_index: np.ndarray | None = None, terms=None, term_state: dict | None = None):
         self.cfg = config
         self.init_field = field
         self.params = P.to_params(field)
         for p in self.params.values():
             p.requires_grad_(True)
         k = self.params["sh"].shape[1]
-        sh_scale = torch.full((k, 1), float(config.sh_rest_factor))
+        sh_scale = torch.full((k, 1), float(config.lr.sh_rest_factor))
         sh_scale[0] = 1.0
         self.optimizer = SelectiveAdam(self.params, self._lrs(0), lr_scales={"sh": sh_scale},
-                                       eps_by_key={"sh": config.adam_eps_sh})
-        self.strategy = MCMCStrategy(noise_scale=config.noise_scale,
-                                     relocate_every=config.relocate_every, seed=config.seed)
+                                       eps_by_key={"sh": config.lr.adam_eps_sh})
+        st = config.strategy
+        self.strategy = MCMCStrategy(noise_scale=st.noise_scale, gate_sharpness=st.gate_sharpness,
+                                     gate_threshold=st.gate_threshold,
+                                     relocate_every=st.relocate_every, dead_opacity=st.dead_opacity,
+                                     max_relocate_frac=st.max_relocate_frac, seed=config.seed)
         self.prior, self.env = prior, env
         self.vertices, self.faces, self.face_ids = proxy
         self.face_index = None if face_index is None else np.asarray(face_index, np.int64).copy()
         self.shadow = shadow
         self.background_fn = background_fn
-        self.perceptual = perceptual
+        self.terms = active_terms(config, prior) if terms is None else list(terms)
+        self.term_state = dict(term_state or {})
+        for term, _ in self.terms:
+            if term.setup is not None and term.name not in self.term_state:
+                self.term_state[term.name] = term.setup(config, prior)
+        self.render_needs = {n for term, _ in self.terms for n in term.needs}
         self.views = views
         self._view_cache: dict[int, ViewData] = {}
         self.rng = np.random.default_rng(config.seed)
@@ -145,10 +116,11 @@ class GGDSRun:
 
     # ------------------------------------------------------------ schedules
     def _lrs(self, step: int) -> dict:
-        c = self.cfg
-        return {"means": lr_at(step, c.steps, *c.lr_means), "quats": c.lr_quats, "scales": c.lr_scales,
-                "opacities": c.lr_opacities,
-                "sh": c.lr_sh if c.lr_sh_end is None else lr_at(step, c.steps, c.lr_sh, c.lr_sh_end)}
+        c, lr = self.cfg, self.cfg.lr
+        return {"means": lr_at(step, c.steps, lr.means, lr.means_end), "quats": lr.quats,
+                "scales": lr.scales, "opacities": lr.opacities,
+                "sh": lr.sh_dc if lr.sh_dc_end is None else lr_at(step, c.steps, lr.sh_dc,
+                                                                  lr.sh_dc_end)}
 
     def t_min(self, step: int) -> float:
         c = self.cfg
@@ -179,7 +151,7 @@ class GGDSRun:
         vd = self.view_data(vi)
         cam = vd.view.camera
         t_view = time.perf_counter()
-        dist_kw = {"distortion": True} if cfg.w_distortion > 0 else {}
+        dist_kw = {"distortion": True} if "distortion" in self.render_needs else {}
         out = self.render(cam, background=vd.background, normal_space="camera", **dist_kw)
         x = out["rgb"]
         t_render = time.perf_counter()
@@ -188,25 +160,12 @@ class GGDSRun:
             x_hat = self.prior.target(x.detach().clamp(0, None), vd.gbuffer, self.env, t,
                                       n_steps=cfg.n_denoise, seed=cfg.seed * 100003 + k)
         t_prior = time.perf_counter()
-        w = losses.omega(t)
-        terms = {"l1": losses.l1_loss(x, x_hat)}
-        if self.perceptual is not None and cfg.w_perceptual > 0:
-            terms["perceptual"] = cfg.w_perceptual * self.perceptual(x.clamp(0, 1), x_hat.clamp(0, 1))
-        image = w * sum(terms.values())
-        gb = vd.gbuffer
-        R = torch.from_numpy(cam.viewmat[:3, :3].astype(np.float32))
-        proxy_n_cam = gb.normal @ R.T
-        terms["normal"] = cfg.w_normal * losses.normal_loss(
-            out["normal"], proxy_n_cam, gb.valid & (out["alpha"] > 0.5), two_sided=True)
-        terms["disparity"] = cfg.w_disparity * losses.disparity_loss(
-            out["depth_expected"], gb.depth, gb.valid & (out["alpha"] > 0.5))
-        terms["normal_consistency"] = cfg.w_normal_consistency * normal_consistency(
-            out["normal"], out["depth_expected"], out["alpha"], torch.from_numpy(cam.K))
-        terms["tv"] = cfg.w_tv * losses.tv_loss(x)
-        loss = image + terms["normal"] + terms["disparity"] + terms["normal_consistency"] + terms["tv"]
-        if cfg.w_distortion > 0:
-            terms["distortion"] = cfg.w_distortion * out["distortion"].mean()
-            loss = loss + terms["distortion"]
+        w = losses.omega(t, cfg.omega)
+        ctx = StepContext(x, x_hat, out, vd.gbuffer, cam, t, cfg, self.term_state)
+        terms = {}
+        for term, weight in self.terms:
+            terms[term.name] = (weight * w if term.image else weight) * term.fn(ctx)
+        loss = sum(terms.values())
         for p in self.params.values():
             p.grad = None
         t_loss = time.perf_counter()
@@ -241,11 +200,11 @@ class GGDSRun:
     def world_init(self, offsets_sigma: float = 0.7, batch: int = 400_000) -> bool:
         """Set every surfel's DC colour to the prior's colour averaged over its disk (centre and
         four points at ±offsets_sigma·σ along its axes), seen from the nearest training camera,
-        when the prior can be evaluated in world space (`shade_at`; the procedural prior can, a
-        diffusion prior cannot). Image-space GGDS steps refine from there. Returns whether it ran."""
-        fn = getattr(self.prior, "shade_at", None)
+        when the prior can be evaluated in world space (Prior.shade_at; the procedural prior
+        can, a diffusion prior cannot). Image-space GGDS steps refine from there. Returns
+        whether it ran."""
         sem = self.init_field.semantic_ids
-        if fn is None or sem is None:
+        if sem is None:
             return False
         from lsd3d_usd.splats.field import SH_C0, quat_to_matrix
         f = self.field()
@@ -264,8 +223,11 @@ class GGDSRun:
         cols = np.empty((len(flat_p), 3), np.float32)
         for a in range(0, len(flat_p), batch):
             b = slice(a, a + batch)
-            cols[b] = fn(flat_p[b], flat_n[b], flat_i[b], self.env, view_dirs=view[b],
-                         sun_visibility=None if vis is None else vis[b]).numpy()
+            c = self.prior.shade_at(flat_p[b], flat_n[b], flat_i[b], self.env, view_dirs=view[b],
+                                    sun_visibility=None if vis is None else vis[b])
+            if c is None:
+                return False
+            cols[b] = c.numpy()
         rgb = cols.reshape(f.n, 5, 3).mean(axis=1)
         self.params["sh"][:, 0, :] = torch.from_numpy((rgb - 0.5) / SH_C0)
         return True
@@ -283,28 +245,45 @@ class GGDSRun:
     def field(self) -> SurfelField:
         return P.to_field(self.params, self.init_field)
 
-    def state_dict(self) -> dict:
-        return {"params": {k: v.detach().clone() for k, v in self.params.items()},
-                "optimizer": self.optimizer.state_dict(), "step": self.step_index,
-                "rng": self.rng.bit_generator.state, "strategy_rng": self.strategy._gen.get_state(),
-                "history": list(self.history), "seconds": self.seconds, "config": self.cfg.to_dict(),
-                "face_index": None if self.face_index is None else self.face_index.copy()}
+    def checkpoint(self, optimizer: bool = True) -> tuple[dict, dict]:
+        """(tensors, meta): everything a resume needs, as flat named tensors (safetensors) and
+        plain JSON data. Without ``optimizer`` the Adam moments are left out (a resume then
+        restarts them at zero)."""
+        tensors = {f"params.{k}": v.detach().contiguous() for k, v in self.params.items()}
+        if optimizer:
+            st = self.optimizer.state_dict()
+            tensors.update({f"adam.m.{k}": v.contiguous() for k, v in st["m"].items()})
+            tensors.update({f"adam.v.{k}": v.contiguous() for k, v in st["v"].items()})
+            tensors["adam.t"] = st["t"].contiguous()
+        tensors["strategy.rng"] = self.strategy._gen.get_state()
+        if self.face_index is not None:
+            tensors["face_index"] = torch.from_numpy(np.ascontiguousarray(self.face_index))
+        meta = {"step": self.step_index, "rng": self.rng.bit_generator.state,
+                "history": list(self.history), "seconds": self.seconds,
+                "config": to_dict(self.cfg), "optimizer": bool(optimizer)}
+        return tensors, meta
 
-    def load_state_dict(self, state: dict) -> None:
+    def restore(self, tensors: dict, meta: dict) -> None:
+        """Inverse of :meth:`checkpoint`. Shapes must match the run's surfels."""
         with torch.no_grad():
-            for k, v in state["params"].items():
-                if v.shape != self.params[k].shape:
-                    raise ValueError(f"checkpoint {k} has shape {tuple(v.shape)}, "
-                                     f"scene has {tuple(self.params[k].shape)}")
-                self.params[k].copy_(v)
-        self.optimizer.load_state_dict(state["optimizer"])
-        self.step_index = int(state["step"])
-        self.rng.bit_generator.state = state["rng"]
-        self.strategy._gen.set_state(state["strategy_rng"])
-        self.history = list(state["history"])
-        self.seconds = float(state.get("seconds", 0.0))
-        if state.get("face_index") is not None:
-            self.face_index = np.asarray(state["face_index"], np.int64).copy()
+            for k, p in self.params.items():
+                v = tensors.get(f"params.{k}")
+                if v is None or v.shape != p.shape:
+                    got = "missing" if v is None else f"shape {tuple(v.shape)}"
+                    raise ValueError(f"checkpoint params.{k} is {got}, the scene's surfels give "
+                                     f"{tuple(p.shape)}")
+                p.copy_(v)
+        if meta.get("optimizer", True) and "adam.t" in tensors:
+            self.optimizer.load_state_dict({
+                "m": {k: tensors[f"adam.m.{k}"] for k in self.params},
+                "v": {k: tensors[f"adam.v.{k}"] for k in self.params}, "t": tensors["adam.t"]})
+        self.step_index = int(meta["step"])
+        self.rng.bit_generator.state = meta["rng"]
+        self.strategy._gen.set_state(tensors["strategy.rng"])
+        self.history = list(meta["history"])
+        self.seconds = float(meta.get("seconds", 0.0))
+        if "face_index" in tensors:
+            self.face_index = tensors["face_index"].numpy().astype(np.int64).copy()
 
     @torch.no_grad()
     def evaluate(self, views: list[View], t_eval: float = 1.0) -> dict:

@@ -1,23 +1,23 @@
 """Map importers, registered by name: the one front behind ``lsd3d-usd layout import``.
 
 An importer is a name, a one-line description, a content sniffer and a read function. The
-built-in table holds OpenDRIVE, Lanelet2 and OpenStreetMap; a third-party package adds one
-through the Python entry point group ``lsd3d_usd.layout_importers`` (the entry point loads an
-:class:`Importer`). The format of a file is chosen by its content: every importer's sniffer
-sees the first bytes of the file (and may read more), the first one to claim it in
-``priority`` order wins; the file's extension only breaks ties and names the format in errors.
+registry (``IMPORTERS``, a :class:`lsd3d_usd.registry.Registry`) holds OpenDRIVE, Lanelet2
+and OpenStreetMap; a third-party package adds one through the Python entry point group
+``lsd3d_usd.layout_importers`` (the entry point names an :class:`Importer`). The format of a
+file is chosen by its content: every importer's sniffer sees the first bytes of the file (and
+may read more), the first one to claim it in ``priority`` order wins; the file's extension
+only breaks ties between equal priorities.
 """
 from __future__ import annotations
 
 import re
-import warnings
 from dataclasses import dataclass
-from importlib import metadata
 from pathlib import Path
 from typing import Callable
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import model as m
+from lsd3d_usd.registry import Registry
 
 ENTRY_POINT_GROUP = "lsd3d_usd.layout_importers"
 HEAD_BYTES = 64 * 1024
@@ -107,49 +107,40 @@ def _read_osm(path: Path, options: ImportOptions) -> m.Layout:
     return osm_import.read_osm(path, options)
 
 
-BUILTIN = (
-    Importer("opendrive", "ASAM OpenDRIVE 1.4-1.8 (.xodr): roads, lanes, marks, junctions",
-             (".xodr",), _sniff_opendrive, _read_opendrive, priority=100),
-    Importer("lanelet2", "Lanelet2 map (.osm XML with lanelet relations), read with lanelet2",
-             (".osm",), _sniff_lanelet2, _read_lanelet2, priority=200),
-    Importer("osm", "OpenStreetMap (.osm XML, .osm.pbf), read with osmium: highways, "
-             "buildings, trees, parks", (".osm", ".pbf", ".osm.pbf"), _sniff_osm, _read_osm,
-             priority=300),
-)
+OPENDRIVE = Importer("opendrive", "ASAM OpenDRIVE 1.4-1.8 (.xodr): roads, lanes, marks, junctions",
+                     (".xodr",), _sniff_opendrive, _read_opendrive, priority=100)
+LANELET2 = Importer("lanelet2", "Lanelet2 map (.osm XML with lanelet relations), read with lanelet2",
+                    (".osm",), _sniff_lanelet2, _read_lanelet2, priority=200)
+OSM = Importer("osm", "OpenStreetMap (.osm XML, .osm.pbf), read with osmium: highways, buildings, "
+               "trees, parks", (".osm", ".pbf", ".osm.pbf"), _sniff_osm, _read_osm, priority=300)
+
+IMPORTERS = Registry(ENTRY_POINT_GROUP, "map importer", {
+    "opendrive": "lsd3d_usd.layout.importers:OPENDRIVE",
+    "lanelet2": "lsd3d_usd.layout.importers:LANELET2",
+    "osm": "lsd3d_usd.layout.importers:OSM",
+})
 
 
-# ================================================================ registry
+# ================================================================ lookup
 
 def registered() -> list[Importer]:
-    """Built-in importers and those of installed packages (entry points), in priority order.
-    An entry point that fails to load warns and is left out; one that reuses a name is an error."""
-    found = {imp.name: imp for imp in BUILTIN}
-    for ep in metadata.entry_points(group=ENTRY_POINT_GROUP):
-        try:
-            imp = ep.load()
-            if callable(imp) and not isinstance(imp, Importer):
-                imp = imp()
-        except Exception as e:   # a broken plugin must not break the built-in formats
-            warnings.warn(f"map importer entry point {ep.name!r} ({ep.value}) failed to load: {e}",
-                          MapWarning, stacklevel=2)
-            continue
+    """Every registered importer (built-ins and entry points), in priority order. An entry
+    point that cannot be loaded, or does not name an Importer, is a one-line error."""
+    out = []
+    for name in IMPORTERS.names():
+        imp = IMPORTERS.get(name)
         if not isinstance(imp, Importer):
-            warnings.warn(f"map importer entry point {ep.name!r} does not give an Importer",
-                          MapWarning, stacklevel=2)
-            continue
-        if imp.name in found:
-            raise InputError(f"map importer {imp.name!r} of entry point {ep.value} clashes with "
-                             f"one already registered")
-        found[imp.name] = imp
-    return sorted(found.values(), key=lambda i: (i.priority, i.name))
+            raise InputError(f"map importer {name!r} ({ENTRY_POINT_GROUP}) is a "
+                             f"{type(imp).__name__}, not a lsd3d_usd.layout.importers.Importer")
+        out.append(imp)
+    return sorted(out, key=lambda i: (i.priority, i.name))
 
 
 def get(name: str) -> Importer:
-    imps = registered()
-    for imp in imps:
-        if imp.name == name:
-            return imp
-    raise InputError(f"unknown map format {name!r}; known: {', '.join(i.name for i in imps)}")
+    imp = IMPORTERS.get(name)
+    if not isinstance(imp, Importer):
+        raise InputError(f"map importer {name!r} is not an Importer")
+    return imp
 
 
 def detect(path: str | Path) -> Importer:

@@ -159,7 +159,7 @@ def read_chunk_map(path: str | Path) -> dict[str, str]:
                                              .get("chunks", {})).items()}
 
 
-def _chunk_file_hash(path: Path) -> str | None:
+def chunk_file_hash(path: Path) -> str | None:
     from pxr import Sdf
     if not path.is_file():
         return None
@@ -260,7 +260,7 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
     for key in it:
         inp = builder.inputs(key)
         cfile = folder / chunk_file_name(*key)
-        if not force and _chunk_file_hash(cfile) == inp.hash:
+        if not force and chunk_file_hash(cfile) == inp.hash:
             report.skipped.append(key)
         else:
             parts = builder.build(key, inp)
@@ -346,3 +346,22 @@ def class_mesh_from_prim(prim) -> ClassMesh:
     fp = np.asarray(pv.Get(), dtype=np.int32) if pv and pv.HasValue() else np.zeros(len(faces), np.int32)
     id_attr = prim.GetAttribute(ID_ATTR)
     return ClassMesh(pts, faces, cls, part_ids, fp, name=str(id_attr.Get()) if id_attr else where)
+
+
+def proxy_arrays(path: str | Path, chunks=None):
+    """All proxy meshes of a proxy layer concatenated (chunks and classes in sorted order):
+    vertices (n,3), faces (m,3) int64, face class ids (m,) int32 (lsd3d_usd.semantics)."""
+    from lsd3d_usd.semantics import CLASS_ID
+    vs, fs, ids, base = [], [], [], 0
+    for key, meshes in sorted(read_proxy(path, chunks).items()):
+        for name in sorted(meshes):
+            cm = meshes[name]
+            if cm.n_faces == 0:
+                continue
+            vs.append(cm.vertices)
+            fs.append(cm.faces.astype(np.int64) + base)
+            ids.append(np.full(cm.n_faces, CLASS_ID.get(cm.cls, -1), np.int32))
+            base += len(cm.vertices)
+    if not fs:
+        raise InputError(f"{path}: the proxy has no geometry")
+    return np.concatenate(vs), np.concatenate(fs), np.concatenate(ids)

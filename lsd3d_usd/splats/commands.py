@@ -44,15 +44,16 @@ def _read_stage_surfels(path, prim_path=None, time_code=None):
     return SurfelField.concat(fields)
 
 
-def _write_surfels(field, out, prim_path, prov):
-    """To a stand-alone USD file, or as the surfels layer of a scene folder."""
+def _write_surfels(field, out, prim_path, prov, retire_runs=False):
+    """To a stand-alone USD file, or as the surfels layer of a scene folder (refused when GGDS
+    runs were optimised on the scene's current surfels, unless retire_runs)."""
     from lsd3d_usd import scene
     from lsd3d_usd.splats.usdio import write_surfel_file, write_surfels
 
     if _is_scene(out):
         stage = scene.new_stage()
         write_surfels(stage, prim_path, field)
-        return scene.Scene.open(out).write_layer("surfels", stage, prov)
+        return scene.Scene.open(out).write_layer("surfels", stage, prov, retire_runs=retire_runs)
     write_surfel_file(str(out), field, prim_path, prov)
     return Path(out)
 
@@ -148,7 +149,7 @@ def _init(args) -> int:
                                             "sh_degree": args.sh_degree, "root": root,
                                             "triangles": int(len(F))}, seed=args.seed,
                             timings={"init_s": round(dt, 3)})
-    path = _write_surfels(field, out, args.prim, prov)
+    path = _write_surfels(field, out, args.prim, prov, args.retire_runs)
     area = float(np.pi * np.sum(field.scales[:, 0].astype(np.float64) * field.scales[:, 1]))
     print(f"{field.n} surfels on {len(F)} triangles ({area:.1f} m^2) in {dt:.2f} s -> {path}")
     return 0
@@ -158,11 +159,14 @@ def _init(args) -> int:
 
 def _import_ply(args) -> int:
     from lsd3d_usd import scene
+    from lsd3d_usd.hashing import file_hash
     from lsd3d_usd.splats.ply import read_ply
 
     field = read_ply(args.input)
-    prov = scene.provenance("splats.import-ply", {"source": str(Path(args.input).name)})
-    path = _write_surfels(field, args.output, args.prim, prov)
+    digest = file_hash(args.input)
+    prov = scene.provenance("splats.import-ply", {"source": str(Path(args.input).name)},
+                            inputsHash=f"ply-{digest}")
+    path = _write_surfels(field, args.output, args.prim, prov, args.retire_runs)
     print(f"{field.n} surfels (SH degree {field.sh_degree}) -> {path}")
     return 0
 
@@ -202,6 +206,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "or a fixed colour. Writes the scene's surfels layer, or a .usdc file.")
     q.add_argument("input", help="scene folder or USD file holding the meshes")
     q.add_argument("-o", "--output", help="output .usdc file or scene folder (default: the input scene)")
+    q.add_argument("--retire-runs", action="store_true",
+                   help="replace a scene's surfels even though GGDS runs were optimised on them "
+                        "(the runs are muted and marked stale)")
     q.add_argument("--count", type=int, default=2_000_000,
                    help="number of surfels (paper: 1.8-2.2 M per scene, at most 4 M; default 2000000)")
     q.add_argument("--seed", type=int, default=0, help="random seed (same seed, same surfels)")
@@ -221,6 +228,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "the smallest the normal. Writes a .usdc file or a scene's surfels layer.")
     q.add_argument("input", help="input .ply file")
     q.add_argument("-o", "--output", required=True, help="output .usdc file or scene folder")
+    q.add_argument("--retire-runs", action="store_true",
+                   help="replace a scene's surfels even though GGDS runs were optimised on them "
+                        "(the runs are muted and marked stale)")
     q.add_argument("--prim", default="/World/Surfels", help="prim path of the written surfels")
     q.set_defaults(func=_import_ply)
 

@@ -154,15 +154,24 @@ def ggds_runs(stage) -> list[RunLayer]:
             steps, complete = _run_info(layer)
             runs[Path(sub).stem] = RunLayer(Path(sub).stem, sub, stage.IsLayerMuted(sub), False,
                                             steps, complete)
-    folder = Path(root.realPath).parent if root.realPath else None
-    for f in dict(root.customLayerData).get("lsd3d", {}).get("mutedLayers", []) or []:
-        name = Path(str(f)).stem
-        if name.startswith(GGDS_PREFIX) and name not in runs:
-            path = folder / "layers" / Path(str(f)).name if folder else None
-            layer = Sdf.Layer.FindOrOpen(str(path)) if path and path.is_file() else None
+    for info in _scene_runs(root):
+        if info.muted and info.name not in runs:
+            layer = Sdf.Layer.FindOrOpen(str(info.path)) if info.exists else None
             steps, complete = _run_info(layer)
-            runs[name] = RunLayer(name, "", True, True, steps, complete)
+            runs[info.name] = RunLayer(info.name, "", True, True, steps, complete)
     return sorted(runs.values(), key=lambda r: r.name, reverse=True)
+
+
+def _scene_runs(root) -> list:
+    """The runs a scene folder lists (persistently muted ones included), when the stage's
+    root layer is a scene's scene.usda; [] for any other file."""
+    from lsd3d_usd import scene as S
+    if not root.realPath or Path(root.realPath).name != S.ROOT_FILE:
+        return []
+    try:
+        return S.Scene.open(Path(root.realPath).parent).runs()
+    except InputError:
+        return []
 
 
 def _sublayer_identifiers(layer, seen=None) -> list[str]:

@@ -35,7 +35,8 @@ def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions
     from lsd3d_usd.ggds.conditioning import shadow_map
     from lsd3d_usd.ggds.envbridge import scene_light
     from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
-    from lsd3d_usd.ggds.run import GGDSConfig, GGDSRun
+    from lsd3d_usd.ggds.config import GGDSConfig
+    from lsd3d_usd.ggds.run import GGDSRun
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.semantics import CLASSES
     from lsd3d_usd.splats.init import mesh_to_surfels
@@ -52,7 +53,7 @@ def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions
                                       semantic_classes=CLASSES, return_face_index=True)
         for (w, h) in resolutions:
             views = sample_views(layout, 16, w, h, seed=0, region=region)
-            cfg = GGDSConfig(steps=warmup + steps, width=w, height=h, w_perceptual=0.0)
+            cfg = GGDSConfig(steps=warmup + steps, resolution=(w, h), perceptual=False)
             run = GGDSRun(field, (V, F, ids), views, ProceduralPrior(), light.prior_env, cfg,
                           shadow=shadow, face_index=face)
             for i in range(len(views)):  # G-buffers are cached per view: not part of a step
@@ -75,16 +76,17 @@ def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions
 
 def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt="sunny afternoon in Madrid",
             out=None, log=print) -> dict:
-    from lsd3d_usd.pipeline import GenerateOptions, generate
+    from lsd3d_usd.config import generate_config
+    from lsd3d_usd.pipeline import RunOptions, generate
     with tempfile.TemporaryDirectory() as tmp:
         target = Path(out) if out else Path(tmp) / "scene"
         kw = {} if steps is None else {"steps": steps}  # None: generate's default
-        opts = GenerateOptions(out=target, layout=Path(layout_path), surfels=surfels, **kw,
-                               resolution=tuple(resolution), prompt=prompt, progress=False,
-                               perceptual=False, parked=0, moving=0, env_resolution=(512, 256),
-                               log=lambda *a: None, force=bool(out))
+        cfg = generate_config(layout=Path(layout_path), surfels=surfels, **kw,
+                              resolution=tuple(resolution), prompt=prompt, perceptual=False,
+                              actors=False, env_resolution=(512, 256))
         t0 = time.perf_counter()
-        summary = generate(opts)
+        summary = generate(cfg, RunOptions(out=target, progress=False, log=lambda *a: None,
+                                           force=bool(out)))
         g = summary["ggds"]
         res = {k: g[k] for k in ("s_per_step", "psnr_novel", "depth_rel_err", "normal_err_deg",
                                  "off_surface_frac", "steps", "surfels")}

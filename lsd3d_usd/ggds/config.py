@@ -1,0 +1,110 @@
+"""GGDS configuration: one typed tree (lsd3d_usd.configtree) from which `generate`'s flags,
+config-file and batch keys, `--set ggds.…` overrides and run provenance derive.
+
+Defaults were chosen by measured held-out PSNR on the README sample (docs/ggds.md)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from lsd3d_usd.configtree import option
+
+OMEGA_KINDS = ("uniform", "sds", "signal")   # ggds/losses.py: omega(t)
+MAX_RESOLUTION = 8192                        # GGDS render side limit (pixels)
+
+
+def _loss_weights() -> dict:
+    from lsd3d_usd.ggds.terms import LOSSES
+    return {name: LOSSES.get(name).default_weight for name in LOSSES.names()}
+
+
+@dataclass
+class LearningRates:
+    means: float = option(2e-3, help="surfel position learning rate at the start (metres)", lo=0.0)
+    means_end: float = option(2e-5, help="position learning rate at the end (log-linear decay)",
+                              lo=0.0)
+    quats: float = option(2e-3, help="orientation learning rate", lo=0.0)
+    scales: float = option(5e-3, help="log-scale learning rate", lo=0.0)
+    opacities: float = option(5e-2, help="logit-opacity learning rate", lo=0.0)
+    sh_dc: float = option(1.5e-2, help="SH DC (base colour) learning rate (higher values "
+                                       "random-walk rarely seen colours into blotches)", lo=0.0)
+    sh_dc_end: float | None = option(None, help="if set, the SH learning rate decays "
+                                                "log-linearly to this", lo=0.0)
+    sh_rest_factor: float = option(0.05, help="higher-order SH learning rate = sh_dc × this "
+                                              "(as 3DGS: 1/20)", lo=0.0)
+    adam_eps_sh: float = option(1e-15, help="Adam epsilon of the SH coefficients", lo=0.0)
+
+
+@dataclass
+class StrategyConfig:
+    """MCMC strategy (ggds/strategy.py): tangent-plane SGLD noise and dead-surfel relocation."""
+    noise_scale: float = option(0.5, help="SGLD noise in units of the surfel's std-dev (0 = off)",
+                                lo=0.0)
+    gate_sharpness: float = option(100.0, help="k of the noise gate sigmoid(-k (opacity - t))",
+                                   lo=0.0)
+    gate_threshold: float = option(0.005, help="t of the noise gate: only near-dead surfels move",
+                                   lo=0.0, hi=1.0)
+    relocate_every: int = option(50, help="steps between relocations of dead surfels (0 = never)",
+                                 lo=0)
+    dead_opacity: float = option(0.005, help="surfels below this opacity are relocated",
+                                 lo=0.0, hi=1.0)
+    max_relocate_frac: float = option(0.05, help="at most this fraction relocated at once",
+                                      lo=0.0, hi=1.0)
+
+
+@dataclass
+class GGDSConfig:
+    steps: int = option(250, help="GGDS steps (0 = no optimisation)", flag="--steps",
+                        alias="steps", lo=0, hi=10_000_000)
+    resolution: tuple[int, int] = option((480, 270), help="GGDS render size WxH",
+                                         flag="--resolution", alias="resolution", lo=1,
+                                         hi=MAX_RESOLUTION, metavar="WxH")
+    views: int = option(128, help="training views sampled along and off the lanes",
+                        flag="--views", alias="views", lo=1, hi=100_000)
+    novel_frac: float = option(0.25, help="fraction of training views placed off the lanes",
+                               lo=0.0, hi=1.0)
+    fov_deg: float = option(70.0, help="horizontal field of view of the training views (deg)",
+                            lo=1.0, hi=170.0)
+    held_out: int = option(8, help="held-out views evaluated at the end of a run", lo=0,
+                           hi=10_000)
+    t_max: float = option(0.98, help="largest prior noise level t", lo=0.0, hi=1.0)
+    t_min_start: float = option(0.9, help="t_min at the first step (annealed linearly ...)",
+                                lo=0.0, hi=1.0)
+    t_min_end: float = option(0.2, help="... to this at the last step", lo=0.0, hi=1.0)
+    n_denoise: int = option(5, help="prior denoising steps per target (the paper's N)",
+                            lo=1, hi=1000)
+    omega: str = option("uniform", help="weighting ω(t) of the image terms (ggds/losses.py; "
+                                        "'sds' suits a diffusion prior)", choices=OMEGA_KINDS,
+                        flag="--omega")
+    checkpoint_every: int = option(50, help="steps between checkpoints",
+                                   flag="--checkpoint-every", alias="checkpoint_every", lo=1)
+    world_init: bool = option(True, help="start surfel colours from the prior evaluated in 3D "
+                                         "(when the prior can)")
+    perceptual: bool = option(True, help="the perceptual loss term", alias="perceptual",
+                              negate="--no-perceptual")
+    lpips: Path | None = option(None, help="use LPIPS as the perceptual term: a local "
+                                           "torchvision AlexNet or VGG16 state dict (never "
+                                           "downloaded; needs a perceptual weight > 0)",
+                                flag="--lpips", alias="lpips", metavar="BACKBONE.pth")
+    lpips_lin: Path | None = option(None, help="LPIPS linear weights (default: found in an "
+                                               "installed lpips package)",
+                                    flag="--lpips-lin", alias="lpips_lin", metavar="LIN.pth")
+    weights: dict[str, float | None] = option(
+        help="loss term weights by name (ggds/terms.py; perceptual: none = the prior's "
+             "default)", default_factory=_loss_weights, keys=_loss_weights, lo=0.0)
+    lr: LearningRates = field(default_factory=LearningRates)
+    strategy: StrategyConfig = field(default_factory=StrategyConfig)
+    # Not options: set by the caller for each run.
+    seed: int = 0
+
+    @property
+    def width(self) -> int:
+        return int(self.resolution[0])
+
+    @property
+    def height(self) -> int:
+        return int(self.resolution[1])
+
+    def weight(self, name: str, default: float | None = None) -> float:
+        v = self.weights.get(name)
+        return float(default if v is None else v) if (v is not None or default is not None) else 0.0

@@ -1,0 +1,122 @@
+"""Image priors by name: one registry (built-ins here, third-party ones from the
+``lsd3d_usd.priors`` entry-point group) and the prior part of the configuration tree.
+
+A registered prior is a :class:`PriorEntry`: a factory ``make(arg, config, seed) -> Prior``
+plus a ``check(arg, config)`` run before anything is written (missing files, a device torch
+cannot see). ``--prior NAME[:ARG]`` selects one: ``procedural`` or ``diffusers:DIR``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from lsd3d_usd.configtree import option
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.registry import Registry
+
+
+def _check_spec(v: str, where: str) -> str:
+    name = v.split(":", 1)[0]
+    if name not in PRIORS.names():
+        names = sorted(PRIORS.names(), key=lambda n: (n != "procedural", n))
+        known = " or ".join(f"'{n}:DIR'" if PRIORS.get(n).takes_arg else f"'{n}'" for n in names)
+        raise InputError(f"{where} {v!r}: use {known}")
+    return v
+
+
+def _check_device(v: str, where: str) -> str:
+    if v != "cpu" and not v.startswith("cuda"):
+        raise InputError(f"{where}: expected cpu or cuda[:N], got {v!r}")
+    return v
+
+
+@dataclass
+class PriorConfig:
+    name: str = option("procedural", help="image prior: 'procedural' (runs on CPU) or "
+                                          "'diffusers:DIR' (a local latent-diffusion directory; "
+                                          "never downloads), or another registered prior",
+                       flag="--prior", alias="prior", check=_check_spec, metavar="PRIOR")
+    controlnet: Path | None = option(None, help="local depth ControlNet directory for the "
+                                                "diffusers prior", flag="--controlnet",
+                                     alias="controlnet", metavar="DIR")
+    device: str = option("cpu", help="torch device of the prior (cuda only where torch sees "
+                                     "one)", flag="--device", alias="device", check=_check_device)
+    guidance: float = option(7.5, help="classifier-free guidance scale (diffusers prior)",
+                             lo=0.0, hi=100.0)
+
+    @property
+    def kind(self) -> str:
+        return self.name.split(":", 1)[0]
+
+    @property
+    def arg(self) -> str | None:
+        return self.name.split(":", 1)[1] if ":" in self.name else None
+
+
+@dataclass(frozen=True)
+class PriorEntry:
+    make: Callable            # (arg, PriorConfig, seed) -> Prior
+    check: Callable           # (arg, PriorConfig) -> None; raise InputError
+    takes_arg: bool = False
+    help: str = ""
+
+
+def _check_device_available(cfg: PriorConfig) -> None:
+    if cfg.device.startswith("cuda"):
+        import torch
+        if not torch.cuda.is_available():
+            raise InputError(f"--device {cfg.device}: torch sees no CUDA device here "
+                             "(use --device cpu)")
+
+
+# ----------------------------------------------------------------------------- built-ins
+def _procedural_check(arg, cfg):
+    if arg:
+        raise InputError(f"--prior procedural:{arg}: the procedural prior takes no argument")
+    _check_device_available(cfg)
+
+
+def _procedural_make(arg, cfg, seed):
+    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    return ProceduralPrior(seed=seed)
+
+
+def _diffusers_check(arg, cfg):
+    if not arg:
+        raise InputError("--prior diffusers:DIR needs a local model directory")
+    if not Path(arg).is_dir():
+        raise InputError(f"--prior diffusers:{arg}: no such directory (the diffusion prior "
+                         "loads local weights only; nothing is downloaded)")
+    from lsd3d_usd.ggds.diffusers_prior import check_model_dir
+    check_model_dir(arg, cfg.controlnet)
+    _check_device_available(cfg)
+
+
+def _diffusers_make(arg, cfg, seed):
+    from lsd3d_usd.ggds.diffusers_prior import DiffusersPrior
+    return DiffusersPrior.from_pretrained(arg, cfg.controlnet, device=cfg.device,
+                                          guidance_scale=cfg.guidance)
+
+
+PROCEDURAL = PriorEntry(_procedural_make, _procedural_check,
+                        help="procedural materials lit by the environment (CPU, deterministic)")
+DIFFUSERS = PriorEntry(_diffusers_make, _diffusers_check, takes_arg=True,
+                       help="latent diffusion + depth ControlNet from a local diffusers folder")
+
+PRIORS = Registry("lsd3d_usd.priors", "prior", {
+    "procedural": "lsd3d_usd.ggds.priors:PROCEDURAL",
+    "diffusers": "lsd3d_usd.ggds.priors:DIFFUSERS",
+})
+
+
+def check_prior(cfg: PriorConfig) -> None:
+    """Everything about the prior that can be checked without loading it."""
+    PRIORS.get(cfg.kind).check(cfg.arg, cfg)
+
+
+def make_prior(cfg: PriorConfig, seed: int = 0):
+    """The prior, loaded once (its seed follows the scene's)."""
+    entry = PRIORS.get(cfg.kind)
+    entry.check(cfg.arg, cfg)
+    return entry.make(cfg.arg, cfg, seed)
