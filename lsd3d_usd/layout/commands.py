@@ -1,13 +1,15 @@
-"""`lsd3d-usd layout ...`: generate a procedural layout, import OpenDRIVE, show a summary."""
+"""`lsd3d-usd layout ...`: generate a procedural layout, import a map (OpenDRIVE, Lanelet2,
+OpenStreetMap, or a registered importer), export OpenDRIVE, show a summary."""
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
-        "layout", help="map layouts: generate procedurally, import OpenDRIVE, inspect",
+        "layout", help="map layouts: generate procedurally, import maps, export OpenDRIVE, inspect",
         description="Map layouts: the USD layer under /World/Layout (lanes, road lines, road edges, "
                     "crosswalks, buildings, vegetation, parking). See docs/layout.md.")
     sub = p.add_subparsers(dest="layout_command", metavar="SUBCOMMAND")
@@ -27,19 +29,42 @@ def register(subparsers) -> None:
     g.add_argument("-o", "--output", required=True, help="output layer (.usda or .usdc)")
     g.set_defaults(func=_generate)
 
+    from lsd3d_usd.layout import importers
     i = sub.add_parser(
-        "import", help="import an ASAM OpenDRIVE (.xodr) map",
-        description="Import an ASAM OpenDRIVE 1.4-1.8 map: reference lines (line, arc, spiral, poly3, "
-                    "paramPoly3), lane offsets and sections, lane types, road marks, elevation, "
-                    "junctions. Curves are sampled within 2 cm of the exact geometry. Roads that "
-                    "cannot be read are skipped with a warning naming them.")
-    i.add_argument("input", help="OpenDRIVE file (.xodr)")
+        "import", help="import a map (OpenDRIVE, Lanelet2, OpenStreetMap, ...)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Import a map as a layout layer. The format is chosen by the file's content "
+                    "(--format forces one). Formats:\n" + importers.formats_help() +
+                    "\n\nOpenDRIVE curves and Lanelet2/OSM lines are kept within --tolerance. Parts "
+                    "that cannot be read are skipped with a warning naming them. See docs/layout.md.")
+    i.add_argument("input", help="map file (.xodr, .osm, .osm.pbf, ...)")
     i.add_argument("-o", "--output", required=True, help="output layer (.usda or .usdc)")
+    i.add_argument("--format", default=None, metavar="NAME",
+                   help="read as this format instead of detecting it (one of the names above)")
     i.add_argument("--tolerance", type=float, default=0.02,
                    help="max distance of the sampled polylines from the exact curves, m (default 0.02)")
     i.add_argument("--strict", action="store_true",
-                   help="fail on the first bad road instead of skipping it with a warning")
+                   help="fail on the first bad element instead of skipping it with a warning")
+    i.add_argument("--origin", default=None, metavar="LAT,LON",
+                   help="geographic origin of the layout's (0, 0) for Lanelet2 / OSM, degrees "
+                        "(default: the file's own, see docs/layout.md)")
+    i.add_argument("--bbox", default=None, metavar="MINLON,MINLAT,MAXLON,MAXLAT",
+                   help="OSM: read only this area (degrees), e.g. a district of a city file")
     i.set_defaults(func=_import)
+
+    x = sub.add_parser(
+        "export", help="export a layout as ASAM OpenDRIVE (.xodr)",
+        description="Write a layout (generated, imported or hand-written) as ASAM OpenDRIVE 1.7: "
+                    "each lane a road whose reference line is the lane centre fitted with lines, "
+                    "arcs and paramPoly3 within --tolerance, lane widths, links and junctions.")
+    x.add_argument("input", help="layout layer or scene")
+    x.add_argument("-o", "--output", required=True, help="output file (.xodr)")
+    x.add_argument("--tolerance", type=float, default=0.02,
+                   help="max distance of the fitted reference lines from the lane centres, m "
+                        "(vertices within half of it; default 0.02)")
+    x.add_argument("--validate", action="store_true",
+                   help="check the file against the ASAM OpenDRIVE XSD (needs scenariogeneration)")
+    x.set_defaults(func=_export)
 
     s = sub.add_parser("info", help="summarise a layout layer",
                        description="Print feature counts, bounds and the lane graph size of a layout.")
@@ -70,23 +95,71 @@ def _generate(args) -> int:
     return 0
 
 
+def _parse_floats(text: str | None, n: int, flag: str, example: str) -> tuple | None:
+    from lsd3d_usd.errors import InputError
+    if text is None:
+        return None
+    try:
+        vals = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != n or not all(abs(v) < 1e6 for v in vals):
+        raise InputError(f"{flag} {text!r}: expected {example}")
+    return vals
+
+
 def _import(args) -> int:
     import warnings
 
-    from lsd3d_usd.layout import opendrive, usdio
+    from lsd3d_usd.layout import importers, usdio
     from lsd3d_usd.scene import provenance
 
+    origin = _parse_floats(args.origin, 2, "--origin", "LAT,LON in degrees, e.g. 48.137,11.575")
+    bbox = _parse_floats(args.bbox, 4, "--bbox", "MINLON,MINLAT,MAXLON,MAXLAT in degrees")
+    opts = importers.ImportOptions(tolerance=args.tolerance, strict=args.strict, origin=origin,
+                                   bbox=bbox)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", opendrive.OpenDriveWarning)
-        layout = opendrive.read_opendrive(args.input, tolerance=args.tolerance, strict=args.strict)
+        warnings.simplefilter("always")
+        layout, imp = importers.read_map(args.input, opts, format=args.format)
     for w in caught:
-        if issubclass(w.category, opendrive.OpenDriveWarning):
+        if issubclass(w.category, UserWarning):
             print(f"lsd3d-usd: warning: {w.message}", file=sys.stderr)
+    src = layout.metadata.get("source", {})
+    params = {"source": str(args.input), "format": imp.name, "tolerance": args.tolerance}
+    for key in ("origin", "originFrom", "bbox"):
+        if key in src:
+            params[key] = src[key]
     path = usdio.write_layout(layout, args.output, provenance(
-        "layout.import", {"source": str(args.input), "tolerance": args.tolerance},
-        timings={"import_s": round(time.perf_counter() - t0, 3)}))
+        "layout.import", params, timings={"import_s": round(time.perf_counter() - t0, 3)}))
     _print_summary(layout, path)
+    return 0
+
+
+def _export(args) -> int:
+    import warnings
+
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.layout import opendrive_export, usdio
+
+    layout = usdio.read_layout(args.input)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        rep = opendrive_export.write_opendrive(layout, args.output, tolerance=args.tolerance)
+    for w in caught:
+        if issubclass(w.category, UserWarning):
+            print(f"lsd3d-usd: warning: {w.message}", file=sys.stderr)
+    geoms = ", ".join(f"{v} {k}" for k, v in sorted(rep.geometries.items()))
+    print(f"{args.output}: {sum(len(v) for v in rep.roads.values())} roads from "
+          f"{len(rep.roads)} lanes, {rep.junctions} junctions; geometry {geoms}; fit within "
+          f"{rep.max_curve_deviation * 100:.2f} cm ({time.perf_counter() - t0:.2f} s)")
+    if args.validate:
+        errors = opendrive_export.validate(args.output)
+        if errors:
+            raise InputError(f"{args.output}: not valid against the OpenDRIVE XSD: {errors[0]}"
+                             + (f" (+{len(errors) - 1} more)" if len(errors) > 1 else ""))
+        print(f"{args.output}: valid against the ASAM OpenDRIVE 1.7 XSD")
     return 0
 
 

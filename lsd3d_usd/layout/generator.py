@@ -5,9 +5,11 @@ Two steps, so a layout is replayable from its description:
 1. ``plan(seed, extent, style)`` → a JSON-able *description*: one node per
    100 m chunk (position jittered around the chunk centre), which grid edges
    carry a road, each row's / column's cross-section, and per node the block
-   that joins its roads (``junction`` = 4-way/T intersection with corner
-   radii, ``roundabout``, ``curve`` = fillet arc, ``deadend``, ``none``) with
-   its parameters. Every decision comes from a seed hashed from the master
+   that joins its roads with its parameters. Block types are classes in
+   ``blocktypes.BLOCK_TYPES`` (``junction`` = 4-way/T intersection with corner
+   radii, ``roundabout``, ``curve`` = fillet arc, ``deadend``, ``none``); the
+   generator asks that table which type claims a node, and asks the node's
+   block for its sockets' cut-backs, its geometry and its approach markings. Every decision comes from a seed hashed from the master
    seed and the chunk / edge / row index, so neighbouring chunks agree on the
    roads crossing their shared border whatever order they are generated in.
 2. ``build(description)`` → a :class:`Layout`, chunk by chunk (``build_chunk``):
@@ -23,7 +25,6 @@ leaves its chunk.
 from __future__ import annotations
 
 import zlib
-from dataclasses import dataclass, field
 
 import numpy as np
 import shapely
@@ -33,15 +34,16 @@ from shapely.geometry.polygon import orient
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import blocks as B
+from lsd3d_usd.layout import blocktypes as BT
+from lsd3d_usd.layout import roadnet as R
 from lsd3d_usd.layout import model as m
 
 GENERATOR_NAME = "lsd3d-usd/blocks"
 GENERATOR_VERSION = 1
 STYLES = ("urban", "suburban", "highway")
 JITTER = 10.0
-MAX_BLOCK_REACH = 36.0
-CROSSWALK_DEPTH = 3.0
-STOP_GAP = 4.5          # from junction boundary to where lane lines start
+MAX_BLOCK_REACH = R.MAX_BLOCK_REACH
+STOP_GAP = R.STOP_GAP
 PARKING_SPOT = (5.5, 2.2)
 PARKING_PITCH = 6.0
 
@@ -170,25 +172,9 @@ def plan(seed: int, extent: tuple[float, float], style: str = "urban",
             continue
         i, j = nd["ij"]
         r = _rng(seed, "block", i, j)
-        arms = degree[k]
-        deg = len(arms)
-        if deg == 0:
-            nd["block"], nd["params"] = "none", {}
-        elif deg == 1:
-            nd["block"], nd["params"] = "deadend", {}
-        elif deg == 2 and arms[0]["section"] == arms[1]["section"]:
-            nd["block"], nd["params"] = "curve", {"radius": round(float(r.uniform(25.0, 60.0)), 2)}
-        elif deg >= 3 and r.random() < sp["p_roundabout"] and \
-                max(B.Section(**a["section"]).half_width for a in arms) < 9.0:
-            nd["block"] = "roundabout"
-            nd["params"] = {"island": round(float(r.uniform(7.0, 11.0)), 2),
-                            "ring_width": round(lane_width + 1.5, 2),
-                            "corner_radius": round(float(r.uniform(*sp["corner"])), 2)}
-        else:
-            nd["block"] = "junction"
-            nd["params"] = {"corner_radius": round(float(r.uniform(*sp["corner"])), 2),
-                            "crosswalks": bool(deg >= 3 and r.random() < sp["p_crosswalk"]),
-                            "stop_signs": bool(deg >= 3 and r.random() < sp["p_stop"])}
+        sections = [B.Section(**a["section"]) for a in degree[k]]
+        cls = BT.choose(r, sections, sp)
+        nd["block"], nd["params"] = cls.ID, cls.sample_params(r, sections, sp, glob)
 
     chunks = {node_key(i, j): int(_rng(seed, "chunk", i, j).integers(0, 2**31 - 1))
               for i in range(ni) for j in range(nj)}
@@ -201,43 +187,7 @@ def plan(seed: int, extent: tuple[float, float], style: str = "urban",
 
 # ================================================================ build context
 
-@dataclass
-class _Arm:
-    edge: dict
-    direction: np.ndarray      # unit, away from the node
-    section: B.Section
-    at_a: bool                 # the node is the edge's a end
-    cut: float = 0.0
-
-
-@dataclass
-class _Edge:
-    key: str
-    a: str
-    b: str
-    section: B.Section
-    p_a: np.ndarray            # node positions
-    p_b: np.ndarray
-    d: np.ndarray              # unit a→b
-    s0: float = 0.0            # road starts at p_a + s0*d
-    s1: float = 0.0
-    pieces: list = field(default_factory=list)   # [(chunk (i, j), s_start, s_end, border_start, border_end)]
-    border0: tuple | None = None   # (axis, value) of the extent border at s0, None at a node
-    border1: tuple | None = None
-
-    def s_at(self, s: float, border, lateral: float) -> float:
-        """Parameter where the line at ``lateral`` meets ``border`` (axis, value); ``s`` at a node.
-        Offset lines of a road crossing a border at an angle are cut on the border itself."""
-        if border is None:
-            return s
-        axis, value = border
-        return float((value - (self.p_a[axis] + lateral * B.left_normal(self.d)[axis])) / self.d[axis])
-
-    def point(self, s: float, lateral: float = 0.0) -> np.ndarray:
-        return self.p_a + s * self.d + lateral * B.left_normal(self.d)
-
-
-class _Context:
+class Context:
     """Everything ``build_chunk`` needs, derived from the description only."""
 
     def __init__(self, desc: dict):
@@ -252,21 +202,29 @@ class _Context:
             self.sp = desc["style_params"]
             self.nodes = desc["nodes"]
             self.chunk_seeds = desc["chunks"]
-            self.edges = {e["key"]: _Edge(e["key"], e["a"], e["b"], B.Section(**e["section"]),
+            self.edges = {e["key"]: R.Edge(e["key"], e["a"], e["b"], B.Section(**e["section"]),
                                           np.array(self.nodes[e["a"]]["pos"], float),
                                           np.array(self.nodes[e["b"]]["pos"], float),
                                           np.zeros(2)) for e in desc["edges"]}
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"layout description is incomplete or malformed: {e!r}") from None
-        self.arms: dict[str, list[_Arm]] = {k: [] for k in self.nodes}
+        self.arms: dict[str, list[R.Arm]] = {k: [] for k in self.nodes}
         for e in self.edges.values():
             e.d = B.unit(e.p_b - e.p_a)
-            self.arms[e.a].append(_Arm(e, e.d, e.section, True))
-            self.arms[e.b].append(_Arm(e, -e.d, e.section, False))
+            self.arms[e.a].append(R.Arm(e, e.d, e.section, True))
+            self.arms[e.b].append(R.Arm(e, -e.d, e.section, False))
+        self.blocks: dict[str, BT.Block] = {}
         for k, arms in self.arms.items():
             arms.sort(key=lambda a: B.angle_of(a.direction))
-            if self.nodes[k]["real"]:
-                self._cutbacks(k, arms)
+            nd = self.nodes[k]
+            if nd["real"]:
+                try:
+                    cls = BT.block_class(nd["block"])
+                except ValueError as e:
+                    raise InputError(f"layout description, node {k}: {e}") from None
+                blk = self.blocks[k] = cls(k, nd["pos"], arms, nd["params"])
+                for arm, c in zip(arms, blk.cutbacks()):
+                    arm.cut = c
         for e in self.edges.values():
             length = float(np.linalg.norm(e.p_b - e.p_a))
             e.s0 = self._end_cut(e, True)
@@ -277,46 +235,14 @@ class _Context:
                 e.s1, e.border1 = self._extent_param(e, False)
             e.pieces = self._split(e)
 
-    def _end_cut(self, e: _Edge, at_a: bool) -> float:
+    def _end_cut(self, e: R.Edge, at_a: bool) -> float:
         node = e.a if at_a else e.b
         for arm in self.arms[node]:
             if arm.edge is e and arm.at_a == at_a:
                 return arm.cut
         return 0.0
 
-    def _cutbacks(self, k: str, arms: list[_Arm]) -> None:
-        nd = self.nodes[k]
-        block, params = nd["block"], nd["params"]
-        node = np.array(nd["pos"])
-        if block == "junction":
-            cuts = B.corner_cutbacks(node, [a.direction for a in arms],
-                                     [a.section.half_width for a in arms], params["corner_radius"])
-            for a, c in zip(arms, cuts):
-                a.cut = min(c + 1.0, MAX_BLOCK_REACH - 6)
-        elif block == "roundabout":
-            for a in arms:
-                a.cut = params["island"] + params["ring_width"] + 8.0
-        elif block == "curve":
-            t = self._curve_t(k)
-            for a in arms:
-                a.cut = t
-        # deadend / none: roads end at the node
-
-    def curve_radius_t(self, k: str) -> tuple[float, float, float]:
-        """(radius, tangent length, signed turn) of a curve block."""
-        a0, a1 = self.arms[k]
-        turn = B.wrap_angle(B.angle_of(a1.direction) - B.angle_of(-a0.direction))
-        half = abs(turn) / 2
-        want = self.nodes[k]["params"]["radius"]
-        if abs(turn) < 1e-3:
-            return float("inf"), 5.0, turn
-        t = float(np.clip(want * np.tan(half), 5.0, MAX_BLOCK_REACH - 3))
-        return t / np.tan(half), t, turn
-
-    def _curve_t(self, k: str) -> float:
-        return self.curve_radius_t(k)[1]
-
-    def _extent_param(self, e: _Edge, at_a: bool) -> float:
+    def _extent_param(self, e: R.Edge, at_a: bool) -> float:
         """Parameter along e where its line crosses the extent boundary (leaving the real end)."""
         x0, y0, x1, y1 = self.extent
         ts = []
@@ -333,11 +259,15 @@ class _Context:
         t, bd = (min if at_a else max)(inside, key=lambda x: x[0])
         return float(t), bd
 
+    def block_at(self, k: str) -> BT.Block | None:
+        """The block at node k (None for a node outside the extent or without one)."""
+        return self.blocks.get(k)
+
     def _inside(self, p, tol=0.0) -> bool:
         x0, y0, x1, y1 = self.extent
         return x0 - tol <= p[0] <= x1 + tol and y0 - tol <= p[1] <= y1 + tol
 
-    def _split(self, e: _Edge) -> list:
+    def _split(self, e: R.Edge) -> list:
         """Pieces of the road between s0 and s1, cut at chunk borders."""
         cuts = {e.s0: e.border0, e.s1: e.border1}
         for axis in (0, 1):
@@ -364,30 +294,11 @@ class _Context:
                 min((i + 1) * self.cs, x1), min((j + 1) * self.cs, y1))
 
 
-# ============================================================ lane naming
-
-def _lane_id(e: _Edge, piece: int, fwd: bool, k: int) -> str:
-    return f"{e.key}_p{piece}_{'f' if fwd else 'b'}{k}"
-
-
-def _end_lanes(e: _Edge, at_a: bool, incoming: bool) -> list[tuple[str, np.ndarray, float]]:
-    """(lane id, end point, width) of the driving lanes at one end of a road,
-    incoming = travelling toward that end. Index 0 = innermost lane."""
-    piece = 0 if at_a else len(e.pieces) - 1
-    s = e.s0 if at_a else e.s1
-    fwd = (not at_a) if incoming else at_a
-    out = []
-    for k in range(e.section.lanes):
-        off = e.section.lane_offset(k)
-        out.append((_lane_id(e, piece, fwd, k), e.point(s, -off if fwd else off), e.section.lane_width))
-    return out
-
-
 # ================================================================ build
 
 def build(desc: dict, chunks: list[tuple[int, int]] | None = None, progress=None) -> m.Layout:
     """The layout of a description, grown chunk by chunk in raster order."""
-    ctx = _Context(desc)
+    ctx = Context(desc)
     x0, y0, x1, y1 = ctx.extent
     layout = m.Layout(extent=((x0, y0), (x1, y1)), chunk_size=ctx.cs, metadata={"generator": desc})
     if chunks is None:
@@ -408,13 +319,12 @@ def generate(seed: int, extent: tuple[float, float] = (400.0, 400.0), style: str
     return build(plan(seed, extent, style), progress=progress)
 
 
-def build_chunk(ctx: _Context, i: int, j: int) -> list:
+def build_chunk(ctx: Context, i: int, j: int) -> list:
     """Features of chunk (i, j): its node's block, the road pieces crossing it, sidewalks,
     road areas, curbs, buildings, trees, parking spots."""
     ck = node_key(i, j)
     feats: list = []
     road_polys = []        # road surface pieces (extended past the chunk; clipped at the end)
-    node = ctx.nodes.get(ck)
     junction_zones = []
 
     # -- road pieces
@@ -429,16 +339,17 @@ def build_chunk(ctx: _Context, i: int, j: int) -> list:
         road_polys.append(_strip(e, e.s0 - 0.05, e.s1 + 0.05))
 
     # -- the node's block
-    if node is not None and node["real"] and node.get("block", "none") != "none":
-        block_feats, area, zones, pending = _node_block(ctx, ck)
+    blk = ctx.block_at(ck)
+    geo = blk.build() if blk is not None else None
+    if geo is not None:
         lanes = {f.id: f for f in feats if isinstance(f, m.LaneCenter)}
-        for lid, (preds, succs) in pending.items():
+        for lid, (preds, succs) in geo.links.items():
             lanes[lid].predecessors += preds   # road lanes ending at this node lie in this chunk
             lanes[lid].successors += succs
-        feats += block_feats
-        road_polys.append(area)
-        junction_zones += zones
-        for arm in ctx.arms[ck]:
+        feats += geo.features
+        road_polys.append(geo.area)
+        junction_zones += geo.zones
+        for arm in blk.arms:
             road_polys.append(_strip(arm.edge, arm.edge.s0 - 0.05, arm.edge.s1 + 0.05))
 
     clip = shp_box(*ctx.clip_box(i, j))
@@ -446,16 +357,16 @@ def build_chunk(ctx: _Context, i: int, j: int) -> list:
     sw = float(ctx.glob["sidewalk"])
     roads = _no_slivers(shapely.union_all(road_polys)) if road_polys else Polygon()
     road_clip = roads.intersection(clip)
-    for n, poly in enumerate(_polygons(road_clip)):
-        feats.append(m.RoadArea(f"c{ck}_road{n}", polygon=_xyz(poly)))
+    for n, poly in enumerate(R.polygons(road_clip)):
+        feats.append(m.RoadArea(f"c{ck}_road{n}", polygon=R.xyz(poly)))
     walks = Polygon()
     if sw > 0 and not roads.is_empty:
         walks = roads.buffer(sw, quad_segs=8).difference(roads).intersection(clip)
-        for n, poly in enumerate(_polygons(walks)):
-            feats.append(m.Sidewalk(f"c{ck}_walk{n}", polygon=_xyz(poly)))
+        for n, poly in enumerate(R.polygons(walks)):
+            feats.append(m.Sidewalk(f"c{ck}_walk{n}", polygon=R.xyz(poly)))
     curbs = _curbs(road_clip, ctx.clip_box(i, j))
     for n, c in enumerate(curbs):
-        feats.append(m.RoadEdge(f"c{ck}_curb{n}", points=_xyz(c), kind="boundary"))
+        feats.append(m.RoadEdge(f"c{ck}_curb{n}", points=R.xyz(c), kind="boundary"))
 
     # -- buildings, trees, hedges
     taken = roads.union(walks) if not walks.is_empty else roads
@@ -470,39 +381,6 @@ def _no_slivers(geom, min_hole: float = 1.0):
         if g.geom_type == "Polygon" and not g.is_empty:
             polys.append(Polygon(g.exterior, [r for r in g.interiors if Polygon(r).area >= min_hole]))
     return shapely.union_all(polys) if polys else Polygon()
-
-
-def _xyz(a) -> np.ndarray:
-    a = np.asarray(a, dtype=np.float64)
-    return np.concatenate([a, np.zeros((len(a), 1))], axis=1)
-
-
-def _polygons(geom) -> list[np.ndarray]:
-    """Hole-free CCW polygons (implicitly closed) covering ``geom``: a polygon
-    with holes is cut through each hole's centre (the layout format has no holes)."""
-    out = []
-    stack = list(getattr(geom, "geoms", [geom]))
-    while stack:
-        g = stack.pop(0)
-        if g.is_empty or g.geom_type not in ("Polygon", "MultiPolygon", "GeometryCollection"):
-            continue
-        if g.geom_type != "Polygon":
-            stack[:0] = list(g.geoms)
-            continue
-        if g.area < 0.05:
-            continue
-        if g.interiors:
-            cx = g.interiors[0].centroid.x
-            minx, miny, maxx, maxy = g.bounds
-            left = g.intersection(shp_box(minx - 1, miny - 1, cx, maxy + 1))
-            right = g.intersection(shp_box(cx, miny - 1, maxx + 1, maxy + 1))
-            stack[:0] = [left, right]
-            continue
-        g = orient(g.simplify(0.002), 1.0)
-        if g.is_empty or g.geom_type != "Polygon":
-            continue
-        out.append(np.asarray(g.exterior.coords)[:-1, :2])
-    return out
 
 
 def _curbs(road_clip, clip_box) -> list[np.ndarray]:
@@ -552,7 +430,7 @@ def _dedupe(c: np.ndarray) -> np.ndarray:
     return c[keep]
 
 
-def _strip(e: _Edge, sa: float, sb: float):
+def _strip(e: R.Edge, sa: float, sb: float):
     """Road surface of a road between parameters sa and sb (rectangle)."""
     h = e.section.half_width
     n = B.left_normal(e.d)
@@ -560,25 +438,7 @@ def _strip(e: _Edge, sa: float, sb: float):
     return Polygon([p - h * n, q - h * n, q + h * n, p + h * n])
 
 
-def _line_specs(sec: B.Section) -> list[tuple[float, str, str, bool]]:
-    """(lateral offset, kind, colour, double) of painted lines, in the a→b frame."""
-    specs = []
-    if sec.median > 0:
-        specs += [(sec.median / 2, "solid", "yellow", False), (-sec.median / 2, "solid", "yellow", False)]
-    elif sec.lanes >= 2:
-        specs.append((0.0, "solid", "yellow", True))
-    else:
-        specs.append((0.0, "broken", "yellow", False))
-    for k in range(1, sec.lanes):
-        off = sec.median / 2 + k * sec.lane_width
-        specs += [(off, "broken", "white", False), (-off, "broken", "white", False)]
-    if sec.parking > 0:
-        off = sec.median / 2 + sec.lanes * sec.lane_width
-        specs += [(off, "solid", "white", False), (-off, "solid", "white", False)]
-    return specs
-
-
-def _road_piece(ctx: _Context, e: _Edge, pidx: int, sa: float, sb: float, ba, bb) -> list:
+def _road_piece(ctx: Context, e: R.Edge, pidx: int, sa: float, sb: float, ba, bb) -> list:
     """Lanes, lines, parking spots, crosswalks and stop lines of one piece of a road."""
     feats = []
     sec = e.section
@@ -591,13 +451,13 @@ def _road_piece(ctx: _Context, e: _Edge, pidx: int, sa: float, sb: float, ba, bb
             pts = np.stack([e.point(e.s_at(sa, ba, lat), lat), e.point(e.s_at(sb, bb, lat), lat)])
             if not fwd:
                 pts = pts[::-1].copy()
-            lid = _lane_id(e, pidx, fwd, k)
+            lid = R.lane_id(e, pidx, fwd, k)
             prev_piece, next_piece = (pidx - 1, pidx + 1) if fwd else (pidx + 1, pidx - 1)
-            preds = [_lane_id(e, prev_piece, fwd, k)] if 0 <= prev_piece <= last else []
-            succs = [_lane_id(e, next_piece, fwd, k)] if 0 <= next_piece <= last else []
-            left = [_lane_id(e, pidx, fwd, k - 1)] if k > 0 else []
-            right = [_lane_id(e, pidx, fwd, k + 1)] if k + 1 < sec.lanes else []
-            feats.append(m.LaneCenter(lid, points=_xyz(pts), widths=np.full(2, sec.lane_width),
+            preds = [R.lane_id(e, prev_piece, fwd, k)] if 0 <= prev_piece <= last else []
+            succs = [R.lane_id(e, next_piece, fwd, k)] if 0 <= next_piece <= last else []
+            left = [R.lane_id(e, pidx, fwd, k - 1)] if k > 0 else []
+            right = [R.lane_id(e, pidx, fwd, k + 1)] if k + 1 < sec.lanes else []
+            feats.append(m.LaneCenter(lid, points=R.xyz(pts), widths=np.full(2, sec.lane_width),
                                       lane_type="driving", direction="forward", speed_limit_mps=speed,
                                       predecessors=preds, successors=succs, road_id=e.key,
                                       left_neighbors=left, right_neighbors=right))
@@ -610,32 +470,31 @@ def _road_piece(ctx: _Context, e: _Edge, pidx: int, sa: float, sb: float, ba, bb
             nxt = pidx + 1 if fwd else pidx - 1
             prv = pidx - 1 if fwd else pidx + 1
             feats.append(m.LaneCenter(
-                f"{e.key}_p{pidx}_{tag}", points=_xyz(pts), widths=np.full(2, sec.parking),
+                f"{e.key}_p{pidx}_{tag}", points=R.xyz(pts), widths=np.full(2, sec.parking),
                 lane_type="parking", speed_limit_mps=0.0, road_id=e.key,
                 predecessors=[f"{e.key}_p{prv}_{tag}"] if 0 <= prv <= last else [],
                 successors=[f"{e.key}_p{nxt}_{tag}"] if 0 <= nxt <= last else []))
 
-    # lines start after the junction approach (crosswalk + stop line)
-    a_block = ctx.nodes[e.a].get("block") if ctx.nodes[e.a]["real"] else None
-    b_block = ctx.nodes[e.b].get("block") if ctx.nodes[e.b]["real"] else None
-    trim_a = STOP_GAP if a_block in ("junction", "roundabout") else 0.0
-    trim_b = STOP_GAP if b_block in ("junction", "roundabout") else 0.0
+    # lines start after the block's approach (crosswalk + stop line)
+    a_block, b_block = ctx.block_at(e.a), ctx.block_at(e.b)
+    trim_a = a_block.APPROACH_GAP if a_block is not None else 0.0
+    trim_b = b_block.APPROACH_GAP if b_block is not None else 0.0
     def span(lat):
         la = e.s_at(sa, ba, lat) if ba is not None else max(sa, e.s0 + trim_a)
         lb = e.s_at(sb, bb, lat) if bb is not None else min(sb, e.s1 - trim_b)
         return la, lb
 
     if min(sb, e.s1 - trim_b) - max(sa, e.s0 + trim_a) > 0.5:
-        for n, (lat, kind, color, double) in enumerate(_line_specs(sec)):
+        for n, (lat, kind, color, double) in enumerate(R.line_specs(sec)):
             la, lb = span(lat)
             pts = np.stack([e.point(la, lat), e.point(lb, lat)])
-            feats.append(m.RoadLine(f"{e.key}_p{pidx}_line{n}", points=_xyz(pts), kind=kind,
+            feats.append(m.RoadLine(f"{e.key}_p{pidx}_line{n}", points=R.xyz(pts), kind=kind,
                                     color=color, double=double))
         if sec.median > 0:
             for n, lat in enumerate((sec.median / 2, -sec.median / 2)):
                 la, lb = span(lat)
                 pts = np.stack([e.point(la, lat), e.point(lb, lat)])
-                feats.append(m.RoadEdge(f"{e.key}_p{pidx}_median{n}", points=_xyz(pts), kind="median"))
+                feats.append(m.RoadEdge(f"{e.key}_p{pidx}_median{n}", points=R.xyz(pts), kind="median"))
 
     # parking spots on a global grid along the road, kept in the piece that holds them whole
     if sec.parking > 0:
@@ -652,222 +511,15 @@ def _road_piece(ctx: _Context, e: _Edge, pidx: int, sa: float, sb: float, ba, bb
                 lat = -sec.parking_offset() if fwd else sec.parking_offset()
                 heading = B.angle_of(e.d if fwd else -e.d)
                 feats.append(m.ParkingSpot(f"{e.key}_spot{q}_{'r' if fwd else 'l'}",
-                                           center=_xyz(e.point(s, lat)[None])[0], heading=heading,
+                                           center=R.xyz(e.point(s, lat)[None])[0], heading=heading,
                                            length=r_len, width=r_w, occupied=bool(flags[q, side])))
 
-    # crosswalk and stop line at a junction end held by this piece
-    for at_a, block in ((True, a_block), (False, b_block)):
-        if block != "junction" or (at_a and pidx != 0) or (not at_a and pidx != last):
+    # the block's markings (crosswalk, stop line) at an end held by this piece
+    for at_a, blk in ((True, a_block), (False, b_block)):
+        if blk is None or (at_a and pidx != 0) or (not at_a and pidx != last):
             continue
-        node = ctx.nodes[e.a if at_a else e.b]
-        s_edge = e.s0 if at_a else e.s1
-        inward = 1.0 if at_a else -1.0   # along +d away from the node at the a end
-        h = sec.half_width
-        if node["params"].get("crosswalks"):
-            s1_, s2_ = s_edge + inward * 0.5, s_edge + inward * (0.5 + CROSSWALK_DEPTH)
-            poly = np.stack([e.point(s1_, -h), e.point(s2_, -h), e.point(s2_, h), e.point(s1_, h)])
-            if m.polygon_area(poly) < 0:
-                poly = poly[::-1].copy()
-            feats.append(m.Crosswalk(f"{e.key}_cross{'a' if at_a else 'b'}", polygon=_xyz(poly)))
-        s_stop = s_edge + inward * (STOP_GAP - 0.3)
-        in_side = 1.0 if at_a else -1.0   # incoming lanes toward a travel b→a: left of a→b
-        lo, hi = sec.median / 2, sec.median / 2 + sec.lanes * sec.lane_width
-        pts = np.stack([e.point(s_stop, in_side * lo), e.point(s_stop, in_side * hi)])
-        feats.append(m.StopLine(f"{e.key}_stop{'a' if at_a else 'b'}", points=_xyz(pts)))
-        if node["params"].get("stop_signs"):
-            incoming = [lid for lid, _, _ in _end_lanes(e, at_a, True)]
-            pos = e.point(s_stop, in_side * (h + 0.8))
-            feats.append(m.StopSign(f"{e.key}_sign{'a' if at_a else 'b'}", position=_xyz(pos[None])[0],
-                                    lane_ids=incoming))
+        feats += blk.approach_features(e, at_a)
     return feats
-
-
-# ----------------------------------------------------------------- node blocks
-
-def _connector(lid, p0, t0, w0, p1, t1, w1, preds, succs, road_id, curve_pts=None):
-    pts = curve_pts if curve_pts is not None else B.hermite(p0, t0, p1, t1)
-    pts = pts.copy()
-    pts[0], pts[-1] = p0, p1
-    seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    s = np.concatenate([[0.0], np.cumsum(seg)])
-    frac = s / s[-1] if s[-1] > 0 else np.zeros_like(s)
-    widths = w0 + (w1 - w0) * frac
-    return m.LaneCenter(lid, points=_xyz(pts), widths=widths, lane_type="driving", road_id=road_id,
-                        predecessors=preds, successors=succs, is_junction=True)
-
-
-def _node_block(ctx: _Context, ck: str):
-    """(features, road surface polygon, junction zones) of a node's block."""
-    nd = ctx.nodes[ck]
-    block, params = nd["block"], nd["params"]
-    node = np.array(nd["pos"], float)
-    arms = ctx.arms[ck]
-    feats: list = []
-    road_id = f"n{ck}"
-
-    def arm_lanes(arm, incoming):
-        return _end_lanes(arm.edge, arm.at_a, incoming)
-
-    def link(lane_id, pred=None, succ=None):
-        pending.setdefault(lane_id, ([], []))
-        if pred:
-            pending[lane_id][0].append(pred)
-        if succ:
-            pending[lane_id][1].append(succ)
-
-    pending: dict[str, tuple[list, list]] = {}
-    stubs = []
-    for a in arms:
-        h = a.section.half_width
-        n = B.left_normal(a.direction)
-        p, q = node, node + a.direction * (a.cut + 0.05)
-        stubs.append(Polygon([p - h * n, q - h * n, q + h * n, p + h * n]))
-    hmax = max(a.section.half_width for a in arms)
-
-    if block == "deadend":
-        area = shapely.union_all(stubs + [Point(node).buffer(hmax + 1.0, quad_segs=16)])
-        return feats, area, [], pending
-
-    if block == "curve":
-        a0, a1 = arms
-        radius, t, turn = ctx.curve_radius_t(ck)
-        sec = a0.section
-        # travel a0 → a1 for lanes incoming on a0; and a1 → a0 for the others
-        for src, dst in ((a0, a1), (a1, a0)):
-            ins, outs = arm_lanes(src, True), arm_lanes(dst, False)
-            for k, ((lin, p0, w0), (lout, p1, w1)) in enumerate(zip(ins, outs)):
-                lid = f"{road_id}_{'ab' if src is a0 else 'ba'}{k}"
-                lateral = -sec.lane_offset(k)  # incoming lanes are right of travel
-                pts = _curve_or_line(node, src.direction, dst.direction, radius, lateral, p0, p1)
-                feats.append(_connector(lid, p0, None, w0, p1, None, w1, [lin], [lout], road_id, pts))
-                feats[-1].is_junction = False
-                link(lin, succ=lid)
-                link(lout, pred=lid)
-        # lines continue through the curve
-        for n_, (lat, kind, color, double) in enumerate(_line_specs(sec)):
-            # a0's edge frame (a→b) vs the travel frame (along -a0.direction)
-            lat_t = -lat if a0.at_a else lat
-            pts = _curve_or_line(node, a0.direction, a1.direction, radius, lat_t)
-            feats.append(m.RoadLine(f"{road_id}_line{n_}", points=_xyz(pts), kind=kind, color=color,
-                                    double=double))
-        for n_, lat in enumerate((sec.median / 2, -sec.median / 2) if sec.median > 0 else ()):
-            pts = _curve_or_line(node, a0.direction, a1.direction, radius, lat)
-            feats.append(m.RoadEdge(f"{road_id}_median{n_}", points=_xyz(pts), kind="median"))
-        center = _curve_or_line(node, a0.direction, a1.direction, radius, 0.0)
-        area = LineString(center).buffer(sec.half_width, cap_style="flat", quad_segs=16)
-        return feats, area, [], pending
-
-    if block == "roundabout":
-        feats_r, area = _roundabout(ctx, ck, node, arms, params, arm_lanes, link, stubs)
-        return feats + feats_r, area, [Point(node).buffer(arms[0].cut)], pending
-
-    # junction
-    for ia, a_in in enumerate(arms):
-        ins = arm_lanes(a_in, True)
-        for io, a_out in enumerate(arms):
-            if io == ia:
-                continue
-            outs = arm_lanes(a_out, False)
-            turn = B.wrap_angle(B.angle_of(a_out.direction) - B.angle_of(-a_in.direction))
-            if len(arms) == 2 or abs(turn) < np.pi / 4:
-                pairs = [(k, min(k, len(outs) - 1)) for k in range(len(ins))]
-            elif turn < 0:
-                pairs = [(len(ins) - 1, len(outs) - 1)]
-            else:
-                pairs = [(0, 0)]
-            for k_in, k_out in pairs:
-                lin, p0, w0 = ins[k_in]
-                lout, p1, w1 = outs[k_out]
-                lid = f"{road_id}_{ia}{io}_{k_in}{k_out}"
-                feats.append(_connector(lid, p0, -a_in.direction, w0, p1, a_out.direction, w1,
-                                        [lin], [lout], road_id))
-                link(lin, succ=lid)
-                link(lout, pred=lid)
-    core = shapely.union_all(stubs + [Point(node).buffer(hmax, quad_segs=16)])
-    rc = params["corner_radius"]
-    area = core.buffer(rc, quad_segs=12).buffer(-rc, quad_segs=12).union(core)
-    zone = Point(node).buffer(max(a.cut for a in arms) + STOP_GAP)
-    return feats, area, [zone], pending
-
-
-def _curve_or_line(node, d_in, d_out, radius, lateral, p0=None, p1=None):
-    if np.isinf(radius):
-        u = -d_in
-        s = B.left_normal(u) * lateral
-        a = node + 5.0 * d_in + s if p0 is None else p0
-        b = node + 5.0 * d_out + B.left_normal(d_out) * lateral if p1 is None else p1
-        return np.stack([a, b])
-    pts = B.curve_path(node, d_in, d_out, radius, lateral)
-    if p0 is not None:
-        pts[0], pts[-1] = p0, p1
-    return pts
-
-
-def _roundabout(ctx, ck, node, arms, params, arm_lanes, link, stubs):
-    feats = []
-    road_id = f"n{ck}"
-    ri, rw = params["island"], params["ring_width"]
-    r_lane = ri + rw / 2
-    gaps = [(B.angle_of(arms[(k + 1) % len(arms)].direction) - B.angle_of(arms[k].direction)) % (2 * np.pi)
-            for k in range(len(arms))]
-    alpha = min(np.radians(25.0), 0.4 * min(gaps))
-    marks = []   # (angle, kind, arm)
-    for a in arms:
-        phi = B.angle_of(a.direction)
-        marks.append(((phi - alpha) % (2 * np.pi), "exit", a))
-        marks.append(((phi + alpha) % (2 * np.pi), "entry", a))
-    marks.sort(key=lambda t: t[0])
-    n = len(marks)
-    ring_ids = [f"{road_id}_ring{k}" for k in range(n)]
-
-    def ring_point(ang):
-        return node + r_lane * np.array([np.cos(ang), np.sin(ang)])
-
-    def ring_tangent(ang):
-        return np.array([-np.sin(ang), np.cos(ang)])
-
-    ring_pts = [ring_point(mk[0]) for mk in marks]
-    preds = {rid: [] for rid in ring_ids}
-    succs = {rid: [] for rid in ring_ids}
-    for k in range(n):
-        succs[ring_ids[k]].append(ring_ids[(k + 1) % n])
-        preds[ring_ids[(k + 1) % n]].append(ring_ids[k])
-    lane_w = rw - 1.5
-    for k, (ang, kind, a) in enumerate(marks):
-        if kind == "entry":
-            for q, (lin, p0, w0) in enumerate(arm_lanes(a, True)):
-                lid = f"{road_id}_in{arms.index(a)}_{q}"
-                feats.append(_connector(lid, p0, -a.direction, w0, ring_pts[k], ring_tangent(ang), lane_w,
-                                        [lin], [ring_ids[k]], road_id))
-                link(lin, succ=lid)
-                preds[ring_ids[k]].append(lid)
-        else:
-            prev = ring_ids[(k - 1) % n]
-            for q, (lout, p1, w1) in enumerate(arm_lanes(a, False)):
-                lid = f"{road_id}_out{arms.index(a)}_{q}"
-                feats.append(_connector(lid, ring_pts[k], ring_tangent(ang), lane_w, p1, a.direction, w1,
-                                        [prev], [lout], road_id))
-                link(lout, pred=lid)
-                succs[prev].append(lid)
-    for k in range(n):
-        a0, a1 = marks[k][0], marks[(k + 1) % n][0]
-        sweep = (a1 - a0) % (2 * np.pi)
-        pts = B.arc_points(node, r_lane, a0, sweep)
-        pts[0], pts[-1] = ring_pts[k], ring_pts[(k + 1) % n]
-        feats.append(m.LaneCenter(ring_ids[k], points=_xyz(pts), widths=np.full(len(pts), lane_w),
-                                  road_id=road_id, is_junction=True, predecessors=preds[ring_ids[k]],
-                                  successors=succs[ring_ids[k]]))
-    island = Point(node).buffer(ri, quad_segs=32)
-    ring = Point(node).buffer(ri + rw, quad_segs=32)
-    core = shapely.union_all(stubs + [ring])
-    rc = params["corner_radius"]
-    area = core.buffer(rc, quad_segs=12).buffer(-rc, quad_segs=12).union(core).difference(island)
-    isl = _polygons(island.buffer(-0.3))
-    if isl:
-        feats.append(m.VegetationZone(f"{road_id}_island", polygon=_xyz(isl[0]), kind="grass"))
-    feats.append(m.Tree(f"{road_id}_islandtree", position=np.array([node[0], node[1], 0.0]),
-                        height_hint=7.0, crown_radius_hint=min(3.0, ri * 0.4)))
-    return feats, area
 
 
 # ------------------------------------------------------------- buildings etc.
@@ -890,9 +542,9 @@ def _buildings_and_plants(ctx, ck, rng, clip, taken, curbs, walks, sw, zones) ->
     nb = 0
     no_roads = taken.is_empty or not curbs
     if no_roads and not free.is_empty:
-        park = _polygons(clip.buffer(-2.0, join_style="mitre"))
+        park = R.polygons(clip.buffer(-2.0, join_style="mitre"))
         if park:
-            feats.append(m.VegetationZone(f"c{ck}_park", polygon=_xyz(park[0]), kind="park"))
+            feats.append(m.VegetationZone(f"c{ck}_park", polygon=R.xyz(park[0]), kind="park"))
     # buildings along the curbs (frontage), then a few tries deeper in the block
     if free_p is not None and not no_roads:
         for c in curbs:
@@ -920,7 +572,7 @@ def _buildings_and_plants(ctx, ck, rng, clip, taken, curbs, walks, sw, zones) ->
                             hl = LineString([hq, hq + t * w]).intersection(
                                 clip.buffer(-0.5, join_style="mitre")).difference(taken)
                             if hl.geom_type == "LineString" and hl.length > 2.0:
-                                feats.append(m.Hedge(f"c{ck}_hedge{nb}", points=_xyz(np.asarray(hl.coords)),
+                                feats.append(m.Hedge(f"c{ck}_hedge{nb}", points=R.xyz(np.asarray(hl.coords)),
                                                      height=1.1, width=0.7))
                 s += w + float(rng.uniform(1.5, 6.0))
     # trees along the sidewalks
@@ -977,6 +629,6 @@ def _try_building(ctx, ck, rng, free_p, placed, ctr, t, w, d, nb):
             continue
         placed.append(poly)
         h = float(rng.uniform(*sp["height"]))
-        return [m.Building(f"c{ck}_bldg{nb}", footprint=_xyz(fp), height_hint=h,
+        return [m.Building(f"c{ck}_bldg{nb}", footprint=R.xyz(fp), height_hint=h,
                            floors_hint=max(1, int(h // 3.2)))]
     return []
