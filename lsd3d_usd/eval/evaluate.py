@@ -111,6 +111,7 @@ def render_view(field, env, camera) -> dict:
     import torch
 
     from lsd3d_usd.render.preview import env_background
+    from lsd3d_usd.render.raster_types import RasterSettings
     from lsd3d_usd.render.rasterize import rasterize
     bg = env_background(env, camera)
     t = torch.from_numpy
@@ -119,12 +120,11 @@ def render_view(field, env, camera) -> dict:
                         t(np.ascontiguousarray(field.scales)), t(np.ascontiguousarray(field.opacities)),
                         t(np.ascontiguousarray(field.sh)), t(camera.viewmat.astype(np.float32)),
                         t(camera.K.astype(np.float32)), camera.width, camera.height,
-                        near=camera.near, far=camera.far,
-                        background=None if bg is None else t(np.ascontiguousarray(bg, np.float32)),
-                        normal_space="world", return_extras=False)
-    return {"rgb": out["rgb"].numpy(), "alpha": out["alpha"].numpy(),
-            "depth_median": out["depth_median"].numpy(), "depth_expected": out["depth_expected"].numpy(),
-            "normal_world": out["normal"].numpy()}
+                        settings=RasterSettings.for_camera(camera, normal_space="world"),
+                        background=None if bg is None else t(np.ascontiguousarray(bg, np.float32)))
+    return {"rgb": out.rgb.numpy(), "alpha": out.alpha.numpy(),
+            "depth_median": out.depth_median.numpy(), "depth_expected": out.depth_expected.numpy(),
+            "normal_world": out.normal.numpy()}
 
 
 def display(rgb: np.ndarray, tonemap: str, exposure: float) -> np.ndarray:

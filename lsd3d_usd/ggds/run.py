@@ -24,6 +24,7 @@ from lsd3d_usd.ggds.conditioning import ShadowMap, view_gbuffer
 from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv
 from lsd3d_usd.ggds.regularizers import normal_consistency
 from lsd3d_usd.ggds.strategy import MCMCStrategy
+from lsd3d_usd.render.raster_types import RasterResult, RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.splats.field import SurfelField
 
@@ -164,12 +165,13 @@ class GGDSRun:
         return self._view_cache[i]
 
     # ------------------------------------------------------------ rendering
-    def render(self, camera, params=None, **kw) -> dict:
+    def render(self, camera, params=None, *, background=None, **settings) -> RasterResult:
+        """Rasterise the (activated) parameters for ``camera``; ``settings`` are RasterSettings
+        fields (near/far come from the camera)."""
         a = P.activated(self.params if params is None else params)
-        bg = kw.pop("background", None)
         return rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
                          camera.viewmat, camera.K, camera.width, camera.height,
-                         near=camera.near, far=camera.far, background=bg, **kw)
+                         settings=RasterSettings.for_camera(camera, **settings), background=background)
 
     # ------------------------------------------------------------ one step
     def step(self) -> dict:
@@ -181,7 +183,7 @@ class GGDSRun:
         t_view = time.perf_counter()
         dist_kw = {"distortion": True} if cfg.w_distortion > 0 else {}
         out = self.render(cam, background=vd.background, normal_space="camera", **dist_kw)
-        x = out["rgb"]
+        x = out.rgb
         t_render = time.perf_counter()
         t = float(self.rng.uniform(self.t_min(k), cfg.t_max))
         with torch.no_grad():
@@ -197,22 +199,22 @@ class GGDSRun:
         R = torch.from_numpy(cam.viewmat[:3, :3].astype(np.float32))
         proxy_n_cam = gb.normal @ R.T
         terms["normal"] = cfg.w_normal * losses.normal_loss(
-            out["normal"], proxy_n_cam, gb.valid & (out["alpha"] > 0.5), two_sided=True)
+            out.normal, proxy_n_cam, gb.valid & (out.alpha > 0.5), two_sided=True)
         terms["disparity"] = cfg.w_disparity * losses.disparity_loss(
-            out["depth_expected"], gb.depth, gb.valid & (out["alpha"] > 0.5))
+            out.depth_expected, gb.depth, gb.valid & (out.alpha > 0.5))
         terms["normal_consistency"] = cfg.w_normal_consistency * normal_consistency(
-            out["normal"], out["depth_expected"], out["alpha"], torch.from_numpy(cam.K))
+            out.normal, out.depth_expected, out.alpha, torch.from_numpy(cam.K))
         terms["tv"] = cfg.w_tv * losses.tv_loss(x)
         loss = image + terms["normal"] + terms["disparity"] + terms["normal_consistency"] + terms["tv"]
         if cfg.w_distortion > 0:
-            terms["distortion"] = cfg.w_distortion * out["distortion"].mean()
+            terms["distortion"] = cfg.w_distortion * out.distortion.mean()
             loss = loss + terms["distortion"]
         for p in self.params.values():
             p.grad = None
         t_loss = time.perf_counter()
         loss.backward()
         t_backward = time.perf_counter()
-        rows = out["stats"]["visible_index"]
+        rows = out.visible_index
         lrs = self._lrs(k)
         self.optimizer.lrs = lrs
         self.optimizer.step(rows)
@@ -317,14 +319,14 @@ class GGDSRun:
             gb = view_gbuffer(cam, self.vertices, self.faces, self.face_ids, self.shadow)
             bg = self.background_fn(cam) if self.background_fn else None
             out = self.render(cam, background=bg, normal_space="world")
-            x_hat = self.prior.target(out["rgb"].clamp(0, None), gb, self.env, t_eval,
+            x_hat = self.prior.target(out.rgb.clamp(0, None), gb, self.env, t_eval,
                                       n_steps=self.cfg.n_denoise, seed=10_000 + j)
-            psnrs.append(psnr(out["rgb"], x_hat))
-            mask = gb.valid & (out["alpha"] > 0.5)
+            psnrs.append(psnr(out.rgb, x_hat))
+            mask = gb.valid & (out.alpha > 0.5)
             if mask.any():
-                d = out["depth_expected"][mask]
+                d = out.depth_expected[mask]
                 rel_errs.append((d - gb.depth[mask]).abs() / gb.depth[mask])
-                n = out["normal"][mask]
+                n = out.normal[mask]
                 n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-8)
                 pn = gb.normal[mask]
                 cos = (n * pn).sum(-1).abs().clamp(max=1.0)  # rendered normals face the camera

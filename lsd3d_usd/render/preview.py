@@ -163,6 +163,7 @@ def render_frame(field, camera: Camera, env: EnvMap | None = None, sh_degree=Non
     """Rasterise ``field`` for ``camera`` with the env composited behind. numpy dict out."""
     import torch
 
+    from lsd3d_usd.render.raster_types import RasterSettings
     from lsd3d_usd.render.rasterize import rasterize
 
     bg = env_background(env, camera)
@@ -176,17 +177,11 @@ def render_frame(field, camera: Camera, env: EnvMap | None = None, sh_degree=Non
             torch.from_numpy(camera.viewmat.astype(np.float32)),
             torch.from_numpy(camera.K.astype(np.float32)),
             camera.width, camera.height,
-            near=camera.near, far=camera.far,
+            settings=RasterSettings.for_camera(camera, sh_degree=sh_degree),
             background=None if bg is None else torch.from_numpy(bg),
-            sh_degree=sh_degree,
             semantic_ids=None if field.semantic_ids is None else torch.from_numpy(field.semantic_ids),
-            return_extras=False,
         )
-    res = {}
-    for k, v in out.items():
-        if hasattr(v, "detach"):
-            res[k] = v.detach().cpu().numpy()
-    return res
+    return out.numpy()
 
 
 def tonemap(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.ndarray:

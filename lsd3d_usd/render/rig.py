@@ -331,6 +331,7 @@ def composite(surfels, actor: ActorFrame, camera: Camera, env=None) -> dict:
         except ValueError:
             from dataclasses import replace
             field = SurfelField.concat([replace(f, semantic_ids=None, semantic_classes=()) for f in fields])
+        from lsd3d_usd.render.raster_types import RasterSettings
         from lsd3d_usd.render.rasterize import rasterize
         with torch.no_grad():
             out = rasterize(torch.from_numpy(np.ascontiguousarray(field.positions)),
@@ -340,11 +341,11 @@ def composite(surfels, actor: ActorFrame, camera: Camera, env=None) -> dict:
                             torch.from_numpy(np.ascontiguousarray(field.sh)),
                             torch.from_numpy(camera.viewmat.astype(np.float32)),
                             torch.from_numpy(camera.K.astype(np.float32)), W, H,
-                            near=camera.near, far=camera.far, return_extras=False)
-        s_rgb = out["rgb"].numpy().astype(np.float32)
-        s_a = out["alpha"].numpy().astype(np.float32)
-        dmed = out["depth_median"].numpy()
-        dexp = out["depth_expected"].numpy()
+                            settings=RasterSettings.for_camera(camera))
+        s_rgb = out.rgb.numpy().astype(np.float32)
+        s_a = out.alpha.numpy().astype(np.float32)
+        dmed = out.depth_median.numpy()
+        dexp = out.depth_expected.numpy()
         s_depth = np.where(dmed > 0, dmed, np.where(s_a > 1e-4, dexp, np.inf)).astype(np.float32)
     else:
         s_rgb = np.zeros((H, W, 3), np.float32)
