@@ -195,3 +195,22 @@ def test_check_names_index_for_cpu_float32_float64_and_torch_scan_alike():
     y[4321, 1] = 0.0
     assert checks._first_bad_flat(y, 0.0, np.inf) == 4400 * 3
     assert checks._first_bad_flat(y.to(torch.float16), 0.0, np.inf) == 4400 * 3  # torch path
+
+
+def test_docs_backend_example_plugs_in_and_matches_the_torch_backend():
+    """The "Adding a backend" example of docs/render.md, run as written."""
+    import re
+    from pathlib import Path
+    text = (Path(__file__).parents[1] / "docs" / "render.md").read_text()
+    section = text[text.index("## Adding a backend"):]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    try:
+        exec(compile(code, "docs/render.md", "exec"), {})
+        s, kw = SCENES["semantic"]
+        a = rast(s, backend="torch64", **kw)
+        b = rast(s, backend=TORCH64, **kw)
+        for k in IMAGES + ("depth_expected", "semantic"):
+            assert torch.equal(getattr(a, k), getattr(b, k)), k
+        assert a.stats.n_visible == b.stats.n_visible > 0
+    finally:
+        backends.BACKENDS.pop("torch64", None)

@@ -33,10 +33,10 @@ from lsd3d_usd.render import projection as proj
 from lsd3d_usd.render.raster_types import BackendOutput, RasterInputs, RasterSettings, RasterStats
 from lsd3d_usd.render.sh import eval_sh, sh_degree_of
 
-# pixels x surfels (in front of the camera) the torch backend accepts. Under autograd it keeps
-# about 25 (pixel, surfel) tensors: ~0.2 kB per pair in float64, half in float32, so the
-# budget is ~4 GB (float64) at its limit.
-MAX_PAIRS = 20_000_000
+# pixels x surfels (in front of the camera) the torch backend accepts. Autograd keeps the
+# (pixel, surfel) tensors of the forward: forward + backward peaked at ~0.26 kB per pair in
+# float64 and ~0.18 kB in float32 (CPU, 7500 pixels x 400 surfels), so ~2.6 GB at the limit.
+MAX_PAIRS = 10_000_000
 
 
 def render_reference(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
