@@ -140,6 +140,12 @@ def test_settings_for_camera_and_setting_errors():
         for backend in ("numba", "torch"):
             with pytest.raises(InputError, match=msg):
                 rast(s, backend=backend, **kw)
+    K = s["K"].clone()
+    K[2, 0] = 0.1
+    with pytest.raises(InputError, match=r"K must be a pinhole intrinsics matrix with last row \(0, 0, 1\)"):
+        rast({**s, "K": K})
+    with pytest.raises(InputError, match=r"^rasterize: viewmat has a non-finite value \(NaN or Inf\) at index \(1, 3\)$"):
+        rast({**s, "viewmat": s["viewmat"].index_put((torch.tensor(1), torch.tensor(3)), torch.tensor(float("nan")))})
     with pytest.raises(InputError, match="settings must be a RasterSettings"):
         rasterize(*(s[k] for k in NAMES), s["viewmat"], s["K"], 32, 24, settings={"near": 1.0})
 

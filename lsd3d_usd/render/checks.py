@@ -231,7 +231,8 @@ def check_inputs(means, quats, scales, opacities, sh, viewmat, K, width, height,
     _check_values(K, "K", (3, 3))
     viewmat = viewmat.detach().to("cpu", torch.float64)
     K = K.detach().to("cpu", torch.float64)
-    if K[2, 0] != 0 or K[2, 1] != 0 or K[2, 2] != 1.0:
+    k2 = K.numpy()[2]  # numpy: three torch scalar comparisons cost ~10 us per render
+    if k2[0] != 0 or k2[1] != 0 or k2[2] != 1.0:
         raise InputError("rasterize: K must be a pinhole intrinsics matrix with last row (0, 0, 1)")
     width, height = int(width), int(height)
     if width <= 0 or height <= 0:
