@@ -11,9 +11,10 @@ Refused rather than clamped: such values come from a diverging optimiser or a br
 and clamping would hide that while changing the picture. The bounds sit many orders of
 magnitude beyond any real surfel (unit quaternions; colours are O(1), HDR O(10^2)).
 
-CPU float32 arrays are scanned with numba (one parallel pass over all five surfel arrays: a
-few ms at 1 M surfels, where torch's isfinite + any took a third of a second); tensors on
-other devices or in float64 with torch ops. Both report the same first bad element.
+CPU float32 surfel arrays are scanned with numba in one parallel pass over all five (a few
+ms at 1 M surfels, where torch's isfinite + any took a third of a second), other CPU float32
+or float64 arrays with a serial numba scan each, tensors on other devices or of other dtypes
+with torch ops. All report the same first bad element.
 """
 from __future__ import annotations
 
