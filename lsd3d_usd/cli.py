@@ -19,7 +19,7 @@ COMMAND_MODULES = (
     "lsd3d_usd.layout.commands",
     "lsd3d_usd.proxy.commands",
     "lsd3d_usd.splats.commands",
-    "lsd3d_usd.render.commands",
+    "lsd3d_usd.views.commands",
     "lsd3d_usd.env.commands",
     "lsd3d_usd.actors.commands",
     "lsd3d_usd.bench",

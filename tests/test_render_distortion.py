@@ -1,12 +1,11 @@
-"""The 2DGS depth-distortion output of the numba rasteriser (rasterize(distortion=True)):
+"""The 2DGS depth-distortion output of the numba backend (RasterSettings(distortion=True)):
 analytic cases, the float64 reference (forward and autograd gradients), finite differences,
 degenerate surfels, and that asking for it leaves the other outputs and gradients alone."""
 import pytest
 import torch
 
-from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.render.reference import render_reference
-from test_render_raster import _loss, _loss_weights, degenerate_params, scene
+from test_render_raster import _loss, _loss_weights, degenerate_params, rast, scene
 
 NAMES = ("means", "quats", "scales", "opacities", "sh")
 NEAR, FAR = 0.5, 50.0  # a depth range where m spreads over [0, 1) in the test scenes
@@ -38,7 +37,7 @@ def test_two_surfels_analytic(order):
     z1, z2 = 2.0, 5.0
     zs, ops = [z1, z2], [a, b]
     s = _flat([zs[i] for i in order], [ops[i] for i in order])  # list order must not matter
-    d = rasterize(**s, distortion=True)["distortion"]
+    d = rast(s, distortion=True).distortion
     want = a * b * (1 - a) * (ndc(z1) - ndc(z2)) ** 2  # w1 = a, w2 = b (1 - a)
     assert d[6, 8].item() == pytest.approx(want, rel=1e-5)
     ref = render_reference(**s, distortion=True)["distortion"]
@@ -47,35 +46,36 @@ def test_two_surfels_analytic(order):
 
 
 def test_zero_for_one_surfel_and_for_equal_depths():
-    one = rasterize(**_flat([3.0], [0.8]), distortion=True)
-    assert one["alpha"].max() > 0.5
-    assert (one["distortion"] == 0).all()
+    one = rast(_flat([3.0], [0.8]), distortion=True)
+    assert one.alpha.max() > 0.5
+    assert (one.distortion == 0).all()
     # overlapping surfels at one depth, shifted sideways, different opacities
     same = _flat([3.0] * 4, [0.5, 0.9, 0.3, 1.0], xy=[[0, 0], [0.3, 0.1], [-0.2, 0.2], [0.1, -0.3]])
-    out = rasterize(**same, distortion=True)
-    assert (out["alpha"] > 0.9).float().mean() > 0.3
-    assert out["distortion"].abs().max() < 1e-12
+    out = rast(same, distortion=True)
+    assert (out.alpha > 0.9).float().mean() > 0.3
+    assert out.distortion.abs().max() < 1e-12
     assert render_reference(**same, distortion=True)["distortion"].abs().max() < 1e-15
 
 
 @pytest.mark.parametrize("near,far", [(0.05, 1e4), (NEAR, FAR)])
 def test_forward_matches_float64_reference(near, far):
     s, _, _ = scene(n=60, seed=3, w=48, h=40, deg=2)
-    out = rasterize(**s, near=near, far=far, distortion=True)
+    out = rast(s, near=near, far=far, distortion=True)
     ref = render_reference(**s, near=near, far=far, t_min=1e-4, distortion=True)
-    d, rd = out["distortion"].double(), ref["distortion"]
-    assert out["distortion"].dtype == torch.float32 and d.shape == (40, 48)
+    d, rd = out.distortion.double(), ref["distortion"]
+    assert out.distortion.dtype == torch.float32 and d.shape == (40, 48)
     assert (rd > 0.1 * rd.max()).float().mean() > 0.05  # the scene has layered pixels
     assert (d - rd).abs().max() < 1e-4 * rd.max(), ((d - rd).abs().max(), rd.max())
     # the other outputs are those of the default path, exactly
-    plain = rasterize(**s, near=near, far=far)
-    assert "distortion" not in plain
+    plain = rast(s, near=near, far=far)
+    assert plain.distortion is None
     for k in ("rgb", "alpha", "depth_expected", "depth_median", "normal"):
-        assert torch.equal(plain[k], out[k]), k
+        assert torch.equal(getattr(plain, k), getattr(out, k)), k
 
 
 def _dist_loss(out, wd, scale, wts=None):
-    loss = (out["distortion"].double() * wd).sum() * scale
+    d = out["distortion"] if isinstance(out, dict) else out.distortion  # reference dict / RasterResult
+    loss = (d.double() * wd).sum() * scale
     return loss if wts is None else loss + _loss(out, wts)
 
 
@@ -88,8 +88,8 @@ def test_gradients_match_reference_autograd(seed, with_image):
     wts = _loss_weights(24, 32, seed) if with_image else None
     bg = torch.tensor([0.3, 0.2, 0.1])
     fast = {k: s[k].clone().requires_grad_(True) for k in NAMES}
-    out = rasterize(**{**s, **fast}, background=bg, distortion=True)
-    scale = 1.0 / out["distortion"].abs().max().item()  # distortion and image terms comparable
+    out = rast({**s, **fast}, background=bg, distortion=True)
+    scale = 1.0 / out.distortion.abs().max().item()  # distortion and image terms comparable
     _dist_loss(out, wd, scale, wts).backward()
     ref = {k: s[k].double().clone().requires_grad_(True) for k in NAMES}
     _dist_loss(render_reference(**{**s, **ref}, background=bg, t_min=1e-4, distortion=True),
@@ -112,8 +112,8 @@ def test_gradients_match_finite_differences_float64():
     g = torch.Generator().manual_seed(5)
     wd = torch.randn(24, 32, generator=g, dtype=torch.float64)
     fast = {k: s[k].clone().requires_grad_(True) for k in NAMES[:4]}
-    out = rasterize(**{**s, **fast}, distortion=True)
-    scale = 1.0 / out["distortion"].abs().max().item()
+    out = rast({**s, **fast}, distortion=True)
+    scale = 1.0 / out.distortion.abs().max().item()
     _dist_loss(out, wd, scale).backward()
     base = {k: s[k].double() for k in NAMES[:4]}
     for k in NAMES[:4]:
@@ -134,8 +134,8 @@ def test_zero_distortion_weight_leaves_the_other_gradients_unchanged():
     grads = []
     for dist in (False, True):
         p = {k: s[k].clone().requires_grad_(True) for k in NAMES}
-        out = rasterize(**{**s, **p}, distortion=dist)
-        loss = _loss(out, wts) + (0.0 * out["distortion"].sum() if dist else 0.0)
+        out = rast({**s, **p}, distortion=dist)
+        loss = _loss(out, wts) + (0.0 * out.distortion.sum() if dist else 0.0)
         loss.backward()
         grads.append([p[k].grad for k in NAMES])
     for k, a, b in zip(NAMES, *grads):
@@ -145,12 +145,12 @@ def test_zero_distortion_weight_leaves_the_other_gradients_unchanged():
 def test_degenerate_surfels_give_finite_distortion_and_gradients():
     s, _, _ = scene(n=12, seed=6)
     p = degenerate_params(s)
-    out = rasterize(**{**s, **p}, distortion=True)
-    assert torch.isfinite(out["distortion"]).all() and (out["distortion"] >= 0).all()
-    assert out["distortion"].max() > 0
-    (out["distortion"].sum() / out["distortion"].max().detach() + _loss(out, _loss_weights(24, 32, 3))).backward()
+    out = rast({**s, **p}, distortion=True)
+    assert torch.isfinite(out.distortion).all() and (out.distortion >= 0).all()
+    assert out.distortion.max() > 0
+    (out.distortion.sum() / out.distortion.max().detach() + _loss(out, _loss_weights(24, 32, 3))).backward()
     for k, v in p.items():
         assert torch.isfinite(v.grad).all(), k
     ref = render_reference(**{**s, **{k: v.detach() for k, v in p.items()}}, t_min=1e-4,
                            distortion=True)["distortion"]
-    assert (out["distortion"].double() - ref).abs().max() < 1e-4 * ref.max()
+    assert (out.distortion.double() - ref).abs().max() < 1e-4 * ref.max()

@@ -1,5 +1,6 @@
 """The numba 2DGS rasteriser against the float64 reference: forward, gradients, screen bounds,
 degenerate surfels, input errors."""
+import dataclasses
 import math
 
 import numpy as np
@@ -9,11 +10,22 @@ import torch
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render import kernels_prep as kprep
 from lsd3d_usd.render import projection as proj
+from lsd3d_usd.render.raster_types import RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.render.reference import render_reference, splat_alpha_maps
 from lsd3d_usd.render.sh import sh_basis
 
 OUTS = ("rgb", "alpha", "depth_expected", "depth_median", "normal")
+SETTINGS = {f.name for f in dataclasses.fields(RasterSettings)}
+
+
+def rast(s, backend="numba", **kw):
+    """rasterize() of a test scene dict (the reference's keyword style): the RasterSettings
+    fields among the keywords go into one RasterSettings."""
+    kw = {**s, **kw}
+    settings = RasterSettings(**{k: v for k, v in kw.items() if k in SETTINGS})
+    return rasterize(**{k: v for k, v in kw.items() if k not in SETTINGS}, settings=settings,
+                     backend=backend)
 
 
 def look_at(eye, target, up=(0.0, 0.0, 1.0)):
@@ -51,9 +63,9 @@ def scene(n=20, seed=0, w=32, h=24, deg=1, offset=(0.0, 0.0, 0.0)):
 def test_forward_matches_float64_reference():
     s, _, _ = scene(n=60, seed=3, w=48, h=40, deg=2)
     bg = torch.tensor([0.2, 0.4, 0.9])
-    out = rasterize(**s, background=bg)
+    out = rast(s, background=bg)
     ref = render_reference(**s, background=bg, t_min=1e-4)  # same early stop, float64
-    assert out["stats"]["n_visible"] > 40
+    assert out.stats.n_visible > 40
     assert (ref["alpha"] > 0.5).float().mean() > 0.2  # the scene covers the image
     tol = dict(rgb=2e-5, alpha=2e-5, depth_expected=5e-4, depth_median=2e-5, normal=2e-5)
     for k in OUTS:
@@ -61,16 +73,16 @@ def test_forward_matches_float64_reference():
         assert err < tol[k], (k, err)
     # without early stop in the reference: the residual behind T < t_min stays below ~t_min
     ref0 = render_reference(**s, background=bg)
-    assert (out["rgb"].double() - ref0["rgb"]).abs().max() < 2e-4
+    assert (out.rgb.double() - ref0["rgb"]).abs().max() < 2e-4
 
 
 def test_tile_size_and_image_edges_do_not_change_the_image():
     s, _, _ = scene(n=40, seed=5, w=37, h=29)  # not a multiple of the tile
-    a = rasterize(**s, tile=16)
-    b = rasterize(**s, tile=8)
-    assert torch.allclose(a["rgb"], b["rgb"], atol=1e-6)
+    a = rast(s, tile=16)
+    b = rast(s, tile=8)
+    assert torch.allclose(a.rgb, b.rgb, atol=1e-6)
     ref = render_reference(**s, t_min=1e-4)
-    assert (a["rgb"].double() - ref["rgb"]).abs().max() < 2e-5
+    assert (a.rgb.double() - ref["rgb"]).abs().max() < 2e-5
 
 
 def _loss_weights(h, w, seed=0):
@@ -81,7 +93,9 @@ def _loss_weights(h, w, seed=0):
 
 
 def _loss(out, wts):
-    return sum((out[k].double() * wts[k]).sum() for k in wts)
+    """A weighted sum of the outputs of a RasterResult or of the reference's dict."""
+    get = out.get if isinstance(out, dict) else (lambda k: getattr(out, k))
+    return sum((get(k).double() * wts[k]).sum() for k in wts)
 
 
 @pytest.mark.parametrize("seed", [1, 2])
@@ -91,7 +105,7 @@ def test_gradients_match_reference_autograd(seed):
     names = ("means", "quats", "scales", "opacities", "sh")
     bg = torch.tensor([0.3, 0.2, 0.1])
     fast = {k: s[k].clone().requires_grad_(True) for k in names}
-    _loss(rasterize(**{**s, **fast}, background=bg), wts).backward()
+    _loss(rast({**s, **fast}, background=bg), wts).backward()
     ref = {k: s[k].double().clone().requires_grad_(True) for k in names}
     _loss(render_reference(**{**s, **ref}, background=bg, t_min=1e-4), wts).backward()
     for k in names:
@@ -107,7 +121,7 @@ def test_gradients_match_finite_differences_float64():
     wts = _loss_weights(24, 32, 7)
     names = ("means", "quats", "scales", "opacities", "sh")
     fast = {k: s[k].clone().requires_grad_(True) for k in names}
-    _loss(rasterize(**{**s, **fast}), wts).backward()
+    _loss(rast({**s, **fast}), wts).backward()
     g = torch.Generator().manual_seed(11)
     base = {k: s[k].double() for k in names}
     for k in names:
@@ -193,7 +207,7 @@ def degenerate_params(s):
 def test_degenerate_surfels_give_finite_outputs_and_gradients():
     s, means64, _ = scene(n=12, seed=6)
     p = degenerate_params(s)
-    out = rasterize(**{**s, **p}, background=torch.tensor([0.5, 0.5, 0.5]))
+    out = rast({**s, **p}, background=torch.tensor([0.5, 0.5, 0.5]))
     wts = _loss_weights(24, 32, 3)
     _loss(out, wts).backward()
     for k in OUTS:
@@ -202,18 +216,18 @@ def test_degenerate_surfels_give_finite_outputs_and_gradients():
         assert torch.isfinite(v.grad).all(), k
     ref = render_reference(**{**s, **{k: v.detach() for k, v in p.items()}},
                            background=torch.tensor([0.5, 0.5, 0.5]), t_min=1e-4)
-    assert (out["rgb"].double() - ref["rgb"]).abs().max() < 1e-4
+    assert (out.rgb.double() - ref["rgb"]).abs().max() < 1e-4
 
 
 def test_scene_10km_from_origin_renders_like_at_origin():
     s0, _, _ = scene(n=40, seed=8)
     s1, _, _ = scene(n=40, seed=8, offset=(10000.0, -7000.0, 30.0))
-    a, b = rasterize(**s0), rasterize(**s1)
+    a, b = rast(s0), rast(s1)
     # float32 positions 10 km out are quantised to ~1 mm; the image must still agree closely
-    assert (a["rgb"] - b["rgb"]).abs().mean() < 2e-3
-    assert (a["depth_expected"] - b["depth_expected"]).abs().max() < 0.05
+    assert (a.rgb - b.rgb).abs().mean() < 2e-3
+    assert (a.depth_expected - b.depth_expected).abs().max() < 0.05
     ref = render_reference(**s1, t_min=1e-4)
-    assert (b["rgb"].double() - ref["rgb"]).abs().max() < 1e-4
+    assert (b.rgb.double() - ref["rgb"]).abs().max() < 1e-4
 
 
 def test_nan_input_names_array_and_index():
@@ -221,41 +235,41 @@ def test_nan_input_names_array_and_index():
     s["scales"] = s["scales"].clone()
     s["scales"][7, 1] = float("nan")
     with pytest.raises(InputError, match=r"scales.*index 7"):
-        rasterize(**s)
+        rast(s)
     s2, _, _ = scene(n=10)
     s2["means"] = s2["means"].clone()
     s2["means"][3, 0] = float("inf")
     with pytest.raises(InputError, match=r"means.*index 3"):
-        rasterize(**s2)
+        rast(s2)
     with pytest.raises(InputError, match="quats has shape"):
-        rasterize(**{**scene(n=10)[0], "quats": torch.zeros(10, 3)})
+        rast({**scene(n=10)[0], "quats": torch.zeros(10, 3)})
 
 
 def test_semantic_is_largest_weight_contributor_and_background_shows_through():
     s, _, _ = scene(n=30, seed=9)
     sem = torch.arange(30, dtype=torch.int32) % 5
     bg = torch.rand(24, 32, 3)
-    out = rasterize(**s, semantic_ids=sem, background=bg)
+    out = rast(s, semantic_ids=sem, background=bg)
     ref = render_reference(**s, t_min=1e-4, background=bg)
     want = torch.where(ref["weight_argmax"] >= 0, sem.long()[ref["weight_argmax"].clamp_min(0)],
                        torch.full_like(ref["weight_argmax"], -1))
-    assert (out["semantic"] == want).float().mean() > 0.99
+    assert (out.semantic == want).float().mean() > 0.99
     empty = ref["alpha"] == 0
     assert empty.any()
-    assert torch.allclose(out["rgb"][empty], bg[empty])
-    assert (out["semantic"][empty] == -1).all()
+    assert torch.allclose(out.rgb[empty], bg[empty])
+    assert (out.semantic[empty] == -1).all()
 
 
 def test_world_space_normals_and_driving_camera():
     s, _, _ = scene(n=30, seed=10)
     vm = look_at((0.3, -0.5, 0.2), (0.0, 0.0, 4.0), up=(0.0, -1.0, 0.0))
     s["viewmat"] = vm
-    cam = rasterize(**s)
-    world = rasterize(**s, normal_space="world")
+    cam = rast(s)
+    world = rast(s, normal_space="world")
     R = vm[:3, :3]
-    assert torch.allclose(world["normal"], cam["normal"] @ R, atol=1e-5)
+    assert torch.allclose(world.normal, cam.normal @ R, atol=1e-5)
     ref = render_reference(**s, t_min=1e-4, normal_space="world")
-    assert (world["normal"].double() - ref["normal"]).abs().max() < 5e-5
+    assert (world.normal.double() - ref["normal"]).abs().max() < 5e-5
 
 
 def test_sh_basis_is_orthonormal_on_the_sphere():
@@ -277,12 +291,12 @@ def test_view_dependent_colour_changes_with_viewpoint():
     s["quats"] = torch.tensor([[0.0, 0.0, 0.0, 1.0]])
     s["scales"] = torch.tensor([[1.0, 1.0]])
     s["opacities"] = torch.tensor([0.9])
-    a = rasterize(**s)["rgb"][12, 16]
+    a = rast(s).rgb[12, 16]
     s["viewmat"] = look_at((1.5, 0.0, 0.0), (0.0, 0.0, 4.0), up=(0.0, -1.0, 0.0))
-    b = rasterize(**s)
+    b = rast(s)
     ref = render_reference(**s, t_min=1e-4)
-    assert (b["rgb"].double() - ref["rgb"]).abs().max() < 2e-5
-    assert (a - b["rgb"][12, 16]).abs().max() > 1e-3
-    c = rasterize(**s, sh_degree=0)
+    assert (b.rgb.double() - ref["rgb"]).abs().max() < 2e-5
+    assert (a - b.rgb[12, 16]).abs().max() > 1e-3
+    c = rast(s, sh_degree=0)
     ref0 = render_reference(**s, t_min=1e-4, sh_degree=0)
-    assert (c["rgb"].double() - ref0["rgb"]).abs().max() < 2e-5
+    assert (c.rgb.double() - ref0["rgb"]).abs().max() < 2e-5

@@ -12,6 +12,8 @@ from lsd3d_usd.render import kernels
 from lsd3d_usd.render import kernels_prep as kprep
 from lsd3d_usd.render import projection as proj
 from lsd3d_usd.render.benchmark import driving_camera, driving_scene, reference_on_crops
+from lsd3d_usd.render.checks import first_bad, first_bad_array
+from lsd3d_usd.render.raster_types import RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 
 
@@ -118,8 +120,9 @@ def test_validation_names_array_and_index():
         rasterize(means, quats, scales, op, bads, **kw)
     flat = np.zeros(300_000, np.float32)
     flat[[200_001, 250_000]] = np.inf  # first bad element across parallel chunks
-    assert kprep.first_bad(flat, False) == 200_001
-    assert kprep.first_bad(np.zeros(0, np.float32), True) == -1
+    inf = np.float32(np.inf)
+    assert first_bad(flat, -inf, inf) == 200_001
+    assert first_bad(np.zeros(0, np.float32), np.float32(0), inf) == -1
 
 
 def test_driving_scene_within_1e3_of_float64_reference():
@@ -128,10 +131,10 @@ def test_driving_scene_within_1e3_of_float64_reference():
     w, h = 240, 136
     vm, K = driving_camera(w, h)
     out = rasterize(*(torch.from_numpy(a) for a in arrays), viewmat=torch.from_numpy(vm),
-                    K=torch.from_numpy(K), width=w, height=h, sh_degree=1)
+                    K=torch.from_numpy(K), width=w, height=h, settings=RasterSettings(sh_degree=1))
     pix, ref, n_ref = reference_on_crops(arrays, vm, K, w, h, sh_degree=1)
     assert n_ref > 100
-    rgb = out["rgb"][pix[:, 1], pix[:, 0]].double()
+    rgb = out.rgb[pix[:, 1], pix[:, 0]].double()
     assert (rgb - ref["rgb"]).abs().max().item() <= 1e-3
 
 
@@ -161,12 +164,12 @@ def test_tile_must_be_a_multiple_of_the_lane_block_and_sizes_agree():
     vm, K = driving_camera(100, 60)
     kw = dict(viewmat=torch.from_numpy(vm), K=torch.from_numpy(K), width=100, height=60)
     with pytest.raises(InputError, match=r"tile must be a positive multiple of 8, not 12"):
-        rasterize(*arrays, **kw, tile=12)
-    a = rasterize(*arrays, **kw, tile=16)
-    b = rasterize(*arrays, **kw, tile=32)
-    assert a["stats"]["evals_rect"] <= a["stats"]["evals"]
+        rasterize(*arrays, **kw, settings=RasterSettings(tile=12))
+    a = rasterize(*arrays, **kw, settings=RasterSettings(tile=16))
+    b = rasterize(*arrays, **kw, settings=RasterSettings(tile=32))
+    assert a.stats.evals_rect <= a.stats.evals
     for k in ("rgb", "alpha", "depth_median", "normal"):
-        assert torch.allclose(a[k], b[k], atol=1e-6), k
+        assert torch.allclose(getattr(a, k), getattr(b, k), atol=1e-6), k
 
 
 def test_too_many_surfels_in_one_tile_is_refused(monkeypatch):
@@ -187,7 +190,7 @@ def test_validation_of_strided_and_float64_inputs():
     strided = torch.stack([op, op], 1)[:, 0]
     assert not strided.is_contiguous()
     ok = rasterize(means, quats, scales, strided, sh, **kw)
-    assert torch.equal(ok["rgb"], rasterize(means, quats, scales, op, sh, **kw)["rgb"])
+    assert torch.equal(ok.rgb, rasterize(means, quats, scales, op, sh, **kw).rgb)
     bad = strided.clone()
     bad[7] = float("nan")
     with pytest.raises(InputError, match=r"opacities has a non-finite value \(NaN or Inf\) at index 7$"):
@@ -196,5 +199,6 @@ def test_validation_of_strided_and_float64_inputs():
     m64[3, 1] = float("inf")
     with pytest.raises(InputError, match=r"means has a non-finite value .* at index 3$"):
         rasterize(m64, quats, scales, op, sh, **kw)
-    assert kprep.first_bad_array((np.zeros(3, np.float32), np.full(2, -1.0, np.float32)),
-                                 (False, True)) == 1
+    lo = np.array([-np.inf, 0.0], np.float32)
+    hi = np.full(2, np.inf, np.float32)
+    assert first_bad_array((np.zeros(3, np.float32), np.full(2, -1.0, np.float32)), lo, hi) == 1

@@ -8,11 +8,13 @@ from pxr import Gf, Usd, UsdGeom
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.render import preview
 from lsd3d_usd.render.camera import Camera, from_usd, look_at, to_usd
 from lsd3d_usd.splats.field import SurfelField, rgb_to_sh_dc
 from lsd3d_usd.splats.usdio import write_surfel_file, write_surfels
 from lsd3d_usd.usdview import actions
+from lsd3d_usd.views.frame import render_scene
+from lsd3d_usd.views.images import read_image
+from lsd3d_usd.views.stage_data import SceneReader
 
 RUNS = ("ggds_20260101-000000", "ggds_20260102-000000", "ggds_20260103-000000")
 
@@ -58,7 +60,7 @@ def scene(tmp_path):
 def mean_rgb(stage, time=None):
     cam = actions.view_camera(stage.GetPrimAtPath("/World/Cameras/Front"), size=(64, 48))
     res = actions.render_view(stage, cam, time, use_env=False)
-    c = res.frame["rgb"][16:32, 24:40].reshape(-1, 3).mean(0)
+    c = res.frame.rgb[16:32, 24:40].reshape(-1, 3).mean(0)
     return c, res
 
 
@@ -83,9 +85,9 @@ def test_render_matches_preview_and_follows_muting(scene):
     c_all, res = mean_rgb(stage)
     assert res.image.dtype == np.uint8 and res.image.shape == (48, 64, 3)
     assert res.surfels == 1600
-    # Identical to the render module's own path on the same inputs.
-    ref = preview.render_frame(preview.gather_surfels(stage), res_camera(stage))
-    np.testing.assert_array_equal(ref["rgb"], res.frame["rgb"])
+    # Identical to `lsd3d-usd render`'s own path on the same inputs.
+    ref = render_scene(SceneReader(stage, use_env=False), res_camera(stage))
+    np.testing.assert_array_equal(ref.rgb, res.frame.rgb)
     assert c_all[2] > 3 * c_all[0]                       # the newest run (blue) wins
     actions.set_run_muted(stage, RUNS[2], True)
     c_green, _ = mean_rgb(stage)
@@ -106,7 +108,7 @@ def test_png_written(scene, tmp_path):
     stage = scene.open_stage()
     _, res = mean_rgb(stage)
     p = actions.save_png(res, tmp_path / "shots" / "r.png")
-    img = preview.read_image(str(p))
+    img = read_image(str(p))
     assert img.shape[:2] == (48, 64)
 
 

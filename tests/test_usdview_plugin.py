@@ -122,12 +122,12 @@ def test_render_command_from_camera_prim_and_free_camera(scene, tmp_path):  # no
     assert reg2.getCommandPlugin("Lsd3dPluginContainer.renderSurfels").run() == path
     import numpy as np
 
-    from lsd3d_usd.render.preview import read_image
+    from lsd3d_usd.views.images import read_image
     assert np.abs(read_image(str(path)).astype(float) - read_image_bytes(first, tmp_path)).max() <= 1
 
 
 def read_image_bytes(data, tmp_path):
-    from lsd3d_usd.render.preview import read_image
+    from lsd3d_usd.views.images import read_image
     p = tmp_path / "first.png"
     p.write_bytes(data)
     return read_image(str(p)).astype(float)

@@ -5,7 +5,7 @@ multi-camera rig clip from it: the frames docs/actors.md shows.
 
 Until the lead's `generate` command lands this stands in for it: it calls the same library
 steps (layout.generator, proxy.usdio.build_proxy_layer, splats.init.mesh_to_surfels,
-env.write_env_layer, actors.compose.add_actors, render.rig.render_rig).
+env.write_env_layer, actors.compose.add_actors, views.rig.render_rig).
 """
 from __future__ import annotations
 
@@ -94,7 +94,7 @@ def main(argv=None) -> int:
                                 fps=a.fps, env=not a.no_env)
     route = pick_route(layout)
     print("route:", ",".join(route))
-    from lsd3d_usd.render.rig import render_rig
+    from lsd3d_usd.views.rig import render_rig
     t0 = time.perf_counter()
     res = render_rig(scene.root, out / "clip", "waymo5", route=route, fps=a.fps, seconds=a.seconds,
                      width=a.width, progress=sys.stderr.isatty())

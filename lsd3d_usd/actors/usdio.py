@@ -189,7 +189,7 @@ class PlacedActor:
 
 class ActorSet:
     """The actors of a composed stage: geometry read once (in each actor's own frame);
-    `world_meshes(t)` / `world_surfels(t)` place them at time t. Stateless per call."""
+    `transforms(t)` / `visible(t)` place and show them at time t. Stateless per call."""
 
     def __init__(self, stage, root_path: str | None = None):
         from pxr import Usd, UsdGeom
@@ -221,13 +221,7 @@ class ActorSet:
                     f = read_surfels(sub, t0)
                     if f.n:
                         fields.append(transform_surfels(f, Minv @ self._world(sub, t0)))
-            surf = None
-            if fields:
-                try:
-                    surf = SurfelField.concat(fields)
-                except ValueError:
-                    from dataclasses import replace
-                    surf = SurfelField.concat([replace(f, semantic_ids=None, semantic_classes=()) for f in fields])
+            surf = SurfelField.concat(fields, drop_mismatched_semantics=True) if fields else None
             da = prim.GetAttribute(DIMS_ATTR)
             dims = np.array(da.Get(), np.float64) if da and da.HasValue() else np.array([4.5, 1.8, 1.5])
             self.actors.append(PlacedActor(str(prim.GetPath()), str(role.Get()), meshes, surf, dims))

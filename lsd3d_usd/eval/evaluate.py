@@ -2,9 +2,10 @@
 image-feature Fréchet distances, geometry agreement with the proxy, multi-view and temporal
 consistency. Writes SCENE/eval/ (report.html, PNGs, eval.json); returns the JSON dict.
 
-Rendering: every unmuted layer of the scene composed (initial surfels + GGDS overs), all
-visible ParticleField prims, the DomeLight env map behind (with its exposure, as the preview
-renders), then display encoding (tone map, default "clamp" = what GGDS's prior sees, and sRGB).
+Rendering: every unmuted layer of the scene composed (initial surfels + GGDS overs), the
+scene's visible ParticleField prims (views.stage_data.scene_surfels: actors are left out, eval
+measures the generated scene), the DomeLight env map behind (with its exposure, as `render`
+does), then display encoding (tone map, default "clamp" = what GGDS's prior sees, and sRGB).
 """
 from __future__ import annotations
 
@@ -47,7 +48,7 @@ class EvalOptions:
 
 # ------------------------------------------------------------------ input checks
 def _check(o: EvalOptions) -> None:
-    from lsd3d_usd.render.preview import TONEMAPS
+    from lsd3d_usd.views.images import TONEMAPS
     w, h = o.resolution
     if w < 16 or h < 16:
         raise InputError(f"--resolution {w}x{h}: width and height must be at least 16")
@@ -86,7 +87,7 @@ def load_reference(files: list[Path], size: int = 224) -> list[np.ndarray]:
     import torch
     import torch.nn.functional as F
 
-    from lsd3d_usd.render.preview import read_image
+    from lsd3d_usd.views.images import read_image
     out = []
     for f in files:
         try:
@@ -106,30 +107,19 @@ def load_reference(files: list[Path], size: int = 224) -> list[np.ndarray]:
 
 # ------------------------------------------------------------------ rendering
 def render_view(field, env, camera) -> dict:
-    """Surfels + env background for one camera: numpy dict with rgb (linear), alpha,
-    depth_median, depth_expected, normal_world (un-normalised), semantic."""
-    import torch
-
-    from lsd3d_usd.render.preview import env_background
-    from lsd3d_usd.render.rasterize import rasterize
-    bg = env_background(env, camera)
-    t = torch.from_numpy
-    with torch.no_grad():
-        out = rasterize(t(np.ascontiguousarray(field.positions)), t(np.ascontiguousarray(field.orientations)),
-                        t(np.ascontiguousarray(field.scales)), t(np.ascontiguousarray(field.opacities)),
-                        t(np.ascontiguousarray(field.sh)), t(camera.viewmat.astype(np.float32)),
-                        t(camera.K.astype(np.float32)), camera.width, camera.height,
-                        near=camera.near, far=camera.far,
-                        background=None if bg is None else t(np.ascontiguousarray(bg, np.float32)),
-                        normal_space="world", return_extras=False)
-    return {"rgb": out["rgb"].numpy(), "alpha": out["alpha"].numpy(),
-            "depth_median": out["depth_median"].numpy(), "depth_expected": out["depth_expected"].numpy(),
-            "normal_world": out["normal"].numpy()}
+    """The scene's surfels + env background for one camera (no actors: eval measures the
+    generated scene): numpy dict with rgb (linear), alpha, depth_median, depth_expected,
+    normal_world (un-normalised)."""
+    from lsd3d_usd.views.frame import env_background, render_surfels
+    out = render_surfels(field, camera, background=env_background(env, camera), normal_space="world")
+    return {"rgb": out.rgb.numpy(), "alpha": out.alpha.numpy(),
+            "depth_median": out.depth_median.numpy(), "depth_expected": out.depth_expected.numpy(),
+            "normal_world": out.normal.numpy()}
 
 
 def display(rgb: np.ndarray, tonemap: str, exposure: float) -> np.ndarray:
-    from lsd3d_usd.render.preview import srgb_encode
-    from lsd3d_usd.render.preview import tonemap as tm
+    from lsd3d_usd.views.images import srgb_encode
+    from lsd3d_usd.views.images import tonemap as tm
     return srgb_encode(tm(rgb, exposure, tonemap)).astype(np.float32)
 
 
@@ -161,12 +151,12 @@ def evaluate(o: EvalOptions) -> dict:
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
     from lsd3d_usd.render.gbuffer import render_gbuffer
-    from lsd3d_usd.render.preview import gather_surfels, read_env
+    from lsd3d_usd.views.stage_data import read_env, scene_surfels
 
     timings = {}
     t = time.perf_counter()
     stage = sc.open_stage()
-    surfels = gather_surfels(stage)
+    surfels = scene_surfels(stage)
     if surfels is None:
         raise InputError(f"{sc.root}: no surfels to render (no visible ParticleField prim)")
     env = read_env(stage)

@@ -3,8 +3,8 @@ consistency between the rendered surfel normals and the normals of the rendered 
 
 The other 2DGS regulariser, depth distortion (sum over a pixel's contributor pairs of
 w_i w_j (m_i - m_j)^2, m the NDC-like depth), needs every contributor's depth, so the tile
-kernels compute it: rasterize(..., distortion=True)["distortion"] per pixel, with its
-hand-written backward; GGDS adds GGDSConfig.w_distortion times its image mean."""
+kernels compute it: rasterize(..., settings=RasterSettings(distortion=True)).distortion per
+pixel, with its hand-written backward; GGDS adds GGDSConfig.w_distortion times its image mean."""
 from __future__ import annotations
 
 import torch

@@ -27,6 +27,7 @@ from lsd3d_usd.ggds.config import GGDSConfig
 from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv
 from lsd3d_usd.ggds.strategy import MCMCStrategy
 from lsd3d_usd.ggds.terms import StepContext, active_terms
+from lsd3d_usd.render.raster_types import RasterResult, RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.splats.field import SurfelField
 
@@ -136,12 +137,13 @@ class GGDSRun:
         return self._view_cache[i]
 
     # ------------------------------------------------------------ rendering
-    def render(self, camera, params=None, **kw) -> dict:
+    def render(self, camera, params=None, *, background=None, **settings) -> RasterResult:
+        """Rasterise the (activated) parameters for ``camera``; ``settings`` are RasterSettings
+        fields (near/far come from the camera)."""
         a = P.activated(self.params if params is None else params)
-        bg = kw.pop("background", None)
         return rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
                          camera.viewmat, camera.K, camera.width, camera.height,
-                         near=camera.near, far=camera.far, background=bg, **kw)
+                         settings=RasterSettings.for_camera(camera, **settings), background=background)
 
     # ------------------------------------------------------------ one step
     def step(self) -> dict:
@@ -153,7 +155,7 @@ class GGDSRun:
         t_view = time.perf_counter()
         dist_kw = {"distortion": True} if "distortion" in self.render_needs else {}
         out = self.render(cam, background=vd.background, normal_space="camera", **dist_kw)
-        x = out["rgb"]
+        x = out.rgb
         t_render = time.perf_counter()
         t = float(self.rng.uniform(self.t_min(k), cfg.t_max))
         with torch.no_grad():
@@ -171,7 +173,7 @@ class GGDSRun:
         t_loss = time.perf_counter()
         loss.backward()
         t_backward = time.perf_counter()
-        rows = out["stats"]["visible_index"]
+        rows = out.visible_index
         lrs = self._lrs(k)
         self.optimizer.lrs = lrs
         self.optimizer.step(rows)
@@ -296,14 +298,14 @@ class GGDSRun:
             gb = view_gbuffer(cam, self.vertices, self.faces, self.face_ids, self.shadow)
             bg = self.background_fn(cam) if self.background_fn else None
             out = self.render(cam, background=bg, normal_space="world")
-            x_hat = self.prior.target(out["rgb"].clamp(0, None), gb, self.env, t_eval,
+            x_hat = self.prior.target(out.rgb.clamp(0, None), gb, self.env, t_eval,
                                       n_steps=self.cfg.n_denoise, seed=10_000 + j)
-            psnrs.append(psnr(out["rgb"], x_hat))
-            mask = gb.valid & (out["alpha"] > 0.5)
+            psnrs.append(psnr(out.rgb, x_hat))
+            mask = gb.valid & (out.alpha > 0.5)
             if mask.any():
-                d = out["depth_expected"][mask]
+                d = out.depth_expected[mask]
                 rel_errs.append((d - gb.depth[mask]).abs() / gb.depth[mask])
-                n = out["normal"][mask]
+                n = out.normal[mask]
                 n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-8)
                 pn = gb.normal[mask]
                 cos = (n * pn).sum(-1).abs().clamp(max=1.0)  # rendered normals face the camera

@@ -133,7 +133,7 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
 def _render(run: GGDSRun, view) -> torch.Tensor:
     cam = view.camera
     bg = run.background_fn(cam) if run.background_fn else None
-    return run.render(cam, background=bg)["rgb"]
+    return run.render(cam, background=bg).rgb
 
 
 @torch.no_grad()

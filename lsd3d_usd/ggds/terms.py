@@ -31,7 +31,7 @@ class StepContext:
 
     def covered(self):
         """(H,W) pixels where both the proxy and the surfels are present."""
-        return self.gbuffer.valid & (self.render["alpha"] > 0.5)
+        return self.gbuffer.valid & (self.render.alpha > 0.5)
 
 
 @dataclass(frozen=True)
@@ -70,12 +70,12 @@ def _normal(ctx: StepContext):
     from lsd3d_usd.ggds import losses
     R = torch.from_numpy(ctx.camera.viewmat[:3, :3].astype(np.float32))
     proxy_n_cam = ctx.gbuffer.normal @ R.T
-    return losses.normal_loss(ctx.render["normal"], proxy_n_cam, ctx.covered(), two_sided=True)
+    return losses.normal_loss(ctx.render.normal, proxy_n_cam, ctx.covered(), two_sided=True)
 
 
 def _disparity(ctx: StepContext):
     from lsd3d_usd.ggds import losses
-    return losses.disparity_loss(ctx.render["depth_expected"], ctx.gbuffer.depth, ctx.covered())
+    return losses.disparity_loss(ctx.render.depth_expected, ctx.gbuffer.depth, ctx.covered())
 
 
 def _normal_consistency(ctx: StepContext):
@@ -83,7 +83,7 @@ def _normal_consistency(ctx: StepContext):
 
     from lsd3d_usd.ggds.regularizers import normal_consistency
     r = ctx.render
-    return normal_consistency(r["normal"], r["depth_expected"], r["alpha"],
+    return normal_consistency(r.normal, r.depth_expected, r.alpha,
                               torch.from_numpy(ctx.camera.K))
 
 
@@ -93,7 +93,7 @@ def _tv(ctx: StepContext):
 
 
 def _distortion(ctx: StepContext):
-    return ctx.render["distortion"].mean()
+    return ctx.render.distortion.mean()
 
 
 L1 = LossTerm("l1", _l1, 1.0, image=True, help="mean |render − target|")

@@ -174,44 +174,46 @@ def run_config(n, width, height, *, seed=0, sh_degree=1, bound_sigma=None, t_min
     """One configuration: forward + backward `repeats` times (timings are medians, with the
     minimum and the list kept: shared cores are noisy), peak RSS over all of them, then the
     error against the float64 reference."""
+    from lsd3d_usd.render.raster_types import RasterSettings
     from lsd3d_usd.render.rasterize import rasterize
 
     arrays = driving_scene(n, seed=seed, sh_degree=max(sh_degree, 1) if sh_degree else 0)
     vm, K = driving_camera(width, height)
     names = ("means", "quats", "scales", "opacities", "sh")
+    settings = RasterSettings(sh_degree=sh_degree, bound_sigma=bound_sigma, t_min=t_min,
+                              alpha_min=alpha_min)
     runs = []
     with RssPeak() as mem:
         for _ in range(max(1, int(repeats))):
             params = {k: torch.from_numpy(a).requires_grad_(True) for k, a in zip(names, arrays)}
             t0 = time.perf_counter()
             out = rasterize(**params, viewmat=torch.from_numpy(vm), K=torch.from_numpy(K),
-                            width=width, height=height, sh_degree=sh_degree,
-                            bound_sigma=bound_sigma, t_min=t_min, alpha_min=alpha_min)
+                            width=width, height=height, settings=settings)
             fwd_s = time.perf_counter() - t0
             g = torch.Generator().manual_seed(1)
-            loss = ((out["rgb"] * torch.rand(out["rgb"].shape, generator=g)).sum()
-                    + out["alpha"].sum() + 0.01 * out["depth_expected"].sum() + out["normal"].sum())
+            loss = ((out.rgb * torch.rand(out.rgb.shape, generator=g)).sum()
+                    + out.alpha.sum() + 0.01 * out.depth_expected.sum() + out.normal.sum())
             t0 = time.perf_counter()
             loss.backward()
             bwd_s = time.perf_counter() - t0
-            st = out["stats"]
-            runs.append(dict(fwd_s=fwd_s, bwd_s=bwd_s, kernel_s=st["raster_s"],
-                             project_s=st["project_s"], bin_s=st["bin_s"],
-                             bwd_kernel_s=st["plan"].get("bwd_kernel_s"),
-                             bwd_numba_s=st["plan"].get("bwd_total_s")))
+            st = out.stats
+            runs.append(dict(fwd_s=fwd_s, bwd_s=bwd_s, kernel_s=st.timings["raster_s"],
+                             project_s=st.timings["project_s"], bin_s=st.timings["bin_s"],
+                             bwd_kernel_s=st.timings["backward_kernel_s"],
+                             bwd_numba_s=st.timings["backward_s"]))
             del params, loss
     med = {k: float(np.median([r[k] for r in runs])) for k in runs[0]}
-    evals = st["evals"]
+    evals = st.evals
     rec = dict(label=label, n=n, width=width, height=height, sh_degree=sh_degree,
                bound_sigma=bound_sigma, t_min=t_min, alpha_min=alpha_min,
                fwd_s=med["fwd_s"], bwd_s=med["bwd_s"], repeats=len(runs),
                fwd_s_min=min(r["fwd_s"] for r in runs), bwd_s_min=min(r["bwd_s"] for r in runs),
                fwd_s_all=[r["fwd_s"] for r in runs], bwd_s_all=[r["bwd_s"] for r in runs],
                evals=evals, evals_per_s=evals / med["kernel_s"], evals_per_s_total=evals / med["fwd_s"],
-               evals_rect=st["evals_rect"], rect_evals_per_s=st["evals_rect"] / med["kernel_s"],
+               evals_rect=st.evals_rect, rect_evals_per_s=st.evals_rect / med["kernel_s"],
                fwd_kernel_s=med["kernel_s"], fwd_project_s=med["project_s"], fwd_bin_s=med["bin_s"],
                bwd_kernel_s=med["bwd_kernel_s"], bwd_numba_s=med["bwd_numba_s"],
-               n_visible=st["n_visible"], n_pairs=st["n_pairs"], peak_rss_mb=mem.peak,
+               n_visible=st.n_visible, n_pairs=st.n_pairs, peak_rss_mb=mem.peak,
                load_average=os.getloadavg()[0])
     if peak_flops:
         rec["peak_fraction"] = rec["evals_per_s"] * FLOPS_PER_EVAL / peak_flops
@@ -220,8 +222,8 @@ def run_config(n, width, height, *, seed=0, sh_degree=1, bound_sigma=None, t_min
         # always against the default-threshold reference: the error of the setting itself
         pix, ref, n_ref = reference_on_crops(arrays, vm, K, width, height, sh_degree=sh_degree)
         jj, ii = torch.from_numpy(pix[:, 1]), torch.from_numpy(pix[:, 0])
-        rgb = out["rgb"].detach()[jj, ii].double()
-        dep = out["depth_expected"].detach()[jj, ii].double()
+        rgb = out.rgb.detach()[jj, ii].double()
+        dep = out.depth_expected.detach()[jj, ii].double()
         e_rgb = (rgb - ref["rgb"]).abs()
         e_dep = (dep - ref["depth_expected"]).abs()
         rec.update(max_abs_err=e_rgb.max().item(), mean_abs_err=e_rgb.mean().item(),
@@ -292,7 +294,7 @@ def main(json_path=None, quick=False, png_path=None, seed=0, log=print):
     tmp = {k: torch.from_numpy(x).requires_grad_(True)
            for k, x in zip(("means", "quats", "scales", "opacities", "sh"), a)}
     rasterize(**tmp, viewmat=torch.from_numpy(vm), K=torch.from_numpy(K), width=64,
-              height=48)["rgb"].sum().backward()
+              height=48).rgb.sum().backward()
     peak = float32_peak_flops()
     log(f"float32 matmul peak: {peak / 1e9:.1f} GFLOP/s -> ceiling {peak / FLOPS_PER_EVAL / 1e6:.0f} M evals/s "
         f"at {FLOPS_PER_EVAL} flops/eval")

@@ -23,6 +23,7 @@ from lsd3d_usd.errors import InputError
 _CV_FROM_USD = np.diag([1.0, -1.0, -1.0, 1.0])
 
 CONFORM_POLICIES = ("horizontal", "vertical", "stretch")
+DEFAULT_WIDTH = 960  # from_usd's image width when neither width nor height is given
 
 
 @dataclass
@@ -145,7 +146,7 @@ def from_usd(prim, time=None, width: int | None = None, height: int | None = Non
              conform: str = "horizontal") -> Camera:
     """Camera from a UsdGeom.Camera prim at ``time`` (default: the default time).
 
-    ``width``/``height`` default to 960 and the aperture's aspect. When the image
+    ``width``/``height`` default to DEFAULT_WIDTH (960) and the aperture's aspect. When the image
     aspect differs from the filmback's, ``conform`` decides: "horizontal" keeps
     the horizontal field of view (square pixels), "vertical" keeps the vertical
     one, "stretch" keeps both (non-square pixels).
@@ -174,7 +175,7 @@ def from_usd(prim, time=None, width: int | None = None, height: int | None = Non
         raise InputError(f"{where}: focalLength and apertures must be positive "
                          f"(focalLength={f}, horizontalAperture={hA}, verticalAperture={vA})")
     if width is None and height is None:
-        width = 960
+        width = DEFAULT_WIDTH
     if width is None:
         width = max(1, round(height * hA / vA))
     if height is None:

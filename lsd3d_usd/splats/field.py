@@ -174,14 +174,21 @@ class SurfelField:
                            self.opacities[index], self.sh[index], sem, self.semantic_classes)
 
     @staticmethod
-    def concat(fields: list["SurfelField"]) -> "SurfelField":
+    def concat(fields: list["SurfelField"], drop_mismatched_semantics: bool = False) -> "SurfelField":
+        """One field holding all of ``fields`` (SH padded to the highest degree). Semantic ids
+        need one class table: fields whose tables differ raise ValueError, or with
+        ``drop_mismatched_semantics`` are joined without semantics (ids and classes dropped:
+        what rendering wants, where semantics are optional)."""
         if not fields:
             return SurfelField.empty()
         deg = max(f.sh_degree for f in fields)
         fields = [f.with_sh_degree(deg) if f.sh_degree != deg else f for f in fields]
         classes = next((f.semantic_classes for f in fields if f.semantic_classes), ())
         if any(f.semantic_classes and f.semantic_classes != classes for f in fields):
-            raise ValueError("cannot concatenate surfel fields with different semantic class tables")
+            if not drop_mismatched_semantics:
+                raise ValueError("cannot concatenate surfel fields with different semantic class tables")
+            fields = [replace(f, semantic_ids=None, semantic_classes=()) for f in fields]
+            classes = ()
         has_sem = any(f.semantic_ids is not None for f in fields)
         sem = (np.concatenate([f.semantic_ids if f.semantic_ids is not None
                                else np.full(f.n, -1, np.int32) for f in fields]) if has_sem else None)

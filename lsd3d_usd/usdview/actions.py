@@ -71,34 +71,37 @@ def view_camera(camera_prim=None, gf_camera=None, time=None, size=None,
 # ---------------------------------------------------------------------------- rendering
 @dataclass
 class RenderResult:
-    frame: dict               # render_frame's arrays (rgb scene-linear, alpha, depth, ...)
+    frame: object             # views.frame.Frame (rgb scene-linear, alpha, depth, ...)
     image: np.ndarray         # (H, W, 3) uint8 sRGB, tone-mapped: what is shown
     surfels: int
     seconds: float
 
 
 def render_view(stage, camera, time=None, use_env: bool = True, exposure: float = 0.0,
-                tonemap: str = "aces") -> RenderResult:
-    """Render the stage's visible surfel fields (and its env map behind) with our CPU
-    rasteriser. Muted layers are respected: the stage is read as composed now."""
-    from lsd3d_usd.render import preview
+                tonemap: str = "aces", textures=None) -> RenderResult:
+    """Render the stage as `lsd3d-usd render` does (surfels, actors at the frame's time, env
+    behind) with our CPU rasteriser. Muted layers are respected: the stage is read as
+    composed now. textures: a views.stage_data.TextureCache kept across calls (the env
+    texture is then decoded once)."""
+    from lsd3d_usd.views.frame import render_scene
+    from lsd3d_usd.views.images import display_uint8
+    from lsd3d_usd.views.stage_data import SceneReader
 
     t = _time_value(time)
     t0 = _time.perf_counter()
-    field = preview.gather_surfels(stage, t)
+    reader = SceneReader(stage, use_env=use_env, textures=textures)
+    field = reader.surfels(t)
     if field is None:
         raise InputError(f"{stage.GetRootLayer().identifier}: no surfels to render (no visible "
                          "ParticleField prim with particles)")
-    env = preview.read_env(stage, t) if use_env else None
-    frame = preview.render_frame(field, camera, env)
-    disp = preview.srgb_encode(preview.tonemap(frame["rgb"], exposure, tonemap))
-    image = np.round(disp * 255.0).astype(np.uint8)
-    return RenderResult(frame, np.ascontiguousarray(image[..., :3]), int(field.n), _time.perf_counter() - t0)
+    frame = render_scene(reader, camera, t)
+    image = display_uint8(frame.rgb, exposure, tonemap)
+    return RenderResult(frame, np.ascontiguousarray(image), int(field.n), _time.perf_counter() - t0)
 
 
 def save_png(result: RenderResult, path, exposure: float = 0.0) -> Path:
     """The rendered frame as an 8-bit sRGB PNG (atomic write)."""
-    from lsd3d_usd.render.preview import write_frame
+    from lsd3d_usd.views.images import write_frame
     return write_frame(Path(path), result.frame, "png", exposure)
 
 

@@ -68,10 +68,10 @@ def _output_dir(api) -> Path:
 
 def _guard(fn):
     """Menu callbacks report errors in the status bar instead of raising into Qt's loop."""
-    def wrapped(api):
+    def wrapped(api, **kw):
         from lsd3d_usd.errors import Lsd3dError
         try:
-            return fn(api)
+            return fn(api, **kw)
         except Lsd3dError as e:
             _status(api, f"error: {e}")
             return None
@@ -121,12 +121,12 @@ def _camera(api):
 
 
 @_guard
-def render_surfels(api):
-    """Render the surfels from usdview's current camera with the CPU rasteriser; show the
+def render_surfels(api, textures=None):
+    """Render the scene from usdview's current camera with the CPU rasteriser; show the
     image in a dialog (with Qt), and always write it as a PNG."""
     from . import actions
     cam = _camera(api)
-    res = actions.render_view(api.stage, cam, getattr(api, "frame", None))
+    res = actions.render_view(api.stage, cam, getattr(api, "frame", None), textures=textures)
     path = actions.save_png(res, _output_dir(api) / "render.png")
     shown = _show_image(api, res.image, f"LSD3D surfels ({res.surfels:,}, {res.seconds:.1f} s)")
     _status(api, f"rendered {res.surfels:,} surfels at {cam.width}x{cam.height} in "
@@ -207,10 +207,13 @@ class Lsd3dPluginContainer(PluginContainer):
 
     def registerPlugins(self, plugRegistry, usdviewApi):
         import lsd3d_usd  # noqa: F401  the surfel schema (see docs/usdview.md on ordering)
+        from lsd3d_usd.views.stage_data import TextureCache
+        textures = TextureCache()  # env textures decoded once per usdview session
         self._commands = []
         for name, display, fn in COMMANDS:
+            call = (lambda api, fn=fn: fn(api, textures=textures)) if fn is render_surfels else fn
             self._commands.append(plugRegistry.registerCommandPlugin(
-                PREFIX + name, display, fn, (fn.__doc__ or "").split("\n")[0]))
+                PREFIX + name, display, call, (fn.__doc__ or "").split("\n")[0]))
 
     def configureView(self, plugRegistry, plugUIBuilder):
         menu = plugUIBuilder.findOrCreateMenu(MENU)

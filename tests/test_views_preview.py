@@ -8,7 +8,9 @@ from lsd3d_usd import scene, semantics
 from lsd3d_usd.cli import main
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import Camera, look_at, to_usd
-from lsd3d_usd.render.preview import EnvMap, read_image, render_preview, srgb_encode, tonemap
+from lsd3d_usd.views.images import read_image, srgb_encode, tonemap
+from lsd3d_usd.views.preview import render_preview
+from lsd3d_usd.views.stage_data import EnvMap
 
 W, H = 64, 36
 
@@ -51,7 +53,6 @@ def scene_file(tmp_path_factory):
 
 
 def test_render_exr_shows_surfels_and_env(scene_file, tmp_path):
-    pytest.importorskip("lsd3d_usd.render.rasterize")
     files = render_preview(scene_file, "/World/Cameras/Front", tmp_path, resolution=(W, H), fmt="exr",
                            progress=False)
     img = read_image(files[0])
@@ -70,7 +71,6 @@ def test_render_exr_shows_surfels_and_env(scene_file, tmp_path):
 
 
 def test_render_command_png_frames(scene_file, tmp_path):
-    pytest.importorskip("lsd3d_usd.render.rasterize")
     assert main(["render", str(scene_file), "--camera", "/World/Cameras/Front", "-o", str(tmp_path),
                  "--resolution", f"{W}x{H}", "--frames", "1:2"]) == 0
     a = read_image(tmp_path / "Front.0001.png")
@@ -109,3 +109,20 @@ def test_env_lookup_orientation():
     Rz = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1.0]])
     env_r = EnvMap(img, Rz)
     assert env_r.lookup(np.array([[0, 1.0, 0]]))[0, 0] == pytest.approx(1.5)
+
+
+def test_render_help_states_the_real_default_widths(capsys):
+    from lsd3d_usd.render.camera import DEFAULT_WIDTH
+    from lsd3d_usd.views.rig import DEFAULT_WIDTH as RIG_WIDTH
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"default {DEFAULT_WIDTH} wide" in text and f"(default {RIG_WIDTH})" in text
+    assert (DEFAULT_WIDTH, RIG_WIDTH) == (960, 480)
+    assert "--no-progress" in text
+
+
+def test_default_width_is_960(scene_file, tmp_path):
+    assert main(["render", str(scene_file), "--camera", "/World/Cameras/Front", "-o", str(tmp_path),
+                 "--no-progress", "--format", "exr"]) == 0
+    assert read_image(tmp_path / "Front.exr").shape[:2] == (540, 960)

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,8 +11,9 @@ import lsd3d_usd  # noqa: F401
 from pxr import Usd, UsdGeom
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.render import rig as R
 from lsd3d_usd.render.camera import from_usd
+from lsd3d_usd.views import ego, frame, rig, rig_stage, rigs
+from lsd3d_usd.views.stage_data import ActorFrame, SceneReader
 
 
 def _box_surfels(lo, hi, count=8000, color=(0.6, 0.3, 0.2), seed=0):
@@ -34,26 +36,26 @@ def _car_at(x, y, yaw=0.0):
         fs.append(m.faces + n)
         cs.append(m.colors)
         n += len(m.vertices)
-    return R.ActorFrame(np.concatenate(vs), np.concatenate(fs), np.concatenate(cs), None)
+    return ActorFrame(np.concatenate(vs), np.concatenate(fs), np.concatenate(cs), None)
 
 
 def _ego(x, y, yaw_deg):
     M = np.eye(4)
-    M[:3, :3] = R.yaw_rotations(np.radians(yaw_deg))[0]
+    M[:3, :3] = ego.yaw_rotations(np.radians(yaw_deg))[0]
     M[:3, 3] = (x, y, 0.0)
     return M
 
 
 def test_waymo5_geometry():
-    names = [c.name for c in R.WAYMO5]
+    names = [c.name for c in rigs.WAYMO5]
     assert names == ["Front", "FrontLeft", "FrontRight", "SideLeft", "SideRight"]
-    for c in R.WAYMO5:
-        P = R.camera_in_ego(c)
+    for c in rigs.WAYMO5:
+        P = rigs.camera_in_ego(c)
         fwd = P[:3, 2]
         assert np.isclose(np.degrees(np.arctan2(fwd[1], fwd[0])), c.yaw_deg, atol=1e-9)
         assert np.allclose(P[:3, 3], c.mount) and 1.8 <= c.mount[2] <= 2.1
         assert 45.0 <= c.hfov_deg <= 55.0
-        cam = R.rig_camera(c, np.eye(4), 192)
+        cam = rigs.rig_camera(c, np.eye(4), 192)
         assert np.isclose(2 * np.degrees(np.arctan(cam.width / 2 / cam.fx)), c.hfov_deg)
         assert np.isclose(P[:3, 1] @ [0, 0, 1.0], -1.0)   # image down = world down (no roll)
 
@@ -84,7 +86,7 @@ def rig_scene(tmp_path):
 
 def test_rig_stage_cameras_follow_ego(rig_scene, tmp_path):
     sc, _, traj = rig_scene
-    stage, paths, track, tcps, notes = R.build_rig_stage(sc.root, tmp_path / "out", trajectory=traj,
+    stage, paths, track, tcps, notes = rig_stage.build_rig_stage(sc.root, tmp_path / "out", trajectory=traj,
                                                          fps=10.0, seconds=1.0)
     assert not notes and len(paths) == 6
     # the rig file references the scene, it does not copy it
@@ -92,13 +94,13 @@ def test_rig_stage_cameras_follow_ego(rig_scene, tmp_path):
     assert stage.GetPrimAtPath("/World/Surfels")
     for k in (0, 4, 9):
         code = track.times[k] * tcps
-        ego = np.array(UsdGeom.Xformable(stage.GetPrimAtPath(R.EGO_PATH))
+        ego = np.array(UsdGeom.Xformable(stage.GetPrimAtPath(rig_stage.EGO_PATH))
                        .ComputeLocalToWorldTransform(Usd.TimeCode(code))).T
         assert np.allclose(ego[:3, 3], [10.0 + 30.0 * track.times[k], -20.0, 0.0], atol=1e-9)
-        for spec, path in zip(R.WAYMO5, paths):
+        for spec, path in zip(rigs.WAYMO5, paths):
             cam = from_usd(stage.GetPrimAtPath(path), code, 96)
             rel = np.linalg.inv(ego) @ cam.pose
-            assert np.allclose(rel, R.camera_in_ego(spec), atol=1e-5)
+            assert np.allclose(rel, rigs.camera_in_ego(spec), atol=1e-5)
             assert np.isclose(2 * np.degrees(np.arctan(cam.width / 2 / cam.fx)), spec.hfov_deg, atol=1e-3)
 
 
@@ -107,7 +109,7 @@ def test_trajectory_formats_and_errors(tmp_path):
     M = np.eye(4)
     M[:3, 3] = (1, 2, 3)
     p.write_text(json.dumps({"poses": [{"t": 0, "matrix": M.tolist()}, {"t": 2, "x": 5, "y": 2, "yaw": 90}]}))
-    tr, clamped = R.resample(R.load_trajectory(p), [0.0, 1.0, 3.0])
+    tr, clamped = ego.resample(ego.load_trajectory(p), [0.0, 1.0, 3.0])
     assert clamped == 1
     assert np.allclose(tr.positions[1], [3.0, 2.0, 1.5])
     assert np.isclose(np.degrees(tr.yaws()[1]), 45.0)
@@ -117,9 +119,9 @@ def test_trajectory_formats_and_errors(tmp_path):
                       ('[{"t": 0, "matrix": [[1, 0], [0, 1]]}]', "4x4")]:
         p.write_text(text)
         with pytest.raises(InputError, match=msg):
-            R.load_trajectory(p)
+            ego.load_trajectory(p)
     with pytest.raises(InputError, match="no such file"):
-        R.load_trajectory(tmp_path / "missing.json")
+        ego.load_trajectory(tmp_path / "missing.json")
 
 
 def test_occluded_actor_appears_past_the_corner():
@@ -127,57 +129,60 @@ def test_occluded_actor_appears_past_the_corner():
     the building and seen once the ego has driven past its corner."""
     building = _box_surfels((5, -8, 0), (25, 2, 8))
     car = _car_at(15.0, 40.0, 0.3)
-    side = R.WAYMO5[3]
+    side = rigs.WAYMO5[3]
     seen = {}
     for x in (15.0, 35.0):
-        cam = R.rig_camera(side, _ego(x, -20.0, 0.0), 96)
-        alone = R.composite(None, car, cam)
-        assert alone["actor_mask"].sum() > 0          # the car is in the field of view
-        out = R.composite(building, car, cam)
-        seen[x] = int(out["actor_mask"].sum())
+        cam = rigs.rig_camera(side, _ego(x, -20.0, 0.0), 96)
+        alone = frame.composite(None, car, cam)
+        assert alone.actor_mask.sum() > 0             # the car is in the field of view
+        out = frame.composite(building, car, cam)
+        seen[x] = int(out.actor_mask.sum())
     assert seen[15.0] == 0 and seen[35.0] > 0
 
 
 def test_surfels_in_front_composite_over_actor():
     """Per pixel the nearer wins: a thin surfel wall in front hides the car, one behind doesn't."""
     car = _car_at(10.0, 0.0, np.pi / 2)
-    cam = R.rig_camera(R.WAYMO5[0], _ego(0.0, 0.0, 0.0), 64)
+    cam = rigs.rig_camera(rigs.WAYMO5[0], _ego(0.0, 0.0, 0.0), 64)
     front_wall = _box_surfels((6, -6, 0), (6.2, 6, 4), color=(0.0, 0.8, 0.0))
     back_wall = _box_surfels((16, -6, 0), (16.2, 6, 4), color=(0.0, 0.8, 0.0))
-    a = R.composite(back_wall, car, cam)
-    b = R.composite(front_wall, car, cam)
-    assert a["actor_mask"].sum() > 20 and b["actor_mask"].sum() == 0
+    a = frame.composite(back_wall, car, cam)
+    b = frame.composite(front_wall, car, cam)
+    assert a.actor_mask.sum() > 20 and b.actor_mask.sum() == 0
     # where the car shows, its colour (not the green wall) is in the image
-    m = a["actor_mask"]
-    assert a["rgb"][m][:, 1].mean() < 0.5 and b["rgb"][m][:, 1].mean() > 0.5
+    m = a.actor_mask
+    assert a.rgb[m][:, 1].mean() < 0.5 and b.rgb[m][:, 1].mean() > 0.5
 
 
 def test_rendering_is_stateless_and_writes_clips(rig_scene, tmp_path):
     sc, _, traj = rig_scene
-    stage, paths, track, tcps, _ = R.build_rig_stage(sc.root, tmp_path / "o", trajectory=traj,
+    stage, paths, track, tcps, _ = rig_stage.build_rig_stage(sc.root, tmp_path / "o", trajectory=traj,
                                                      fps=10.0, seconds=1.0)
-    static = R.load_static(stage, use_env=False)
-    assert len(static.actors) == 3                 # parked, moving and the ego body
+    reader = SceneReader(stage, use_env=False)
+    assert len(reader.actors) == 3                 # parked, moving and the ego body
 
-    def frame(code, path):
+    def rgb_at(code, path):
         cam = from_usd(stage.GetPrimAtPath(path), code, 64, 48)
-        return R.composite(static.surfels, R.actors_at(static, code), cam, static.env)["rgb"]
+        return frame.render_scene(reader, cam, code).rgb
 
-    first = frame(12.0, paths[0])
-    frame(3.0, paths[3])                       # something else in between
-    frame(20.0, paths[5])
-    assert np.array_equal(first, frame(12.0, paths[0]))
+    first = rgb_at(12.0, paths[0])
+    rgb_at(3.0, paths[3])                      # something else in between
+    rgb_at(20.0, paths[5])
+    assert np.array_equal(first, rgb_at(12.0, paths[0]))
+    assert np.array_equal(first, frame.render_scene(SceneReader(stage, use_env=False),
+                                                    from_usd(stage.GetPrimAtPath(paths[0]), 12.0, 64, 48),
+                                                    12.0).rgb)  # a fresh reader: the same frame
     # the moving car moves between time codes, the parked one does not
-    M0, M1 = static.actors.transforms(0.0), static.actors.transforms(24.0)
+    M0, M1 = reader.actors.transforms(0.0), reader.actors.transforms(24.0)
     moved = [not np.allclose(a, b) for a, b in zip(M0, M1)]
-    roles = [a.role for a in static.actors.actors]
+    roles = [a.role for a in reader.actors.actors]
     assert moved[roles.index("moving")] and not moved[roles.index("parked")]
 
-    res = R.render_rig(sc.root, tmp_path / "clip", trajectory=traj, fps=2.0, seconds=1.0, width=64,
+    res = rig.render_rig(sc.root, tmp_path / "clip", trajectory=traj, fps=2.0, seconds=1.0, width=64,
                        use_env=False, progress=False, log=lambda *_: None)
-    assert set(res.frames) == {c.name for c in R.WAYMO5} | {"Overview"}
+    assert set(res.frames) == {c.name for c in rigs.WAYMO5} | {"Overview"}
     assert all(len(v) == 2 and all(p.is_file() for p in v) for v in res.frames.values())
-    from lsd3d_usd.render.video import encoder_available
+    from lsd3d_usd.views.video import encoder_available
     if encoder_available()[0]:
         assert all(p.is_file() and p.stat().st_size > 0 for p in res.videos.values())
 
@@ -189,3 +194,57 @@ def test_render_command_rig_errors(rig_scene, tmp_path, capsys):
     assert "exactly one of --route" in capsys.readouterr().err
     assert main(["render", str(sc.root), "-o", str(tmp_path / "x"), "--rig", "waymo5", "--route", "a"]) == 1
     assert "needs the scene's layout" in capsys.readouterr().err
+
+
+def test_camera_render_draws_actors_like_the_rig(rig_scene, tmp_path):
+    """`render --camera` at a time where an actor is in view shows it: the very frame the rig
+    writes for that camera and time (one rendering path for both)."""
+    from lsd3d_usd.cli import main
+    from lsd3d_usd.views.images import read_image
+    sc, _, traj = rig_scene
+    res = rig.render_rig(sc.root, tmp_path / "clip", trajectory=traj, fps=10.0, seconds=1.0, width=64,
+                         overview=False, video=False, progress=False, log=lambda *_: None)
+    k, code = 9, 21.6                 # t = 0.9 s at 24 codes/s: the ego is past the building
+    side = rigs.WAYMO5[3]
+    out = tmp_path / "cam"
+    assert main(["render", str(res.rig_layer), "--camera", f"{rig_stage.EGO_PATH}/{side.name}",
+                 "--time", str(code), "--resolution", f"64x{side.height_for(64)}", "-o", str(out),
+                 "--no-progress"]) == 0
+    single = read_image(out / f"{side.name}.png")
+    np.testing.assert_array_equal(single, read_image(res.frames[side.name][k]))
+    # the parked car is in that frame: without actors the picture differs where it stands
+    stage = Usd.Stage.Open(str(res.rig_layer))
+    cam = from_usd(stage.GetPrimAtPath(f"{rig_stage.EGO_PATH}/{side.name}"), code, 64, side.height_for(64))
+    with_actors = frame.render_scene(SceneReader(stage), cam, code)
+    without = frame.render_scene(SceneReader(stage, actors=False), cam, code)
+    assert with_actors.actor_mask.sum() > 0
+    assert np.abs(with_actors.rgb - without.rgb)[with_actors.actor_mask].max() > 0.05
+
+
+def test_rig_output_references_the_scene_not_the_checkout_and_is_quiet(rig_scene, tmp_path, capfd):
+    """rig.usda points at the scene's own assets/car.usda, or at a car written into the
+    output folder; never into samples/. A normal rig render prints no USD warning."""
+    from lsd3d_usd.actors.assets import write_vehicle_asset
+    from pxr import Sdf
+    sc, _, traj = rig_scene
+    capfd.readouterr()
+
+    def ego_reference(rig_file):
+        layer = Sdf.Layer.FindOrOpen(str(rig_file))
+        spec = layer.GetPrimAtPath("/World/Actors/Ego/Ego_000")
+        refs = list(spec.referenceList.prependedItems)
+        assert len(refs) == 1 and "samples" not in layer.ExportToString()
+        return (Path(rig_file).parent / refs[0].assetPath).resolve()
+
+    res = rig.render_rig(sc.root, tmp_path / "a", trajectory=traj, fps=2.0, seconds=1.0, width=32,
+                         video=False, progress=False, log=lambda *_: None)
+    assert ego_reference(res.rig_layer) == (tmp_path / "a" / "assets" / "car.usda").resolve()
+    err = capfd.readouterr().err
+    assert "Warning" not in err and "Could not open asset" not in err, err
+    own = write_vehicle_asset("car", sc.root / "assets" / "car.usda")   # as generate's actors step
+    res = rig.render_rig(sc.root, tmp_path / "b", trajectory=traj, fps=2.0, seconds=1.0, width=32,
+                         video=False, progress=False, log=lambda *_: None)
+    assert ego_reference(res.rig_layer) == own.resolve()
+    assert not (tmp_path / "b" / "assets").exists()
+    err = capfd.readouterr().err
+    assert "Warning" not in err and "Could not open asset" not in err, err

@@ -1,0 +1,89 @@
+"""Display encoding and image files: tone mapping, sRGB, reading images and writing frames
+(PNG: tone-mapped 8-bit sRGB; EXR: scene-linear float RGBA + Z) with OpenImageIO."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from lsd3d_usd.errors import InputError
+
+TONEMAPS = ("aces", "reinhard", "clamp")
+
+
+def tonemap(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.ndarray:
+    """Scene-linear -> display-linear in [0, 1]."""
+    x = np.maximum(rgb * (2.0 ** exposure), 0.0)
+    if method == "aces":  # Narkowicz's fit of the ACES filmic curve
+        y = (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)
+    elif method == "reinhard":
+        y = x / (1.0 + x)
+    elif method == "clamp":
+        y = x
+    else:
+        raise InputError(f"unknown tone map {method!r}; choose from {', '.join(TONEMAPS)}")
+    return np.clip(y, 0.0, 1.0)
+
+
+def srgb_encode(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
+
+
+def display_uint8(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.ndarray:
+    """Scene-linear RGB -> what a screen shows: tone-mapped, sRGB-encoded, 8 bit."""
+    return np.round(srgb_encode(tonemap(rgb, exposure, method)) * 255.0).astype(np.uint8)
+
+
+def read_image(path) -> np.ndarray:
+    """Float32 (h, w, c) pixels of an image file (OpenImageIO)."""
+    import OpenImageIO as oiio
+
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise InputError(f"{path}: cannot read image: {oiio.geterror()}")
+    try:
+        px = inp.read_image("float")
+    finally:
+        inp.close()
+    if px is None:
+        raise InputError(f"{path}: cannot read image pixels")
+    return np.asarray(px, np.float32)
+
+
+def write_frame(path, frame, fmt: str = "png", exposure: float = 0.0,
+                tonemap_method: str = "aces") -> Path:
+    """Write a rendered frame (views.frame.Frame) atomically: PNG (8-bit sRGB, tone-mapped) or
+    EXR (float RGBA + Z = frame.depth_expected, scene-linear, exposure applied)."""
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    rgb = frame.rgb
+    h, w = rgb.shape[:2]
+    if fmt == "png":
+        pixels = display_uint8(rgb, exposure, tonemap_method)
+        spec = oiio.ImageSpec(w, h, 3, "uint8")
+    elif fmt == "exr":
+        pixels = np.concatenate([rgb * (2.0 ** exposure), frame.alpha[..., None],
+                                 frame.depth_expected[..., None]], axis=2).astype(np.float32)
+        spec = oiio.ImageSpec(w, h, 5, "float")
+        spec.channelnames = ("R", "G", "B", "A", "Z")
+        spec.alpha_channel, spec.z_channel = 3, 4
+        spec.attribute("compression", "zip")
+    else:
+        raise InputError(f"unknown image format {fmt!r}; choose png or exr")
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None or not out.open(str(tmp), spec):
+        raise InputError(f"{path}: cannot write image: {oiio.geterror()}")
+    try:
+        ok = out.write_image(np.ascontiguousarray(pixels))
+    finally:
+        out.close()
+    if not ok:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"{path}: writing failed: {out.geterror()}")
+    os.replace(tmp, path)
+    return path

@@ -1,0 +1,293 @@
+"""Reading a composed stage into arrays for rendering: the one place every view (render
+command, rig, eval, usdview) gets its surfels, env map and actors from.
+
+    scene_surfels(stage, time)   every visible ParticleField prim outside /World/Actors and
+                                 /World/Cameras (our Lsd3dSurfelField and the official
+                                 ParticleField3DGaussianSplat, flattened to surfels by
+                                 splats.usdio.read_surfels), in world space, as one SurfelField
+    read_env(stage, time)        the first visible DomeLight's latlong texture (EnvMap)
+    camera_prim(stage, path)     a UsdGeom.Camera prim, or one clear error listing the cameras
+    SceneReader                  the above for one stage, plus the actors placed and relit at
+                                 a time (`actors_at`); reads what cannot change only once
+
+The proxy mesh and the layout are read by their own packages (proxy.usdio.proxy_arrays,
+layout.usdio.read_layout / layout_from_stage). Times are USD time codes; None means the
+stage's earliest time (the default values where nothing is animated), so animated actors and
+cameras are placed where their animation starts.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from lsd3d_usd.errors import InputError
+
+
+def usd_time(time):
+    """A Usd.TimeCode for a time code (float) or None (the earliest time)."""
+    from pxr import Usd
+    return Usd.TimeCode.EarliestTime() if time is None else Usd.TimeCode(time)
+
+
+def _world(prim, t) -> np.ndarray:
+    from pxr import UsdGeom
+    return np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t), np.float64).T
+
+
+# ------------------------------------------------------------------------------ surfels
+def scene_surfel_prims(stage) -> list:
+    """ParticleField prims of the scene itself: outside /World/Actors (actors are drawn, relit,
+    from their assets) and /World/Cameras."""
+    from lsd3d_usd.scene import ACTORS_PATH, CAMERAS_PATH
+    from lsd3d_usd.splats.usdio import surfel_prims
+    skip = (ACTORS_PATH + "/", CAMERAS_PATH + "/")
+    return [p for p in surfel_prims(stage) if not str(p.GetPath()).startswith(skip)]
+
+
+def scene_surfels(stage, time=None, prims=None):
+    """The scene's visible surfels in world space as one SurfelField (semantics dropped when
+    the prims' class tables differ), or None when there are none."""
+    from pxr import UsdGeom
+
+    from lsd3d_usd.splats.field import SurfelField
+    from lsd3d_usd.splats.init import transform_surfels
+    from lsd3d_usd.splats.usdio import read_surfels
+
+    t = usd_time(time)
+    fields = []
+    for prim in scene_surfel_prims(stage) if prims is None else prims:
+        if UsdGeom.Imageable(prim).ComputeVisibility(t) == UsdGeom.Tokens.invisible:
+            continue
+        f = read_surfels(prim, t)
+        if f.n:
+            fields.append(transform_surfels(f, _world(prim, t)))
+    return SurfelField.concat(fields, drop_mismatched_semantics=True) if fields else None
+
+
+def _might_vary(prim) -> bool:
+    """Whether anything that places or shows ``prim``'s surfels may change with time: its own
+    attributes, or an ancestor's transform or visibility."""
+    from pxr import UsdGeom
+    if any(a.ValueMightBeTimeVarying() for a in prim.GetAttributes()):
+        return True
+    p = prim.GetParent()
+    while p and not p.IsPseudoRoot():
+        x = UsdGeom.Xformable(p)
+        if x and x.TransformMightBeTimeVarying():
+            return True
+        vis = UsdGeom.Imageable(p).GetVisibilityAttr() if UsdGeom.Imageable(p) else None
+        if vis and vis.ValueMightBeTimeVarying():
+            return True
+        p = p.GetParent()
+    return False
+
+
+# ------------------------------------------------------------------------------ env map
+@dataclass
+class EnvMap:
+    """A latlong env texture (scene-linear RGB, float32) with its dome orientation."""
+    image: np.ndarray            # (h, w, 3)
+    world_from_dome: np.ndarray  # (3,3) rotation of the DomeLight
+    pole_axis: str = "Z"         # "Z" (our convention) or "Y" (OpenEXR latlong, Y up)
+    source: str = ""
+
+    def lookup(self, dirs: np.ndarray) -> np.ndarray:
+        """Bilinear radiance (…,3) for world directions (…,3), wrapping in longitude."""
+        from lsd3d_usd.env.mapping import direction_to_uv
+
+        d = np.asarray(dirs, np.float64) @ self.world_from_dome  # = R^T d: into the dome frame
+        if self.pole_axis == "Y":
+            d = np.stack([d[..., 0], -d[..., 2], d[..., 1]], axis=-1)
+        uv = direction_to_uv(d)
+        h, w = self.image.shape[:2]
+        x = uv[..., 0] * w - 0.5
+        y = np.clip(uv[..., 1] * h - 0.5, 0.0, h - 1.0)
+        x0 = np.floor(x).astype(np.int64)
+        y0 = np.minimum(np.floor(y).astype(np.int64), h - 2) if h > 1 else np.zeros_like(x0)
+        fx, fy = (x - x0)[..., None], (y - y0)[..., None]
+        x0m, x1m = x0 % w, (x0 + 1) % w
+        y1 = np.minimum(y0 + 1, h - 1)
+        im = self.image
+        top = im[y0, x0m] * (1 - fx) + im[y0, x1m] * fx
+        bot = im[y1, x0m] * (1 - fx) + im[y1, x1m] * fx
+        return (top * (1 - fy) + bot * fy).astype(np.float32)
+
+
+class TextureCache:
+    """Decoded env textures by (path, modification time), the most recent ``size`` kept: a
+    frame range or a usdview session decodes its EXR once."""
+
+    def __init__(self, size: int = 1):
+        self.size = int(size)
+        self._images: dict = {}
+
+    def image(self, path: str) -> np.ndarray:
+        from lsd3d_usd.views.images import read_image
+        key = (path, os.path.getmtime(path))
+        img = self._images.pop(key, None)
+        if img is None:
+            img = read_image(path)
+        self._images[key] = img  # most recent last
+        while len(self._images) > self.size:
+            self._images.pop(next(iter(self._images)))
+        return img
+
+
+def read_env(stage, time=None, textures: TextureCache | None = None) -> EnvMap | None:
+    """The first visible DomeLight with a texture (intensity, exposure and colour applied),
+    or None (black background). ``textures`` caches decoded images across calls."""
+    from pxr import Usd, UsdGeom, UsdLux
+
+    t = usd_time(time)
+    textures = TextureCache() if textures is None else textures
+    dome_types = [UsdLux.DomeLight] + ([UsdLux.DomeLight_1] if hasattr(UsdLux, "DomeLight_1") else [])
+    for prim in Usd.PrimRange(stage.GetPseudoRoot()):
+        kind = next((k for k in dome_types if prim.IsA(k)), None)
+        if kind is None:
+            continue
+        if UsdGeom.Imageable(prim).ComputeVisibility(t) == UsdGeom.Tokens.invisible:
+            continue
+        light = kind(prim)
+        asset = light.GetTextureFileAttr().Get(t)
+        if not asset or not asset.path:
+            continue
+        path = asset.resolvedPath or asset.path
+        if not os.path.isfile(path):
+            raise InputError(f"{prim.GetPath()}.inputs:texture:file: texture {asset.path!r} not found")
+        fmt = light.GetTextureFormatAttr().Get(t)
+        if fmt not in (None, "automatic", "latlong"):
+            raise InputError(f"{prim.GetPath()}: texture format {fmt!r} not supported (latlong only)")
+        img = textures.image(path)
+        rgb = img[..., :3] if img.shape[2] >= 3 else np.repeat(img[..., :1], 3, axis=2)
+        lx = UsdLux.LightAPI(prim)
+        gain = float(lx.GetIntensityAttr().Get(t) or 1.0) * 2.0 ** float(lx.GetExposureAttr().Get(t) or 0.0)
+        col = np.asarray(lx.GetColorAttr().Get(t) or (1, 1, 1), np.float32)
+        U, _, Vt = np.linalg.svd(_world(prim, t)[:3, :3])
+        pole = light.GetPoleAxisAttr().Get() if hasattr(light, "GetPoleAxisAttr") else None
+        up = UsdGeom.GetStageUpAxis(stage)
+        pole_axis = "Y" if (pole == "Y" or (pole in (None, "scene") and up == "Y")) else "Z"
+        return EnvMap((rgb * (gain * col)).astype(np.float32), U @ Vt, pole_axis, str(prim.GetPath()))
+    return None
+
+
+# ------------------------------------------------------------------------------ cameras
+def camera_prim(stage, camera_path: str):
+    """The UsdGeom.Camera prim at ``camera_path``; one InputError naming the cameras the stage
+    has otherwise."""
+    from pxr import Sdf, Usd, UsdGeom
+
+    if not Sdf.Path.IsValidPathString(camera_path) or not camera_path.startswith("/"):
+        raise InputError(f"--camera {camera_path!r}: not an absolute prim path (e.g. /World/Cameras/Front)")
+    prim = stage.GetPrimAtPath(camera_path)
+    if not prim or not prim.IsA(UsdGeom.Camera):
+        cams = [str(p.GetPath()) for p in Usd.PrimRange(stage.GetPseudoRoot()) if p.IsA(UsdGeom.Camera)]
+        what = "no prim" if not prim else f"prim of type {prim.GetTypeName() or 'none'}, not a Camera,"
+        raise InputError(f"{stage.GetRootLayer().identifier}: {what} at {camera_path}; cameras in the stage: "
+                         f"{', '.join(cams[:10]) if cams else 'none'}")
+    return prim
+
+
+# ------------------------------------------------------------------------------ actors
+@dataclass
+class ActorFrame:
+    """Actors placed and lit at one time: one merged mesh and the surfel actors."""
+    vertices: np.ndarray            # (V,3) world
+    faces: np.ndarray               # (F,3)
+    colors: np.ndarray              # (F,3) lit linear colour per face
+    surfels: object | None          # SurfelField (world, lit) or None
+
+    @staticmethod
+    def empty() -> "ActorFrame":
+        return ActorFrame(np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3), np.float32), None)
+
+
+class SceneReader:
+    """One composed stage read for rendering frames at any time: scene surfels (read once
+    unless something about them is animated), the env map (textures decoded once), and the
+    actors (asset geometry read once, placed and relit per time). Every frame is a pure
+    function of (stage, time, camera): nothing carries over between frames."""
+
+    def __init__(self, stage, *, use_env: bool = True, actors: bool = True,
+                 textures: TextureCache | None = None):
+        from lsd3d_usd.actors.usdio import ActorSet
+        self.stage = stage
+        self.use_env = use_env
+        self.textures = TextureCache() if textures is None else textures
+        self.actors = ActorSet(stage) if actors else None
+        self._prims = scene_surfel_prims(stage)
+        self._static = not any(_might_vary(p) for p in self._prims)
+        self._field = None
+        self._field_read = False
+        self._lighting = None
+        self._occluder = None
+        self._last = {}  # per kind, (time, value) of the last call: a rig's cameras share a time
+
+    def surfels(self, time=None):
+        """The scene's surfels (world space) at ``time``, or None."""
+        if not self._static:
+            return scene_surfels(self.stage, time, self._prims)
+        if not self._field_read:
+            self._field = scene_surfels(self.stage, time, self._prims)
+            self._field_read = True
+        return self._field
+
+    def _memo(self, kind, time, make):
+        hit = self._last.get(kind)
+        if hit is None or hit[0] != time:
+            hit = self._last[kind] = (time, make(time))
+        return hit[1]
+
+    def env(self, time=None) -> EnvMap | None:
+        """The env map at ``time`` (None without one, or with use_env=False)."""
+        if not self.use_env:
+            return None
+        return self._memo("env", time, lambda t: read_env(self.stage, t, self.textures))
+
+    def actors_at(self, time=None) -> ActorFrame:
+        """Actor geometry in world space at ``time``, relit by the scene's lighting."""
+        return self._memo("actors", time, self._place_actors)
+
+    def _place_actors(self, time) -> ActorFrame:
+        from lsd3d_usd.actors.relight import actor_sample_points, lighting_from_stage, proxy_occluder
+        from lsd3d_usd.splats.field import SH_C0, SurfelField
+        from lsd3d_usd.splats.init import transform_surfels
+
+        if self.actors is None or not len(self.actors):
+            return ActorFrame.empty()
+        t = usd_time(time)
+        shown = [(a, M) for a, M, v in zip(self.actors.actors, self.actors.transforms(t),
+                                           self.actors.visible(t)) if v]
+        if not shown:
+            return ActorFrame.empty()
+        if self._lighting is None:  # the proxy occluder is built once, when an actor shows
+            self._lighting = lighting_from_stage(self.stage)
+            self._occluder = proxy_occluder(self.stage)
+        light = self._lighting
+        vs, fs, cs, surf = [], [], [], []
+        n = 0
+        for a, M in shown:
+            V = self._occluder.visibility(actor_sample_points(M, a.dims), light.sun_dir)
+            for m in a.meshes:
+                v = m.vertices @ M[:3, :3].T + M[:3, 3]
+                tri = v[m.faces]
+                nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+                nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+                vs.append(v)
+                fs.append(m.faces + n)
+                cs.append(m.colors * light.factor(nrm, V))
+                n += len(v)
+            if a.surfels is not None:
+                f = transform_surfels(a.surfels, M)
+                k = light.factor(f.normals().astype(np.float64), V)
+                rgb = np.maximum(0.5 + SH_C0 * f.sh[:, 0, :], 0.0) * k
+                sh = f.sh * k[:, None, :]
+                sh[:, 0, :] = (rgb - 0.5) / SH_C0
+                surf.append(SurfelField(f.positions, f.orientations, f.scales, f.opacities, sh,
+                                        f.semantic_ids, f.semantic_classes))
+        empty = ActorFrame.empty()
+        return ActorFrame(np.concatenate(vs) if vs else empty.vertices,
+                          np.concatenate(fs) if fs else empty.faces,
+                          (np.concatenate(cs) if cs else empty.colors).astype(np.float32),
+                          SurfelField.concat(surf, drop_mismatched_semantics=True) if surf else None)
