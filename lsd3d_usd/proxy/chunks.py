@@ -68,7 +68,28 @@ def chunk_label(i: int, j: int) -> str:
     return chunk_prim_name(i, j)
 
 
-def all_chunks(layout) -> list[ChunkKey]:
+def chunk_count(layout) -> int:
+    """Number of chunks covering the layout's area (computed without listing them)."""
+    ri, rj = layout.chunk_range()
+    return len(ri) * len(rj)
+
+
+def check_chunk_count(layout, n: int | None = None, max_chunks: int | None = None) -> None:
+    """Refuse (InputError, one line) to build more than limits.CHUNKS chunks (or
+    ``max_chunks``); ``n`` defaults to every chunk of the layout's area."""
+    from lsd3d_usd.limits import CHUNKS
+    n = chunk_count(layout) if n is None else n
+    if not CHUNKS.ok(n, max_chunks):
+        (x0, y0), (x1, y1) = layout.area_box()
+        where = (f"layout area {x1 - x0:.0f} m x {y1 - y0:.0f} m in {layout.chunk_size:g} m "
+                 f"chunks")
+        CHUNKS.check(n, where, max_chunks)
+
+
+def all_chunks(layout, max_chunks: int | None = None) -> list[ChunkKey]:
+    """Every chunk key of the layout's area; refuses more than limits.CHUNKS (or
+    ``max_chunks``) before listing them."""
+    check_chunk_count(layout, max_chunks=max_chunks)
     ri, rj = layout.chunk_range()
     return [(i, j) for i in ri for j in rj]
 
@@ -190,8 +211,8 @@ class ProxyBuilder:
         self.size = float(layout.chunk_size)
         self.fixtures = derive_fixtures(layout, self.params)
 
-    def chunks(self) -> list[ChunkKey]:
-        return all_chunks(self.layout)
+    def chunks(self, max_chunks: int | None = None) -> list[ChunkKey]:
+        return all_chunks(self.layout, max_chunks)
 
     def inputs(self, key: ChunkKey) -> ChunkInputs:
         i, j = key
@@ -292,10 +313,15 @@ def _sign_yaw(sign, lanes_by_id) -> float:
 
 
 def build_proxy(layout, chunks=None, params: ProxyParams | None = None,
-                progress: bool = False) -> dict[ChunkKey, list[MeshPart]]:
-    """Mesh parts per chunk for ``chunks`` (default: every chunk of the layout's area)."""
+                progress: bool = False, max_chunks: int | None = None
+                ) -> dict[ChunkKey, list[MeshPart]]:
+    """Mesh parts per chunk for ``chunks`` (default: every chunk of the layout's area;
+    at most limits.CHUNKS or ``max_chunks``)."""
+    if chunks is not None:
+        chunks = list(chunks)
+        check_chunk_count(layout, len(chunks), max_chunks)
     builder = ProxyBuilder(layout, params)
-    keys = list(chunks) if chunks is not None else builder.chunks()
+    keys = chunks if chunks is not None else builder.chunks(max_chunks)
     it = keys
     if progress:
         from tqdm import tqdm
