@@ -27,7 +27,7 @@ import numpy as np
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.plyio import read_header_comments, read_ply_vertices, write_ply_vertices  # noqa: F401
-from lsd3d_usd.splats.field import SurfelField, flatten_3d_gaussians, sh_degree_for
+from lsd3d_usd.splats.field import SurfelField, flatten_3d_gaussians, kernel_bounds, sh_degree_for
 
 THIN_AXIS = 1e-3
 _OPACITY_EPS = 1e-7  # logit of exactly 0 or 1 is infinite: clamp before the logit
@@ -182,15 +182,19 @@ def write_gaussian_splat_prim(stage, path: str, field: SurfelField, thin: float 
     put("radiance:sphericalHarmonicsDegree", T.Int, int(field.sh_degree), uniform=True)
     put("radiance:sphericalHarmonicsCoefficients", T.Float3Array,
         Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(field.sh.reshape(-1, 3))))
-    put("extent", T.Float3Array, Vt.Vec3fArray.FromNumpy(field.extent().astype(np.float32)))
+    ext = kernel_bounds(field.positions, field.orientations, s3, surflet=False)  # thin axis too
+    put("extent", T.Float3Array, Vt.Vec3fArray.FromNumpy(ext.astype(np.float32)))
     return prim
 
 
 def write_gaussian_splat_file(path, field: SurfelField, prim_path: str = "/World/Surfels",
                               thin: float = THIN_AXIS, provenance: dict | None = None) -> Path:
-    """Stand-alone USD file holding one ParticleField3DGaussianSplat, written atomically."""
+    """Stand-alone USD file holding one ParticleField3DGaussianSplat, written atomically.
+    A .usda path is refused above limits.USDA_PARTICLES particles (bulk data)."""
     from lsd3d_usd import scene
+    from lsd3d_usd.splats.usdio import check_bulk_target
 
+    check_bulk_target(path, field.n)
     stage = scene.new_stage()
     write_gaussian_splat_prim(stage, prim_path, field, thin)
     return scene.save_stage(stage, os.fspath(path), provenance)
