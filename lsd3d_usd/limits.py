@@ -20,7 +20,7 @@ from lsd3d_usd.errors import InputError
 
 
 def _fmt(x) -> str:
-    """A number for a message: integers as integers, others in 4 significant digits."""
+    """A number for a message: integers as integers, others in 6 significant digits."""
     try:
         xf = float(x)
     except (TypeError, ValueError):
@@ -29,7 +29,7 @@ def _fmt(x) -> str:
         return str(xf)
     if xf == int(xf) and abs(xf) < 1e15:
         return str(int(xf))
-    return f"{xf:.4g}"
+    return f"{xf:.6g}"
 
 
 @dataclass(frozen=True)
@@ -53,23 +53,24 @@ class Limit:
             return False
         return v <= b if self.kind == "max" else v >= b
 
-    def message(self, value, where: str, bound=None) -> str:
+    def message(self, value, where: str, bound=None, what: str | None = None) -> str:
         b = self.value if bound is None else bound
+        what = self.what if what is None else what
         try:
             nan = math.isnan(float(value))
         except (TypeError, ValueError, OverflowError):
             nan = True
         if nan:
-            return f"{where}: {self.what} is {value!r}, not a number"
+            return f"{where}: {what} is {value!r}, not a number"
         rel = "exceeds the limit of" if self.kind == "max" else "is below the minimum of"
         hint = f" (raise it with {self.flag})" if self.flag and self.kind == "max" else ""
-        return f"{where}: {self.what} {_fmt(value)}{self.unit} {rel} {_fmt(b)}{self.unit}{hint}"
+        return f"{where}: {what} {_fmt(value)}{self.unit} {rel} {_fmt(b)}{self.unit}{hint}"
 
-    def check(self, value, where: str, bound=None) -> None:
+    def check(self, value, where: str, bound=None, what: str | None = None) -> None:
         """Raise InputError (one line) unless ``value`` is within the bound (``bound``
-        overrides the default, e.g. from a --max-... flag)."""
+        overrides the default, e.g. from a --max-... flag; ``what`` renames the quantity)."""
         if not self.ok(value, bound):
-            raise InputError(self.message(value, where, bound))
+            raise InputError(self.message(value, where, bound, what))
 
 
 # --------------------------------------------------------------------- OpenDRIVE
