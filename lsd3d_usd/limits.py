@@ -53,7 +53,8 @@ class Limit:
             return False
         return v <= b if self.kind == "max" else v >= b
 
-    def message(self, value, where: str, bound=None, what: str | None = None) -> str:
+    def describe(self, value, bound=None, what: str | None = None) -> str:
+        """'<what> <value> exceeds the limit of <bound>' (no location)."""
         b = self.value if bound is None else bound
         what = self.what if what is None else what
         try:
@@ -61,10 +62,13 @@ class Limit:
         except (TypeError, ValueError, OverflowError):
             nan = True
         if nan:
-            return f"{where}: {what} is {value!r}, not a number"
+            return f"{what} is {value!r}, not a number"
         rel = "exceeds the limit of" if self.kind == "max" else "is below the minimum of"
         hint = f" (raise it with {self.flag})" if self.flag and self.kind == "max" else ""
-        return f"{where}: {what} {_fmt(value)}{self.unit} {rel} {_fmt(b)}{self.unit}{hint}"
+        return f"{what} {_fmt(value)}{self.unit} {rel} {_fmt(b)}{self.unit}{hint}"
+
+    def message(self, value, where: str, bound=None, what: str | None = None) -> str:
+        return f"{where}: {self.describe(value, bound, what)}"
 
     def check(self, value, where: str, bound=None, what: str | None = None) -> None:
         """Raise InputError (one line) unless ``value`` is within the bound (``bound``
@@ -86,9 +90,13 @@ LANE_WIDTH = Limit(
 LATERAL_OFFSET = Limit(
     "lateral_offset", 1_000.0, " m", "lateral offset of a lane boundary",
     "layout import: laneOffset + widths of every boundary from the reference line")
-ROAD_SAMPLES = Limit(
-    "road_samples", 200_000, " samples", "polyline samples",
-    "layout import: the adaptive sampler of each road stops (road skipped) past it")
+ROAD_POINTS = Limit(
+    "road_points", 1_000_000, " points", "polyline points (samples x boundary lines)",
+    "layout import: the adaptive sampler of each road stops there (road skipped; a larger "
+    "--tolerance needs fewer)")
+TOTAL_ROAD_LENGTH = Limit(
+    "total_road_length", 10_000_000.0, " m", "total road length",
+    "layout import: the sum of the road lengths of one file, before any road is sampled")
 
 # ------------------------------------------------------------------------ layouts
 LAYOUT_EXTENT = Limit(
@@ -124,7 +132,7 @@ IMAGE_PIXELS = Limit(
     "image_pixels", 8192 * 4096, " pixels", "image size",
     "--resolution / --size flags (cliutil.parse_size), env map rendering")
 
-ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_SAMPLES,
+ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
        PLY_VERTICES, USDA_PARTICLES, IMAGE_PIXELS)
 

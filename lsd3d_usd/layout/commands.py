@@ -56,6 +56,7 @@ def _generate(args) -> int:
     from lsd3d_usd.layout import generator, usdio
     from lsd3d_usd.scene import provenance
 
+    _check_output(args.output)
     t0 = time.perf_counter()
     extent = generator.parse_extent(args.extent)
     desc = generator.plan(args.seed, extent, args.style)
@@ -76,6 +77,7 @@ def _import(args) -> int:
     from lsd3d_usd.layout import opendrive, usdio
     from lsd3d_usd.scene import provenance
 
+    _check_output(args.output)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", opendrive.OpenDriveWarning)
@@ -88,6 +90,12 @@ def _import(args) -> int:
         timings={"import_s": round(time.perf_counter() - t0, 3)}))
     _print_summary(layout, path)
     return 0
+
+
+def _check_output(path) -> None:
+    """Before any work: -o names a USD file that can be written (not a folder, not below a file)."""
+    from lsd3d_usd.cliutil import check_output_path
+    check_output_path(path, "-o", suffixes=(".usda", ".usdc", ".usd"), what="layout layer")
 
 
 def _info(args) -> int:

@@ -529,3 +529,18 @@ class Layout:
                 and self.metadata == other.metadata)
 
     __hash__ = None
+
+
+def check_size(layout: Layout, where: str) -> None:
+    """Refuse (InputError, one line) a layout whose features span more than
+    limits.LAYOUT_EXTENT on a side: chunk-wise consumers would start that many chunks, and
+    USD's float32 points lose precision beyond. Readers and importers call it before they
+    return a layout."""
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.limits import LAYOUT_EXTENT
+
+    (x0, y0), (x1, y1) = layout.bounds()
+    size = max(x1 - x0, y1 - y0)
+    if not LAYOUT_EXTENT.ok(size):
+        raise InputError(f"{where}: the features span {x1 - x0:.6g} m x {y1 - y0:.6g} m, more than "
+                         f"the limit of {LAYOUT_EXTENT.value:.0f} m on a side")

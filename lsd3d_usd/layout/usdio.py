@@ -308,21 +308,9 @@ def layout_from_stage(stage: Usd.Stage, where: str = "stage") -> m.Layout:
             raise InputError(f"{where}: feature id {f.id!r} is used twice (ids must be unique; "
                              f"set {NS}id or rename the prim)")
         seen.add(f.id)
-    check_layout_size(layout, where)
+    m.check_size(layout, where)
     layout.reindex()
     return layout
-
-
-def check_layout_size(layout: m.Layout, where: str) -> None:
-    """Refuse (one line) a layout whose features span more than limits.LAYOUT_EXTENT on a
-    side: chunk-wise consumers would start that many chunks, and float32 points lose
-    precision beyond. The extent metadata is checked when it is read."""
-    from lsd3d_usd.limits import LAYOUT_EXTENT
-    (x0, y0), (x1, y1) = layout.bounds()
-    size = max(x1 - x0, y1 - y0)
-    if not LAYOUT_EXTENT.ok(size):
-        raise InputError(f"{where}: the features span {x1 - x0:.6g} m x {y1 - y0:.6g} m, more than "
-                         f"the limit of {LAYOUT_EXTENT.value:.0f} m on a side")
 
 
 @dataclasses.dataclass(frozen=True)
