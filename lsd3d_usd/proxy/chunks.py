@@ -31,6 +31,7 @@ from .furniture import stop_sign_parts, street_light_parts, traffic_light_parts
 from .ground import GroundStyle, ground_areas, ground_parts
 from .markings import MarkingStyle, crosswalk_part, road_line_part, stop_line_part
 from .mesh import MeshPart
+from .planar import area_from_points
 from .vegetation import hedge_part, tree_parts, zone_shrubs
 from .vehicles import vehicle_part
 
@@ -264,7 +265,11 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
 
     for bd in L.buildings:
         fp = Polygon(bd.footprint[:, :2])
-        c = fp.representative_point() if not fp.is_valid else fp.centroid
+        if fp.is_valid:
+            c = fp.centroid
+        else:   # a messy footprint: its cleaned area (or its vertices) decide the owner
+            fp = area_from_points(bd.footprint)
+            c = fp.representative_point() if not fp.is_empty else shapely.Point(bd.footprint[:, :2].mean(0))
         if _owned(c.x, c.y, b):
             add(building_mesh(bd.id, bd.footprint, bd.height_hint, bd.floors_hint,
                               style=params.building))
@@ -272,10 +277,7 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
         if _owned(t.position[0], t.position[1], b):
             parts += tree_parts(t.id, t.position, t.height_hint, t.crown_radius_hint)
     for z in L.vegetation_zones:
-        zp = Polygon(z.polygon[:, :2])
-        if not zp.is_valid:
-            zp = shapely.make_valid(zp)
-        parts += zone_shrubs(z.id, zp, z.kind, clip)
+        parts += zone_shrubs(z.id, area_from_points(z.polygon), z.kind, clip)
     for ps in L.parking_spots:
         if ps.occupied and _owned(ps.center[0], ps.center[1], b):
             add(vehicle_part(ps.id, ps.center, ps.heading, ps.length, ps.width))
