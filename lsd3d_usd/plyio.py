@@ -56,7 +56,7 @@ def _parse_header(f, path):
                 raise InputError(f"{path}: unsupported PLY format line {excerpt(line.strip())}")
             fmt = words[1]
         elif key == "element":
-            if len(words) != 3 or not re.fullmatch(r"\d{1,30}", words[2]):
+            if len(words) != 3 or not re.fullmatch(r"\d{1,100}", words[2]):
                 raise InputError(f"{path}: bad PLY element line {excerpt(line.strip())}")
             elements.append((words[1], int(words[2]), []))
         elif key == "property":

@@ -246,7 +246,8 @@ def _check_particle_field_at(prim: Usd.Prim, time) -> list[Problem]:
     elif n:
         q = arrays.get("orientations", np.tile([0.0, 0, 0, 1], (n, 1)))
         q = np.where(np.linalg.norm(q, axis=1, keepdims=True) > 0, q, [0, 0, 0, 1])
-        lo, hi = kernel_bounds(pos, q, arrays.get("scales", np.ones((n, 3))), surflet=surflet)
+        lo, hi = kernel_bounds(arrays["positions"], q, arrays.get("scales", np.ones((n, 3))),
+                               surflet=surflet)
         ext = extent.reshape(2, 3).astype(np.float64)
         tol = EXTENT_TOL * max(1.0, float(np.max(hi - lo)))
         if (ext[0] > lo + tol).any() or (ext[1] < hi - tol).any():

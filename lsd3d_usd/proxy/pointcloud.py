@@ -105,7 +105,7 @@ def read_npz_points(path: str | Path, max_vertices: int | None = None
     except Exception as e:
         raise InputError(f"{path}: array {key!r} cannot be read: {e}") from None
     n = int(np.prod(shape, dtype=object)) // 3 if shape else 0
-    PLY_VERTICES.check(n, f"{path}: array {key!r} point count", max_vertices)
+    PLY_VERTICES.check(n, f"{path}: array {key!r}", max_vertices, what="point count")
     try:
         pts = np.asarray(z[key], dtype=np.float64)
     except (ValueError, TypeError) as e:
