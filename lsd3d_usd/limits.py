@@ -103,6 +103,10 @@ LAYOUT_EXTENT = Limit(
     "layout_extent", 50_000.0, " m", "layout size",
     "USD layout reader (extent metadata and feature bounds), layout import; "
     "layout points are float32 in USD: 4 mm resolution at 50 km")
+COORDINATE = Limit(
+    "coordinate", 10_000_000.0, " m", "distance from the origin",
+    "USD layout reader and layout import: every coordinate (UTM northings fit; beyond, "
+    "float32 points lose whole metres and overflow)")
 CHUNK_SIZE_MIN = Limit(
     "chunk_size_min", 10.0, " m", "chunk size",
     "USD layout reader (lsd3dLayout.chunkSize), proxy from-points --chunk-size", kind="min")
@@ -133,7 +137,7 @@ IMAGE_PIXELS = Limit(
     "--resolution / --size flags (cliutil.parse_size), env map rendering")
 
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
-       LAYOUT_EXTENT, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
+       LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
        PLY_VERTICES, USDA_PARTICLES, IMAGE_PIXELS)
 
 

@@ -25,15 +25,16 @@ import numpy as np
 import pytest
 
 hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import HealthCheck, example, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
 from lsd3d_usd import limits  # noqa: E402
 from lsd3d_usd.cli import main  # noqa: E402
 from lsd3d_usd.errors import InputError  # noqa: E402
 
-FAST = settings(max_examples=20, deadline=None, derandomize=True, database=None,
+FAST = settings(max_examples=30, deadline=None, derandomize=True, database=None,
                 suppress_health_check=list(HealthCheck))
+FAST_IMPORT = settings(FAST, max_examples=12)      # each example imports and writes a layer
 SLOW = settings(max_examples=400, deadline=None, database=None,
                 suppress_health_check=list(HealthCheck))
 MEMORY_LIMIT = 800 * 2**20      # bytes traced by tracemalloc (numpy arrays included)
@@ -67,73 +68,94 @@ def assert_one_line_error(code, err):
     assert all(line.startswith("lsd3d-usd: ") for line in err.splitlines() if line.strip()), err
 
 
-# ------------------------------------------------------------------------ numbers
+# ------------------------------------------------------------------ OpenDRIVE
+# A sound map is generated as a template with named numeric slots filled with sane values;
+# 0-3 slots are then replaced by hostile values, and sometimes the bytes are damaged. Both
+# the importing and the refusing paths are exercised.
 EXTREMES = ["0", "-0", "1e-300", "-1e-9", "99999", "1e5", "1e7", "1e8", "1e12", "1e300",
             "-1e300", "nan", "inf", "-inf", "abc", ""]
-_small = st.floats(-200, 200, allow_nan=False).map(lambda x: repr(round(x, 3)))
-_num = st.one_of(_small, _small, _small, st.sampled_from(EXTREMES))
-_len = st.one_of(st.floats(0, 300).map(lambda x: repr(round(x, 2))), st.sampled_from(EXTREMES))
-_coef = st.one_of(st.just("0"), st.floats(-0.05, 0.05).map(repr), st.sampled_from(EXTREMES))
+LANE_TYPES = ["driving", "driving", "sidewalk", "median", "border", "shoulder", "parking", "bogus"]
 
 
-# ------------------------------------------------------------------ OpenDRIVE
-GEOMETRY = st.one_of(
-    st.just("<line/>"),
-    st.builds(lambda c: f'<arc curvature="{c}"/>', _coef),
-    st.builds(lambda a, b: f'<spiral curvStart="{a}" curvEnd="{b}"/>', _coef, _coef),
-    st.builds(lambda *c: '<poly3 a="{}" b="{}" c="{}" d="{}"/>'.format(*c), _coef, _coef, _coef, _coef),
-    st.builds(lambda bu, cv, dv, pr: f'<paramPoly3 aU="0" bU="{bu}" cU="0" dU="0" aV="0" bV="0" '
-                                     f'cV="{cv}" dV="{dv}" pRange="{pr}"/>',
-              _len, _coef, _coef, st.sampled_from(["normalized", "arcLength", "bogus"])),
-    st.just("<clothoid/>"), st.just(""),
-)
-LANE_TYPES = ["driving", "sidewalk", "median", "border", "shoulder", "parking", "none", "bogus"]
+def _r(draw, lo, hi):
+    return repr(round(draw(st.floats(lo, hi)), 4))
 
 
 @st.composite
-def lane_xml(draw, lid):
-    widths = "".join(f'<width sOffset="{draw(_len)}" a="{draw(st.one_of(_len, _len, _num))}" '
-                     f'b="{draw(_coef)}" c="{draw(_coef)}" d="{draw(_coef)}"/>'
-                     for _ in range(draw(st.integers(0, 2))))
-    marks = "".join(f'<roadMark sOffset="{draw(_len)}" type="{draw(st.sampled_from(["solid", "broken", "solid solid", "none"]))}"/>'
-                    for _ in range(draw(st.integers(0, 2))))
-    link = draw(st.sampled_from(["", f'<link><successor id="{lid}"/></link>', '<link><predecessor id="inf"/></link>']))
-    return f'<lane id="{lid}" type="{draw(st.sampled_from(LANE_TYPES))}">{link}{widths}{marks}</lane>'
+def road_template(draw, rid, slots):
+    def slot(value):
+        name = f"v{len(slots)}"
+        slots[name] = value
+        return "{" + name + "}"
 
+    length = round(draw(st.floats(1, 300)), 3)
+    kind = draw(st.sampled_from(["line", "arc", "spiral", "poly3", "paramPoly3"]))
+    if kind == "line":
+        shape = "<line/>"
+    elif kind == "arc":
+        shape = f'<arc curvature="{slot(_r(draw, -0.05, 0.05))}"/>'
+    elif kind == "spiral":
+        shape = f'<spiral curvStart="{slot(_r(draw, -0.05, 0.05))}" curvEnd="{slot(_r(draw, -0.05, 0.05))}"/>'
+    elif kind == "poly3":
+        shape = (f'<poly3 a="0" b="{slot(_r(draw, -0.2, 0.2))}" c="{slot(_r(draw, -0.01, 0.01))}" '
+                 f'd="{slot(_r(draw, -1e-4, 1e-4))}"/>')
+    else:
+        shape = (f'<paramPoly3 aU="0" bU="{slot(repr(length))}" cU="0" dU="0" aV="0" bV="0" '
+                 f'cV="{slot(_r(draw, -20, 20))}" dV="{slot(_r(draw, -20, 20))}" '
+                 f'pRange="{draw(st.sampled_from(["normalized", "arcLength"]))}"/>')
+    geom = (f'<geometry s="{slot("0")}" x="{slot(_r(draw, -200, 200))}" y="{slot(_r(draw, -200, 200))}" '
+            f'hdg="{slot(_r(draw, -3.2, 3.2))}" length="{slot(repr(length))}">{shape}</geometry>')
 
-@st.composite
-def road_xml(draw, rid):
-    length = draw(_len)
-    geoms = "".join(
-        f'<geometry s="{draw(_len)}" x="{draw(_num)}" y="{draw(_num)}" hdg="{draw(_num)}" '
-        f'length="{draw(_len)}">{draw(GEOMETRY)}</geometry>' for _ in range(draw(st.integers(0, 3))))
+    def lanes(sign, n):
+        out = ""
+        for k in range(1, n + 1):
+            b = draw(st.sampled_from(["0", "0", _r(draw, -0.1, 0.05)]))
+            out += (f'<lane id="{sign * k}" type="{draw(st.sampled_from(LANE_TYPES))}">'
+                    f'<width sOffset="{slot("0")}" a="{slot(_r(draw, 0, 5))}" b="{slot(b)}" '
+                    f'c="{slot("0")}" d="{slot("0")}"/>'
+                    + ('<roadMark sOffset="0" type="solid"/>' if draw(st.booleans()) else "")
+                    + "</lane>")
+        return out
+
     sections = ""
-    for _ in range(draw(st.integers(0, 2))):
-        left = "".join(draw(lane_xml(k)) for k in range(1, draw(st.integers(0, 2)) + 1))
-        right = "".join(draw(lane_xml(-k)) for k in range(1, draw(st.integers(0, 3)) + 1))
-        sections += (f'<laneSection s="{draw(st.one_of(st.just("0"), _len))}"><left>{left}</left>'
-                     f'<center><lane id="0" type="none"/></center><right>{right}</right></laneSection>')
-    offset = draw(st.sampled_from(["", f'<laneOffset s="0" a="{draw(_num)}" b="{draw(_coef)}" c="0" d="0"/>']))
-    lateral = draw(st.sampled_from(["", f'<lateralProfile><superelevation s="0" a="{draw(_coef)}" '
-                                        f'b="{draw(_coef)}" c="0" d="0"/></lateralProfile>',
-                                    '<lateralProfile><shape s="0" t="0" a="0" b="0.1" c="0" d="0"/></lateralProfile>']))
-    elev = draw(st.sampled_from(["", f'<elevationProfile><elevation s="0" a="{draw(_num)}" '
-                                     f'b="{draw(_coef)}" c="0" d="0"/></elevationProfile>']))
-    link = draw(st.sampled_from(["", '<link><successor elementType="road" elementId="1" contactPoint="start"/></link>']))
-    rule = draw(st.sampled_from(["", ' rule="LHT"']))
-    return (f'<road id="{rid}" length="{length}" junction="{draw(st.sampled_from(["-1", "5"]))}"{rule}>'
-            f'{link}<planView>{geoms}</planView>{elev}{lateral}<lanes>{offset}{sections}</lanes></road>')
+    starts = ["0"] + ([repr(round(length / 2, 3))] if draw(st.booleans()) else [])
+    for s0 in starts:
+        sections += (f'<laneSection s="{slot(s0)}"><left>{lanes(1, draw(st.integers(0, 2)))}</left>'
+                     f'<center><lane id="0" type="none"/></center>'
+                     f'<right>{lanes(-1, draw(st.integers(1, 3)))}</right></laneSection>')
+    extra = ""
+    if draw(st.booleans()):
+        extra += f'<laneOffset s="0" a="{slot(_r(draw, -2, 2))}" b="{slot("0")}" c="0" d="0"/>'
+    profiles = ""
+    if draw(st.booleans()):
+        profiles += (f'<elevationProfile><elevation s="0" a="{slot(_r(draw, -5, 5))}" '
+                     f'b="{slot(_r(draw, -0.05, 0.05))}" c="0" d="0"/></elevationProfile>')
+    if draw(st.booleans()):
+        profiles += (f'<lateralProfile><superelevation s="0" a="{slot(_r(draw, -0.3, 0.3))}" '
+                     f'b="{slot("0")}" c="0" d="0"/>'
+                     + ('<shape s="0" t="0" a="0" b="0.1" c="0" d="0"/>' if draw(st.booleans()) else "")
+                     + "</lateralProfile>")
+    link = draw(st.sampled_from(["", '<link><successor elementType="road" elementId="1" '
+                                     'contactPoint="start"/></link>']))
+    junction = draw(st.sampled_from(["-1", "-1", "5"]))
+    return (f'<road id="{rid}" length="{slot(repr(length))}" junction="{junction}">'
+            f'{link}<planView>{geom}</planView>{profiles}<lanes>{extra}{sections}</lanes></road>')
 
 
 @st.composite
 def opendrive_bytes(draw):
-    ids = draw(st.lists(st.sampled_from(["1", "2", "3", "7"]), min_size=0, max_size=3))
-    roads = "".join(draw(road_xml(rid)) for rid in ids)
+    slots: dict[str, str] = {}
+    ids = draw(st.lists(st.sampled_from(["1", "2", "3", "7"]), min_size=1, max_size=3,
+                        unique=draw(st.sampled_from([True, True, True, False]))))
+    roads = "".join(draw(road_template(rid, slots)) for rid in ids)
+    for name in draw(st.lists(st.sampled_from(sorted(slots)), max_size=3)):
+        slots[name] = draw(st.sampled_from(EXTREMES))
     junction = draw(st.sampled_from(["", '<junction id="5"><connection incomingRoad="1" connectingRoad="2" '
-                                         'contactPoint="start"><laneLink from="-1" to="1e400"/></connection></junction>']))
+                                         'contactPoint="start"><laneLink from="-1" to="1e400"/></connection>'
+                                         '</junction>']))
     doc = (f'<?xml version="1.0" encoding="UTF-8"?>\n<OpenDRIVE><header revMajor="1" revMinor="6" '
-           f'name="fuzz"/>{roads}{junction}</OpenDRIVE>').encode()
-    mutation = draw(st.sampled_from(["none", "none", "none", "truncate", "bytes"]))
+           f'name="fuzz"/>{roads.format(**slots)}{junction}</OpenDRIVE>').encode()
+    mutation = draw(st.sampled_from(["none"] * 8 + ["truncate", "bytes"]))
     if mutation == "truncate":
         doc = doc[:draw(st.integers(0, len(doc)))]
     elif mutation == "bytes":
@@ -160,9 +182,23 @@ def check_opendrive(doc: bytes):
             assert sorted(os.listdir(d)) == ["m.xodr"]   # nothing written
 
 
+def _xodr(length="100", geom_length=None, shape="<line/>", width="3.5") -> bytes:
+    road = (f'<road id="7" length="{length}" junction="-1"><planView><geometry s="0" x="0" y="0" '
+            f'hdg="0" length="{geom_length or length}">{shape}</geometry></planView><lanes>'
+            '<laneSection s="0"><center><lane id="0" type="none"/></center><right><lane id="-1" '
+            f'type="driving"><width sOffset="0" a="{width}" b="0" c="0" d="0"/></lane></right>'
+            '</laneSection></lanes></road>')
+    return f'<?xml version="1.0"?><OpenDRIVE><header/>{road}</OpenDRIVE>'.encode()
+
+
 @pytest.mark.timeout(600)
-@FAST
+@FAST_IMPORT
 @given(opendrive_bytes())
+@example(_xodr(length="1e8"))                                       # the issue's 450-byte file
+@example(_xodr(length="1e12"))
+@example(_xodr(length="50", geom_length="1e9", shape='<poly3 a="0" b="0" c="0" d="0"/>'))
+@example(_xodr(width="1e7"))
+@example(_xodr().replace(b"</OpenDRIVE>", b"\xff\xfe</OpenDRIVE>"))   # not UTF-8
 def test_fuzz_opendrive_import(doc):
     check_opendrive(doc)
 
@@ -178,44 +214,75 @@ def test_fuzz_opendrive_import_long(doc):
 # ------------------------------------------------------------------ USD layout reader
 FEATURE_TYPES = ["LaneCenter", "RoadLine", "RoadEdge", "Crosswalk", "Building", "Tree", "StopSign",
                  "ParkingSpot", "Sidewalk", "RoadArea", "VegetationZone", "Hedge", "Bogus"]
-_usd_num = st.one_of(st.floats(-500, 500, allow_nan=False).map(lambda x: repr(round(x, 3))),
-                     st.sampled_from(["0", "1e5", "1e9", "-1e30", "nan", "inf", "-inf", "1e38"]))
+
+
+_MUTATIONS = ["upAxis", "metersPerUnit", "chunkSize", "extent", "json", "points", "counts",
+              "widths", "type", "hint", "far"]
 
 
 @st.composite
 def layout_usda(draw):
+    """A sound layout layer with 0-2 hostile mutations (so both the accepting and the
+    refusing paths are exercised)."""
+    muts = set(draw(st.lists(st.sampled_from(_MUTATIONS), max_size=2)))
+    up = draw(st.sampled_from(["X", "x", ""]) if "upAxis" in muts else st.sampled_from([None, "Z", "Y"]))
+    mpu = draw(st.sampled_from(["0", "-1", "nan", "inf", "1e-30", "1e30"]) if "metersPerUnit" in muts
+               else st.sampled_from([None, "1", "0.01", "1000"]))
     meta = []
-    up = draw(st.sampled_from([None, "Z", "Y", "X"]))
-    if up:
+    if up is not None:
         meta.append(f'upAxis = "{up}"')
-    mpu = draw(st.sampled_from([None, "1", "0.01", "1000", "0", "-1", "nan", "inf", "1e-30"]))
-    if mpu:
+    if mpu is not None:
         meta.append(f"metersPerUnit = {mpu}")
     data = []
-    if draw(st.booleans()):
-        data.append(f"double chunkSize = {draw(st.sampled_from(['100', '0.01', '0', '-5', 'nan', 'inf', '1e9', '10', '25']))}")
-    if draw(st.booleans()):
-        n = draw(st.integers(0, 5))
-        data.append("double[] extent = [" + ", ".join(draw(_usd_num) for _ in range(n)) + "]")
-    if draw(st.booleans()):
-        data.append(f'string metadataJson = "{draw(st.sampled_from(["{}", "[", "not json", "{{}}"]))}"')
+    if "chunkSize" in muts:
+        data.append("double chunkSize = " + draw(st.sampled_from(["0.01", "0", "-5", "nan", "inf", "1e9"])))
+    elif draw(st.booleans()):
+        data.append("double chunkSize = " + draw(st.sampled_from(["100", "50", "10", "1000"])))
+    x0, y0 = draw(st.floats(-500, 500)), draw(st.floats(-500, 500))
+    if "extent" in muts:
+        bad = draw(st.sampled_from(["[]", "[0, 0, 1]", f"[{x0!r}, {y0!r}, {x0 - 5!r}, {y0 + 5!r}]",
+                                    "[0, 0, nan, 5]", "[0, 0, inf, 5]", "[0, 0, 100000, 100000]",
+                                    "[-1e308, 0, 1e308, 1]"]))
+        data.append(f"double[] extent = {bad}")
+    elif draw(st.booleans()):
+        w, h = draw(st.floats(0, 2000)), draw(st.floats(0, 2000))
+        data.append(f"double[] extent = [{x0!r}, {y0!r}, {x0 + w!r}, {y0 + h!r}]")
+    if "json" in muts:
+        data.append(f'string metadataJson = "{draw(st.sampled_from(["[", "not json", "{"]))}"')
     if data:
-        meta.append("customLayerData = { dictionary lsd3dLayout = { " + " ".join(data) + " } }")
+        meta.append("customLayerData = {\ndictionary lsd3dLayout = {\n" + "\n".join(data) + "\n}\n}")
     prims = []
-    for k in range(draw(st.integers(0, 4))):
-        ftype = draw(st.sampled_from(FEATURE_TYPES))
-        n = draw(st.integers(0, 6))
-        pts = ", ".join(f"({draw(_usd_num)}, {draw(_usd_num)}, {draw(_usd_num)})" for _ in range(n))
-        body = [f'uniform token lsd3d:featureType = "{ftype}"', f"point3f[] points = [{pts}]"]
-        if draw(st.booleans()):
+    sane = st.floats(-300, 300, allow_nan=False, allow_infinity=False)
+    n_feats = draw(st.integers(1, 4))
+    bad_feat = draw(st.integers(0, n_feats - 1))
+    for k in range(n_feats):
+        ftype = draw(st.sampled_from(FEATURE_TYPES[:-1]))
+        n = draw(st.integers(3 if ftype in ("Crosswalk", "Building", "Sidewalk", "RoadArea",
+                                            "VegetationZone") else 2, 6))
+        if ftype == "StopSign":
+            n = 1
+        if ftype == "ParkingSpot":
+            n = 4
+        coords = [[draw(sane) + x0, draw(sane) + y0, draw(sane) / 100] for _ in range(n)]
+        body = []
+        if k == bad_feat and "points" in muts:
+            coords[0][draw(st.integers(0, 2))] = draw(st.sampled_from([float("nan"), float("inf"), 1e38]))
+        if k == bad_feat and "far" in muts:
+            coords[-1][0] += draw(st.sampled_from([6e4, 1e7, 1e30]))
+        if k == bad_feat and "type" in muts:
+            ftype = draw(st.sampled_from(["Bogus", ""]))
+        pts = ", ".join(f"({x!r}, {y!r}, {z!r})" for x, y, z in coords)
+        body += [f'uniform token lsd3d:featureType = "{ftype}"', f"point3f[] points = [{pts}]"]
+        if k == bad_feat and "counts" in muts:
             body.append("int[] curveVertexCounts = [" + ", ".join(
                 str(draw(st.integers(-1, 4))) for _ in range(draw(st.integers(1, 3)))) + "]")
-        if draw(st.booleans()):
-            body.append("float[] widths = [" + ", ".join(draw(_usd_num) for _ in range(draw(st.integers(1, 3)))) + "]")
-        if draw(st.booleans()):
-            body.append(f"uniform double lsd3d:heightHint = {draw(_usd_num)}")
-        if draw(st.booleans()):
-            body.append(f'uniform token lsd3d:kind = "{draw(st.sampled_from(["solid", "grass", "x"]))}"')
+        if ftype == "LaneCenter":
+            widths = [repr(draw(st.floats(0, 8)))] * (n if draw(st.booleans()) else 1)
+            if k == bad_feat and "widths" in muts:
+                widths = draw(st.sampled_from([["-1"], ["nan"], ["1"] * (n + 1), ["1e38"]]))
+            body.append(f"float[] widths = [{', '.join(widths)}]")
+        if k == bad_feat and "hint" in muts:
+            body.append(f"uniform double lsd3d:heightHint = {draw(st.sampled_from(['0', '-1', 'nan', '1e300']))}")
         kind = "Points" if ftype in ("Tree", "StopSign") else "BasisCurves"
         prims.append(f'def {kind} "f{k}"\n{{\n' + "\n".join(body) + "\n}")
     return ("#usda 1.0\n(\n" + "\n".join(meta) + "\n)\n"
@@ -246,9 +313,24 @@ def check_layout_usda(text: str):
             assert np.isfinite(f.coords()).all()
 
 
+def _layout(meta: str, points: str = "(0, 0, 0), (10, 0, 0)") -> str:
+    return ("#usda 1.0\n(\n" + meta + "\n)\ndef Xform \"World\"\n{\ndef Scope \"Layout\"\n{\n"
+            "def BasisCurves \"l\"\n{\nuniform token lsd3d:featureType = \"LaneCenter\"\n"
+            f"point3f[] points = [{points}]\n}}\n}}\n}}\n")
+
+
+_DATA = "customLayerData = {{\ndictionary lsd3dLayout = {{\n{}\n}}\n}}"
+
+
 @pytest.mark.timeout(600)
 @FAST
 @given(layout_usda())
+@example(_layout("", "(0, 0, 0), (100000, 0, 0)"))                  # 100 km across
+@example(_layout(_DATA.format("double chunkSize = 0.01")))
+@example(_layout(_DATA.format("double chunkSize = 0")))
+@example(_layout(_DATA.format("double chunkSize = nan")))
+@example(_layout(_DATA.format("double[] extent = [0, 0, nan, 10]")))
+@example(_layout('upAxis = "Y"\nmetersPerUnit = 0.01'))
 def test_fuzz_usd_layout_reader(text):
     check_layout_usda(text)
 
@@ -323,9 +405,16 @@ def check_ply(data: bytes):
             assert sorted(os.listdir(d)) == ["s.ply"]
 
 
+_PLY_HEAD = b"ply\nformat binary_little_endian 1.0\nelement vertex {}\n" + b"".join(
+    b"property float " + p.encode() + b"\n" for p in SPLAT_PROPS) + b"end_header\n"
+
+
 @pytest.mark.timeout(600)
 @FAST
 @given(ply_bytes())
+@example(_PLY_HEAD.replace(b"{}", b"1000000000000") + bytes(68))
+@example(_PLY_HEAD.replace(b"{}", str(10**40).encode()) + bytes(68))
+@example(_PLY_HEAD.replace(b"{}", b"1 " + b"9" * 5000))
 def test_fuzz_ply_import(data):
     check_ply(data)
 
@@ -391,6 +480,8 @@ def check_polygons(case):
 @pytest.mark.timeout(600)
 @FAST
 @given(ground_case())
+@example(([], [np.array([[20, 0], [20 + 1e-13, 0], [20, 1e-13]])], [], [], []))   # sliver ring
+@example(([], [np.array([[1, 2], [1e-13, -1e-13], [3, -2e-13], [3e-13, 1], [3, -4e-13]])], [], [], []))
 def test_fuzz_polygon_builder(case):
     check_polygons(case)
 

@@ -167,3 +167,13 @@ def test_limits_are_one_set_of_numbers():
     for lim in limits.ALL:            # docs/limits.md lists every limit with its value
         assert f"`{lim.name}`" in text, lim.name
         assert f"{int(lim.value) if lim.value == int(lim.value) else lim.value}" in text.replace(" ", ""), lim.name
+
+
+def test_layout_far_from_the_origin_is_refused(tmp_path):
+    p = write(tmp_path, layout_text([(0, 2e7, 0), (10, 2e7, 0)], Z_UP))
+    with pytest.raises(InputError, match="a coordinate at 2e\\+07 m exceeds the limit of 10000000 m"):
+        usdio.read_layout(p)
+    q = write(tmp_path, layout_text([(0, 0, 0), (10, 0, 0)], Z_UP, "double[] extent = [1e30, 0, 1e30, 5]"),
+              "E.usda")
+    with pytest.raises(InputError, match="a corner at 1e\\+30 m exceeds the limit"):
+        usdio.read_layout(q)

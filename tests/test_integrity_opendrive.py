@@ -175,3 +175,11 @@ def test_nearly_arc_spiral_is_linear_work(tmp_path):
     # close to a circle of radius ~1 km through the origin (lane centre 1.5 m inside)
     d = np.linalg.norm(p[:, :2] - [0, 10 + r], axis=1)
     assert np.all(np.abs(d - (r + 1.5)) < 0.5)
+
+
+def test_road_far_from_the_origin_is_skipped(tmp_path):
+    # a 100 m road at y = 1e300: small, but float32 points would overflow to inf
+    far = road("2").replace('y="20"', 'y="1e300"')
+    layout, msgs = read(xodr(tmp_path, road("1"), far))
+    assert [ln.road_id for ln in layout.lanes] == ["1"]
+    assert any("road 2: a coordinate at 1e+300 m exceeds the limit of 10000000 m" in m for m in msgs), msgs

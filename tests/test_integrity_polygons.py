@@ -33,6 +33,8 @@ def test_prism_of_a_sliver_ring_is_the_solid_without_it():
     Polygon([(0, 0), (10, 0), (10, 10), (0, 10)], [[(2, 2), (2 + 1e-12, 2), (2, 2 + 1e-12)]]),  # sliver hole
     Polygon([(0, 0), (10, 0), (10, 1e-12), (0, 1e-12)]),               # zero-width strip
     Polygon([(0, 0), (10, 0), (5, 0)]),                                # collinear
+    # found by the fuzz suite: make_valid pieces that overlap once their rings are cleaned
+    Polygon([(1, 2), (1e-13, -1e-13), (3, -2e-13), (3e-13, 1), (3, -4e-13)]),
 ])
 def test_clean_area_gives_sound_polygons_that_mesh(geom):
     clean = planar.clean_area(geom)

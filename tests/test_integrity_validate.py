@@ -8,7 +8,7 @@ from pxr import Usd, Vt
 from lsd3d_usd import inspection, scene, validation
 from lsd3d_usd.cli import main
 from lsd3d_usd.splats import usdio
-from lsd3d_usd.splats.field import SurfelField, kernel_bounds
+from lsd3d_usd.splats.field import SurfelField
 
 
 def _errors(problems):
@@ -103,6 +103,7 @@ def test_inspect_and_validate_share_the_3dgs_bounds(tmp_path):
 
 
 def test_kernel_bounds_surflet_ignores_third_axis():
+    from lsd3d_usd.splats.field import kernel_bounds
     q = np.array([[0, 0, 0, 1.0]])
     b2 = kernel_bounds(np.zeros((1, 3)), q, np.array([[1.0, 2.0, 5.0]]), surflet=True)
     b3 = kernel_bounds(np.zeros((1, 3)), q, np.array([[1.0, 2.0, 5.0]]), surflet=False)

@@ -102,8 +102,8 @@ def parse_xml(path: str | Path):
     return root
 
 
-from lsd3d_usd.limits import (LANE_WIDTH, LATERAL_OFFSET, LAYOUT_EXTENT,  # noqa: E402
-                               ROAD_LENGTH, ROAD_POINTS, TOTAL_ROAD_LENGTH)
+from lsd3d_usd.limits import (COORDINATE, LANE_WIDTH, LATERAL_OFFSET,  # noqa: E402
+                               LAYOUT_EXTENT, ROAD_LENGTH, ROAD_POINTS, TOTAL_ROAD_LENGTH)
 
 # Floating-point faults inside a road make that road bad (skipped), never a stray warning;
 # underflow to zero is harmless.
@@ -664,6 +664,7 @@ def _road_features(road: _Road, tol: float, lane_meta) -> list:
         c = np.concatenate([f.coords() for f in feats])
         span = float(max(np.ptp(c[:, 0]), np.ptp(c[:, 1]), 2 * np.abs(c[:, 2]).max()))
         _within(LAYOUT_EXTENT, span, "size of the road's geometry")
+        _within(COORDINATE, float(np.abs(c).max()), "a coordinate at")
     return feats
 
 

@@ -352,7 +352,7 @@ def _read_layer_data(stage: Usd.Stage, layout: m.Layout, where: str,
     """Extent, chunk size and metadata from customLayerData, checked against the limits
     (limits.LAYOUT_EXTENT, CHUNK_SIZE_MIN/MAX) before any consumer sizes work by them.
     Lengths are in the layer's units (scaled by metersPerUnit)."""
-    from lsd3d_usd.limits import CHUNK_SIZE_MAX, CHUNK_SIZE_MIN, LAYOUT_EXTENT
+    from lsd3d_usd.limits import CHUNK_SIZE_MAX, CHUNK_SIZE_MIN, COORDINATE, LAYOUT_EXTENT
 
     info = None
     for layer in stage.GetLayerStack(includeSessionLayers=False):
@@ -374,6 +374,7 @@ def _read_layer_data(stage: Usd.Stage, layout: m.Layout, where: str,
             if e[2] < e[0] or e[3] < e[1]:
                 raise ValueError(f"extent {e} is not (xmin, ymin, xmax, ymax)")
             LAYOUT_EXTENT.check(max(e[2] - e[0], e[3] - e[1]), key, what=f"extent {e}: side")
+            COORDINATE.check(max(abs(v) for v in e), key, what=f"extent {e}: a corner at")
             layout.extent = ((e[0], e[1]), (e[2], e[3]))
         if "chunkSize" in info:
             cs = units.length(float(info["chunkSize"]))

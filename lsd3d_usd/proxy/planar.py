@@ -82,18 +82,7 @@ def _sound(poly: Polygon) -> bool:
     return True
 
 
-def clean_area(geom: BaseGeometry | None) -> BaseGeometry:
-    """The areal part of any geometry as valid polygons free of repeated vertices and
-    degenerate (sliver) rings: the one cleaning step before polygons become meshes.
-
-    make_valid first, then each polygon's rings are rebuilt without repeated points
-    (POINT_TOL) and rings without area are dropped; a polygon that is still not sound
-    goes through make_valid again and, as a last resort, is snapped to SNAP_GRID.
-    """
-    if geom is None or geom.is_empty:
-        return EMPTY
-    if not geom.is_valid:
-        geom = shapely.make_valid(geom)
+def _clean_pieces(geom: BaseGeometry) -> list[Polygon]:
     out: list[Polygon] = []
     for poly in polygons_of(geom):
         if _sound(poly):
@@ -113,9 +102,38 @@ def clean_area(geom: BaseGeometry | None) -> BaseGeometry:
                 continue
             snapped = shapely.set_precision(piece, SNAP_GRID)
             out.extend(p for p in polygons_of(snapped) if _sound(p))
-    if not out:
+    return out
+
+
+def _assemble(polys: list[Polygon]) -> BaseGeometry:
+    if not polys:
         return EMPTY
-    return out[0] if len(out) == 1 else MultiPolygon(out)
+    return polys[0] if len(polys) == 1 else MultiPolygon(polys)
+
+
+def clean_area(geom: BaseGeometry | None) -> BaseGeometry:
+    """The areal part of any geometry as valid polygons free of repeated vertices and
+    degenerate (sliver) rings: the one cleaning step before polygons become meshes.
+
+    make_valid first, then each polygon's rings are rebuilt without repeated points
+    (POINT_TOL) and rings without area are dropped; a polygon that is still not sound goes
+    through make_valid again and, as a last resort, is snapped to SNAP_GRID. Pieces that
+    overlap once their rings are cleaned are merged and cleaned once more (then snapped).
+    """
+    if geom is None or geom.is_empty:
+        return EMPTY
+    if not geom.is_valid:
+        geom = shapely.make_valid(geom)
+    pieces = _clean_pieces(geom)
+    result = _assemble(pieces)
+    if result.is_valid:
+        return result
+    merged = shapely.union_all(np.array(pieces, dtype=object))
+    result = _assemble(_clean_pieces(merged))
+    if result.is_valid:
+        return result
+    snapped = shapely.set_precision(merged, SNAP_GRID)   # valid output by construction
+    return _assemble([p for p in polygons_of(snapped) if _sound(p)])
 
 
 def area_from_points(points) -> BaseGeometry:
