@@ -1,19 +1,16 @@
-"""Small parsers shared by the command modules."""
+"""Small parsers and checks shared by the command modules."""
 from __future__ import annotations
 
+import os
 import re
+from pathlib import Path
 
 from lsd3d_usd.errors import InputError
 
 _SIZE = re.compile(r"\s*(\d+)\s*(?:[xX]\s*(\d+))?\s*")
 
 
-def parse_size(text: str | None, flag: str = "--resolution", *, width_only: bool = False,
-               minimum: int = 1) -> tuple[int, int | None] | None:
-    """'WxH' → (W, H); with width_only also 'W' → (W, None). None passes through.
-    Raises InputError naming the flag."""
-    if text is None:
-        return None
+def _parse_wh(text, flag: str, width_only: bool, minimum: int) -> tuple[int, int | None]:
     m = _SIZE.fullmatch(str(text))
     ok = m is not None and (m.group(2) is not None or width_only)
     if ok:
@@ -26,26 +23,79 @@ def parse_size(text: str | None, flag: str = "--resolution", *, width_only: bool
     return w, h
 
 
+def parse_size(text: str | None, flag: str = "--resolution", *, width_only: bool = False,
+               minimum: int = 1, max_pixels: int | None = None) -> tuple[int, int | None] | None:
+    """'WxH' → (W, H); with width_only also 'W' → (W, None). None passes through.
+    Raises InputError naming the flag; sizes above ``max_pixels`` (default
+    limits.IMAGE_PIXELS; a width alone counts as one row) are refused before anything
+    is allocated."""
+    from lsd3d_usd.limits import check_image_size
+
+    if text is None:
+        return None
+    w, h = _parse_wh(text, flag, width_only, minimum)
+    check_image_size(w, h if h is not None else 1, flag, max_pixels)
+    return w, h
+
+
 def size_type(flag: str, minimum: int = 1):
-    """argparse `type=` for WxH values: a bad value is argparse's usual one-line error."""
+    """argparse `type=` for WxH values: a malformed value is argparse's usual error. The
+    pixel limit is left to the command (limits.check_image_size), whose error is one line."""
     import argparse
 
     def parse(text):
         try:
-            return parse_size(text, flag, minimum=minimum)
+            return _parse_wh(text, flag, False, minimum)
         except InputError as e:
             raise argparse.ArgumentTypeError(str(e).split(": ", 1)[1]) from None
     return parse
 
 
-def check_output_file(path, flag: str) -> None:
-    """An output file path that can be written: its folder exists and it is not a folder.
-    Checked before long work, so a bad path fails at once rather than after the run."""
-    from pathlib import Path
-    p = Path(path)
-    if p.is_dir():
-        raise InputError(f"{flag} {path}: is a folder, not a file")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        what = "is a file" if parent.exists() else "does not exist"
-        raise InputError(f"{flag} {path}: its folder {parent} {what}")
+# ----------------------------------------------------------------- output paths
+def check_output_path(path, flag: str = "-o", *, suffixes: tuple[str, ...] | None = None,
+                      what: str = "output file") -> Path:
+    """Refuse, before any work, an output path that cannot become a file: an existing
+    folder (or a path ending in a separator), or one below an existing file. With
+    ``suffixes``, the extension must be one of them. Returns the path."""
+    text = os.fspath(path)
+    p = Path(text)
+    if text.endswith(("/", os.sep)) or p.is_dir():
+        raise InputError(f"{flag} {text}: is a folder; give the {what}'s name")
+    for parent in p.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"{flag} {text}: {parent} is a file, not a folder")
+            break
+    if suffixes is not None and p.suffix.lower() not in suffixes:
+        raise InputError(f"{flag} {text}: the {what} must end in "
+                         f"{' or '.join(suffixes)}")
+    return p
+
+
+# --------------------------------------------------------------------- argparse
+def accept_negative_values(parser) -> None:
+    """Let option values that start with '-' and a digit ('-1,0', '-2.5e3') be values,
+    not unknown options, as Python 3.13's argparse does. Call on the (sub)parser that
+    owns such options."""
+    if hasattr(parser, "_negative_number_matcher"):
+        parser._negative_number_matcher = re.compile(r"^-\.?\d")
+
+
+def add_limit_option(parser, limit, type=int) -> None:
+    """A ``limit.flag`` option (e.g. --max-chunks N) that raises one limits.Limit for this
+    command; ``args.<dest>`` is None unless given (the library then uses the default)."""
+    import argparse
+
+    def positive(text):
+        try:
+            v = type(float(text)) if type is int else type(text)
+        except (TypeError, ValueError, OverflowError):
+            raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+        if not v > 0:
+            raise argparse.ArgumentTypeError(f"{text!r} must be > 0")
+        return v
+
+    default = int(limit.value) if type is int else limit.value
+    parser.add_argument(limit.flag, type=positive, default=None, metavar="N",
+                        help=f"raise the limit on the {limit.what} (default {default}{limit.unit}; "
+                             "docs/limits.md)")

@@ -114,8 +114,8 @@ def _generate(args) -> int:
     layers.append(("--set ", ct.parse_assignments(args.set, C.GenerateConfig)))
     cfg = C.build(layers)
     if args.json:   # checked now, not after the whole run
-        from lsd3d_usd.cliutil import check_output_file
-        check_output_file(args.json, "--json")
+        from lsd3d_usd.cliutil import check_output_path
+        check_output_path(args.json, "--json", what="summary file")
     run = RunOptions(out=Path(args.output), resume=args.resume, force=args.force,
                      retire_runs=args.retire_runs, keep_checkpoint=args.keep_checkpoint,
                      progress=not args.no_progress and sys.stderr.isatty(),

@@ -9,7 +9,8 @@ from pxr import Sdf, Usd, UsdGeom, UsdVol
 
 from lsd3d_usd import scene
 from lsd3d_usd.diagnostics import captured_stderr
-from lsd3d_usd.splats.usdio import read_surfels
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.splats.usdio import particle_bounds, read_surfels
 
 
 def _layer_summary(layer: Sdf.Layer, muted: bool = False) -> dict:
@@ -76,16 +77,26 @@ def _pct(a: np.ndarray) -> dict:
 
 
 def surfel_stats(prim: Usd.Prim) -> dict:
-    f = read_surfels(prim)
-    stats = {"path": str(prim.GetPath()), "type": prim.GetTypeName(), "count": f.n,
-             "sh_degree": f.sh_degree}
+    """Count, bounds and distributions of a ParticleField prim. A prim that cannot be read
+    as surfels (arrays that do not fit the positions) is reported, not fatal: validate
+    names the defect."""
+    stats = {"path": str(prim.GetPath()), "type": prim.GetTypeName()}
+    try:
+        with np.errstate(all="ignore"):
+            f = read_surfels(prim)
+    except (InputError, ValueError) as e:
+        stats.update(count=None, sh_degree=None, problem=str(e))
+        return stats
+    stats.update(count=f.n, sh_degree=f.sh_degree)
     if f.n:
-        ext = f.extent()
-        stats["extent"] = [ext[0].round(3).tolist(), ext[1].round(3).tolist()]
-        stats["opacity"] = _pct(f.opacities)
-        stats["scale_max"] = _pct(f.scales.max(axis=1))
-        stats["scale_aspect"] = _pct(f.scales.max(axis=1) / np.maximum(f.scales.min(axis=1), 1e-12))
-        stats["color_dc_mean"] = f.colors().mean(axis=0).round(4).tolist()
+        ext = particle_bounds(prim)       # the bounds validate checks (3D Gaussians keep 3 axes)
+        if ext is not None:
+            stats["extent"] = [ext[0].round(3).tolist(), ext[1].round(3).tolist()]
+        with np.errstate(all="ignore"):
+            stats["opacity"] = _pct(f.opacities)
+            stats["scale_max"] = _pct(f.scales.max(axis=1))
+            stats["scale_aspect"] = _pct(f.scales.max(axis=1) / np.maximum(f.scales.min(axis=1), 1e-12))
+            stats["color_dc_mean"] = f.colors().mean(axis=0).round(4).tolist()
         if f.semantic_ids is not None:
             ids, counts = np.unique(f.semantic_ids, return_counts=True)
             names = f.semantic_classes
@@ -128,6 +139,9 @@ def format_text(info: dict) -> str:
     if info["surfels"]:
         out += ["", "Surfel fields:"]
         for s in info["surfels"]:
+            if s.get("problem"):
+                out.append(f"  {s['path']} ({s['type']}): cannot be read: {s['problem']}")
+                continue
             out.append(f"  {s['path']} ({s['type']}): {s['count']} surfels, SH degree {s['sh_degree']}")
             for k in ("extent", "opacity", "scale_max", "scale_aspect", "color_dc_mean", "classes"):
                 if k in s:

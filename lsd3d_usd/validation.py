@@ -16,11 +16,13 @@ from pxr import Sdf, Usd, UsdGeom, UsdValidation, UsdVol
 import lsd3d_usd
 from lsd3d_usd import scene
 from lsd3d_usd.diagnostics import captured_stderr
-from lsd3d_usd.splats.field import KERNEL_SIGMAS, quat_to_matrix, sh_coeff_count
+from lsd3d_usd.limits import USDA_PARTICLES
+from lsd3d_usd.splats.field import kernel_bounds, sh_coeff_count
+from lsd3d_usd.splats.usdio import is_surflet
 
 QUAT_TOL = 1e-3
 EXTENT_TOL = 1e-4          # relative to the extent's size
-BULK_TEXT_LIMIT = 10_000   # particles in a .usda layer before we call it bulk data
+BULK_TEXT_LIMIT = int(USDA_PARTICLES.value)  # particles in a .usda layer: bulk data beyond
 
 
 @dataclass
@@ -82,11 +84,11 @@ def _unknown_types(stage: Usd.Stage) -> list[Problem]:
     return out
 
 
-def _array(prim: Usd.Prim, name: str) -> np.ndarray | None:
+def _array(prim: Usd.Prim, name: str, time=Usd.TimeCode.Default()) -> np.ndarray | None:
     for n in (name, name + "h"):
         a = prim.GetAttribute(n)
         if a and a.HasValue():
-            v = a.Get()
+            v = a.Get(time)
             if v is not None:
                 return np.asarray(v)
     return None
@@ -97,105 +99,165 @@ def _text_layers(attr: Usd.Attribute) -> list[Sdf.Layer]:
             if spec.layer.GetFileFormat().formatId == "usda" and not spec.layer.anonymous]
 
 
+SH_DEGREE = "radiance:sphericalHarmonicsDegree"
+SH_COEFFS = "radiance:sphericalHarmonicsCoefficients"
+SEM_IDS = "lsd3d:semanticIds"
+PER_PARTICLE = (("orientations", 4), ("scales", 3), ("opacities", 1))
+_SAMPLED = ("positions", "orientations", "scales", "opacities", SH_COEFFS, SEM_IDS, "extent")
+
+
+def _sample_times(prim: Usd.Prim) -> list[Usd.TimeCode]:
+    """Every time sample of the particle arrays, or the default time when none is animated
+    (at a sample time an unanimated attribute yields its default value)."""
+    times: set[float] = set()
+    for name in _SAMPLED:
+        for n in (name, name + "h"):
+            a = prim.GetAttribute(n)
+            if a:
+                times.update(a.GetTimeSamples())
+    return [Usd.TimeCode(t) for t in sorted(times)] or [Usd.TimeCode.Default()]
+
+
+def _written_by_us(prim: Usd.Prim, attr_name: str, time) -> bool:
+    """Our surfel type, or the strongest opinion of the attribute sits in a layer that
+    carries lsd3d provenance."""
+    if prim.GetTypeName() == lsd3d_usd.SURFEL_TYPE:
+        return True
+    attr = prim.GetAttribute(attr_name)
+    stack = attr.GetPropertyStack(time) if attr else []
+    return bool(stack) and bool(scene.read_provenance(stack[0].layer))
+
+
 def _check_particle_field(prim: Usd.Prim) -> list[Problem]:
+    """Checks at the default time, or at every time sample when the arrays are animated;
+    a problem found at several times is reported once, with the first time."""
+    out: list[Problem] = []
+    seen: set = set()
+    for t in _sample_times(prim):
+        for p in _check_particle_field_at(prim, t):
+            key = (p.severity, p.attribute, p.message, p.check)
+            if key in seen:
+                continue
+            seen.add(key)
+            if not t.IsDefault():
+                p.message += f" (at time {t.GetValue():g})"
+            out.append(p)
+    n = _array(prim, "positions")
+    n = 0 if n is None else n.size // 3
+    if n > BULK_TEXT_LIMIT:
+        for layer in _text_layers(prim.GetAttribute("positions")):
+            out.append(Problem("error", str(prim.GetPath()), "positions",
+                               f"{n} particles stored in text layer {layer.identifier}; "
+                               "bulk data belongs in .usdc", "lsd3d:BulkDataInUsda"))
+    return out
+
+
+def _check_particle_field_at(prim: Usd.Prim, time) -> list[Problem]:
     path, out = str(prim.GetPath()), []
 
-    def err(attr, msg, check):
-        out.append(Problem("error", path, attr, msg, check))
+    def err(attr, msg, check, severity="error"):
+        out.append(Problem(severity, path, attr, msg, check))
 
     def first(mask):
         idx = np.flatnonzero(mask)
         return f"{len(idx)} particle(s), first index {idx[0]}"
 
-    pos = _array(prim, "positions")
+    pos = _array(prim, "positions", time)
+    coeffs = _array(prim, SH_COEFFS, time)
+    sem = _array(prim, SEM_IDS, time)
     if pos is None:
-        return out  # no particles: valid per the schema
+        # no positions means no particles (valid per the schema) only if nothing else is sized
+        for name, a, width in [(nm, _array(prim, nm, time), w) for nm, w in PER_PARTICLE] + [
+                (SH_COEFFS, coeffs, 3), (SEM_IDS, sem, 1)]:
+            if a is not None and a.size:
+                err("positions", f"missing, but {name} has {a.size // width} values "
+                                 "(the particle count comes from positions)", "lsd3d:ArrayLength")
+                break
+        return out
+    if pos.size % 3:
+        err("positions", f"{pos.size} values are not (x, y, z) triples", "lsd3d:ArrayLength")
+        return out
     pos = pos.reshape(-1, 3).astype(np.float64)
     n = len(pos)
-    surflet = prim.HasAPI("ParticleFieldKernelGaussianSurfletAPI") or \
-        prim.HasAPI("ParticleFieldKernelConstantSurfletAPI")
+    surflet = is_surflet(prim)
     arrays = {"positions": pos}
-    for name, width in (("orientations", 4), ("scales", 3), ("opacities", 1)):
-        a = _array(prim, name)
+    for name, width in PER_PARTICLE:
+        a = _array(prim, name, time)
         if a is None:
             continue
         if a.size != n * width:
             err(name, f"{a.size // width} values for {n} positions", "lsd3d:ArrayLength")
             continue
         arrays[name] = a.reshape(n, width).astype(np.float64) if width > 1 else a.reshape(n).astype(np.float64)
-    for name, a in arrays.items():
+    for name, a in list(arrays.items()):
+        if n == 0:
+            break
         bad = ~np.isfinite(a.reshape(n, -1)).all(axis=1)
         if bad.any():
             err(name, f"non-finite values in {first(bad)}", "lsd3d:Finite")
             arrays[name] = np.where(np.isfinite(a), a, 0.0)
-    if "opacities" in arrays:
+    if "opacities" in arrays and n:
         o = arrays["opacities"]
         bad = (o < 0) | (o > 1)
         if bad.any():
             err("opacities", f"outside [0, 1] in {first(bad)} (linear opacity, not logit)", "lsd3d:OpacityRange")
-    if "scales" in arrays:
+    if "scales" in arrays and n:
         s = arrays["scales"]
         bad = ~(s[:, :2] > 0).all(axis=1) | (s[:, 2] < 0 if surflet else ~(s[:, 2] > 0))
         if bad.any():
             what = "x, y not > 0 (or z < 0)" if surflet else "not > 0"
             err("scales", f"{what} in {first(bad)} (linear scales, not log)", "lsd3d:ScalePositive")
-    if "orientations" in arrays:
+    if "orientations" in arrays and n:
         norm = np.linalg.norm(arrays["orientations"], axis=1)
         bad = np.abs(norm - 1) > QUAT_TOL
         if bad.any():
             err("orientations", f"not unit quaternions (tolerance {QUAT_TOL}) in {first(bad)}",
                 "lsd3d:UnitQuaternion")
-    deg_attr = prim.GetAttribute("radiance:sphericalHarmonicsDegree")
-    coeffs = _array(prim, "radiance:sphericalHarmonicsCoefficients")
+    deg_attr = prim.GetAttribute(SH_DEGREE)
     if coeffs is not None:
         deg = deg_attr.Get() if deg_attr else 3
         if deg is None or not 0 <= int(deg) <= 8:
-            err("radiance:sphericalHarmonicsDegree", f"invalid degree {deg}", "lsd3d:SHDegree")
+            err(SH_DEGREE, f"invalid degree {deg}", "lsd3d:SHDegree")
         else:
             k = sh_coeff_count(int(deg))
             if coeffs.size != n * k * 3:
-                err("radiance:sphericalHarmonicsCoefficients",
-                    f"{coeffs.size // 3} coefficients for {n} particles, but degree {deg} needs "
-                    f"{k} per particle ({n * k})", "lsd3d:SHDegree")
-            elif not np.isfinite(coeffs).all():
+                err(SH_COEFFS, f"{coeffs.size // 3} coefficients for {n} particles, but degree {deg} "
+                               f"needs {k} per particle ({n * k})", "lsd3d:SHDegree")
+            elif n and not np.isfinite(coeffs).all():
                 bad = ~np.isfinite(coeffs.reshape(n, -1)).all(axis=1)
-                err("radiance:sphericalHarmonicsCoefficients", f"non-finite values in {first(bad)}",
-                    "lsd3d:Finite")
-    sem = _array(prim, "lsd3d:semanticIds")
+                err(SH_COEFFS, f"non-finite values in {first(bad)}", "lsd3d:Finite")
     if sem is not None:
         if sem.size != n:
-            err("lsd3d:semanticIds", f"{sem.size} values for {n} positions", "lsd3d:ArrayLength")
-        else:
+            err(SEM_IDS, f"{sem.size} values for {n} positions", "lsd3d:ArrayLength")
+        elif n:
             classes = prim.GetAttribute("lsd3d:semanticClasses")
             k = len(classes.Get() or ()) if classes and classes.HasValue() else None
             if k is not None:
                 bad = (sem < -1) | (sem >= k)
                 if bad.any():
-                    err("lsd3d:semanticIds", f"ids outside [-1, {k}) in {first(bad)}", "lsd3d:SemanticRange")
+                    err(SEM_IDS, f"ids outside [-1, {k}) in {first(bad)}", "lsd3d:SemanticRange")
     # Extent must cover every kernel's support (3 sigma).
-    extent = _array(prim, "extent")
+    extent = _array(prim, "extent", time)
     if extent is None or extent.size != 6:
         err("extent", "missing (usd-core does not compute ParticleField extents; author it)",
             "lsd3d:Extent")
+    elif not np.isfinite(extent.astype(np.float64)).all():
+        err("extent", f"non-finite values {extent.reshape(2, 3).tolist()}", "lsd3d:Finite")
     elif n:
         q = arrays.get("orientations", np.tile([0.0, 0, 0, 1], (n, 1)))
-        s = arrays.get("scales", np.ones((n, 3)))
-        rot = quat_to_matrix(np.where(np.linalg.norm(q, axis=1, keepdims=True) > 0, q, [0, 0, 0, 1]))
-        axes = rot * (KERNEL_SIGMAS * s[:, None, :])
-        if surflet:
-            axes[..., 2] = 0
-        half = np.sqrt((axes ** 2).sum(axis=2))
-        lo, hi = (pos - half).min(0), (pos + half).max(0)
+        q = np.where(np.linalg.norm(q, axis=1, keepdims=True) > 0, q, [0, 0, 0, 1])
+        lo, hi = kernel_bounds(arrays["positions"], q, arrays.get("scales", np.ones((n, 3))),
+                               surflet=surflet)
         ext = extent.reshape(2, 3).astype(np.float64)
         tol = EXTENT_TOL * max(1.0, float(np.max(hi - lo)))
         if (ext[0] > lo + tol).any() or (ext[1] < hi - tol).any():
-            err("extent", f"{ext.tolist()} does not cover the particles' 3-sigma bounds "
-                          f"{[lo.round(4).tolist(), hi.round(4).tolist()]}", "lsd3d:Extent")
-    # Bulk data belongs in crate files.
-    if n > BULK_TEXT_LIMIT:
-        for layer in _text_layers(prim.GetAttribute("positions")):
-            err("positions", f"{n} particles stored in text layer {layer.identifier}; "
-                             "bulk data belongs in .usdc", "lsd3d:BulkDataInUsda")
+            msg = (f"{ext.tolist()} does not cover the particles' 3-sigma bounds "
+                   f"{[lo.round(4).tolist(), hi.round(4).tolist()]}")
+            if _written_by_us(prim, "extent", time):
+                err("extent", msg, "lsd3d:Extent")
+            else:
+                err("extent", msg + " (not written by lsd3d-usd: other converters author the "
+                                    "bounds of the positions only)", "lsd3d:Extent", "warning")
     return out
 
 

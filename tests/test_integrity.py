@@ -230,8 +230,8 @@ def test_generate_output_and_json_paths_checked_before_work(tmp_path, run_cli):
     f = tmp_path / "file"
     f.write_text("x")
     one_line_error(run_cli("generate", "-o", f, *SMALL, "--steps", "0"), "not a folder")
-    one_line_error(run_cli("generate", "-o", tmp_path / "s", "--json", tmp_path / "no/such/s.json",
-                           *SMALL, "--steps", "0"), "--json", "does not exist")
+    one_line_error(run_cli("generate", "-o", tmp_path / "s", "--json", f / "s.json",
+                           *SMALL, "--steps", "0"), "--json", "is a file, not a folder")
     assert not (tmp_path / "s").exists()
     one_line_error(run_cli("generate", "-o", tmp_path / "s", "--set", "ggds.lr.sh_dcc=1"),
                    "did you mean 'ggds.lr.sh_dc'")

@@ -12,18 +12,17 @@ SEASONS = ("spring", "summer", "autumn", "winter")
 
 def _env(args) -> int:
     import time
-    from pathlib import Path
 
+    from lsd3d_usd.cliutil import check_output_path
     from lsd3d_usd.env.exr import write_env
     from lsd3d_usd.env.mapping import check_resolution
     from lsd3d_usd.env.prompt import build_params
-    from lsd3d_usd.errors import InputError
 
     w, h = args.resolution
     check_resolution(w, h)
-    out = Path(args.output)
-    if out.suffix.lower() != ".exr":
-        raise InputError(f"-o {out}: the environment map must be an .exr file")
+    out = check_output_path(args.output, "-o", suffixes=(".exr",), what="environment map")
+    if args.usd:
+        check_output_path(args.usd, "--usd", suffixes=(".usda", ".usdc", ".usd"), what="env layer")
     fields = dict(seed=args.seed, turbidity=args.turbidity, cloud_coverage=args.cloud_coverage,
                   fog_density=args.fog_density, north_deg=args.north, color_space=args.color_space)
     params, unknown = build_params(args.prompt, when=args.when, lat=args.lat, lon=args.lon,

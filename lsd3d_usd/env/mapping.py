@@ -77,3 +77,5 @@ def check_resolution(width: int, height: int) -> None:
     if width != 2 * height:
         raise InputError(f"environment resolution {width}x{height}: a latlong map must be 2:1 "
                          f"(width = 2 x height), e.g. 2048x1024")
+    from lsd3d_usd.limits import check_image_size
+    check_image_size(width, height, "environment resolution")

@@ -9,6 +9,7 @@ import dataclasses
 import datetime as _dt
 import hashlib
 import json
+import math
 from dataclasses import dataclass, field
 
 from lsd3d_usd.errors import InputError
@@ -118,6 +119,8 @@ class EnvParams:
             raise InputError(f"latitude {self.latitude}: must be in [-90, 90]")
         if not -180.0 <= float(self.longitude) <= 180.0:
             raise InputError(f"longitude {self.longitude}: must be in [-180, 180]")
+        if not math.isfinite(float(self.north_deg)):
+            raise InputError(f"north {self.north_deg}: must be a finite angle in degrees")
         if self.weather not in WEATHERS:
             raise InputError(f"weather {self.weather!r}: choose one of {', '.join(WEATHERS)}")
         if self.season is not None and self.season not in SEASONS:

@@ -81,6 +81,7 @@ def _generate(args) -> int:
     from lsd3d_usd.layout import generator, usdio
     from lsd3d_usd.scene import provenance
 
+    _check_output(args.output)
     t0 = time.perf_counter()
     extent = generator.parse_extent(args.extent)
     desc = generator.plan(args.seed, extent, args.style)
@@ -114,6 +115,7 @@ def _import(args) -> int:
     from lsd3d_usd.layout import importers, usdio
     from lsd3d_usd.scene import provenance
 
+    _check_output(args.output)
     origin = _parse_floats(args.origin, 2, "--origin", "LAT,LON in degrees, e.g. 48.137,11.575")
     bbox = _parse_floats(args.bbox, 4, "--bbox", "MINLON,MINLAT,MAXLON,MAXLAT in degrees")
     opts = importers.ImportOptions(tolerance=args.tolerance, strict=args.strict, origin=origin,
@@ -140,8 +142,10 @@ def _export(args) -> int:
     import warnings
 
     from lsd3d_usd.errors import InputError
+    from lsd3d_usd.cliutil import check_output_path
     from lsd3d_usd.layout import opendrive_export, usdio
 
+    check_output_path(args.output, "-o", suffixes=(".xodr",), what="OpenDRIVE file")
     layout = usdio.read_layout(args.input)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
@@ -161,6 +165,12 @@ def _export(args) -> int:
                              + (f" (+{len(errors) - 1} more)" if len(errors) > 1 else ""))
         print(f"{args.output}: valid against the ASAM OpenDRIVE 1.7 XSD")
     return 0
+
+
+def _check_output(path) -> None:
+    """Before any work: -o names a USD file that can be written (not a folder, not below a file)."""
+    from lsd3d_usd.cliutil import check_output_path
+    check_output_path(path, "-o", suffixes=(".usda", ".usdc", ".usd"), what="layout layer")
 
 
 def _info(args) -> int:

@@ -529,3 +529,21 @@ class Layout:
                 and self.metadata == other.metadata)
 
     __hash__ = None
+
+
+def check_size(layout: Layout, where: str) -> None:
+    """Refuse (InputError, one line) a layout whose features span more than
+    limits.LAYOUT_EXTENT on a side (chunk-wise consumers would start that many chunks, and
+    USD's float32 points lose precision beyond) or lie farther than limits.COORDINATE from
+    the origin. Readers and importers call it before they return a layout."""
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.limits import COORDINATE, LAYOUT_EXTENT
+
+    (x0, y0), (x1, y1) = layout.bounds()
+    size = max(x1 - x0, y1 - y0)
+    if not LAYOUT_EXTENT.ok(size):
+        raise InputError(f"{where}: the features span {x1 - x0:.6g} m x {y1 - y0:.6g} m, more than "
+                         f"the limit of {LAYOUT_EXTENT.value:.0f} m on a side")
+    far = max([abs(x0), abs(y0), abs(x1), abs(y1)]
+              + [float(np.abs(f.coords()[:, 2]).max()) for f in layout.features()])
+    COORDINATE.check(far, where, what="a coordinate at")

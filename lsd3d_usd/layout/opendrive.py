@@ -6,13 +6,16 @@ elevation profile, and road / junction links (→ lane predecessors and
 successors). Curves are sampled adaptively so every lane centre and lane
 boundary polyline stays within ``tolerance`` of the exact curve.
 
-Not read (yet): superelevation / lateral shape, lane <border> records (a lane
-with only borders gets a warning and is skipped), objects and signals,
-geoReference projection (kept as metadata).
+Superelevation rolls the cross section about the reference line. Not read
+(yet): lateral <shape> and <crossfall> (a warning per road), lane <border>
+records (a lane with only borders gets a warning and is skipped), objects and
+signals, geoReference projection (kept as metadata).
 
-Parsing is hardened: entities are not resolved, no network, no huge trees.
-A malformed file raises InputError; a bad road warns (OpenDriveWarning,
-naming the road id) and the rest still imports (or InputError with strict).
+Parsing is hardened: entities are not resolved, no network, no huge trees,
+and work is bounded by lsd3d_usd.limits (road and lane sizes checked before
+sampling, a point budget per road). A malformed file raises InputError; a bad
+road warns (OpenDriveWarning, naming the road id) and the rest still imports
+(or InputError with strict); a file of which no road imports is an error.
 """
 from __future__ import annotations
 
@@ -27,7 +30,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import model as m
 
 DEFAULT_TOLERANCE = 0.02
-MAX_FILE_BYTES = 512 * 1024 * 1024
+MAX_FILE_BYTES = 512 * 1024 * 1024   # = limits.OPENDRIVE_FILE_BYTES
 
 
 class OpenDriveWarning(UserWarning):
@@ -83,18 +86,40 @@ def parse_xml(path: str | Path):
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{path}: no such file")
-    if p.stat().st_size > MAX_FILE_BYTES:
-        raise InputError(f"{path}: file too large for an OpenDRIVE map ({p.stat().st_size} bytes)")
+    from lsd3d_usd.limits import OPENDRIVE_FILE_BYTES
+    OPENDRIVE_FILE_BYTES.check(p.stat().st_size, f"{path}", what="OpenDRIVE file size")
     parser = etree.XMLParser(resolve_entities=False, no_network=True, huge_tree=False,
                              load_dtd=False, dtd_validation=False, remove_comments=True)
     try:
         tree = etree.parse(str(p), parser)
     except etree.XMLSyntaxError as e:
-        raise InputError(f"{path}: malformed XML: {e}") from None
+        raise InputError(f"{path}: malformed XML: {_one_line(e)}") from None
+    except (OSError, UnicodeError, ValueError) as e:   # e.g. bytes invalid in the file's encoding
+        raise InputError(f"{path}: cannot be read as XML: {_one_line(e)}") from None
     root = tree.getroot()
     if _local(root) != "OpenDRIVE":
         raise InputError(f"{path}: root element is <{_local(root)}>, expected <OpenDRIVE>")
     return root
+
+
+from lsd3d_usd.limits import (COORDINATE, LANE_WIDTH, LATERAL_OFFSET,  # noqa: E402
+                               LAYOUT_EXTENT, ROAD_LENGTH, ROAD_POINTS, TOTAL_ROAD_LENGTH)
+
+# Floating-point faults inside a road make that road bad (skipped), never a stray warning;
+# underflow to zero is harmless.
+_FP = dict(over="raise", divide="raise", invalid="raise", under="ignore")
+
+
+def _one_line(e: Exception) -> str:
+    from lsd3d_usd.errors import excerpt
+    text = " ".join(str(e).split())
+    return text if len(text) <= 200 else excerpt(text, 200)
+
+
+def _within(limit, value, what: str | None = None) -> None:
+    """_RoadError (the road is skipped) unless ``value`` is within a limits.Limit."""
+    if not limit.ok(value):
+        raise _RoadError(limit.describe(value, what=what))
 
 
 # ====================================================== reference line
@@ -173,18 +198,26 @@ def _spiral(x0, y0, h0, c0, c1, length, ds):
 
 
 def _spiral_quad(x0, y0, h0, c0, cdot, ds):
-    """Clothoid position by composite Gauss–Legendre quadrature (fallback)."""
+    """Clothoid position by composite Gauss–Legendre quadrature (fallback), integrated once
+    along the sorted distances (pieces of at most 5 m), so the work grows with the
+    geometry's length plus the number of samples, not with their product."""
+    ds = np.atleast_1d(np.asarray(ds, dtype=np.float64))
+    knots = np.unique(np.concatenate([[0.0], ds]))
     xs, ws = np.polynomial.legendre.leggauss(12)
-    out = np.empty((len(ds), 2))
-    for n, d in enumerate(np.atleast_1d(ds)):
-        steps = max(1, int(np.ceil(abs(d) / 5.0)))
-        edges = np.linspace(0, d, steps + 1)
-        a, b = edges[:-1, None], edges[1:, None]
-        u = (a + b) / 2 + (b - a) / 2 * xs[None, :]
-        h = h0 + c0 * u + 0.5 * cdot * u**2
-        w = (b - a) / 2 * ws[None, :]
-        out[n] = [x0 + np.sum(w * np.cos(h)), y0 + np.sum(w * np.sin(h))]
-    return out[:, 0], out[:, 1]
+    a, b = knots[:-1], knots[1:]
+    steps = np.maximum(1, np.ceil((b - a) / 5.0)).astype(np.int64)
+    owner = np.repeat(np.arange(len(a)), steps)
+    k = np.arange(len(owner)) - np.repeat(np.cumsum(steps) - steps, steps)
+    width = ((b - a) / steps)[owner]
+    pa = a[owner] + width * k
+    u = pa[:, None] + width[:, None] * (xs[None, :] + 1) / 2
+    h = h0 + c0 * u + 0.5 * cdot * u**2
+    w = width[:, None] / 2 * ws[None, :]
+    cx = np.concatenate([[0.0], np.cumsum(np.bincount(owner, (w * np.cos(h)).sum(1), len(a)))])
+    cy = np.concatenate([[0.0], np.cumsum(np.bincount(owner, (w * np.sin(h)).sum(1), len(a)))])
+    zero = np.searchsorted(knots, 0.0)
+    at = np.searchsorted(knots, ds)
+    return x0 + cx[at] - cx[zero], y0 + cy[at] - cy[zero]
 
 
 class _RefLine:
@@ -209,6 +242,7 @@ def _parse_geometry(el, rid) -> _Geom:
     hdg, length = _f(el, "hdg"), _f(el, "length")
     if length < 0:
         raise _RoadError(f"geometry at s={s} has negative length {length}")
+    _within(ROAD_LENGTH, length, f"geometry at s={s}: length")
     kinds = [c for c in el if isinstance(c.tag, str)]
     if len(kinds) != 1:
         raise _RoadError(f"geometry at s={s} needs exactly one shape element")
@@ -224,8 +258,8 @@ def _parse_geometry(el, rid) -> _Geom:
     if k == "poly3":
         p = {n: _f(c, n) for n in "abcd"}
         # arc length s(u) on a dense grid, inverted by interpolation
-        u_max = length * 1.5 + 1.0
-        u = np.linspace(0, u_max, max(2000, int(u_max * 20)))
+        u_max = length * 1.5 + 1.0           # u <= arc length for a poly3
+        u = np.linspace(0, u_max, int(min(max(2000, u_max * 20), POLY3_TABLE_MAX)))
         dv = p["b"] + 2 * p["c"] * u + 3 * p["d"] * u**2
         sp = np.sqrt(1 + dv**2)
         s_tab = np.concatenate([[0], np.cumsum((sp[1:] + sp[:-1]) / 2 * np.diff(u))])
@@ -240,6 +274,9 @@ def _parse_geometry(el, rid) -> _Geom:
             raise _RoadError(f"paramPoly3 at s={s}: zero length")
         return _Geom(s, x, y, hdg, length, "paramPoly3", p)
     raise _RoadError(f"unknown geometry element <{k}> at s={s}")
+
+
+POLY3_TABLE_MAX = 2_000_000   # arc-length table of a poly3 (~13 per metre at the road length limit)
 
 
 # ================================================================ polynomials
@@ -301,6 +338,8 @@ class _Road:
     links: dict            # "predecessor"/"successor" -> (elementType, elementId, contactPoint)
     speed: float
     lht: bool
+    superelevation: _Piecewise | None = None   # roll angle (rad) about the reference line
+    notes: list = field(default_factory=list)  # ignored parts, warned once per road
 
 
 def _speed(el) -> float | None:
@@ -313,6 +352,8 @@ def _speed(el) -> float | None:
         x = float(v)
     except ValueError:
         return None
+    if not (np.isfinite(x) and x > 0):
+        return None
     unit = el.get("unit", "m/s")
     return x / 3.6 if unit == "km/h" else x * 0.44704 if unit == "mph" else x
 
@@ -322,6 +363,7 @@ def _parse_road(el) -> _Road:
     length = _f(el, "length")
     if length < 0:
         raise _RoadError(f"negative length {length}")
+    _within(ROAD_LENGTH, length)
     pv = _kid(el, "planView")
     if pv is None:
         raise _RoadError("no <planView>")
@@ -334,6 +376,17 @@ def _parse_road(el) -> _Road:
         raise _RoadError("no <lanes>")
     offset = _Piecewise(_records(lanes_el, "laneOffset"))
     elevation = _Piecewise(_records(_kid(el, "elevationProfile"), "elevation"))
+    lateral = _kid(el, "lateralProfile")
+    superelevation = None
+    notes = []
+    if lateral is not None:
+        sup = _records(lateral, "superelevation")
+        if sup:
+            superelevation = _Piecewise(sup)
+        ignored = sorted({_local(c) for c in lateral if isinstance(c.tag, str)} - {"superelevation"})
+        if ignored:
+            notes.append("lateral " + ", ".join(f"<{n}>" for n in ignored)
+                         + " ignored (the cross section is flat apart from superelevation)")
     speed = None
     for t in _kids(el, "type"):
         speed = _speed(_kid(t, "speed")) or speed
@@ -343,6 +396,8 @@ def _parse_road(el) -> _Road:
     sections = []
     for k, se in enumerate(secs_el):
         s0 = _f(se, "s")
+        if not -1e-6 <= s0 <= length + 1e-6:
+            raise _RoadError(f"laneSection s={s0} lies outside the road [0, {length}]")
         s1 = _f(secs_el[k + 1], "s") if k + 1 < len(secs_el) else length
         if s1 - s0 <= 1e-9:
             continue
@@ -384,7 +439,8 @@ def _parse_road(el) -> _Road:
             links[kind] = (le.get("elementType", "road"), le.get("elementId"),
                            le.get("contactPoint", "start"))
     return _Road(rid, length, el.get("junction", "-1"), ref, offset, elevation, sections, links,
-                 speed or m.DEFAULT_SPEED_LIMIT, el.get("rule", "RHT").upper() == "LHT")
+                 speed or m.DEFAULT_SPEED_LIMIT, el.get("rule", "RHT").upper() == "LHT",
+                 superelevation, notes)
 
 
 # ============================================================ sampling
@@ -397,19 +453,35 @@ def _boundaries(road: _Road, sec: _Section, s: np.ndarray) -> dict[int, tuple[np
         inner = t0
         for ln in lanes:
             w = np.maximum(ln.width(s - sec.s0), 0.0)
+            if len(w):
+                _within(LANE_WIDTH, float(w.max()), f"lane {ln.id}: width")
             outer = inner + sign * w
             out[ln.id] = (inner, outer)
             inner = outer
+        if len(s):
+            _within(LATERAL_OFFSET, float(np.abs(inner).max()))
     return out
 
 
 def _xy(road: _Road, s, t):
+    """Points at (s, t): t is measured along the cross section, which superelevation rolls
+    about the reference line (right-handed about the direction of travel: a positive
+    angle lowers the right side), so it reaches t cos(roll) sideways and t sin(roll) up."""
     x, y, h = road.ref.eval(s)
-    return np.stack([x - t * np.sin(h), y + t * np.cos(h), road.elevation(s)], axis=1)
+    z = road.elevation(s)
+    if road.superelevation is not None:
+        roll = road.superelevation(s)
+        if np.any(np.abs(roll) > np.pi / 2):
+            raise _RoadError(f"superelevation {float(np.abs(roll).max()):.4g} rad is beyond "
+                             "+-pi/2")
+        t, z = t * np.cos(roll), z + t * np.sin(roll)
+    return np.stack([x - t * np.sin(h), y + t * np.cos(h), z], axis=1)
 
 
-def _sample_section(road: _Road, sec: _Section, tol: float) -> np.ndarray:
-    """s values on [s0, s1] such that every lane boundary/centre polyline is within tol."""
+def _sample_section(road: _Road, sec: _Section, tol: float, road_points: int = 0) -> np.ndarray:
+    """s values on [s0, s1] such that every lane boundary/centre polyline is within tol.
+    ``road_points``: points the road's earlier sections used; the road's total stays
+    within limits.ROAD_POINTS (checked before each refinement, _RoadError past it)."""
     knots = {sec.s0, sec.s1}
     for g in road.ref.geoms:
         if sec.s0 < g.s < sec.s1:
@@ -420,6 +492,13 @@ def _sample_section(road: _Road, sec: _Section, tol: float) -> np.ndarray:
         n = max(1, int(np.ceil((b - a) / 5.0)))
         grid.append(np.linspace(a, b, n + 1)[1:])
     s = np.concatenate(grid)
+    n_lines = 3 * (1 + len(sec.left) + len(sec.right))
+
+    def budget(n):
+        _within(ROAD_POINTS, road_points + n * n_lines,
+                f"polyline points at tolerance {tol:g} m ({len(sec.left) + len(sec.right)} lanes)")
+
+    budget(len(s))
 
     def lines(sv):
         bnd = _boundaries(road, sec, sv)
@@ -446,6 +525,7 @@ def _sample_section(road: _Road, sec: _Section, tol: float) -> np.ndarray:
         bad = (err > tol) & ((b - a) > 1e-3)
         if not bad.any():
             break
+        budget(len(s) + int(bad.sum()))
         s = np.sort(np.concatenate([s, (a[bad] + b[bad]) / 2]))
     return s
 
@@ -454,11 +534,13 @@ def _sample_section(road: _Road, sec: _Section, tol: float) -> np.ndarray:
 
 def read_opendrive(path: str | Path, tolerance: float = DEFAULT_TOLERANCE,
                    strict: bool = False) -> m.Layout:
-    """Import an OpenDRIVE file as a Layout. Bad roads warn (OpenDriveWarning) and are skipped."""
-    if not (tolerance > 0):
-        raise InputError(f"tolerance must be > 0, got {tolerance}")
+    """Import an OpenDRIVE file as a Layout. Bad roads warn (OpenDriveWarning) and are
+    skipped (InputError with ``strict``); InputError when no road can be imported."""
+    if not (tolerance > 0 and np.isfinite(tolerance)):
+        raise InputError(f"tolerance must be a number > 0, got {tolerance}")
     root = parse_xml(path)
     roads: dict[str, _Road] = {}
+    skipped: list[str] = []
     for el in _kids(root, "road"):
         rid = el.get("id")
         try:
@@ -466,31 +548,46 @@ def read_opendrive(path: str | Path, tolerance: float = DEFAULT_TOLERANCE,
                 raise _RoadError("road without id")
             if rid in roads:
                 raise _RoadError("duplicate road id")
-            roads[rid] = _parse_road(el)
-        except (_RoadError, ValueError, ZeroDivisionError, FloatingPointError) as e:
+            with np.errstate(**_FP):
+                roads[rid] = _parse_road(el)
+        except (_RoadError, ValueError, ZeroDivisionError, FloatingPointError, OverflowError) as e:
             _bad(path, rid, e, strict)
-    if not roads:
-        raise InputError(f"{path}: no road could be imported")
+            skipped.append(f"road {rid}: {_one_line(e)}")
+    total = sum(r.length for r in roads.values())
+    TOTAL_ROAD_LENGTH.check(total, f"{path}", what=f"total length of its {len(roads)} roads")
 
     layout = m.Layout(metadata={"source": {"format": "OpenDRIVE", "file": Path(path).name,
                                            **_header(root)}})
     lane_meta: dict[str, tuple[_Road, int, _Lane, bool]] = {}
-    for rid, road in roads.items():
+    imported = 0
+    for rid, road in list(roads.items()):
         try:
-            with np.errstate(all="raise"):
+            with np.errstate(**_FP):
                 feats = _road_features(road, tolerance, lane_meta)
-        except (_RoadError, ValueError, FloatingPointError, ZeroDivisionError) as e:
+        except (_RoadError, ValueError, FloatingPointError, ZeroDivisionError, OverflowError) as e:
             _bad(path, rid, e, strict)
+            skipped.append(f"road {rid}: {_one_line(e)}")
+            del roads[rid]
+            for key in [k for k, v in lane_meta.items() if v[0] is road]:
+                del lane_meta[key]
             continue
+        for note in road.notes:
+            warnings.warn(f"{path}: road {rid}: {note}", OpenDriveWarning, stacklevel=2)
         for f in feats:
             layout.add(f)
+        imported += 1
+    if not imported or not any(True for _ in layout.features()):
+        what = (f"all {len(skipped)} roads were skipped; first {skipped[0]}" if skipped
+                else "it has no <road>")
+        raise InputError(f"{path}: no road could be imported ({what})")
+    m.check_size(layout, str(path))
     _link_lanes(root, roads, layout, lane_meta)
     layout.reindex()
     return layout
 
 
 def _bad(path, rid, e, strict):
-    msg = f"{path}: road {rid}: {e}; road skipped"
+    msg = f"{path}: road {rid}: {_one_line(e)}; road skipped"
     if strict:
         raise InputError(msg) from None
     warnings.warn(msg, OpenDriveWarning, stacklevel=3)
@@ -515,8 +612,10 @@ def _road_features(road: _Road, tol: float, lane_meta) -> list:
     feats = []
     rid = road.id
     in_junction = road.junction not in ("-1", "", None)
+    points = 0
     for k, sec in enumerate(road.sections):
-        s = _sample_section(road, sec, tol)
+        s = _sample_section(road, sec, tol, points)
+        points += len(s) * 3 * (1 + len(sec.left) + len(sec.right))
         bnd = _boundaries(road, sec, s)
         drive_left = drive_right = None
         for ln, side in [(l, 1) for l in sec.left] + [(l, -1) for l in sec.right]:
@@ -561,6 +660,11 @@ def _road_features(road: _Road, tol: float, lane_meta) -> list:
             if not in_junction:
                 feats.append(m.RoadEdge(f"edge_{rid}_{k}_r", points=_xy(road, s, right)))
                 feats.append(m.RoadEdge(f"edge_{rid}_{k}_l", points=_xy(road, s[::-1], left[::-1])))
+    if feats:   # one road alone must fit in a layout (the whole file is checked afterwards)
+        c = np.concatenate([f.coords() for f in feats])
+        span = float(max(np.ptp(c[:, 0]), np.ptp(c[:, 1]), 2 * np.abs(c[:, 2]).max()))
+        _within(LAYOUT_EXTENT, span, "size of the road's geometry")
+        _within(COORDINATE, float(np.abs(c).max()), "a coordinate at")
     return feats
 
 
@@ -575,12 +679,13 @@ def _ccw(poly: np.ndarray) -> np.ndarray:
 
 def _marks(road, sec, k, s, t, marks, prefix) -> list:
     out = []
-    for n, (off, typ, color) in enumerate(sorted(marks, key=lambda r: r[0])):
+    marks = sorted(marks, key=lambda r: r[0])
+    for n, (off, typ, color) in enumerate(marks):
         typ = typ.lower()
         if typ in ("none", "curb", "grass", "edge", "botts dots", "custom"):
             continue
         a = sec.s0 + off
-        b = sec.s0 + sorted(marks, key=lambda r: r[0])[n + 1][0] if n + 1 < len(marks) else sec.s1
+        b = sec.s0 + marks[n + 1][0] if n + 1 < len(marks) else sec.s1
         sel = (s >= a - 1e-9) & (s <= b + 1e-9)
         if sel.sum() < 2:
             continue
@@ -641,7 +746,7 @@ def _link_lanes(root, roads, layout, lane_meta) -> None:
             for ll in _kids(c, "laneLink"):
                 try:
                     f, t = int(float(ll.get("from"))), int(float(ll.get("to")))
-                except (TypeError, ValueError):
+                except (TypeError, ValueError, OverflowError):
                     continue
                 pairs.add(tuple(sorted([(inc, ik, f, iend), (con, ck, t, cend)])))
 

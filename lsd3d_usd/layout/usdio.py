@@ -283,8 +283,9 @@ def layout_from_stage(stage: Usd.Stage, where: str = "stage") -> m.Layout:
     if not root or not root.IsValid():
         raise InputError(f"{where}: no {LAYOUT_PATH} prim (a layout layer defines its features "
                          f"under {LAYOUT_PATH})")
+    units = _stage_units(stage, where)
     layout = m.Layout()
-    _read_layer_data(stage, layout, where)
+    _read_layer_data(stage, layout, where, units)
     for prim in Usd.PrimRange(root):
         attr = prim.GetAttribute(NS + "featureType")
         if not attr or not attr.HasAuthoredValue():
@@ -297,7 +298,7 @@ def layout_from_stage(stage: Usd.Stage, where: str = "stage") -> m.Layout:
             raise InputError(f"{where}: {prim.GetPath()}: {NS}featureType {ftype!r} is not one of "
                              f"{', '.join(m.FEATURE_CLASS_BY_TYPE)}")
         try:
-            for f in _read_prim(prim, ftype, where):
+            for f in _read_prim(prim, ftype, where, units):
                 layout.add(f)
         except ValueError as e:
             raise InputError(f"{where}: {prim.GetPath()}: {e}") from None
@@ -307,11 +308,52 @@ def layout_from_stage(stage: Usd.Stage, where: str = "stage") -> m.Layout:
             raise InputError(f"{where}: feature id {f.id!r} is used twice (ids must be unique; "
                              f"set {NS}id or rename the prim)")
         seen.add(f.id)
+    m.check_size(layout, where)
     layout.reindex()
     return layout
 
 
-def _read_layer_data(stage: Usd.Stage, layout: m.Layout, where: str) -> None:
+@dataclasses.dataclass(frozen=True)
+class _Units:
+    """Conversion of a layer's coordinates to the layout's Z-up metres."""
+    scale: float = 1.0     # metersPerUnit
+    y_up: bool = False
+
+    def points(self, p: np.ndarray) -> np.ndarray:
+        if self.y_up:   # rotate +90 deg about X: Y up becomes Z up, (x, y, z) -> (x, -z, y)
+            p = np.stack([p[..., 0], -p[..., 2], p[..., 1]], axis=-1)
+        return p * self.scale if self.scale != 1.0 else p
+
+    def length(self, v):
+        return v * self.scale if self.scale != 1.0 else v
+
+
+def _stage_units(stage: Usd.Stage, where: str) -> _Units:
+    """upAxis and metersPerUnit as authored on the stage's root layer. Unauthored means the
+    layout convention (Z up, metres), not USD's fallbacks (Y, centimetres)."""
+    from pxr import UsdGeom
+
+    y_up = False
+    if stage.HasAuthoredMetadata(UsdGeom.Tokens.upAxis):
+        axis = str(UsdGeom.GetStageUpAxis(stage))
+        if axis not in ("Y", "Z"):
+            raise InputError(f"{where}: upAxis {axis!r} is not Y or Z")
+        y_up = axis == "Y"
+    scale = 1.0
+    if stage.HasAuthoredMetadata(UsdGeom.Tokens.metersPerUnit):
+        scale = float(UsdGeom.GetStageMetersPerUnit(stage))
+        if not (np.isfinite(scale) and scale > 0):
+            raise InputError(f"{where}: metersPerUnit {scale} is not a positive number")
+    return _Units(scale, y_up)
+
+
+def _read_layer_data(stage: Usd.Stage, layout: m.Layout, where: str,
+                     units: _Units = _Units()) -> None:
+    """Extent, chunk size and metadata from customLayerData, checked against the limits
+    (limits.LAYOUT_EXTENT, CHUNK_SIZE_MIN/MAX) before any consumer sizes work by them.
+    Lengths are in the layer's units (scaled by metersPerUnit)."""
+    from lsd3d_usd.limits import CHUNK_SIZE_MAX, CHUNK_SIZE_MIN, COORDINATE, LAYOUT_EXTENT
+
     info = None
     for layer in stage.GetLayerStack(includeSessionLayers=False):
         if LAYER_DATA_KEY in layer.customLayerData:
@@ -319,18 +361,30 @@ def _read_layer_data(stage: Usd.Stage, layout: m.Layout, where: str) -> None:
             break
     if not info:
         return
+    key = f"{where}: customLayerData {LAYER_DATA_KEY}"
     try:
+        if not isinstance(info, dict):
+            raise ValueError(f"expected a dictionary, got {type(info).__name__}")
         if "extent" in info:
-            e = [float(v) for v in info["extent"]]
+            e = [units.length(float(v)) for v in info["extent"]]
             if len(e) != 4:
                 raise ValueError("extent needs 4 numbers")
+            if not all(np.isfinite(e)):
+                raise ValueError(f"extent {e} has a non-finite value")
+            if e[2] < e[0] or e[3] < e[1]:
+                raise ValueError(f"extent {e} is not (xmin, ymin, xmax, ymax)")
+            LAYOUT_EXTENT.check(max(e[2] - e[0], e[3] - e[1]), key, what=f"extent {e}: side")
+            COORDINATE.check(max(abs(v) for v in e), key, what=f"extent {e}: a corner at")
             layout.extent = ((e[0], e[1]), (e[2], e[3]))
         if "chunkSize" in info:
-            layout.chunk_size = float(info["chunkSize"])
+            cs = units.length(float(info["chunkSize"]))
+            CHUNK_SIZE_MIN.check(cs, key, what="chunkSize")
+            CHUNK_SIZE_MAX.check(cs, key, what="chunkSize")
+            layout.chunk_size = cs
         if "metadataJson" in info:
             layout.metadata = json.loads(info["metadataJson"])
-    except (ValueError, TypeError) as e:
-        raise InputError(f"{where}: customLayerData {LAYER_DATA_KEY}: {e}") from None
+    except (ValueError, TypeError, OverflowError) as e:
+        raise InputError(f"{key}: {e}") from None
 
 
 def _get(prim: Usd.Prim, name: str, want, where: str, default=None):
@@ -370,20 +424,24 @@ def _prefer64(prim: Usd.Prim, name: str, approx: np.ndarray, where: str, want) -
     return approx
 
 
-def _read_prim(prim: Usd.Prim, ftype: str, where: str) -> list:
+# Model fields holding lengths (converted by metersPerUnit); "center" is a point.
+LENGTH_FIELDS = {"height_hint", "height", "width", "length"}
+
+
+def _read_prim(prim: Usd.Prim, ftype: str, where: str, units: _Units = _Units()) -> list:
     path = prim.GetPath()
     name = prim.GetName()
     fid = _get(prim, "id", T.String, where, default=None)
     pts32 = _float_points(prim, where)
-    pts = _prefer64(prim, "points64", pts32, where, T.Point3dArray)
+    pts = units.points(_prefer64(prim, "points64", pts32, where, T.Point3dArray))
 
     if ftype == "Tree":
         n = len(pts)
         ids = _get(prim, "ids", T.StringArray, where)
         ids = list(ids) if ids is not None else ([fid or name] if n == 1 else
                                                  [f"{fid or name}_{k}" for k in range(n)])
-        heights = _per_point(prim, "heightHint", n, where, 8.0)
-        crowns = _per_point(prim, "crownRadiusHint", n, where, 2.5)
+        heights = units.length(_per_point(prim, "heightHint", n, where, 8.0))
+        crowns = units.length(_per_point(prim, "crownRadiusHint", n, where, 2.5))
         if len(ids) != n:
             raise InputError(f"{where}: {path}: attribute {NS}ids has {len(ids)} entries for {n} points")
         return [m.Tree(ids[k], position=pts[k], height_hint=heights[k], crown_radius_hint=crowns[k])
@@ -399,7 +457,9 @@ def _read_prim(prim: Usd.Prim, ftype: str, where: str) -> list:
         elif type_name in (T.Token, T.String):
             v = str(v)
         elif type_name == T.Double3:
-            v = np.array([float(c) for c in v])
+            v = units.points(np.array([float(c) for c in v]))
+        if field_name in LENGTH_FIELDS:
+            v = units.length(float(v))
         kwargs[field_name] = v
 
     if ftype == "StopSign":
@@ -412,7 +472,7 @@ def _read_prim(prim: Usd.Prim, ftype: str, where: str) -> list:
     polygon = ftype in POLYGON_TYPES
     widths = None
     if ftype == "LaneCenter":
-        widths = _lane_widths(prim, len(pts), where)
+        widths = units.length(_lane_widths(prim, len(pts), where))
 
     if ftype == "ParkingSpot":
         if "center" not in kwargs:  # hand-authored: derive the rectangle's fields

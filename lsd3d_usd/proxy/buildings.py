@@ -16,6 +16,7 @@ import shapely
 from shapely.geometry import Polygon
 
 from .mesh import BUILDING, MeshPart, drop_degenerate
+from .planar import area_from_points, polygons_of
 
 ROOFS = ("flat", "gable", "hip")
 
@@ -136,8 +137,7 @@ def building_mesh(building_id: str, footprint_xy: np.ndarray, height: float, flo
                   roof: str | None = None, style: BuildingStyle = BuildingStyle()
                   ) -> MeshPart | None:
     """Closed building solid from a footprint (N, 2) polygon, eave ``height`` in metres."""
-    poly = shapely.make_valid(Polygon(np.asarray(footprint_xy, dtype=np.float64)[:, :2]))
-    polys = [g for g in getattr(poly, "geoms", [poly]) if isinstance(g, Polygon) and g.area > 0.5]
+    polys = [g for g in polygons_of(area_from_points(footprint_xy)) if g.area > 0.5]
     if not polys:
         return None
     poly = max(polys, key=lambda g: g.area)        # a self-touching footprint keeps its main part

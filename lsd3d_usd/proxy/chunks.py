@@ -31,6 +31,7 @@ from .furniture import stop_sign_parts, street_light_parts, traffic_light_parts
 from .ground import GroundStyle, ground_areas, ground_parts
 from .markings import MarkingStyle, crosswalk_part, road_line_part, stop_line_part
 from .mesh import MeshPart
+from .planar import area_from_points
 from .vegetation import hedge_part, tree_parts, zone_shrubs
 from .vehicles import vehicle_part
 
@@ -68,7 +69,28 @@ def chunk_label(i: int, j: int) -> str:
     return chunk_prim_name(i, j)
 
 
-def all_chunks(layout) -> list[ChunkKey]:
+def chunk_count(layout) -> int:
+    """Number of chunks covering the layout's area (computed without listing them)."""
+    ri, rj = layout.chunk_range()
+    return len(ri) * len(rj)
+
+
+def check_chunk_count(layout, n: int | None = None, max_chunks: int | None = None) -> None:
+    """Refuse (InputError, one line) to build more than limits.CHUNKS chunks (or
+    ``max_chunks``); ``n`` defaults to every chunk of the layout's area."""
+    from lsd3d_usd.limits import CHUNKS
+    n = chunk_count(layout) if n is None else n
+    if not CHUNKS.ok(n, max_chunks):
+        (x0, y0), (x1, y1) = layout.area_box()
+        where = (f"layout area {x1 - x0:.0f} m x {y1 - y0:.0f} m in {layout.chunk_size:g} m "
+                 f"chunks")
+        CHUNKS.check(n, where, max_chunks)
+
+
+def all_chunks(layout, max_chunks: int | None = None) -> list[ChunkKey]:
+    """Every chunk key of the layout's area; refuses more than limits.CHUNKS (or
+    ``max_chunks``) before listing them."""
+    check_chunk_count(layout, max_chunks=max_chunks)
     ri, rj = layout.chunk_range()
     return [(i, j) for i in ri for j in rj]
 
@@ -190,8 +212,8 @@ class ProxyBuilder:
         self.size = float(layout.chunk_size)
         self.fixtures = derive_fixtures(layout, self.params)
 
-    def chunks(self) -> list[ChunkKey]:
-        return all_chunks(self.layout)
+    def chunks(self, max_chunks: int | None = None) -> list[ChunkKey]:
+        return all_chunks(self.layout, max_chunks)
 
     def inputs(self, key: ChunkKey) -> ChunkInputs:
         i, j = key
@@ -243,7 +265,11 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
 
     for bd in L.buildings:
         fp = Polygon(bd.footprint[:, :2])
-        c = fp.representative_point() if not fp.is_valid else fp.centroid
+        if fp.is_valid:
+            c = fp.centroid
+        else:   # a messy footprint: its cleaned area (or its vertices) decide the owner
+            fp = area_from_points(bd.footprint)
+            c = fp.representative_point() if not fp.is_empty else shapely.Point(bd.footprint[:, :2].mean(0))
         if _owned(c.x, c.y, b):
             add(building_mesh(bd.id, bd.footprint, bd.height_hint, bd.floors_hint,
                               style=params.building))
@@ -251,10 +277,7 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
         if _owned(t.position[0], t.position[1], b):
             parts += tree_parts(t.id, t.position, t.height_hint, t.crown_radius_hint)
     for z in L.vegetation_zones:
-        zp = Polygon(z.polygon[:, :2])
-        if not zp.is_valid:
-            zp = shapely.make_valid(zp)
-        parts += zone_shrubs(z.id, zp, z.kind, clip)
+        parts += zone_shrubs(z.id, area_from_points(z.polygon), z.kind, clip)
     for ps in L.parking_spots:
         if ps.occupied and _owned(ps.center[0], ps.center[1], b):
             add(vehicle_part(ps.id, ps.center, ps.heading, ps.length, ps.width))
@@ -292,10 +315,15 @@ def _sign_yaw(sign, lanes_by_id) -> float:
 
 
 def build_proxy(layout, chunks=None, params: ProxyParams | None = None,
-                progress: bool = False) -> dict[ChunkKey, list[MeshPart]]:
-    """Mesh parts per chunk for ``chunks`` (default: every chunk of the layout's area)."""
+                progress: bool = False, max_chunks: int | None = None
+                ) -> dict[ChunkKey, list[MeshPart]]:
+    """Mesh parts per chunk for ``chunks`` (default: every chunk of the layout's area;
+    at most limits.CHUNKS or ``max_chunks``)."""
+    if chunks is not None:
+        chunks = list(chunks)
+        check_chunk_count(layout, len(chunks), max_chunks)
     builder = ProxyBuilder(layout, params)
-    keys = list(chunks) if chunks is not None else builder.chunks()
+    keys = chunks if chunks is not None else builder.chunks(max_chunks)
     it = keys
     if progress:
         from tqdm import tqdm

@@ -4,9 +4,11 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lsd3d_usd.cliutil import size_type
-
+from lsd3d_usd import limits
+from lsd3d_usd.cliutil import accept_negative_values, add_limit_option, check_output_path, size_type
 from lsd3d_usd.errors import InputError
+
+USD_SUFFIXES = (".usdc", ".usda", ".usd")
 
 
 def parse_chunk(text: str) -> tuple[int, int]:
@@ -30,6 +32,7 @@ def _build(args) -> int:
     from .chunks import ProxyParams
     from .usdio import build_proxy_layer
 
+    check_output_path(args.output, "-o", suffixes=USD_SUFFIXES, what="proxy layer")
     layout = read_layout(args.layout)
     params = ProxyParams(margin=args.margin, street_light_spacing=args.street_light_spacing,
                          traffic_lights=not args.no_traffic_lights,
@@ -42,7 +45,7 @@ def _build(args) -> int:
                              f"{args.layout} (chunks i in {ri.start}..{ri.stop - 1}, "
                              f"j in {rj.start}..{rj.stop - 1})")
     rep = build_proxy_layer(layout, args.output, chunks=args.chunk or None, params=params,
-                            force=args.force, progress=_progress())
+                            force=args.force, progress=_progress(), max_chunks=args.max_chunks)
     tris = sum(rep.triangles.values())
     print(f"{rep.path}: built {len(rep.built)} chunk(s), {len(rep.skipped)} unchanged, "
           f"{tris} triangles, {rep.seconds:.1f} s"
@@ -55,7 +58,9 @@ def _from_points(args) -> int:
 
     params = PointProxyParams(voxel=args.voxel, closing=args.closing,
                               simplify=args.simplify, chunk_size=args.chunk_size)
-    rep = proxy_from_points(args.cloud, args.output, params, progress=_progress())
+    check_output_path(args.output, "-o", suffixes=USD_SUFFIXES, what="proxy layer")
+    rep = proxy_from_points(args.cloud, args.output, params, progress=_progress(),
+                            max_chunks=args.max_chunks, max_vertices=args.max_vertices)
     print(f"{args.output}: {rep['chunks']} chunk(s), {rep['triangles']} triangles from "
           f"{rep['points']} points ({rep['labels']}), {rep['seconds']:.1f} s")
     return 0
@@ -65,6 +70,8 @@ def _preview(args) -> int:
     from .preview import render_proxy_file
 
     w, h = args.size
+    limits.check_image_size(w, h, "--size")
+    check_output_path(args.output, "-o", what="image")
     render_proxy_file(args.proxy, args.output, view=args.view, width=w, height=h,
                       chunks=args.chunk or None)
     print(f"{args.output}: {args.view} view of {args.proxy}")
@@ -91,6 +98,7 @@ def register(subparsers) -> None:
     b.add_argument("--chunk", type=parse_chunk, action="append", metavar="I,J",
                    help="build only this chunk (repeatable); default: every chunk of the layout")
     b.add_argument("--force", action="store_true", help="rebuild chunks even if unchanged")
+    add_limit_option(b, limits.CHUNKS)
     b.add_argument("--margin", type=float, default=12.0, metavar="M",
                    help="metres around a chunk whose features it reads (default 12)")
     b.add_argument("--street-light-spacing", type=float, default=35.0, metavar="M",
@@ -100,6 +108,7 @@ def register(subparsers) -> None:
     b.add_argument("--no-windows", action="store_true",
                    help="plain building blocks without window recesses (faster)")
     b.set_defaults(func=_build)
+    accept_negative_values(b)
 
     f = sub.add_parser(
         "from-points", help="point cloud (.ply/.npz) -> proxy layer",
@@ -118,6 +127,8 @@ def register(subparsers) -> None:
                         "mesh (default 2)")
     f.add_argument("--chunk-size", type=float, default=100.0, metavar="M",
                    help="chunk size in metres (default 100)")
+    add_limit_option(f, limits.CHUNKS)
+    add_limit_option(f, limits.PLY_VERTICES)
     f.set_defaults(func=_from_points)
 
     v = sub.add_parser(
@@ -133,6 +144,7 @@ def register(subparsers) -> None:
     v.add_argument("--chunk", type=parse_chunk, action="append", metavar="I,J",
                    help="only these chunks (repeatable)")
     v.set_defaults(func=_preview)
+    accept_negative_values(v)
 
     def _no_action(args) -> int:
         p.print_help()

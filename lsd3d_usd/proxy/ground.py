@@ -18,7 +18,7 @@ import shapely
 from shapely.geometry import Polygon, box
 
 from .mesh import CURB, ROAD, SIDEWALK, TERRAIN, VEGETATION, MeshPart
-from .planar import as_area, flat_mesh, polygons_of, prism, ribbon
+from .planar import area_from_points, as_area, flat_mesh, polygons_of, prism, ribbon
 
 NOT_ROAD_LANES = ("sidewalk", "border")
 
@@ -84,8 +84,7 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
 
 
 def _poly(p) -> Polygon:
-    poly = Polygon(np.asarray(p, dtype=np.float64)[:, :2])
-    return poly if poly.is_valid else as_area(shapely.make_valid(poly))
+    return area_from_points(p)
 
 
 def _grid_cells(geom: Polygon, cell: float) -> list[Polygon]:

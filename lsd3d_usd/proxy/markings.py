@@ -9,7 +9,7 @@ import shapely
 from shapely.geometry import Polygon
 
 from .mesh import CROSSWALK, LANE_MARKING, MeshPart
-from .planar import as_area, dashes, flat_mesh, offset_polyline, ribbon
+from .planar import area_from_points, as_area, dashes, flat_mesh, offset_polyline, ribbon
 
 PAINT = {"white": (0.80, 0.80, 0.78), "yellow": (0.75, 0.55, 0.08)}
 
@@ -46,9 +46,7 @@ def road_line_area(points: np.ndarray, kind: str, double: bool,
 def crosswalk_area(polygon: np.ndarray, st: MarkingStyle = MarkingStyle()):
     """Zebra bars inside a crosswalk polygon: bars run along its short side (the
     direction of traffic), repeated along its long side (across the road)."""
-    poly = Polygon(np.asarray(polygon)[:, :2])
-    if not poly.is_valid:
-        poly = as_area(shapely.make_valid(poly))
+    poly = area_from_points(polygon)
     if poly.is_empty:
         return Polygon()
     r = np.asarray(poly.minimum_rotated_rectangle.exterior.coords)[:4]

@@ -37,6 +37,114 @@ def as_area(geom: BaseGeometry | None) -> BaseGeometry:
     return ps[0] if len(ps) == 1 else MultiPolygon(ps)
 
 
+# Cleaning tolerances: vertices closer than POINT_TOL are one vertex; rings of less area
+# than RING_AREA are slivers (a curb "ring" of 1e-7 m made remove_repeated_points fail).
+POINT_TOL = 1e-7
+RING_AREA = 1e-9
+SNAP_GRID = 1e-6      # last resort: snap to this grid (GEOS keeps the result valid)
+
+
+def _clean_ring(ring, tol: float = POINT_TOL, min_area: float = RING_AREA) -> np.ndarray | None:
+    """XY of a ring without repeated points and without its closing point, or None when it
+    has fewer than 3 distinct vertices or no area (a degenerate ring)."""
+    c = np.asarray(ring.coords, dtype=np.float64)[:, :2]
+    if len(c) == 0 or not np.isfinite(c).all():
+        return None
+    keep = np.ones(len(c), bool)
+    keep[1:] = np.linalg.norm(np.diff(c, axis=0), axis=1) > tol
+    c = c[keep]
+    while len(c) > 1 and np.linalg.norm(c[0] - c[-1]) <= tol:
+        c = c[:-1]
+    if len(c) < 3:
+        return None
+    x, y = c[:, 0], c[:, 1]
+    if 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))) <= min_area:
+        return None
+    return c
+
+
+def _rebuilt(poly: Polygon) -> Polygon | None:
+    ext = _clean_ring(poly.exterior)
+    if ext is None:
+        return None
+    holes = [h for h in (_clean_ring(r) for r in poly.interiors) if h is not None]
+    return Polygon(ext, holes)
+
+
+def _sound(poly: Polygon) -> bool:
+    """Valid, with every ring non-degenerate as it stands (nothing left to drop)."""
+    if not poly.is_valid or poly.area <= RING_AREA:
+        return False
+    for r in (poly.exterior, *poly.interiors):
+        c = _clean_ring(r)
+        if c is None or len(c) != len(r.coords) - 1:
+            return False
+    return True
+
+
+def _clean_pieces(geom: BaseGeometry) -> list[Polygon]:
+    out: list[Polygon] = []
+    for poly in polygons_of(geom):
+        if _sound(poly):
+            out.append(poly)
+            continue
+        q = _rebuilt(poly)
+        if q is None:
+            continue
+        if not q.is_valid:
+            q = shapely.make_valid(q)
+        for piece in polygons_of(q):
+            if _sound(piece):
+                out.append(piece)
+                continue
+            piece = _rebuilt(piece)
+            if piece is None:
+                continue
+            snapped = shapely.set_precision(piece, SNAP_GRID)
+            out.extend(p for p in polygons_of(snapped) if _sound(p))
+    return out
+
+
+def _assemble(polys: list[Polygon]) -> BaseGeometry:
+    if not polys:
+        return EMPTY
+    return polys[0] if len(polys) == 1 else MultiPolygon(polys)
+
+
+def clean_area(geom: BaseGeometry | None) -> BaseGeometry:
+    """The areal part of any geometry as valid polygons free of repeated vertices and
+    degenerate (sliver) rings: the one cleaning step before polygons become meshes.
+
+    make_valid first, then each polygon's rings are rebuilt without repeated points
+    (POINT_TOL) and rings without area are dropped; a polygon that is still not sound goes
+    through make_valid again and, as a last resort, is snapped to SNAP_GRID. Pieces that
+    overlap once their rings are cleaned are merged and cleaned once more (then snapped).
+    """
+    if geom is None or geom.is_empty:
+        return EMPTY
+    if not geom.is_valid:
+        geom = shapely.make_valid(geom)
+    pieces = _clean_pieces(geom)
+    result = _assemble(pieces)
+    if result.is_valid:
+        return result
+    merged = shapely.union_all(np.array(pieces, dtype=object))
+    result = _assemble(_clean_pieces(merged))
+    if result.is_valid:
+        return result
+    snapped = shapely.set_precision(merged, SNAP_GRID)   # valid output by construction
+    return _assemble([p for p in polygons_of(snapped) if _sound(p)])
+
+
+def area_from_points(points) -> BaseGeometry:
+    """A polygon given as an (N, 2|3) vertex array (implicitly closed; any mess: repeated
+    points, self-intersections, zero width), as clean_area of it."""
+    xy = np.asarray(points, dtype=np.float64)
+    if xy.ndim != 2 or xy.shape[1] < 2 or len(xy) < 3 or not np.isfinite(xy[:, :2]).all():
+        return EMPTY
+    return clean_area(Polygon(xy[:, :2]))
+
+
 def _vertex_normals(xy: np.ndarray, miter_limit: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
     """Left unit normals per vertex (miter direction) and the miter scale 1/cos(half angle)."""
     d = np.diff(xy, axis=0)
@@ -146,7 +254,7 @@ def triangulate(geom: BaseGeometry) -> tuple[np.ndarray, np.ndarray]:
     (area <= MIN_FACE_AREA) are dropped.
     """
     empty = np.zeros((0, 2)), np.zeros((0, 3), np.int32)
-    polys = polygons_of(geom)
+    polys = polygons_of(clean_area(geom))
     if not polys:
         return empty
     tris = shapely.constrained_delaunay_triangles(np.array(polys, dtype=object))
@@ -183,8 +291,9 @@ def prism(geom: BaseGeometry, z0: float, z1: float) -> tuple[np.ndarray, np.ndar
     """
     if geom is None or geom.is_empty:
         return np.zeros((0, 3)), np.zeros((0, 3), np.int32)
-    # drop repeated and collinear ring vertices so the caps have no zero-area slivers
-    polys = polygons_of(shapely.simplify(shapely.remove_repeated_points(as_area(geom), 1e-7), 0.0))
+    # drop repeated and collinear ring vertices and sliver rings so the caps have no
+    # zero-area slivers (clean_area before and after the collinear simplification)
+    polys = polygons_of(clean_area(shapely.simplify(clean_area(geom), 0.0)))
     vs, fs, n0 = [], [], 0
     for poly in polys:
         v, f = _prism_split(poly, z0, z1)
@@ -212,7 +321,7 @@ def _prism_split(poly: Polygon, z0: float, z1: float, depth: int = 0):
         halves = [box(x0 - 1, y0 - 1, x1 + 1, m), box(x0 - 1, m, x1 + 1, y1 + 1)]
     vs, fs, n0 = [], [], 0
     for h in halves:
-        for piece in polygons_of(shapely.simplify(shapely.intersection(poly, h), 0.0)):
+        for piece in polygons_of(clean_area(shapely.simplify(shapely.intersection(poly, h), 0.0))):
             pv, pf = _prism_split(piece, z0, z1, depth + 1)
             if len(pf):
                 vs.append(pv)

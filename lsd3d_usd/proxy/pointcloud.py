@@ -55,83 +55,42 @@ class PointProxyParams:
 
 
 # --------------------------------------------------------------------------- reading
-_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2",
-              "int16": "i2", "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4",
-              "uint": "u4", "uint32": "u4", "float": "f4", "float32": "f4", "double": "f8",
-              "float64": "f8"}
-
-
-def read_ply_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+def read_ply_points(path: str | Path, max_vertices: int | None = None
+                    ) -> tuple[np.ndarray, np.ndarray | None]:
     """Points (N, 3) float64 and labels (N,) int32 or None from a PLY file's vertex element.
 
-    ASCII and binary (little/big endian) PLY; the vertex element must come first
-    (as every point-cloud writer does) and have no list properties.
+    ASCII and binary (little/big endian) PLY (lsd3d_usd.plyio: elements before the
+    vertex element must have fixed-size properties; more than limits.PLY_VERTICES
+    points, or ``max_vertices``, are refused before the body is read).
     """
-    path = Path(path)
-    with open(path, "rb") as fh:
-        if fh.readline().strip() != b"ply":
-            raise InputError(f"{path}: not a PLY file (no 'ply' magic line)")
-        fmt, elements = None, []
-        while True:
-            line = fh.readline()
-            if not line:
-                raise InputError(f"{path}: PLY header has no end_header")
-            tok = line.decode("ascii", "replace").split()
-            if not tok or tok[0] in ("comment", "obj_info"):
-                continue
-            if tok[0] == "format":
-                fmt = tok[1]
-            elif tok[0] == "element":
-                elements.append((tok[1], int(tok[2]), []))
-            elif tok[0] == "property":
-                if not elements:
-                    raise InputError(f"{path}: PLY property before any element")
-                if tok[1] == "list":
-                    elements[-1][2].append((tok[-1], None))
-                else:
-                    if tok[1] not in _PLY_TYPES:
-                        raise InputError(f"{path}: PLY property type {tok[1]!r} unknown")
-                    elements[-1][2].append((tok[2], _PLY_TYPES[tok[1]]))
-            elif tok[0] == "end_header":
-                break
-        if not elements or elements[0][0] != "vertex":
-            raise InputError(f"{path}: PLY has no vertex element first")
-        _, n, props = elements[0]
-        if any(t is None for _, t in props):
-            raise InputError(f"{path}: PLY vertex element with list properties is not supported")
-        names = [p for p, _ in props]
-        for c in ("x", "y", "z"):
-            if c not in names:
-                raise InputError(f"{path}: PLY vertex element has no '{c}' property")
-        if fmt == "ascii":
-            rows = [fh.readline() for _ in range(n)]
-            try:
-                data = np.loadtxt(rows, dtype=np.float64, ndmin=2)
-            except ValueError as e:
-                raise InputError(f"{path}: malformed PLY ascii vertex data: {e}") from None
-            if data.shape != (n, len(names)):
-                raise InputError(f"{path}: PLY declares {n} vertices with {len(names)} values, "
-                                 f"read {data.shape}")
-            col = {p: data[:, k] for k, p in enumerate(names)}
-        elif fmt in ("binary_little_endian", "binary_big_endian"):
-            e = "<" if fmt == "binary_little_endian" else ">"
-            dt = np.dtype([(p, e + t) for p, t in props])
-            buf = fh.read(n * dt.itemsize)
-            if len(buf) < n * dt.itemsize:
-                raise InputError(f"{path}: PLY vertex data truncated ({len(buf)} of "
-                                 f"{n * dt.itemsize} bytes)")
-            arr = np.frombuffer(buf, dtype=dt, count=n)
-            col = {p: arr[p] for p in names}
-        else:
-            raise InputError(f"{path}: PLY format {fmt!r} unknown")
-    pts = np.column_stack([col["x"], col["y"], col["z"]]).astype(np.float64)
-    lab = next((col[p] for p in LABEL_PROPS if p in col), None)
+    from lsd3d_usd.plyio import read_ply_vertices
+
+    arr = read_ply_vertices(path, max_vertices)
+    names = arr.dtype.names
+    for c in ("x", "y", "z"):
+        if c not in names:
+            raise InputError(f"{path}: PLY vertex element has no '{c}' property")
+    pts = np.column_stack([arr["x"], arr["y"], arr["z"]]).astype(np.float64)
+    lab = next((arr[p] for p in LABEL_PROPS if p in names), None)
     return pts, (None if lab is None else np.asarray(lab).astype(np.int32))
 
 
-def read_npz_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+def _npz_shape(z, key: str) -> tuple:
+    """Shape of an array in an open .npz, from its header (nothing decompressed)."""
+    fmt = np.lib.format
+    with z.zip.open(key + ".npy") as fh:
+        version = fmt.read_magic(fh)
+        read = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+        shape, _, _ = read(fh)
+    return shape
+
+
+def read_npz_points(path: str | Path, max_vertices: int | None = None
+                    ) -> tuple[np.ndarray, np.ndarray | None]:
     """NPZ with 'points' (N, 3) and optional 'labels' (N,) ids; optional 'classes'
-    (names the ids index, mapped onto lsd3d_usd.semantics.CLASSES)."""
+    (names the ids index, mapped onto lsd3d_usd.semantics.CLASSES). More than
+    limits.PLY_VERTICES points (or ``max_vertices``) are refused before decompressing."""
+    from lsd3d_usd.limits import PLY_VERTICES
     from lsd3d_usd.semantics import CLASS_ID
     path = Path(path)
     try:
@@ -141,7 +100,16 @@ def read_npz_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     key = next((k for k in ("points", "xyz", "positions") if k in z.files), None)
     if key is None:
         raise InputError(f"{path}: no 'points' array (has: {', '.join(z.files) or 'nothing'})")
-    pts = np.asarray(z[key], dtype=np.float64)
+    try:
+        shape = _npz_shape(z, key)
+    except Exception as e:
+        raise InputError(f"{path}: array {key!r} cannot be read: {e}") from None
+    n = int(np.prod(shape, dtype=object)) // 3 if shape else 0
+    PLY_VERTICES.check(n, f"{path}: array {key!r}", max_vertices, what="point count")
+    try:
+        pts = np.asarray(z[key], dtype=np.float64)
+    except (ValueError, TypeError) as e:
+        raise InputError(f"{path}: array {key!r} is not numeric: {e}") from None
     if pts.ndim != 2 or pts.shape[1] < 3:
         raise InputError(f"{path}: 'points' must be (N, 3), got {pts.shape}")
     labels = None
@@ -160,16 +128,17 @@ def read_npz_points(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
     return pts[:, :3], labels
 
 
-def read_cloud(path: str | Path) -> tuple[np.ndarray, np.ndarray | None]:
+def read_cloud(path: str | Path, max_vertices: int | None = None
+               ) -> tuple[np.ndarray, np.ndarray | None]:
     from lsd3d_usd.semantics import CLASSES
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{path}: no such file")
     ext = p.suffix.lower()
     if ext == ".ply":
-        pts, lab = read_ply_points(p)
+        pts, lab = read_ply_points(p, max_vertices)
     elif ext == ".npz":
-        pts, lab = read_npz_points(p)
+        pts, lab = read_npz_points(p, max_vertices)
     else:
         raise InputError(f"{path}: point clouds must be .ply or .npz (got {ext or 'no extension'})")
     finite = np.isfinite(pts).all(1)
@@ -289,7 +258,11 @@ def _chunk_surface(pts: np.ndarray, key, prm: PointProxyParams, plane: np.ndarra
     z_lo = np.floor((min(p[:, 2].min(), _plane_min(plane, lo_xy, hi_xy)) - pad) / v) * v
     z_hi = np.ceil((p[:, 2].max() + pad) / v) * v
     origin = np.array([lo_xy[0], lo_xy[1], z_lo])
-    shape = np.round((np.array([hi_xy[0], hi_xy[1], z_hi]) - origin) / v).astype(int) + 1
+    shape = np.round((np.array([hi_xy[0], hi_xy[1], z_hi]) - origin) / v).astype(np.int64) + 1
+    from lsd3d_usd.limits import CHUNK_VOXELS
+    CHUNK_VOXELS.check(int(np.prod(shape, dtype=object)),
+                       f"chunk {key[0]},{key[1]} ({shape[0]}x{shape[1]}x{shape[2]} voxels of "
+                       f"{v:g} m; use a larger --voxel)")
     # voxel (i, j, k) is centred on origin + (i, j, k) * v (a global lattice: origins are
     # multiples of v), so neighbouring chunks see identical samples in their overlap
     idx = np.floor((p - origin) / v + 0.5).astype(np.int64)
@@ -377,21 +350,27 @@ def label_faces(verts: np.ndarray, faces: np.ndarray, plane: np.ndarray,
 
 
 def points_to_parts(points: np.ndarray, labels: np.ndarray | None = None,
-                    params: PointProxyParams = PointProxyParams(), progress: bool = False
-                    ) -> dict[tuple[int, int], list[MeshPart]]:
-    """Mesh parts per chunk (one open part per class) reconstructed from points."""
+                    params: PointProxyParams = PointProxyParams(), progress: bool = False,
+                    max_chunks: int | None = None) -> dict[tuple[int, int], list[MeshPart]]:
+    """Mesh parts per chunk (one open part per class) reconstructed from points. More than
+    limits.CHUNKS chunks (or ``max_chunks``) are refused before the first is built."""
     from scipy.spatial import cKDTree
 
     from lsd3d_usd.scene import chunk_prim_name
     from lsd3d_usd.semantics import CLASSES
 
-    if params.voxel <= 0:
+    from lsd3d_usd import limits
+
+    if not params.voxel > 0:
         raise InputError(f"--voxel {params.voxel}: must be > 0")
+    limits.CHUNK_SIZE_MIN.check(params.chunk_size, "--chunk-size")
+    limits.CHUNK_SIZE_MAX.check(params.chunk_size, "--chunk-size")
     if len(points) < params.min_points:
         raise InputError(f"point cloud has {len(points)} points; need at least {params.min_points}")
     plane = fit_ground_plane(points)
     keys = sorted({(int(a), int(b)) for a, b in
                    np.unique(np.floor(points[:, :2] / params.chunk_size).astype(np.int64), axis=0)})
+    limits.CHUNKS.check(len(keys), f"point cloud in {params.chunk_size:g} m chunks", max_chunks)
     tree = cKDTree(points) if labels is not None else None
     it = keys
     if progress:
@@ -418,7 +397,8 @@ def points_to_parts(points: np.ndarray, labels: np.ndarray | None = None,
 
 
 def proxy_from_points(cloud_path, output, params: PointProxyParams = PointProxyParams(),
-                      progress: bool = False) -> dict:
+                      progress: bool = False, max_chunks: int | None = None,
+                      max_vertices: int | None = None) -> dict:
     """Read a cloud, reconstruct, write a proxy layer (same layout as the layout path)."""
     import hashlib
 
@@ -428,8 +408,8 @@ def proxy_from_points(cloud_path, output, params: PointProxyParams = PointProxyP
     out = Path(output)
     if out.suffix.lower() not in (".usdc", ".usda", ".usd"):
         raise InputError(f"{output}: the proxy layer must be a .usdc, .usda or .usd file")
-    pts, labels = read_cloud(cloud_path)
-    parts = points_to_parts(pts, labels, params, progress)
+    pts, labels = read_cloud(cloud_path, max_vertices)
+    parts = points_to_parts(pts, labels, params, progress, max_chunks)
     if not parts:
         raise InputError(f"{cloud_path}: no surface could be reconstructed (too few points?)")
     h = hashlib.sha256(pts.tobytes() + (b"" if labels is None else labels.tobytes())

@@ -219,10 +219,11 @@ def layout_hash(layout) -> str:
 
 
 def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force: bool = False,
-                      progress: bool = False) -> BuildReport:
+                      progress: bool = False, max_chunks: int | None = None) -> BuildReport:
     """Build (only what changed) and write the proxy layer at ``path``.
 
-    ``chunks``: keys to build (default: every chunk of the layout's area).
+    ``chunks``: keys to build (default: every chunk of the layout's area). More than
+    limits.CHUNKS chunks (or ``max_chunks``) are refused before anything is built.
     Chunks whose inputs hash matches the one stored in their file are skipped.
     With an explicit ``chunks`` list, chunks already listed in an existing root
     layer stay listed; without it the root lists exactly the layout's chunks
@@ -230,16 +231,18 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
     """
     from lsd3d_usd.scene import chunk_prim_name, parse_chunk_prim_name
 
-    from .chunks import ProxyBuilder, ProxyParams
+    from .chunks import ProxyBuilder, ProxyParams, check_chunk_count
 
     t0 = time.perf_counter()
     path = Path(path)
     if path.suffix.lower() not in (".usdc", ".usda", ".usd"):
         raise InputError(f"{path}: the proxy layer must be a .usdc, .usda or .usd file")
+    if chunks is not None:
+        chunks = [tuple(int(v) for v in k) for k in chunks]
+    check_chunk_count(layout, None if chunks is None else len(chunks), max_chunks)
     params = params or ProxyParams()
     builder = ProxyBuilder(layout, params)
-    all_keys = builder.chunks()
-    keys = all_keys if chunks is None else [tuple(int(v) for v in k) for k in chunks]
+    keys = builder.chunks(max_chunks) if chunks is None else chunks
     folder = chunks_dir(path)
     old_map = read_chunk_map(path)
     new_map: dict[tuple[int, int], str] = {}

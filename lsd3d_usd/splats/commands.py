@@ -5,6 +5,9 @@ import argparse
 import time
 from pathlib import Path
 
+from lsd3d_usd import limits
+from lsd3d_usd.cliutil import add_limit_option
+
 SCENE_ROOT = "scene.usda"
 
 
@@ -42,6 +45,20 @@ def _read_stage_surfels(path, prim_path=None, time_code=None):
         M = np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t), dtype=np.float64).T
         fields.append(transform_surfels(f, M))
     return SurfelField.concat(fields)
+
+
+USD_SUFFIXES = (".usdc", ".usda", ".usd")
+
+
+def _check_output(out, suffixes=USD_SUFFIXES, scene_ok: bool = True) -> None:
+    """Before any work: the output is a scene folder (where allowed) or a file path that can
+    be written (not a folder, not below a file, a known extension)."""
+    from lsd3d_usd.cliutil import check_output_path
+
+    if scene_ok and _is_scene(out):
+        return
+    what = "output file" + (" (or a scene folder)" if scene_ok else "")
+    check_output_path(out, "-o", suffixes=suffixes, what=what)
 
 
 def _write_surfels(field, out, prim_path, prov, retire_runs=False):
@@ -123,6 +140,8 @@ def _init(args) -> int:
     from lsd3d_usd.errors import InputError
     from lsd3d_usd.splats.init import mesh_to_surfels
 
+    if args.output is not None:
+        _check_output(args.output)
     stage = scene.open_stage(args.input)
     root = args.root or (scene.PROXY_PATH if stage.GetPrimAtPath(scene.PROXY_PATH) else "/")
     if not stage.GetPrimAtPath(root):
@@ -162,7 +181,8 @@ def _import_ply(args) -> int:
     from lsd3d_usd.hashing import file_hash
     from lsd3d_usd.splats.ply import read_ply
 
-    field = read_ply(args.input)
+    _check_output(args.output)
+    field = read_ply(args.input, max_vertices=args.max_vertices)
     digest = file_hash(args.input)
     prov = scene.provenance("splats.import-ply", {"source": str(Path(args.input).name)},
                             inputsHash=f"ply-{digest}")
@@ -174,6 +194,7 @@ def _import_ply(args) -> int:
 def _export_ply(args) -> int:
     from lsd3d_usd.splats.ply import write_ply
 
+    _check_output(args.output, (".ply",), scene_ok=False)
     field = _read_stage_surfels(args.input, args.prim, args.time)
     path = write_ply(args.output, field, layout=args.layout, thin=args.thin)
     print(f"{field.n} surfels -> {path} ({args.layout} layout)")
@@ -184,6 +205,7 @@ def _export_3dgs(args) -> int:
     from lsd3d_usd import scene
     from lsd3d_usd.splats.ply import write_gaussian_splat_file
 
+    _check_output(args.output, scene_ok=False)
     field = _read_stage_surfels(args.input, args.prim, args.time)
     prov = scene.provenance("splats.export-3dgs", {"thin": args.thin})
     path = write_gaussian_splat_file(args.output, field, args.out_prim, args.thin, prov)
@@ -232,6 +254,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="replace a scene's surfels even though GGDS runs were optimised on them "
                         "(the runs are muted and marked stale)")
     q.add_argument("--prim", default="/World/Surfels", help="prim path of the written surfels")
+    add_limit_option(q, limits.PLY_VERTICES)
     q.set_defaults(func=_import_ply)
 
     for name, fn, helptext in (

@@ -86,6 +86,28 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
+def kernel_bounds(positions: np.ndarray, orientations: np.ndarray, scales: np.ndarray,
+                  surflet: bool = True) -> np.ndarray:
+    """(2,3) float64 bounds of every particle's kernel support (KERNEL_SIGMAS sigma): the
+    one bounds function of validate, inspect and the writers' extents.
+
+    ``orientations`` (N,4) xyzw, ``scales`` (N,2) or (N,3) linear. A surflet (2D disk in the
+    local XY plane) ignores a third scale; a 3D Gaussian (``surflet=False``) uses all three
+    axes. Exact for ellipses and ellipsoids. Zero particles: zeros.
+    """
+    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+    if len(p) == 0:
+        return np.zeros((2, 3))
+    s = np.asarray(scales, dtype=np.float64).reshape(len(p), -1)
+    s3 = np.zeros((len(p), 3))
+    k = 2 if surflet else min(3, s.shape[1])
+    s3[:, :k] = s[:, :k]
+    rot = quat_to_matrix(orientations)
+    axes = rot * (KERNEL_SIGMAS * s3[:, None, :])     # columns: the kernel's scaled axes
+    half = np.sqrt((axes ** 2).sum(axis=2))          # per world axis half-extent
+    return np.stack([(p - half).min(0), (p + half).max(0)])
+
+
 def flatten_3d_gaussians(quats: np.ndarray, scales3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """3D Gaussians (xyzw quats, 3 linear scales) → surfels: keep the two largest axes as
     the disk, the smallest becomes the normal (local z). Returns (quats, scales (N,2))."""
@@ -150,15 +172,8 @@ class SurfelField:
         return np.maximum(0.5 + SH_C0 * self.sh[:, 0, :], 0.0)
 
     def extent(self) -> np.ndarray:
-        """(2,3) float64 bounds of the kernels' 3-sigma disks (exact for ellipses)."""
-        if self.n == 0:
-            return np.zeros((2, 3))
-        rot = quat_to_matrix(self.orientations)
-        su = rot[..., 0] * (KERNEL_SIGMAS * self.scales[:, 0:1].astype(np.float64))
-        sv = rot[..., 1] * (KERNEL_SIGMAS * self.scales[:, 1:2].astype(np.float64))
-        half = np.sqrt(su * su + sv * sv)  # per-axis half-extent of an ellipse
-        p = self.positions.astype(np.float64)
-        return np.stack([(p - half).min(0), (p + half).max(0)])
+        """(2,3) float64 bounds of the kernels' 3-sigma disks (kernel_bounds of surflets)."""
+        return kernel_bounds(self.positions, self.orientations, self.scales, surflet=True)
 
     def with_sh_degree(self, degree: int) -> "SurfelField":
         """Same field with SH truncated or zero-padded to `degree`."""

@@ -21,149 +21,16 @@ from __future__ import annotations
 
 import os
 import re
-import sys
 from pathlib import Path
 
 import numpy as np
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.splats.field import SurfelField, flatten_3d_gaussians, sh_degree_for
+from lsd3d_usd.plyio import read_header_comments, read_ply_vertices, write_ply_vertices  # noqa: F401
+from lsd3d_usd.splats.field import SurfelField, flatten_3d_gaussians, kernel_bounds, sh_degree_for
 
 THIN_AXIS = 1e-3
 _OPACITY_EPS = 1e-7  # logit of exactly 0 or 1 is infinite: clamp before the logit
-
-_PLY_TYPES = {
-    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
-    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
-    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
-    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
-}
-_MAX_HEADER = 1 << 20
-
-
-# --- generic PLY (fixed-size properties) ------------------------------------------------
-
-def _parse_header(f, path):
-    """-> (format, [(element name, count, [(prop, numpy type)])]). File positioned at body."""
-    first = f.readline(64)
-    if first.rstrip(b"\r\n") != b"ply":
-        raise InputError(f"{path}: not a PLY file (missing 'ply' magic)")
-    fmt, elements, size = None, [], len(first)
-    while True:
-        line = f.readline(4096)
-        size += len(line)
-        if not line or size > _MAX_HEADER:
-            raise InputError(f"{path}: PLY header has no end_header")
-        try:
-            words = line.decode("ascii").split()
-        except UnicodeDecodeError:
-            raise InputError(f"{path}: PLY header is not ASCII") from None
-        if not words or words[0] in ("comment", "obj_info"):
-            continue
-        key = words[0]
-        if key == "end_header":
-            break
-        if key == "format":
-            if len(words) != 3 or words[1] not in ("binary_little_endian", "binary_big_endian", "ascii"):
-                raise InputError(f"{path}: unsupported PLY format line {line.strip()!r}")
-            fmt = words[1]
-        elif key == "element":
-            if len(words) != 3 or not re.fullmatch(r"\d+", words[2]):
-                raise InputError(f"{path}: bad PLY element line {line.strip()!r}")
-            elements.append((words[1], int(words[2]), []))
-        elif key == "property":
-            if not elements:
-                raise InputError(f"{path}: PLY property before any element")
-            if words[1] == "list":
-                elements[-1][2].append((words[-1], "list"))
-                continue
-            if len(words) != 3 or words[1] not in _PLY_TYPES:
-                raise InputError(f"{path}: bad PLY property line {line.strip()!r}")
-            elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
-        else:
-            raise InputError(f"{path}: unknown PLY header keyword {key!r}")
-    if fmt is None:
-        raise InputError(f"{path}: PLY header has no format line")
-    return fmt, elements
-
-
-def read_ply_vertices(path) -> np.ndarray:
-    """The ``vertex`` element of a PLY file as a numpy structured array.
-
-    Elements before ``vertex`` must have fixed-size properties (they are skipped);
-    anything after it is ignored."""
-    path = Path(path)
-    try:
-        f = open(path, "rb")
-    except OSError as e:
-        raise InputError(f"{path}: cannot open: {e.strerror}") from None
-    with f:
-        fmt, elements = _parse_header(f, path)
-        endian = ">" if fmt == "binary_big_endian" else "<"
-        names = [e[0] for e in elements]
-        if "vertex" not in names:
-            raise InputError(f"{path}: PLY has no 'vertex' element (elements: {', '.join(names) or 'none'})")
-        if fmt == "ascii":
-            text = f.read().split()
-            offset = 0
-        for name, count, props in elements:
-            if any(t == "list" for _, t in props):
-                raise InputError(f"{path}: PLY element {name!r} has list properties; "
-                                 "not a Gaussian-splat PLY")
-            seen = set()
-            for p, _ in props:
-                if p in seen:
-                    raise InputError(f"{path}: PLY element {name!r} repeats property {p!r}")
-                seen.add(p)
-            dtype = np.dtype([(p, endian + t) for p, t in props])
-            if fmt == "ascii":
-                n_tok = count * len(props)
-                if offset + n_tok > len(text):
-                    raise InputError(f"{path}: PLY body truncated in element {name!r}")
-                if name == "vertex":
-                    try:
-                        vals = np.array(text[offset:offset + n_tok], dtype=np.float64).reshape(count, len(props))
-                    except ValueError:
-                        raise InputError(f"{path}: PLY ascii body has non-numeric values") from None
-                    out = np.empty(count, dtype=dtype.newbyteorder("="))
-                    for i, (p, _) in enumerate(props):
-                        out[p] = vals[:, i]
-                    return out
-                offset += n_tok
-                continue
-            nbytes = dtype.itemsize * count
-            data = f.read(nbytes)
-            if len(data) != nbytes:
-                raise InputError(f"{path}: PLY body truncated in element {name!r} "
-                                 f"({len(data)} of {nbytes} bytes)")
-            if name == "vertex":
-                arr = np.frombuffer(data, dtype=dtype)
-                return arr.astype(dtype.newbyteorder("=")) if endian != "<" or sys.byteorder != "little" else arr
-    raise AssertionError("unreachable")
-
-
-def write_ply_vertices(path, arr: np.ndarray, comments=()) -> Path:
-    """Write a structured array as the binary little-endian ``vertex`` element, atomically."""
-    from lsd3d_usd.scene import atomic_write_bytes
-
-    inv = {v: k for k, v in _PLY_TYPES.items() if k in ("char", "uchar", "short", "ushort", "int",
-                                                          "uint", "float", "double")}
-    lines = ["ply", "format binary_little_endian 1.0"]
-    lines += [f"comment {c}" for c in comments]
-    lines.append(f"element vertex {len(arr)}")
-    le = []
-    for name in arr.dtype.names:
-        t = arr.dtype[name]
-        code = t.kind + str(t.itemsize)
-        if code not in inv:
-            raise ValueError(f"PLY cannot hold dtype {t} of property {name}")
-        lines.append(f"property {inv[code]} {name}")
-        le.append((name, "<" + code))
-    lines.append("end_header")
-    header = ("\n".join(lines) + "\n").encode("ascii")
-    body = np.ascontiguousarray(arr.astype(np.dtype(le))).tobytes()
-    return atomic_write_bytes(path, header + body)
-
 
 # --- Gaussian splats <-> SurfelField ---------------------------------------------------
 
@@ -174,9 +41,16 @@ def _numbered(names, prefix):
     return [f"{prefix}{i}" for i in idx]
 
 
-def read_ply(path) -> SurfelField:
-    """Read a 3DGS or 2DGS PLY into a SurfelField (3D Gaussians flattened to surfels)."""
-    v = read_ply_vertices(path)
+def read_ply(path, max_vertices: int | None = None) -> SurfelField:
+    """Read a 3DGS or 2DGS PLY into a SurfelField (3D Gaussians flattened to surfels).
+    More than limits.PLY_VERTICES splats (or ``max_vertices``) are refused up front."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        # out-of-range values become inf / NaN and are reported by SurfelField.problems()
+        return _read_ply(path, max_vertices)
+
+
+def _read_ply(path, max_vertices) -> SurfelField:
+    v = read_ply_vertices(path, max_vertices)
     names = set(v.dtype.names)
     if "packed_position" in names:
         raise InputError(f"{path}: SuperSplat compressed PLY is not supported; decompress it first")
@@ -276,14 +150,8 @@ def write_ply(path, field: SurfelField, layout: str = "2dgs", thin: float = THIN
 
 def read_ply_semantic_classes(path) -> tuple[str, ...]:
     """Class names from our 'comment semantic_classes ...' header line, if present."""
-    with open(path, "rb") as f:
-        for _ in range(10000):
-            line = f.readline(1 << 16)
-            if not line or line.strip() == b"end_header":
-                break
-            if line.startswith(b"comment semantic_classes "):
-                return tuple(line.decode("ascii", "replace").split()[2:])
-    return ()
+    found = read_header_comments(path, b"comment semantic_classes ")
+    return tuple(found[0].split()) if found else ()
 
 
 # --- official 3DGS ParticleField export ----------------------------------------------------
@@ -314,15 +182,19 @@ def write_gaussian_splat_prim(stage, path: str, field: SurfelField, thin: float 
     put("radiance:sphericalHarmonicsDegree", T.Int, int(field.sh_degree), uniform=True)
     put("radiance:sphericalHarmonicsCoefficients", T.Float3Array,
         Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(field.sh.reshape(-1, 3))))
-    put("extent", T.Float3Array, Vt.Vec3fArray.FromNumpy(field.extent().astype(np.float32)))
+    ext = kernel_bounds(field.positions, field.orientations, s3, surflet=False)  # thin axis too
+    put("extent", T.Float3Array, Vt.Vec3fArray.FromNumpy(ext.astype(np.float32)))
     return prim
 
 
 def write_gaussian_splat_file(path, field: SurfelField, prim_path: str = "/World/Surfels",
                               thin: float = THIN_AXIS, provenance: dict | None = None) -> Path:
-    """Stand-alone USD file holding one ParticleField3DGaussianSplat, written atomically."""
+    """Stand-alone USD file holding one ParticleField3DGaussianSplat, written atomically.
+    A .usda path is refused above limits.USDA_PARTICLES particles (bulk data)."""
     from lsd3d_usd import scene
+    from lsd3d_usd.splats.usdio import check_bulk_target
 
+    check_bulk_target(path, field.n)
     stage = scene.new_stage()
     write_gaussian_splat_prim(stage, prim_path, field, thin)
     return scene.save_stage(stage, os.fspath(path), provenance)

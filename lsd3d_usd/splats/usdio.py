@@ -25,6 +25,36 @@ def is_particle_field(prim: Usd.Prim) -> bool:
     return prim.IsA(UsdVol.ParticleField)
 
 
+def is_surflet(prim: Usd.Prim) -> bool:
+    """Whether the prim's kernel is a 2D disk (surflet): its third scale is not an axis."""
+    return (prim.HasAPI("ParticleFieldKernelGaussianSurfletAPI")
+            or prim.HasAPI("ParticleFieldKernelConstantSurfletAPI"))
+
+
+def particle_bounds(prim: Usd.Prim, time: Usd.TimeCode = Usd.TimeCode.Default()) -> np.ndarray | None:
+    """(2,3) bounds of the prim's kernels (field.kernel_bounds on its own arrays: a 3D
+    Gaussian keeps its third axis), or None without particles or with arrays that do not
+    fit the positions (validate names those)."""
+    from lsd3d_usd.splats.field import kernel_bounds
+
+    pos = _get(prim, "positions", time)
+    if pos is None or pos.size == 0 or pos.size % 3:
+        return None
+    pos = pos.reshape(-1, 3).astype(np.float64)
+    n = len(pos)
+    quat = _get(prim, "orientations", time)
+    scales = _get(prim, "scales", time)
+    quat = np.tile([0.0, 0, 0, 1], (n, 1)) if quat is None else quat.astype(np.float64)
+    scales = np.ones((n, 3)) if scales is None else scales.astype(np.float64)
+    if quat.size != 4 * n or scales.size != 3 * n:
+        return None
+    quat = quat.reshape(n, 4)
+    ok = np.isfinite(quat).all(axis=1) & (np.linalg.norm(np.nan_to_num(quat), axis=1) > 0)
+    quat = np.where(ok[:, None], quat, [0.0, 0, 0, 1])
+    with np.errstate(invalid="ignore", over="ignore"):
+        return kernel_bounds(pos, quat, scales.reshape(n, 3), surflet=is_surflet(prim))
+
+
 def surfel_prims(stage: Usd.Stage, root: str = "/") -> list[Usd.Prim]:
     """Every ParticleField prim (ours or official) under `root` (loaded prims only)."""
     start = stage.GetPrimAtPath(root) if root != "/" else stage.GetPseudoRoot()
@@ -156,11 +186,26 @@ def read_surfels(prim: Usd.Prim, time: Usd.TimeCode = Usd.TimeCode.Default()) ->
     return SurfelField(pos, quat, scales2, opac, sh, sem_ids, classes)
 
 
+def check_bulk_target(path, n: int) -> None:
+    """Bulk data belongs in crate files: refuse a text (.usda) output for more than
+    limits.USDA_PARTICLES particles, before anything is written (validate would report
+    BulkDataInUsda on the result)."""
+    from pathlib import Path
+
+    from lsd3d_usd.limits import USDA_PARTICLES
+    if Path(str(path)).suffix.lower() == ".usda" and not USDA_PARTICLES.ok(n):
+        raise InputError(f"{path}: {n} particles exceed the limit of {USDA_PARTICLES.value} "
+                         "for a text .usda layer (bulk data belongs in crate files); "
+                         "write .usdc (or .usd)")
+
+
 def write_surfel_file(path: str, field: SurfelField, prim_path: str = "/World/Surfels",
                       provenance: dict | None = None) -> None:
-    """Write a stand-alone surfel layer (Z up, metres, defaultPrim /World), atomically."""
+    """Write a stand-alone surfel layer (Z up, metres, defaultPrim /World), atomically.
+    A .usda path is refused above limits.USDA_PARTICLES particles (check_bulk_target)."""
     from lsd3d_usd import scene
 
+    check_bulk_target(path, field.n)
     stage = scene.new_stage()
     write_surfels(stage, prim_path, field)
     scene.save_stage(stage, path, provenance)

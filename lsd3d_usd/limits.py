@@ -1,0 +1,149 @@
+"""Work limits: the explicit bounds every reader checks before it allocates or writes.
+
+A tiny file must not make the tool run for hours or allocate gigabytes: a 450-byte
+OpenDRIVE file can claim a 1e8 m road, a PLY header 1e12 vertices, a layout a chunk
+size of 1 cm. Each bound lives here once, so readers, commands and docs/limits.md use
+the same numbers. This module is the bottom layer: it imports nothing heavy.
+
+A ``Limit`` checks a value and raises ``InputError`` with one line naming where, what,
+the value and the limit (and the flag that raises it, where one exists). A value that
+is not a number (NaN) fails every check. Overrides are explicit: a command that offers
+one has a ``--max-...`` flag (``cliutil.add_limit_option``), and the library functions
+take the raised value as a keyword argument; nothing global changes.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from lsd3d_usd.errors import InputError
+
+
+def _fmt(x) -> str:
+    """A number for a message: integers as integers, others in 6 significant digits."""
+    try:
+        xf = float(x)
+    except (TypeError, ValueError):
+        return repr(x)
+    if not math.isfinite(xf):
+        return str(xf)
+    if xf == int(xf) and abs(xf) < 1e15:
+        return str(int(xf))
+    return f"{xf:.6g}"
+
+
+@dataclass(frozen=True)
+class Limit:
+    """One documented bound. ``kind`` 'max': value <= bound; 'min': value >= bound."""
+    name: str               # id in docs/limits.md
+    value: float
+    unit: str               # appended to numbers in messages ("m", " chunks", ...)
+    what: str               # what is measured ("road length", "chunk count", ...)
+    where: str              # where it is checked (for docs/limits.md)
+    flag: str | None = None  # the command-line flag that raises it, if any
+    kind: str = "max"
+
+    def ok(self, value, bound=None) -> bool:
+        b = self.value if bound is None else bound
+        try:
+            v = float(value)
+        except (TypeError, ValueError, OverflowError):
+            return False
+        if math.isnan(v):
+            return False
+        return v <= b if self.kind == "max" else v >= b
+
+    def describe(self, value, bound=None, what: str | None = None) -> str:
+        """'<what> <value> exceeds the limit of <bound>' (no location)."""
+        b = self.value if bound is None else bound
+        what = self.what if what is None else what
+        try:
+            nan = math.isnan(float(value))
+        except (TypeError, ValueError, OverflowError):
+            nan = True
+        if nan:
+            return f"{what} is {value!r}, not a number"
+        rel = "exceeds the limit of" if self.kind == "max" else "is below the minimum of"
+        hint = f" (raise it with {self.flag})" if self.flag and self.kind == "max" else ""
+        return f"{what} {_fmt(value)}{self.unit} {rel} {_fmt(b)}{self.unit}{hint}"
+
+    def message(self, value, where: str, bound=None, what: str | None = None) -> str:
+        return f"{where}: {self.describe(value, bound, what)}"
+
+    def check(self, value, where: str, bound=None, what: str | None = None) -> None:
+        """Raise InputError (one line) unless ``value`` is within the bound (``bound``
+        overrides the default, e.g. from a --max-... flag; ``what`` renames the quantity)."""
+        if not self.ok(value, bound):
+            raise InputError(self.message(value, where, bound, what))
+
+
+# --------------------------------------------------------------------- OpenDRIVE
+OPENDRIVE_FILE_BYTES = Limit(
+    "opendrive_file_bytes", 512 * 1024 * 1024, " bytes", "file size",
+    "layout import (before parsing)")
+ROAD_LENGTH = Limit(
+    "road_length", 100_000.0, " m", "length",
+    "layout import: each <road> length and each <geometry> length, before sampling")
+LANE_WIDTH = Limit(
+    "lane_width", 100.0, " m", "lane width",
+    "layout import: every lane width sample, before the polylines are refined")
+LATERAL_OFFSET = Limit(
+    "lateral_offset", 1_000.0, " m", "lateral offset of a lane boundary",
+    "layout import: laneOffset + widths of every boundary from the reference line")
+ROAD_POINTS = Limit(
+    "road_points", 1_000_000, " points", "polyline points (samples x boundary lines)",
+    "layout import: the adaptive sampler of each road stops there (road skipped; a larger "
+    "--tolerance needs fewer)")
+TOTAL_ROAD_LENGTH = Limit(
+    "total_road_length", 10_000_000.0, " m", "total road length",
+    "layout import: the sum of the road lengths of one file, before any road is sampled")
+
+# ------------------------------------------------------------------------ layouts
+LAYOUT_EXTENT = Limit(
+    "layout_extent", 50_000.0, " m", "layout size",
+    "USD layout reader (extent metadata and feature bounds), layout import; "
+    "layout points are float32 in USD: 4 mm resolution at 50 km")
+COORDINATE = Limit(
+    "coordinate", 10_000_000.0, " m", "distance from the origin",
+    "USD layout reader and layout import: every coordinate (UTM northings fit; beyond, "
+    "float32 points lose whole metres and overflow)")
+CHUNK_SIZE_MIN = Limit(
+    "chunk_size_min", 10.0, " m", "chunk size",
+    "USD layout reader (lsd3dLayout.chunkSize), proxy from-points --chunk-size", kind="min")
+CHUNK_SIZE_MAX = Limit(
+    "chunk_size_max", 1_000.0, " m", "chunk size",
+    "USD layout reader (lsd3dLayout.chunkSize), proxy from-points --chunk-size")
+CHUNKS = Limit(
+    "chunks", 10_000, " chunks", "chunk count",
+    "proxy build and proxy from-points, before the first chunk is built", flag="--max-chunks")
+CHUNK_VOXELS = Limit(
+    "chunk_voxels", 100_000_000, " voxels", "voxel grid",
+    "proxy from-points: each chunk's occupancy grid (chunk + padding, height of its "
+    "points) before it is allocated")
+
+# ------------------------------------------------------------------ splats / USD
+PLY_VERTICES = Limit(
+    "ply_vertices", 50_000_000, " vertices", "vertex count",
+    "PLY readers (splats import-ply, proxy from-points), before reading the body; the "
+    "body must also hold the bytes the header claims", flag="--max-vertices")
+USDA_PARTICLES = Limit(
+    "usda_particles", 10_000, " particles", "particle count in a .usda (text) layer",
+    "surfel writers (splats init / import-ply / export-3dgs -o *.usda) refuse; validate "
+    "reports BulkDataInUsda")
+
+# ----------------------------------------------------------------------- images
+IMAGE_PIXELS = Limit(
+    "image_pixels", 8192 * 4096, " pixels", "image size",
+    "--resolution / --size flags (cliutil.parse_size), env map rendering")
+
+ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
+       LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
+       PLY_VERTICES, USDA_PARTICLES, IMAGE_PIXELS)
+
+
+def check_image_size(width: int, height: int, where: str, bound=None) -> None:
+    """One check of an image's pixel count for every command that allocates images."""
+    if not IMAGE_PIXELS.ok(int(width) * int(height), bound):
+        b = IMAGE_PIXELS.value if bound is None else bound
+        raise InputError(f"{where} {width}x{height}: {_fmt(int(width) * int(height))} pixels "
+                         f"exceed the limit of {_fmt(b)} pixels (e.g. 8192x4096)")
