@@ -8,7 +8,7 @@ import sys
 def _batch(args) -> int:
     from lsd3d_usd.errors import InputError
 
-    from .executors import make_executor
+    from lsd3d_usd.execution import make_executor
     from .runner import DEFAULT_RETRIES, format_report, run_batch
     from .spec import load_spec
     from .tasks import plan_batch

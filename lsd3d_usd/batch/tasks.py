@@ -104,7 +104,8 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
     jopts = _json_options(sc.options)
     layout_file = sc.options.get("layout")
     layout_id = file_hash(layout_file) if layout_file else None
-    base = {"scene": sc.name, "out": str(sc.output), "options": jopts, "force": sc.force,
+    base = {"target": "lsd3d_usd.batch.tasks:run_task", "scene": sc.name,
+            "out": str(sc.output), "options": jopts, "force": sc.force,
             "test_crash": sc.test_crash, "marker_dir": str(logs_dir)}
     builder = ProxyBuilder(layout, ProxyParams())
     keys = sorted(builder.chunks())
