@@ -253,6 +253,11 @@ def open_stage(path: str | os.PathLike, load: bool = True) -> Usd.Stage:
     return stage
 
 
+def first_error_line(e: Exception) -> str:
+    """The message of a USD (Tf) error without its C++ location preamble, one line."""
+    return _first_line(e)
+
+
 def _first_line(e: Exception) -> str:
     text = " ".join(str(e).split())
     # Tf errors read "Error in 'func' at line N in file F : 'message'"; keep the message.
