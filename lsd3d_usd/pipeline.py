@@ -384,4 +384,6 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
                     f"{100 * g['off_surface_frac']:.2f} %")
     timings["total_s"] = time.perf_counter() - t0
     summary["timings"] = {k: round(v, 2) for k, v in timings.items()}
+    from lsd3d_usd.ggds.regions import peak_rss_mb
+    summary["peak_rss_mb"] = peak_rss_mb()
     return summary

@@ -230,8 +230,15 @@ def run_region_task(payload: dict) -> dict:
             fh.flush()
         log(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} pid {os.getpid()} {payload['region']}")
         summary = run_region(payload, log=log, refresh=False)
+        summary["peak_rss_mb"] = peak_rss_mb()
         log(f"done: {summary}")
     return summary
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory so far (MB)."""
+    import resource
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
 
 
 # ---------------------------------------------------------------------------- the driver
@@ -298,10 +305,17 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
                "wall_s": round(time.perf_counter() - t0, 1),
                **aggregate_metrics([p.get("metrics") or {} for p in done],
                                    [p.get("surfels", 0) for p in done])}
+    if in_process:
+        summary["worker_peak_rss_mb"] = peak_rss_mb()
+    else:
+        rss = [v.get("peak_rss_mb") for v in summaries.values() if v.get("peak_rss_mb")]
+        summary["worker_peak_rss_mb"] = max(rss) if rss else None
     if len(plan["regions"]) > 1:
-        summary["per_region"] = {k: {kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels",
-                                                               "seconds", "metrics")}
-                                 for k, v in regions_done.items()}
+        summary["per_region"] = {
+            k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
+                                            "metrics")},
+                **{kk: summaries.get(k, {}).get(kk) for kk in ("wall_s", "context", "views")}}
+            for k, v in regions_done.items()}
     from lsd3d_usd.ggds.store import write_json
     write_json(sc.run_files(run).dir / "summary.json", summary)
     return summary
