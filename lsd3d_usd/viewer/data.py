@@ -342,12 +342,26 @@ class SceneSource:
         return out
 
     # ---------------------------------------------------------------------- validation
-    def validate(self) -> list[dict]:
-        """The scene's validation problems as dicts (severity, where, message)."""
-        from lsd3d_usd.validation import validate
+    def validate(self, timeout: float = 600.0) -> list[dict]:
+        """The scene's validation problems as dicts (severity, where, message), from
+        `lsd3d-usd validate --json` in a child process: validation captures the process's fd 2
+        while it runs, which in the server's own process would swallow its log."""
+        import json
+        import subprocess
+        import sys
 
-        return [{"severity": p.severity, "where": p.prim + (f".{p.attribute}" if p.attribute else ""),
-                 "message": p.message} for p in validate(self.root)]
+        try:
+            r = subprocess.run([sys.executable, "-m", "lsd3d_usd", "validate", str(self.root), "--json"],
+                               capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            return [{"severity": "warning", "where": "validate", "message": f"validation took over {timeout:.0f} s; skipped"}]
+        try:
+            report = json.loads(r.stdout)
+        except ValueError:
+            msg = (r.stderr.strip().splitlines() or [f"exit status {r.returncode}"])[-1]
+            return [{"severity": "error", "where": "validate", "message": msg.removeprefix("lsd3d-usd: error: ")}]
+        return [{"severity": p["severity"], "where": p["prim"] + (f".{p['attribute']}" if p.get("attribute") else ""),
+                 "message": p["message"]} for p in report.get("problems", [])]
 
     # -------------------------------------------------------------------------- files
     def inside(self, path: str | os.PathLike) -> bool:

@@ -3,6 +3,8 @@
 import * as S from "./shaders.js";
 
 export const PER_ROW = 1024; // surfels per texture row of the pool
+const BATCH = 16384;        // quads per draw call (u16 indices)
+const ORDER_ROW = 4096;     // entries per row of the order texture
 
 function compile(gl, vs, fs) {
   const prog = gl.createProgram();
@@ -73,25 +75,18 @@ export class Renderer {
     this.chunks = new Map(); // key -> {startRow, rows, n, gpu}
     this.emptyVao = gl.createVertexArray();
 
-    // surfel instances: a unit quad + the per-instance index buffer (sorted order)
+    // surfels: batches of BATCH quads drawn from one static u16 index buffer (4 vertices, 6
+    // indices per quad); the sorted order lives in an R32UI texture, 4096 entries per row.
     this.surfelVao = gl.createVertexArray();
     gl.bindVertexArray(this.surfelVao);
-    const quad = gl.createBuffer();
-    gl.bindBuffer(gl.ARRAY_BUFFER, quad);
-    gl.bufferData(gl.ARRAY_BUFFER, new Float32Array([0, 0, 1, 0, 0, 1, 1, 1]), gl.STATIC_DRAW);
-    const ac = this.surfel.attrib("a_corner");
-    gl.enableVertexAttribArray(ac);
-    gl.vertexAttribPointer(ac, 2, gl.FLOAT, false, 0, 0);
-    this.orderBuf = gl.createBuffer();
-    gl.bindBuffer(gl.ARRAY_BUFFER, this.orderBuf);
-    gl.bufferData(gl.ARRAY_BUFFER, 4, gl.DYNAMIC_DRAW);
-    const ai = this.surfel.attrib("a_index");
-    gl.enableVertexAttribArray(ai);
-    gl.vertexAttribIPointer(ai, 1, gl.UNSIGNED_INT, 0, 0);
-    gl.vertexAttribDivisor(ai, 1);
+    const quads = new Uint16Array(BATCH * 6);
+    for (let q = 0; q < BATCH; q++) quads.set([4 * q, 4 * q + 1, 4 * q + 2, 4 * q + 2, 4 * q + 1, 4 * q + 3], 6 * q);
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, gl.createBuffer());
+    gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, quads, gl.STATIC_DRAW);
     gl.bindVertexArray(null);
+    this.orderTex = null;
+    this.orderRows = 0;
     this.count = 0;
-    this.orderCapacity = 1;
 
     this.envTex = null;
     this.envMeta = null;
@@ -164,13 +159,21 @@ export class Renderer {
 
   setOrder(order, count) {
     const gl = this.gl;
-    gl.bindBuffer(gl.ARRAY_BUFFER, this.orderBuf);
-    if (order.length > this.orderCapacity) {
-      gl.bufferData(gl.ARRAY_BUFFER, order, gl.DYNAMIC_DRAW);
-      this.orderCapacity = order.length;
-    } else if (count > 0) {
-      gl.bufferSubData(gl.ARRAY_BUFFER, 0, order, 0, count);
+    const rows = Math.max(1, Math.ceil(count / ORDER_ROW));
+    if (!this.orderTex || rows > this.orderRows) {
+      if (this.orderTex) gl.deleteTexture(this.orderTex);
+      this.orderRows = Math.max(rows, 2 * this.orderRows, 16);
+      this.orderTex = gl.createTexture();
+      gl.bindTexture(gl.TEXTURE_2D, this.orderTex);
+      gl.texStorage2D(gl.TEXTURE_2D, 1, gl.R32UI, ORDER_ROW, this.orderRows);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+      gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
     }
+    gl.bindTexture(gl.TEXTURE_2D, this.orderTex);
+    const full = Math.floor(count / ORDER_ROW);
+    if (full) gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, ORDER_ROW, full, gl.RED_INTEGER, gl.UNSIGNED_INT, order.subarray(0, full * ORDER_ROW));
+    const rest = count - full * ORDER_ROW;
+    if (rest) gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, full, rest, 1, gl.RED_INTEGER, gl.UNSIGNED_INT, order.subarray(full * ORDER_ROW, count));
     this.count = count;
   }
 
@@ -337,7 +340,7 @@ export class Renderer {
     }
 
     // surfels: back-to-front, premultiplied over, tested against actors, no depth writes
-    if (this.count > 0 && this.data) {
+    if (this.count > 0 && this.data && this.orderTex) {
       gl.enable(gl.DEPTH_TEST);
       gl.depthFunc(gl.LEQUAL);
       gl.depthMask(false);
@@ -355,8 +358,15 @@ export class Renderer {
       gl.uniform1i(su.u_shDegree, frame.shDegree);
       gl.uniform1i(su.u_colorMode, frame.colorMode);
       if (su.u_classColors) gl.uniform3fv(su.u_classColors, frame.classColors);
+      gl.activeTexture(gl.TEXTURE1);
+      gl.bindTexture(gl.TEXTURE_2D, this.orderTex);
+      gl.uniform1i(su.u_order, 1);
       gl.bindVertexArray(this.surfelVao);
-      gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, this.count);
+      for (let base = 0; base < this.count; base += BATCH) {
+        gl.uniform1i(su.u_base, base);
+        gl.drawElements(gl.TRIANGLES, 6 * Math.min(BATCH, this.count - base), gl.UNSIGNED_SHORT, 0);
+      }
+      gl.activeTexture(gl.TEXTURE0);
       gl.depthMask(true);
     }
 

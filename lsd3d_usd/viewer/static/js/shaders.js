@@ -30,8 +30,8 @@ uniform int u_perRow;
 uniform int u_shDegree;      // 0 or 1
 uniform int u_colorMode;     // 0 colour, 1 semantic class
 uniform vec3 u_classColors[16];
-in uint a_index;             // per instance: global surfel index (back-to-front order)
-in vec2 a_corner;            // (0|1, 0|1)
+uniform highp usampler2D u_order; // draw position -> global surfel index (back-to-front)
+uniform int u_base;          // draw position of this batch's first surfel
 flat out vec3 v_pc;          // centre, camera space
 flat out vec3 v_nf;          // unit normal facing the camera
 flat out vec3 v_tu;          // a_u / s_u^2: u = dot(hit, v_tu)
@@ -47,23 +47,37 @@ const float EDGE_COS = 1e-6;
 
 int s8(uint w, uint shift) { int v = int((w >> shift) & 255u); return v >= 128 ? v - 256 : v; }
 
+// Smallest-three quaternion (pack.py encode_quats), without dynamic indexing (slow in
+// software renderers).
 vec4 quat(uint w) {
-  float o[3];
-  o[0] = (float((w >> 2u) & 1023u) / 1023.0 * 2.0 - 1.0) * 0.7071067811865476;
-  o[1] = (float((w >> 12u) & 1023u) / 1023.0 * 2.0 - 1.0) * 0.7071067811865476;
-  o[2] = (float((w >> 22u) & 1023u) / 1023.0 * 2.0 - 1.0) * 0.7071067811865476;
-  int big = int(w & 3u);
-  float c[4];
-  int k = 0;
-  for (int i = 0; i < 4; i++) { if (i == big) { c[i] = 0.0; } else { c[i] = o[k]; k++; } }
-  c[big] = sqrt(max(0.0, 1.0 - o[0] * o[0] - o[1] * o[1] - o[2] * o[2]));
-  return normalize(vec4(c[0], c[1], c[2], c[3]));
+  vec3 o = (vec3(float((w >> 2u) & 1023u), float((w >> 12u) & 1023u), float((w >> 22u) & 1023u)) / 1023.0 * 2.0 - 1.0)
+           * 0.7071067811865476;
+  float l = sqrt(max(0.0, 1.0 - dot(o, o)));
+  uint big = w & 3u;
+  vec4 q = big == 0u ? vec4(l, o) : big == 1u ? vec4(o.x, l, o.yz) : big == 2u ? vec4(o.xy, l, o.z) : vec4(o, l);
+  return normalize(q);
+}
+
+void extend(vec3 a, vec3 b, inout vec2 lo, inout vec2 hi) {
+  if (a.z >= u_clip.x) {
+    vec2 pa = vec2(u_K.x * a.x / a.z + u_K.z, u_K.y * a.y / a.z + u_K.w);
+    lo = min(lo, pa); hi = max(hi, pa);
+  }
+  if ((a.z - u_clip.x) * (b.z - u_clip.x) < 0.0) {
+    vec3 m = mix(a, b, (u_clip.x - a.z) / (b.z - a.z));
+    vec2 pm = vec2(u_K.x * m.x / m.z + u_K.z, u_K.y * m.y / m.z + u_K.w);
+    lo = min(lo, pm); hi = max(hi, pm);
+  }
 }
 
 void cull() { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); }
 
 void main() {
-  int idx = int(a_index);
+  // Quads are drawn as indexed triangles, 4 vertices per surfel (no instancing: software
+  // renderers run every instance as a separate batch, ~10x slower here).
+  int slot = u_base + (gl_VertexID >> 2);
+  vec2 corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1));
+  int idx = int(texelFetch(u_order, ivec2(slot & 4095, slot >> 12), 0).r);
   ivec2 at = ivec2((idx % u_perRow) * u_tps, idx / u_perRow);
   uvec4 t0 = texelFetch(u_data, at, 0);
   uvec4 t1 = texelFetch(u_data, at + ivec2(1, 0), 0);
@@ -112,25 +126,12 @@ void main() {
   vec2 centre = vec2(u_K.x * pc.x / pc.z + u_K.z, u_K.y * pc.y / pc.z + u_K.w);
   float rl = r * 0.7071067811865476;
   vec2 lo = centre - rl, hi = centre + rl;
-  vec3 sq[4];
-  sq[0] = pc - r * au - r * av; sq[1] = pc + r * au - r * av;
-  sq[2] = pc + r * au + r * av; sq[3] = pc - r * au + r * av;
-  for (int k = 0; k < 4; k++) {
-    vec3 a = sq[k], b = sq[(k + 1) % 4];
-    if (a.z >= u_clip.x) {
-      vec2 pa = vec2(u_K.x * a.x / a.z + u_K.z, u_K.y * a.y / a.z + u_K.w);
-      lo = min(lo, pa); hi = max(hi, pa);
-    }
-    if ((a.z - u_clip.x) * (b.z - u_clip.x) < 0.0) {
-      vec3 m = mix(a, b, (u_clip.x - a.z) / (b.z - a.z));
-      vec2 pm = vec2(u_K.x * m.x / m.z + u_K.z, u_K.y * m.y / m.z + u_K.w);
-      lo = min(lo, pm); hi = max(hi, pm);
-    }
-  }
+  vec3 c0 = pc - r * au - r * av, c1 = pc + r * au - r * av, c2 = pc + r * au + r * av, c3 = pc - r * au + r * av;
+  extend(c0, c1, lo, hi); extend(c1, c2, lo, hi); extend(c2, c3, lo, hi); extend(c3, c0, lo, hi);
   lo = max(floor(lo), vec2(0.0));
   hi = min(ceil(hi), u_size);
   if (hi.x <= lo.x || hi.y <= lo.y) { cull(); return; }
-  vec2 px = mix(lo, hi, a_corner);
+  vec2 px = mix(lo, hi, corner);
   float zn = (u_clip.y + u_clip.x) / (u_clip.y - u_clip.x) - 2.0 * u_clip.y * u_clip.x / ((u_clip.y - u_clip.x) * pc.z);
   gl_Position = vec4(2.0 * px.x / u_size.x - 1.0, 1.0 - 2.0 * px.y / u_size.y, zn, 1.0);
 
