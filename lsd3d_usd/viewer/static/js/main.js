@@ -39,7 +39,7 @@ class Viewer {
     this.sorter = new Worker("/static/js/sorter.js");
     this.sorter.onmessage = (e) => this._sorted(e.data);
     this.sortId = 0; this.sortInFlight = false; this.sortKey = ""; this.sortedKey = null; this.sortMs = 0;
-    this.chunkVersion = 0;
+    this.chunkVersion = 0; this.sortedVersion = 0;
     this.surfels = surfelStreamer(this.renderer, this.sorter, TPS, () => this._chunksChanged());
     this.proxy = proxyStreamer(this.renderer, () => { this.linesDirty = true; this.dirty = true; });
     this.fly = new FlyController(canvas);
@@ -55,7 +55,8 @@ class Viewer {
     this.have = { config: false, env: false, actors: false };
     this.dirty = true; this.linesDirty = true;
     this.waiters = [];
-    this.frameMs = 0; this.frames = 0; this.firstIdleMs = null;
+    this.frameMs = 0; this.frames = 0; this.firstIdleMs = null; this.lastDraw = 0;
+    this.timeline = {}; // ms since navigation start of the load's milestones (stats())
     this.hover = null; this.mouse = null;
   }
 
@@ -63,6 +64,7 @@ class Viewer {
   async start() {
     const q = new URLSearchParams(location.search);
     this.scene = await getJSON("/api/scene");
+    this._mark("scene");
     this.chunkSize = this.scene.chunkSize;
     $("scene-name").textContent = this.scene.name;
     document.title = `${this.scene.name} - lsd3d-usd viewer`;
@@ -95,6 +97,7 @@ class Viewer {
     const colors = new Float32Array(48);
     (this.cfg.semanticColors || []).slice(0, 16).forEach((c, k) => colors.set(c, 3 * k));
     this.classColors = colors;
+    this._mark("config");
     this.surfels.setEntries(this.cfg.chunks.map((c) => ({ ...c, key: c.url })));
     this.have.config = true;
     this._stats();
@@ -107,6 +110,7 @@ class Viewer {
       this.envInfo = await getJSON("/api/env" + (variant ? `?variant=${encodeURIComponent(variant)}` : ""));
       const m = this.envInfo.map;
       this.renderer.setEnv(m ? decodeEnv(await fetchBinary(m.url)) : null, m);
+      this._mark("env");
     } catch (err) {
       this.envInfo = { lighting: null };
       this.renderer.setEnv(null, null);
@@ -295,11 +299,14 @@ class Viewer {
     this.dirty = true;
   }
 
-  _chunksChanged() { this.chunkVersion++; this.linesDirty = true; this.dirty = true; this._stats(); }
+  _chunksChanged() {
+    if (this.surfels.loaded.size && !this.surfels.inFlight.size && !this.surfels.wanted) this._mark("chunks");
+    this.chunkVersion++; this.linesDirty = true; this.dirty = true; this._stats(); }
 
   _requestSort(cam, key) {
     this.sortInFlight = true;
     this.pendingKey = key;
+    this.pendingVersion = this.chunkVersion;
     this.sorter.postMessage({ type: "sort", id: ++this.sortId, centre: cam.eye64, forward: cam.forward, near: cam.near, far: cam.far });
   }
 
@@ -307,7 +314,9 @@ class Viewer {
     if (msg.id !== this.sortId) return;
     this.sortInFlight = false;
     this.sortedKey = this.pendingKey;
+    this.sortedVersion = this.pendingVersion;
     this.sortMs = msg.ms;
+    if (!this.surfels.wanted && !this.surfels.inFlight.size && this.surfels.loaded.size) this._mark("sorted");
     this.renderer.setOrder(msg.order, msg.count);
     this.dirty = true;
   }
@@ -345,6 +354,8 @@ class Viewer {
       && !this.sortInFlight && this.sortedKey === this.sortKey && !this.dirty;
   }
 
+  _mark(name) { if (!(name in this.timeline)) this.timeline[name] = Math.round(performance.now()); }
+
   whenIdle() { return new Promise((resolve) => this.waiters.push(resolve)); }
 
   screenshot() {
@@ -358,7 +369,7 @@ class Viewer {
              loadedSurfels: this.surfels.surfels(), loadedChunks: [...this.surfels.loaded.keys()].map((u) => u.split("/").pop()),
              chunks: this.cfg?.chunks.length || 0, firstIdleMs: this.firstIdleMs, mode: this.mode, time: this.time,
              size: [this.canvas.width, this.canvas.height], runs: [...this.runs], configId: this.cfg?.id,
-             renderer: this.renderer.note || "" };
+             renderer: this.renderer.note || "", timeline: this.timeline };
   }
 
   _loop() {
@@ -383,9 +394,18 @@ class Viewer {
       if (this.linesDirty) this._rebuildLines();
       const key = this._viewKey(cam);
       if (key !== this.lastViewKey) { this.lastViewKey = key; this.dirty = true; }
-      if (this.dirty) { this.draw(); this._status(); }
+      // While chunks stream in, frames that would be redrawn soon are skipped: in a software
+      // renderer one frame of 1 M surfels takes seconds.
+      // The first load draws the background, then the complete set (progress in the status line).
+      const loading = this.surfels.inFlight.size > 0 || this.surfels.wanted > 0;
+      // After the chunk set changed, wait for its sort (a few ms) rather than draw a stale order.
+      const stale = this.sortedVersion !== this.chunkVersion && this.frames > 0;
+      const due = !stale && (!loading || !this.frames
+        || (this.firstIdleMs !== null && now - this.lastDraw >= Math.max(300, 3 * this.frameMs)));
+      if (this.dirty && due) { this.draw(); this.lastDraw = performance.now(); }
+      if (this.dirty || loading) this._status();
       if (this._idle()) {
-        if (this.firstIdleMs === null) this.firstIdleMs = performance.now();
+        if (this.firstIdleMs === null) { this.firstIdleMs = performance.now(); this._mark("idle"); }
         for (const w of this.waiters.splice(0)) w();
       }
       requestAnimationFrame(tick);
@@ -589,7 +609,8 @@ class Viewer {
 
   _status() {
     const loaded = this.surfels.loaded.size;
-    $("status").textContent = `frame ${this.frameMs.toFixed(0)} ms · sort ${this.sortMs.toFixed(0)} ms · ${this.renderer.count.toLocaleString("en")} surfels drawn · chunks ${loaded}/${this.cfg?.chunks.length || 0}` +
+    const pending = this.surfels.wanted + this.surfels.inFlight.size;
+    $("status").textContent = (pending ? `loading ${pending} chunk(s) · ` : "") + `frame ${this.frameMs.toFixed(0)} ms · sort ${this.sortMs.toFixed(0)} ms · ${this.renderer.count.toLocaleString("en")} surfels drawn · chunks ${loaded}/${this.cfg?.chunks.length || 0}` +
       ` · ${this.canvas.width}×${this.canvas.height} · ${this.mode}` + (this.renderer.note ? ` · ${this.renderer.note}` : "");
   }
 }

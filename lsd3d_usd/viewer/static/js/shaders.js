@@ -70,6 +70,17 @@ void extend(vec3 a, vec3 b, inout vec2 lo, inout vec2 hi) {
   }
 }
 
+vec2 proj(vec3 a) { return vec2(u_K.x * a.x / a.z + u_K.z, u_K.y * a.y / a.z + u_K.w); }
+
+// Unit normal of the edge a -> b pointing away from g (zero for a degenerate edge).
+vec2 outward(vec2 a, vec2 b, vec2 g) {
+  vec2 e = b - a;
+  float l = length(e);
+  if (l < 1e-6) return vec2(0.0);
+  vec2 n = vec2(e.y, -e.x) / l;
+  return dot(n, 0.5 * (a + b) - g) < 0.0 ? -n : n;
+}
+
 void cull() { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); }
 
 void main() {
@@ -132,6 +143,24 @@ void main() {
   hi = min(ceil(hi), u_size);
   if (hi.x <= lo.x || hi.y <= lo.y) { cull(); return; }
   vec2 px = mix(lo, hi, corner);
+  // Tighter: the projected square itself, its edges pushed out by the low-pass radius (the
+  // disk around the centre lies inside), when it is in front of the camera and smaller.
+  if (min(min(c0.z, c1.z), min(c2.z, c3.z)) >= u_clip.x) {
+    vec2 p0 = proj(c0), p1 = proj(c1), p2 = proj(c2), p3 = proj(c3);
+    vec2 g = 0.25 * (p0 + p1 + p2 + p3);
+    vec2 n01 = outward(p0, p1, g), n12 = outward(p1, p2, g), n23 = outward(p2, p3, g), n30 = outward(p3, p0, g);
+    float k0 = 1.0 + dot(n30, n01), k1 = 1.0 + dot(n01, n12), k2 = 1.0 + dot(n12, n23), k3 = 1.0 + dot(n23, n30);
+    if (min(min(k0, k1), min(k2, k3)) > 0.2) {
+      vec2 q0 = p0 + rl * (n30 + n01) / k0, q1 = p1 + rl * (n01 + n12) / k1;
+      vec2 q2 = p2 + rl * (n12 + n23) / k2, q3 = p3 + rl * (n23 + n30) / k3;
+      vec2 d02 = q2 - q0, d13 = q3 - q1;
+      float area = 0.5 * abs(d02.x * d13.y - d02.y * d13.x);
+      if (area < (hi.x - lo.x) * (hi.y - lo.y)) {
+        int k = gl_VertexID & 3;   // quad vertices 0, 1, 2, 3 = square corners 0, 1, 3, 2
+        px = k == 0 ? q0 : k == 1 ? q1 : k == 2 ? q3 : q2;
+      }
+    }
+  }
   float zn = (u_clip.y + u_clip.x) / (u_clip.y - u_clip.x) - 2.0 * u_clip.y * u_clip.x / ((u_clip.y - u_clip.x) * pc.z);
   gl_Position = vec4(2.0 * px.x / u_size.x - 1.0, 1.0 - 2.0 * px.y / u_size.y, zn, 1.0);
 
