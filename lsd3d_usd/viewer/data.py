@@ -93,6 +93,7 @@ class SceneSource:
         if not (self.root / S.ROOT_FILE).is_file():
             raise InputError(f"{root}: not an lsd3d-usd scene folder (no {S.ROOT_FILE})")
         self._scene = S.Scene(self.root)
+        self.unreadable: dict[str, str] = {}    # layer file -> why it was left out
 
     @property
     def root_file(self) -> Path:
@@ -139,7 +140,8 @@ class SceneSource:
             p = self.root / S.LAYERS_DIR / f
             if Path(f).name != f or f in (".", "..") or not p.is_file():
                 raise InputError(f"{self.root}: layer {f!r} is not a file under {S.LAYERS_DIR}/")
-            paths.append(str(p))
+            if self._readable(p):
+                paths.append(str(p))
         anon.subLayerPaths = paths
         try:
             stage = Usd.Stage.Open(anon, Usd.Stage.LoadAll if load else Usd.Stage.LoadNone)
@@ -148,6 +150,20 @@ class SceneSource:
         if env_variant:
             self._select_env(stage, env_variant)
         return stage
+
+    def _readable(self, path: Path) -> bool:
+        """Open a layer on its own first: a damaged one is left out of the composition (USD would
+        skip it with a warning on stderr) and remembered in ``unreadable`` for the problem list."""
+        from pxr import Sdf
+
+        try:
+            ok = Sdf.Layer.FindOrOpen(str(path)) is not None
+            msg = "cannot be read as USD"
+        except Exception as e:  # Tf errors: truncated or foreign files
+            ok, msg = False, f"cannot be read as USD: {' '.join(str(e).split())[:300]}"
+        if not ok:
+            self.unreadable[str(path.relative_to(self.root))] = msg
+        return ok
 
     def surfel_stage(self, layer_files: list[str]):
         """Like open_stage, with only the surfel prims' payloads loaded (not the proxy's)."""

@@ -10,7 +10,7 @@ degree 1) bytes:
     header   magic "LSDV", u16 version, u8 shDegree (0|1), u8 flags (bit 0: semantic ids),
              u32 n, i32 i, i32 j, u32 0, f64[3] lo, f64[3] hi, 24 bytes 0
     pos      n x u16[3]: lo + q / 65535 * (hi - lo)   (padded to 4 bytes)
-    rec      n x u32[4]: quaternion (smallest three, 2 + 3 x 10 bits), f16 scale u | f16 scale v,
+    rec      n x u32[4]: quaternion (smallest three: 2-bit index + 3 x 10 bits, 511 = 0), f16 scale u | f16 scale v,
              f16 dc r | f16 dc g, f16 dc b | u8 opacity * 255 | u8 semantic id + 1 (0 = none)
     sh1      (shDegree 1) n x u32[4]: f16 m | 9 x i8 (c / m * 127, order band-1 coefficient
              then RGB) | 5 bytes 0
@@ -56,7 +56,7 @@ def bin_by_chunk(positions: np.ndarray, size: float) -> dict[tuple[int, int], np
 def encode_quats(q: np.ndarray) -> np.ndarray:
     """(N,4) xyzw -> (N,) u32: index of the largest |component| in bits 0-1, the other three in
     xyzw order (signs flipped so the largest is positive; each then lies in [-1/sqrt2, 1/sqrt2])
-    as 10-bit fractions in bits 2-11, 12-21, 22-31."""
+    in bits 2-11, 12-21, 22-31 as k = 511 + round(511 sqrt2 c), so 0 is exact."""
     q = np.asarray(q, np.float64).reshape(-1, 4)
     q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-30)
     rows = np.arange(len(q))
@@ -65,7 +65,7 @@ def encode_quats(q: np.ndarray) -> np.ndarray:
     keep = np.ones(q.shape, bool)
     keep[rows, big] = False
     others = q[keep].reshape(-1, 3)
-    v = np.clip(np.round((others * _SQRT2 * 0.5 + 0.5) * 1023.0), 0, 1023).astype(np.uint32)
+    v = (np.clip(np.round(others * _SQRT2 * 511.0), -511, 511) + 511).astype(np.uint32)
     return big.astype(np.uint32) | (v[:, 0] << 2) | (v[:, 1] << 12) | (v[:, 2] << 22)
 
 
@@ -74,7 +74,7 @@ def decode_quats(word: np.ndarray) -> np.ndarray:
     rows = np.arange(len(word))
     big = (word & 3).astype(np.int64)
     vals = np.stack([((word >> np.uint32(s)) & 1023).astype(np.float64) for s in (2, 12, 22)], 1)
-    vals = (vals / 1023.0 * 2.0 - 1.0) / _SQRT2
+    vals = (vals - 511.0) / 511.0 / _SQRT2
     q = np.zeros((len(word), 4))
     keep = np.ones(q.shape, bool)
     keep[rows, big] = False
@@ -89,7 +89,8 @@ def pack_chunk(key: tuple[int, int], positions, orientations, scales, opacities,
     """One chunk's surfels (world space) as an ``LSDV`` buffer (see the module doc)."""
     p = np.asarray(positions, np.float64).reshape(-1, 3)
     n = len(p)
-    sh = np.asarray(sh, np.float32).reshape(n, -1, 3)
+    sh = np.asarray(sh, np.float32)
+    sh = sh.reshape(n, sh.shape[1] if sh.ndim == 3 else sh.size // max(3 * n, 1), 3)
     deg = 1 if sh.shape[1] >= 4 else 0
     lo = p.min(0) if n else np.zeros(3)
     hi = p.max(0) if n else np.zeros(3)

@@ -132,7 +132,7 @@ class Handler(BaseHTTPRequestHandler):
         if _has_dot_segment(path) or not path.startswith("/"):
             return self._error(403, "refused: path outside the scene folder")
         try:
-            self._route(path, parse_qs(query))
+            self._route(path, parse_qs(query, keep_blank_values=True))
         except InputError as e:
             self._json({"error": str(e)}, 400)
         except (BrokenPipeError, ConnectionResetError):

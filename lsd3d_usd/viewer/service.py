@@ -170,7 +170,12 @@ class ViewerService:
                 if len(self._stages) > 8:
                     self._stages.clear()
                 self._stages[key] = self.src.open_stage(files, env_variant)
+                self._unreadable()
             return self._stages[key]
+
+    def _unreadable(self) -> None:
+        for f, msg in self.src.unreadable.items():
+            self._problem(f, f"{msg}; left out of the view")
 
     # ------------------------------------------------------------------- configuration
     def config(self, runs: list[str] | None = None) -> Config:
@@ -180,6 +185,7 @@ class ViewerService:
         with self.lock:
             files = self._layer_files(runs)
             stage = self.src.surfel_stage(files)
+            self._unreadable()
             size = self.src.chunk_size(stage)
             h = hashlib.sha256(f"LSDV{pack.CHUNK_VERSION}|{size!r}|".encode())
             for p in self.src.used_files(stage):

@@ -81,6 +81,7 @@ class Viewer {
     this._resize();
     const variant = q.get("variant") || this.scene.env.selected;
     await Promise.all([this.loadConfig(), this.loadEnv(variant), this.loadActors(), this.loadLayout()]);
+    this._syncProxy();
     this._initialView(q);
     this._loop();
   }
@@ -284,11 +285,15 @@ class Viewer {
     this.opts[key] = value;
     if (["lanes", "chunks", "proxy"].includes(key)) this.linesDirty = true;
     if (key === "scale") this._resize();
-    if (key === "proxy" && !value) this.proxy.clear();
-    if (key === "proxy" && value && !this.proxy.entries.size) {
+    if (key === "proxy") this._syncProxy();
+    this.dirty = true;
+  }
+
+  _syncProxy() {
+    if (!this.opts.proxy) this.proxy.clear();
+    else if (!this.proxy.entries.size) {
       this.proxy.setEntries((this.scene.proxyChunks || []).map(([i, j]) => ({ key: `${i}_${j}`, i, j, url: `/api/proxy/${i}_${j}` })));
     }
-    this.dirty = true;
   }
 
   // ------------------------------------------------------------------------- frames

@@ -50,8 +50,8 @@ int s8(uint w, uint shift) { int v = int((w >> shift) & 255u); return v >= 128 ?
 // Smallest-three quaternion (pack.py encode_quats), without dynamic indexing (slow in
 // software renderers).
 vec4 quat(uint w) {
-  vec3 o = (vec3(float((w >> 2u) & 1023u), float((w >> 12u) & 1023u), float((w >> 22u) & 1023u)) / 1023.0 * 2.0 - 1.0)
-           * 0.7071067811865476;
+  vec3 o = (vec3(float((w >> 2u) & 1023u), float((w >> 12u) & 1023u), float((w >> 22u) & 1023u)) - 511.0)
+           * (0.7071067811865476 / 511.0);
   float l = sqrt(max(0.0, 1.0 - dot(o, o)));
   uint big = w & 3u;
   vec4 q = big == 0u ? vec4(l, o) : big == 1u ? vec4(o.x, l, o.yz) : big == 2u ? vec4(o.xy, l, o.z) : vec4(o, l);
