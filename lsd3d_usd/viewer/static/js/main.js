@@ -504,10 +504,12 @@ class Viewer {
     const all = [...this.problems, ...this.clientProblems];
     const box = $("problems-box"), ul = $("problems");
     ul.replaceChildren(...all.map((p) => el("li", { class: p.severity }, `${p.severity === "warning" ? "warning: " : ""}${p.where}: ${p.message}`)));
-    box.hidden = !all.length && !validating;
+    box.hidden = !all.length;
     const errors = all.filter((p) => p.severity === "error").length;
-    $("problem-count").textContent = validating ? "(validating…)" : `(${errors} error(s), ${all.length - errors} warning(s))`;
+    $("problem-count").textContent = `(${errors} error(s), ${all.length - errors} warning(s))` + (validating ? " validating…" : "");
     if (errors) box.open = true;
+    this.validating = validating;
+    this._stats();
     if (validating) setTimeout(() => getJSON("/api/problems").then((r) => this._setProblems(r.problems, r.validating), () => {}), 1000);
   }
 
@@ -609,7 +611,8 @@ class Viewer {
   _stats() {
     if (!this.cfg) return;
     const mb = (this.cfg.bytes / 1e6).toFixed(1);
-    $("scene-stats").textContent = `${this.cfg.surfels.toLocaleString("en")} surfels in ${this.cfg.chunks.length} chunks · ${mb} MB (${this.cfg.bytesPerSurfel} B/surfel)`;
+    $("scene-stats").textContent = `${this.cfg.surfels.toLocaleString("en")} surfels in ${this.cfg.chunks.length} chunks · ${mb} MB (${this.cfg.bytesPerSurfel} B/surfel)`
+      + (this.validating ? " · validating…" : "");
   }
 
   _status() {

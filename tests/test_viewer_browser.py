@@ -1,0 +1,323 @@
+"""The viewer in a real browser: headless Chromium from the Debian packages (`.ci/run` installs
+it), driven by Playwright through `executable_path` (no browser download), WebGL2 on SwiftShader.
+
+Each test starts `lsd3d-usd view` as a user would and reads its request log. Frame and load
+times are reported by the viewer (`stats()`) but never asserted: software rendering is slow
+and this machine is shared.
+"""
+import base64
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import ROOT
+from lsd3d_usd import scene as S
+from test_viewer_server import RUN, make_scene
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+FLAGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+         "--disable-component-update", "--disable-sync", "--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+W, H = 320, 180
+LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
+
+try:
+    from playwright.sync_api import sync_playwright
+except ImportError:  # pragma: no cover - the test extra installs it
+    sync_playwright = None
+if sync_playwright is None or not os.path.exists(CHROMIUM):
+    # CI installs both (.ci/run): there a missing browser is a failure, not a skip.
+    if os.environ.get("CI"):
+        raise RuntimeError(f"browser tests need playwright and {CHROMIUM} (apt-get install chromium)")
+    pytest.skip("playwright or the Debian chromium package is missing", allow_module_level=True)
+
+
+# ------------------------------------------------------------------------------- helpers
+class Viewer:
+    """`lsd3d-usd view SCENE --port 0` in a child process; its request log goes to a file."""
+
+    def __init__(self, root, log):
+        self.log = Path(log)
+        self.err = open(self.log, "w")
+        self.proc = subprocess.Popen([sys.executable, "-m", "lsd3d_usd", "view", str(root), "--port", "0"],
+                                     stdout=subprocess.PIPE, stderr=self.err, text=True)
+        self.url = self.proc.stdout.readline().strip()
+        assert self.url.startswith("http://127.0.0.1:"), self.log.read_text()
+
+    def requests(self, pattern):
+        return re.findall(pattern, self.log.read_text())
+
+    def stop(self):
+        self.proc.send_signal(signal.SIGINT)
+        try:
+            self.proc.wait(60)
+        finally:
+            if self.proc.poll() is None:
+                self.proc.kill()
+            self.err.close()
+
+
+def open_page(browser, url, errors):
+    page = browser.new_page(viewport={"width": W, "height": H}, device_scale_factor=1)
+    page.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
+    page.on("pageerror", lambda e: errors.append(f"pageerror: {e}"))
+    page.goto(url)
+    page.wait_for_function("window.viewer && window.viewer.ready", timeout=60_000)
+    idle(page)
+    return page
+
+
+def idle(page):
+    page.evaluate("async () => { await window.viewer.ready; await window.viewer.whenIdle(); }")
+
+
+def shot(page, path):
+    """The canvas as the viewer draws it (the panel is HTML over it), as 8-bit RGB."""
+    data = page.evaluate("window.viewer.screenshot()")
+    Path(path).write_bytes(base64.b64decode(data.split(",", 1)[1]))
+    return read_png(path)
+
+
+def read_png(path):
+    import OpenImageIO as oiio
+    inp = oiio.ImageInput.open(str(path))
+    px = np.asarray(inp.read_image("uint8"))[..., :3].astype(np.float64)
+    inp.close()
+    return px
+
+
+def psnr(a, b):
+    mse = ((a - b) ** 2).mean()
+    return float("inf") if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
+
+
+def cpu_render(root, camera, out):
+    from lsd3d_usd.render.preview import render_preview
+    return read_png(render_preview(root, camera, out, resolution=(W, H), progress=False)[0])
+
+
+def report(page, what):
+    st = page.evaluate("window.viewer.stats()")
+    print(f"\n{what}: frame {st['frameMs']:.0f} ms, sort {st['sortMs']:.0f} ms, {st['drawn']} surfels drawn, "
+          f"timeline {st['timeline']}")
+
+
+# ------------------------------------------------------------------------------ fixtures
+@pytest.fixture(scope="module")
+def playwright():
+    with sync_playwright() as p:
+        yield p
+
+
+@pytest.fixture(scope="module")
+def browser(playwright):
+    b = playwright.chromium.launch(executable_path=CHROMIUM, args=FLAGS, headless=True)
+    yield b
+    b.close()
+
+
+@pytest.fixture(scope="module")
+def generated(tmp_path_factory):
+    """A small generated scene (layout, proxy, env, surfels, actors) with a run layer and cameras,
+    plus the CPU renderer's frames of it, with the run and with the run muted (in a copy)."""
+    from pxr import Usd
+
+    from lsd3d_usd.actors.usdio import ActorSet
+    from lsd3d_usd.pipeline import GenerateOptions, generate
+    from lsd3d_usd.render.camera import Camera, look_at, to_usd
+    from lsd3d_usd.splats.usdio import read_surfel_file, write_surfels
+
+    base = tmp_path_factory.mktemp("viewer")
+    root = base / "scene"
+    generate(GenerateOptions(out=root, layout=LAYOUT, steps=0, surfels=20000, env_resolution=(256, 128),
+                             views=4, progress=False, perceptual=False, parked=2, moving=3,
+                             log=lambda *a: None))
+    # A GGDS run layer as `generate` writes it (overs of the optimised attributes over the
+    # initial surfels), here with recoloured and slightly moved surfels so that switching it
+    # off changes the picture unmistakably.
+    f = read_surfel_file(str(root / "layers" / "surfels.usdc"))
+    rng = np.random.default_rng(3)
+    sh = f.sh.copy()
+    sh[:, 0] = sh[:, 0][:, ::-1] + 0.6
+    g = replace(f, positions=f.positions + rng.normal(0, 0.05, f.positions.shape).astype(np.float32), sh=sh)
+    st = S.new_stage()
+    write_surfels(st, S.SURFELS_PATH, g, over=True, attributes=("positions", "orientations", "scales",
+                                                                 "opacities", "sh"))
+    S.Scene.open(root).write_layer(f"{RUN}.usdc", st, S.provenance("ggds", stepsDone=1))
+
+    stage = Usd.Stage.Open(str(root / S.ROOT_FILE))
+    actors = ActorSet(stage)
+    moving = next(a for a in actors.actors if a.role == "moving")
+    t0, t1 = stage.GetStartTimeCode(), stage.GetEndTimeCode()
+    p0 = actors.transforms(t0)[actors.actors.index(moving)][:3, 3]
+    p1 = actors.transforms(t1)[actors.actors.index(moving)][:3, 3]
+    mid = (p0 + p1) / 2
+    views = {"Street": Camera.from_fov(W, H, 60, look_at((-30, -3, 2), (20, -3, 1)), near=0.1, far=2000),
+             "Actor": Camera.from_fov(W, H, 60, look_at(mid + [0, -8, 45], mid), near=0.1, far=2000)}
+    stage.SetEditTarget(stage.GetRootLayer())
+    for name, cam in views.items():
+        to_usd(stage, f"{S.CAMERAS_PATH}/{name}", cam)
+    stage.GetRootLayer().Save()
+
+    initial = base / "initial"
+    shutil.copytree(root, initial)
+    S.Scene.open(initial).mute(RUN)
+    frames = {"run": cpu_render(root, "/World/Cameras/Street", base / "cpu_run"),
+              "initial": cpu_render(initial, "/World/Cameras/Street", base / "cpu_initial")}
+    px = {k: views["Actor"].project(np.array([p]))[0][0] for k, p in (("start", p0), ("end", p1))}
+    return dict(root=root, base=base, frames=frames, actor_px=px, times=(t0, t1))
+
+
+@pytest.fixture(scope="module")
+def generated_viewer(generated):
+    v = Viewer(generated["root"], generated["base"] / "view.log")
+    yield v
+    v.stop()
+
+
+# --------------------------------------------------------------------------------- tests
+def test_page_loads_without_console_errors_and_shows_lane_ids(browser, generated_viewer):
+    errors = []
+    page = open_page(browser, generated_viewer.url + "?lanes=1&chunks=1&proxy=1", errors)
+    report(page, "generated scene, overlays on")
+    st = page.evaluate("window.viewer.stats()")
+    assert st["loadedSurfels"] == 20000 and st["drawn"] > 0 and st["runs"] == [RUN]
+    assert re.match(r"20,000 surfels in \d+ chunks", page.locator("#scene-stats").inner_text())
+    page.wait_for_function("!document.getElementById('scene-stats').textContent.includes('validating')",
+                           timeout=120_000)
+    assert page.locator("#problems-box").is_hidden()          # the generated scene is valid
+    # hover each lane's midpoint (in canvas pixels) until a tooltip names the lane under it
+    lanes = page.evaluate("""() => { const v = window.viewer; const out = [];
+        for (const l of v.lanes.values()) { const p = l.pts[l.pts.length >> 1];
+          const f = v.cam.forward, d = [p[0] - v.cam.eye64[0], p[1] - v.cam.eye64[1], p[2] - v.cam.eye64[2]];
+          const z = d[0] * f[0] + d[1] * f[1] + d[2] * f[2];
+          const r = v.cam.right, dn = v.cam.down;
+          const x = v.cam.fx * (d[0] * r[0] + d[1] * r[1] + d[2] * r[2]) / z + v.cam.cx;
+          const y = v.cam.fy * (d[0] * dn[0] + d[1] * dn[1] + d[2] * dn[2]) / z + v.cam.cy;
+          if (z > 1 && x > 5 && y > 5 && x < v.cam.width - 5 && y < v.cam.height - 5) out.push([l.id, x, y]); }
+        return out; }""")
+    assert lanes
+    page.keyboard.press("h")                                  # hide the panel (it covers the canvas)
+    assert page.locator("#panel").is_hidden()
+    lane_id, x, y = lanes[0]
+    page.mouse.move(x, y)
+    page.wait_for_function("!document.getElementById('tooltip').hidden", timeout=10_000)
+    assert page.locator("#tooltip").inner_text().split()[1] in {lid for lid, _, _ in lanes}
+    page.close()
+    assert errors == []
+
+
+def test_scene_camera_matches_cpu_renderer_and_run_toggle(browser, generated, generated_viewer):
+    errors = []
+    page = open_page(browser, generated_viewer.url + "?camera=/World/Cameras/Street&actors=0", errors)
+    report(page, "Street camera, run on")
+    with_run = shot(page, generated["base"] / "web_run.png")
+    q_run = psnr(with_run, generated["frames"]["run"])
+    print(f"PSNR vs CPU renderer, run on: {q_run:.2f} dB")
+    assert q_run >= 28.0
+
+    page.locator(f'input[data-run="{RUN}"]').click()           # switch the run off in the panel
+    idle(page)
+    without = shot(page, generated["base"] / "web_initial.png")
+    q_initial = psnr(without, generated["frames"]["initial"])
+    print(f"PSNR vs CPU renderer, run off: {q_initial:.2f} dB")
+    assert page.evaluate("window.viewer.stats().runs") == []
+    assert q_initial >= 28.0
+    assert psnr(without, with_run) < q_initial - 10        # the toggle changed the picture
+    # and the scene on disk is unchanged: the run is still in its stack, not muted
+    assert [(i.name, i.muted) for i in S.Scene.open(generated["root"]).layers()][0] == (RUN, False)
+    page.close()
+    assert errors == []
+
+
+def test_time_slider_moves_an_actor(browser, generated, generated_viewer):
+    errors = []
+    page = open_page(browser, generated_viewer.url + "?camera=/World/Cameras/Actor", errors)
+    t0, t1 = generated["times"]
+    slider = page.locator("#time")
+
+    def at(t):
+        slider.evaluate("(el, t) => { el.value = t; el.dispatchEvent(new Event('input')); }", t)
+        idle(page)
+        return shot(page, generated["base"] / f"web_t{t:g}.png")
+    a, b = at(t0), at(t1)
+    diff = np.abs(a - b).sum(2)
+
+    def near(px, r=6):
+        x, y = int(round(px[0])), int(round(px[1]))
+        assert 0 <= x < W and 0 <= y < H
+        return diff[max(0, y - r):y + r + 1, max(0, x - r):x + r + 1].max()
+    # the actor left its start and arrived at its end position: both places changed
+    assert near(generated["actor_px"]["start"]) > 60 and near(generated["actor_px"]["end"]) > 60
+    assert (diff > 30).mean() < 0.2                         # not the whole picture
+    page.close()
+    assert errors == []
+
+
+def test_far_chunk_is_fetched_only_when_the_camera_approaches(browser, tmp_path):
+    root = tmp_path / "corridor"
+    make_scene(root, chunks=[(i, 0) for i in range(8)], n=200, run=False,
+               cameras={"Start": ((5, 50, 3), (60, 50, 2))})
+    v = Viewer(root, tmp_path / "view.log")
+    try:
+        errors = []
+        page = open_page(browser, v.url + "?camera=/World/Cameras/Start&radius=150", errors)
+        fetched = set(v.requests(r"GET /api/chunk/\w+/(-?\d+_-?\d+) HTTP"))
+        assert fetched == {"0_0", "1_0"}
+        page.evaluate("window.viewer.setPose([690, 50, 3], [750, 50, 2])")
+        idle(page)
+        fetched = v.requests(r"GET /api/chunk/\w+/(-?\d+_-?\d+) HTTP")
+        assert "7_0" in fetched and fetched.count("7_0") == 1
+        assert "0_0" not in page.evaluate("window.viewer.stats().loadedChunks")   # dropped behind
+        page.close()
+        assert errors == []
+    finally:
+        v.stop()
+
+
+def test_invalid_scene_lists_its_problems(browser, tmp_path):
+    from pxr import Sdf, Vt
+    root = tmp_path / "bad"
+    make_scene(root, run=False)
+    layer = Sdf.Layer.FindOrOpen(str(root / "layers" / "surfels.usdc"))
+    attr = layer.GetAttributeAtPath("/World/Surfels.opacities")
+    attr.default = Vt.FloatArray([1.5] * len(attr.default))
+    layer.Save()
+    v = Viewer(root, tmp_path / "view.log")
+    try:
+        errors = []
+        page = open_page(browser, v.url, errors)
+        page.wait_for_selector("#problems li.error", timeout=120_000)
+        text = page.locator("#problems").inner_text()
+        assert "opacities" in text and "outside [0, 1]" in text
+        assert page.evaluate("window.viewer.stats().loadedSurfels") == 600   # still shown
+        page.close()
+        assert errors == []
+    finally:
+        v.stop()
+
+
+def test_without_webgl2_the_page_says_so_in_one_line(playwright, tmp_path):
+    root = tmp_path / "scene"
+    make_scene(root, run=False)
+    v = Viewer(root, tmp_path / "view.log")
+    b = playwright.chromium.launch(executable_path=CHROMIUM, args=FLAGS + ["--disable-3d-apis"], headless=True)
+    try:
+        page = b.new_page()
+        page.goto(v.url)
+        page.wait_for_selector("#message", state="visible", timeout=30_000)
+        text = page.locator("#message").inner_text()
+        assert "WebGL2" in text and "\n" not in text.strip()
+        assert page.locator("#panel").is_hidden()
+        assert not v.requests(r"GET /api/chunk/")                # nothing else was loaded
+    finally:
+        b.close()
+        v.stop()
