@@ -321,3 +321,67 @@ def test_without_webgl2_the_page_says_so_in_one_line(playwright, tmp_path):
     finally:
         b.close()
         v.stop()
+
+
+def test_environment_variants_switch_the_background(browser, tmp_path):
+    import datetime as dt
+
+    from lsd3d_usd.env import write_env_layer
+    from lsd3d_usd.env.params import EnvParams
+
+    root = tmp_path / "envs"
+    make_scene(root, run=False, cameras={"Sky": ((50, 50, 2), (150, 50, 20))})
+    tz = dt.timezone(dt.timedelta(hours=2))
+    write_env_layer(root / "layers" / "env.usda",
+                    [("noon", EnvParams(when=dt.datetime(2026, 6, 21, 13, 0, tzinfo=tz))),
+                     ("dusk", EnvParams(when=dt.datetime(2026, 6, 21, 21, 40, tzinfo=tz)))],
+                    width=64, height=32)
+    S.Scene.open(root).add_layer("env")
+    v = Viewer(root, tmp_path / "view.log")
+    try:
+        errors = []
+        page = open_page(browser, v.url + "?camera=/World/Cameras/Sky&exposure=-6", errors)  # raw sky radiance
+        options = page.locator("#env-variant option").all_inner_texts()
+        assert options == ["dusk", "noon"] or options == ["noon", "dusk"]
+        assert page.locator("#env-variant").input_value() == "noon"
+        noon = shot(page, tmp_path / "noon.png")
+        page.locator("#env-variant").select_option("dusk")
+        idle(page)
+        dusk = shot(page, tmp_path / "dusk.png")
+        sky = slice(0, H // 3)                                  # the camera looks up: sky on top
+        assert noon[sky].mean() > dusk[sky].mean() + 20
+        assert "variant=dusk" in (tmp_path / "view.log").read_text()
+        page.close()
+        assert errors == []
+    finally:
+        v.stop()
+
+
+def test_drive_mode_follows_a_lane(browser, generated, generated_viewer):
+    errors = []
+    page = open_page(browser, generated_viewer.url, errors)
+    lane = page.evaluate("[...window.viewer.lanes.values()].find((l) => l.successors.length).id")
+    page.locator("input[name=mode][value=drive]").check()
+    page.locator("#route").fill(lane)
+    page.locator("#drive-speed").fill("20")
+    page.locator("#drive-start").click()
+    assert page.evaluate("window.viewer.stats().mode") == "drive"
+    assert re.match(r"\d+ lanes, \d+ m", page.locator("#drive-info").inner_text())
+    start = page.evaluate("(id) => window.viewer.lanes.get(id).pts[0]", lane)
+    page.wait_for_function("window.viewer.drive.s > 1", timeout=60_000)
+    eye = page.evaluate("window.viewer.cam.eye64")
+    # on a lane centre line (the route and its successors), 1.6 m above it
+    lines = page.evaluate("[...window.viewer.lanes.values()].map((l) => l.pts)")
+    best = min((np.linalg.norm(np.asarray(eye[:2]) - (np.asarray(a[:2]) + np.clip(
+        np.dot(np.subtract(eye[:2], a[:2]), np.subtract(b[:2], a[:2])) / max(np.sum(np.subtract(b[:2], a[:2]) ** 2), 1e-12),
+        0, 1) * np.subtract(b[:2], a[:2]))), a[2]) for pts in lines for a, b in zip(pts, pts[1:]))
+    assert best[0] < 0.2 and abs(eye[2] - best[1] - 1.6) < 0.3
+    assert abs(start[2] + 1.6 - eye[2]) < 3
+    page.keyboard.press("h")
+    page.mouse.move(100, 100)
+    page.mouse.down()
+    page.mouse.move(140, 100)                                  # looking around takes over: fly
+    page.mouse.up()
+    assert page.evaluate("window.viewer.stats().mode") == "fly"
+    page.close()
+    assert errors == []
