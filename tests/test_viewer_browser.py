@@ -238,6 +238,27 @@ def test_scene_camera_matches_cpu_renderer_and_run_toggle(browser, generated, ge
     assert errors == []
 
 
+def test_large_canvas_quad_path_matches_cpu_renderer(browser, generated, generated_viewer):
+    """Above the largest point size (1023 px in SwiftShader) surfels are drawn as quads."""
+    from lsd3d_usd.render.preview import render_preview
+    w, h = 1040, 585
+    cpu = read_png(render_preview(generated["root"], "/World/Cameras/Street", generated["base"] / "cpu_large",
+                                  resolution=(w, h), progress=False)[0])
+    errors = []
+    page = browser.new_page(viewport={"width": w, "height": h}, device_scale_factor=1)
+    page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+    page.goto(generated_viewer.url + "?camera=/World/Cameras/Street&actors=0")
+    page.wait_for_function("window.viewer && window.viewer.ready", timeout=60_000)
+    idle(page)
+    assert page.evaluate("window.viewer.renderer.maxPointSize") < w
+    q = psnr(shot(page, generated["base"] / "web_large.png"), cpu)
+    report(page, f"Street camera {w}x{h} (quads)")
+    print(f"PSNR vs CPU renderer at {w}x{h}: {q:.2f} dB")
+    assert q >= 28.0
+    page.close()
+    assert errors == []
+
+
 def test_time_slider_moves_an_actor(browser, generated, generated_viewer):
     errors = []
     page = open_page(browser, generated_viewer.url + "?camera=/World/Cameras/Actor", errors)

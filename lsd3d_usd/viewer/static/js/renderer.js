@@ -70,6 +70,7 @@ export class Renderer {
     this.actor = compile(gl, S.ACTOR_VS, S.ACTOR_FS);
     this.overlay = compile(gl, S.OVERLAY_VS, S.OVERLAY_FS);
     this.maxRows = Math.floor(Math.min(gl.getParameter(gl.MAX_TEXTURE_SIZE), 16384));
+    this.maxPointSize = gl.getParameter(gl.ALIASED_POINT_SIZE_RANGE)[1];
     this.pool = null;
     this.data = null;
     this.chunks = new Map(); // key -> {startRow, rows, n, gpu}
@@ -362,7 +363,13 @@ export class Renderer {
       gl.bindTexture(gl.TEXTURE_2D, this.orderTex);
       gl.uniform1i(su.u_order, 1);
       gl.bindVertexArray(this.surfelVao);
-      for (let base = 0; base < this.count; base += BATCH) {
+      // One point sprite per surfel when any screen rectangle fits the largest point size (its
+      // side is at most the image's): a quarter of the vertex work of quads, the same pixels
+      // (the fragment shader clips the square sprite to the rectangle). Else indexed quads.
+      const points = Math.max(w, h) <= this.maxPointSize;
+      gl.uniform1i(su.u_points, points ? 1 : 0);
+      if (points) gl.drawArrays(gl.POINTS, 0, this.count);
+      else for (let base = 0; base < this.count; base += BATCH) {
         gl.uniform1i(su.u_base, base);
         gl.drawElements(gl.TRIANGLES, 6 * Math.min(BATCH, this.count - base), gl.UNSIGNED_SHORT, 0);
       }

@@ -32,12 +32,15 @@ uniform int u_colorMode;     // 0 colour, 1 semantic class
 uniform vec3 u_classColors[16];
 uniform highp usampler2D u_order; // draw position -> global surfel index (back-to-front)
 uniform int u_base;          // draw position of this batch's first surfel
+uniform int u_points;        // 1: one point sprite per surfel covering its screen rectangle
 flat out vec3 v_pc;          // centre, camera space
 flat out vec3 v_nf;          // unit normal facing the camera
 flat out vec3 v_tu;          // a_u / s_u^2: u = dot(hit, v_tu)
 flat out vec3 v_tv;
 flat out vec2 v_centre;      // projected centre, pixels
 flat out vec4 v_rgba;        // colour, opacity
+flat out vec2 v_lo;          // screen rectangle (pixels)
+flat out vec2 v_hi;
 
 const float C0 = 0.28209479177387814;
 const float C1 = 0.4886025119029199;
@@ -58,19 +61,19 @@ vec4 quat(uint w) {
   return normalize(q);
 }
 
+vec2 proj(vec3 a) { return vec2(u_K.x * a.x / a.z + u_K.z, u_K.y * a.y / a.z + u_K.w); }
+
+// Grow the rectangle [lo, hi] by the edge a -> b of the disk's square clipped to z >= near.
 void extend(vec3 a, vec3 b, inout vec2 lo, inout vec2 hi) {
   if (a.z >= u_clip.x) {
-    vec2 pa = vec2(u_K.x * a.x / a.z + u_K.z, u_K.y * a.y / a.z + u_K.w);
+    vec2 pa = proj(a);
     lo = min(lo, pa); hi = max(hi, pa);
   }
   if ((a.z - u_clip.x) * (b.z - u_clip.x) < 0.0) {
-    vec3 m = mix(a, b, (u_clip.x - a.z) / (b.z - a.z));
-    vec2 pm = vec2(u_K.x * m.x / m.z + u_K.z, u_K.y * m.y / m.z + u_K.w);
+    vec2 pm = proj(mix(a, b, (u_clip.x - a.z) / (b.z - a.z)));
     lo = min(lo, pm); hi = max(hi, pm);
   }
 }
-
-vec2 proj(vec3 a) { return vec2(u_K.x * a.x / a.z + u_K.z, u_K.y * a.y / a.z + u_K.w); }
 
 // Unit normal of the edge a -> b pointing away from g (zero for a degenerate edge).
 vec2 outward(vec2 a, vec2 b, vec2 g) {
@@ -81,12 +84,36 @@ vec2 outward(vec2 a, vec2 b, vec2 g) {
   return dot(n, 0.5 * (a + b) - g) < 0.0 ? -n : n;
 }
 
+// Vertex of a surfel's quad: a corner of the screen rectangle, or tighter, of the projected
+// square itself with its edges pushed out by the low-pass radius (the disk around the centre
+// lies inside), when that square is in front of the camera and smaller than the rectangle.
+vec2 quadVertex(vec3 c0, vec3 c1, vec3 c2, vec3 c3, float rl, vec2 lo, vec2 hi, vec2 corner) {
+  vec2 px = mix(lo, hi, corner);
+  if (min(min(c0.z, c1.z), min(c2.z, c3.z)) >= u_clip.x) {
+    vec2 p0 = proj(c0), p1 = proj(c1), p2 = proj(c2), p3 = proj(c3);
+    vec2 g = 0.25 * (p0 + p1 + p2 + p3);
+    vec2 n01 = outward(p0, p1, g), n12 = outward(p1, p2, g), n23 = outward(p2, p3, g), n30 = outward(p3, p0, g);
+    float k0 = 1.0 + dot(n30, n01), k1 = 1.0 + dot(n01, n12), k2 = 1.0 + dot(n12, n23), k3 = 1.0 + dot(n23, n30);
+    if (min(min(k0, k1), min(k2, k3)) > 0.2) {
+      vec2 q0 = p0 + rl * (n30 + n01) / k0, q1 = p1 + rl * (n01 + n12) / k1;
+      vec2 q2 = p2 + rl * (n12 + n23) / k2, q3 = p3 + rl * (n23 + n30) / k3;
+      vec2 d02 = q2 - q0, d13 = q3 - q1;
+      float area = 0.5 * abs(d02.x * d13.y - d02.y * d13.x);
+      if (area < (hi.x - lo.x) * (hi.y - lo.y)) {
+        int k = gl_VertexID & 3;   // quad vertices 0, 1, 2, 3 = square corners 0, 1, 3, 2
+        px = k == 0 ? q0 : k == 1 ? q1 : k == 2 ? q3 : q2;
+      }
+    }
+  }
+  return px;
+}
+
 void cull() { gl_Position = vec4(2.0, 2.0, 2.0, 1.0); }
 
 void main() {
-  // Quads are drawn as indexed triangles, 4 vertices per surfel (no instancing: software
-  // renderers run every instance as a separate batch, ~10x slower here).
-  int slot = u_base + (gl_VertexID >> 2);
+  // One point (u_points) or one quad of indexed triangles, 4 vertices, per surfel. No
+  // instancing: software renderers run every instance as a separate batch (~10x slower).
+  int slot = u_points == 1 ? gl_VertexID : u_base + (gl_VertexID >> 2);
   vec2 corner = vec2(float(gl_VertexID & 1), float((gl_VertexID >> 1) & 1));
   int idx = int(texelFetch(u_order, ivec2(slot & 4095, slot >> 12), 0).r);
   ivec2 at = ivec2((idx % u_perRow) * u_tps, idx / u_perRow);
@@ -134,7 +161,7 @@ void main() {
 
   // Screen rectangle: the disk's bounding square (radius r) clipped to z >= near and projected,
   // united with the low-pass disk of radius r / sqrt(2) pixels around the projected centre.
-  vec2 centre = vec2(u_K.x * pc.x / pc.z + u_K.z, u_K.y * pc.y / pc.z + u_K.w);
+  vec2 centre = proj(pc);
   float rl = r * 0.7071067811865476;
   vec2 lo = centre - rl, hi = centre + rl;
   vec3 c0 = pc - r * au - r * av, c1 = pc + r * au - r * av, c2 = pc + r * au + r * av, c3 = pc - r * au + r * av;
@@ -142,24 +169,13 @@ void main() {
   lo = max(floor(lo), vec2(0.0));
   hi = min(ceil(hi), u_size);
   if (hi.x <= lo.x || hi.y <= lo.y) { cull(); return; }
-  vec2 px = mix(lo, hi, corner);
-  // Tighter: the projected square itself, its edges pushed out by the low-pass radius (the
-  // disk around the centre lies inside), when it is in front of the camera and smaller.
-  if (min(min(c0.z, c1.z), min(c2.z, c3.z)) >= u_clip.x) {
-    vec2 p0 = proj(c0), p1 = proj(c1), p2 = proj(c2), p3 = proj(c3);
-    vec2 g = 0.25 * (p0 + p1 + p2 + p3);
-    vec2 n01 = outward(p0, p1, g), n12 = outward(p1, p2, g), n23 = outward(p2, p3, g), n30 = outward(p3, p0, g);
-    float k0 = 1.0 + dot(n30, n01), k1 = 1.0 + dot(n01, n12), k2 = 1.0 + dot(n12, n23), k3 = 1.0 + dot(n23, n30);
-    if (min(min(k0, k1), min(k2, k3)) > 0.2) {
-      vec2 q0 = p0 + rl * (n30 + n01) / k0, q1 = p1 + rl * (n01 + n12) / k1;
-      vec2 q2 = p2 + rl * (n12 + n23) / k2, q3 = p3 + rl * (n23 + n30) / k3;
-      vec2 d02 = q2 - q0, d13 = q3 - q1;
-      float area = 0.5 * abs(d02.x * d13.y - d02.y * d13.x);
-      if (area < (hi.x - lo.x) * (hi.y - lo.y)) {
-        int k = gl_VertexID & 3;   // quad vertices 0, 1, 2, 3 = square corners 0, 1, 3, 2
-        px = k == 0 ? q0 : k == 1 ? q1 : k == 2 ? q3 : q2;
-      }
-    }
+  v_lo = lo; v_hi = hi;
+  vec2 px;
+  if (u_points == 1) {
+    px = 0.5 * (lo + hi);
+    gl_PointSize = max(hi.x - lo.x, hi.y - lo.y);
+  } else {
+    px = quadVertex(c0, c1, c2, c3, rl, lo, hi, corner);
   }
   float zn = (u_clip.y + u_clip.x) / (u_clip.y - u_clip.x) - 2.0 * u_clip.y * u_clip.x / ((u_clip.y - u_clip.x) * pc.z);
   gl_Position = vec4(2.0 * px.x / u_size.x - 1.0, 1.0 - 2.0 * px.y / u_size.y, zn, 1.0);
@@ -184,9 +200,12 @@ flat in vec3 v_tu;
 flat in vec3 v_tv;
 flat in vec2 v_centre;
 flat in vec4 v_rgba;
+flat in vec2 v_lo;
+flat in vec2 v_hi;
 out vec4 o_color;
 void main() {
   vec2 pix = vec2(gl_FragCoord.x, u_size.y - gl_FragCoord.y);
+  if (any(lessThan(pix, v_lo)) || any(greaterThan(pix, v_hi))) discard;   // point sprites are square
   vec3 ray = vec3((pix.x - u_K.z) / u_K.x, (pix.y - u_K.w) / u_K.y, 1.0);
   float nd = dot(v_nf, ray);
   float tz = dot(v_nf, v_pc) / (abs(nd) > 1e-30 ? nd : 1.0);
