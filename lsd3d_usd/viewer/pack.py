@@ -42,14 +42,16 @@ def chunk_keys(positions: np.ndarray, size: float) -> np.ndarray:
 
 
 def bin_by_chunk(positions: np.ndarray, size: float) -> dict[tuple[int, int], np.ndarray]:
-    """Chunk key -> indices of the surfels whose centre lies in it."""
+    """Chunk key -> indices (ascending) of the surfels whose centre lies in it."""
     keys = chunk_keys(positions, size)
     if not len(keys):
         return {}
-    uniq, inverse = np.unique(keys, axis=0, return_inverse=True)
-    order = np.argsort(inverse.reshape(-1), kind="stable")
-    bounds = np.searchsorted(inverse.reshape(-1)[order], np.arange(len(uniq) + 1))
-    return {(int(u[0]), int(u[1])): order[bounds[k]:bounds[k + 1]] for k, u in enumerate(uniq)}
+    lo = keys.min(0)
+    flat = (keys[:, 0] - lo[0]) * (int(keys[:, 1].max() - lo[1]) + 1) + (keys[:, 1] - lo[1])
+    order = np.argsort(flat, kind="stable")
+    starts = np.flatnonzero(np.diff(flat[order])) + 1
+    return {(int(keys[g[0], 0]), int(keys[g[0], 1])): g
+            for g in np.split(order, starts)}
 
 
 # ------------------------------------------------------------------------------ quats
