@@ -407,8 +407,8 @@ class Viewer {
       const stale = this.sortedVersion !== this.chunkVersion && this.frames > 0;
       const due = !stale && (!loading || !this.frames
         || (this.firstIdleMs !== null && now - this.lastDraw >= Math.max(300, 3 * this.frameMs)));
-      if (this.dirty && due) { this.draw(); this.lastDraw = performance.now(); }
-      if (this.dirty || loading) this._status();
+      if (this.dirty && due) { this.draw(); this.lastDraw = performance.now(); this._status(); }
+      else if (loading) this._status();
       if (this._idle()) {
         if (this.firstIdleMs === null) { this.firstIdleMs = performance.now(); this._mark("idle"); }
         for (const w of this.waiters.splice(0)) w();
