@@ -137,6 +137,10 @@ class Handler(BaseHTTPRequestHandler):
             self._json({"error": str(e)}, 400)
         except (BrokenPipeError, ConnectionResetError):
             pass
+        except Exception as e:  # a damaged file deep in the scene: one line, the page lists it
+            msg = f"{type(e).__name__}: {' '.join(str(e).split())[:400]}"
+            self.log_message("%s: %s", path, msg)
+            self._json({"error": msg}, 500)
 
     def _route(self, path: str, q: dict) -> None:
         svc = self.server.service
