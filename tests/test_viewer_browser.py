@@ -110,6 +110,15 @@ def report(page, what):
           f"timeline {st['timeline']}")
 
 
+def _to_segment(p, a, b):
+    """(horizontal distance from p to the segment a-b, height of the segment's nearest point)."""
+    p, a, b = (np.asarray(v, np.float64) for v in (p, a, b))
+    d = b - a
+    w = np.clip(np.dot(p[:2] - a[:2], d[:2]) / max(np.dot(d[:2], d[:2]), 1e-12), 0.0, 1.0)
+    q = a + w * d
+    return float(np.linalg.norm(p[:2] - q[:2])), float(q[2])
+
+
 # ------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
 def playwright():
@@ -393,10 +402,8 @@ def test_drive_mode_follows_a_lane(browser, generated, generated_viewer):
     eye = page.evaluate("window.viewer.cam.eye64")
     # on a lane centre line (the route and its successors), 1.6 m above it
     lines = page.evaluate("[...window.viewer.lanes.values()].map((l) => l.pts)")
-    best = min((np.linalg.norm(np.asarray(eye[:2]) - (np.asarray(a[:2]) + np.clip(
-        np.dot(np.subtract(eye[:2], a[:2]), np.subtract(b[:2], a[:2])) / max(np.sum(np.subtract(b[:2], a[:2]) ** 2), 1e-12),
-        0, 1) * np.subtract(b[:2], a[:2]))), a[2]) for pts in lines for a, b in zip(pts, pts[1:]))
-    assert best[0] < 0.2 and abs(eye[2] - best[1] - 1.6) < 0.3
+    dist, z = min(_to_segment(eye, a, b) for pts in lines for a, b in zip(pts, pts[1:]))
+    assert dist < 0.2 and abs(eye[2] - z - 1.6) < 0.3
     assert abs(start[2] + 1.6 - eye[2]) < 3
     page.keyboard.press("h")
     page.mouse.move(100, 100)
