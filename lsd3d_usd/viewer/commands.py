@@ -59,7 +59,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "100 m chunks), env map, layers (GGDS runs toggled in the viewer only), actors over "
                     "time, cameras, proxy/lane/chunk overlays. Prints the URL; Ctrl-C stops it. Packed "
                     "chunk buffers are cached under SCENE/viewer_cache/. See docs/viewer.md.")
-    p.add_argument("scene", help="scene folder (holding scene.usda)")
+    p.add_argument("scene", help="scene folder (holding scene.usda), or its scene.usda")
     p.add_argument("--port", type=int, default=8021, help="TCP port (default 8021; 0 = any free port)")
     p.add_argument("--host", default="127.0.0.1",
                    help="address to listen on (default 127.0.0.1, this machine only)")

@@ -88,6 +88,8 @@ class SceneSource:
         from lsd3d_usd import scene as S
 
         self.root = Path(root).absolute()
+        if self.root.name == S.ROOT_FILE and self.root.is_file():
+            self.root = self.root.parent          # the scene's root layer names its folder
         if not self.root.is_dir():
             raise InputError(f"{root}: no such scene folder")
         if not (self.root / S.ROOT_FILE).is_file():

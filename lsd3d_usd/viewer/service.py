@@ -281,7 +281,7 @@ class ViewerService:
     # -------------------------------------------------------------------------- scene
     def scene_info(self) -> dict:
         stage = self._read("stage", self.stage)
-        info: dict = {"name": self.root.name, "root": str(self.root), "chunkSize": 100.0,
+        info: dict = {"name": self.root.name, "chunkSize": 100.0,
                       "layers": [], "env": {"variants": [], "selected": None}, "cameras": [],
                       "time": {"start": 0.0, "end": 0.0, "codesPerSecond": 24.0}}
         for e in self.layers:

@@ -380,7 +380,7 @@ class Viewer {
   _loop() {
     let last = performance.now();
     const tick = (now) => {
-      const dt = Math.min(0.1, (now - last) / 1000);
+      const dt = Math.min(0.25, (now - last) / 1000);   // slow frames still move, without jumps
       last = now;
       if (this.fly.update(dt) && this.mode === "fly") this.dirty = true;
       if (this.mode === "drive" && this.drive) { this.drive.update(dt); this.dirty = true; }
