@@ -57,7 +57,7 @@ class Viewer {
     this.waiters = [];
     this.frameMs = 0; this.frames = 0; this.firstIdleMs = null; this.lastDraw = 0;
     this.timeline = {}; // ms since navigation start of the load's milestones (stats())
-    this.hover = null; this.mouse = null;
+    this.hover = null;
   }
 
   // ----------------------------------------------------------------------- loading
@@ -89,12 +89,16 @@ class Viewer {
   async loadConfig() {
     this.have.config = false;
     const runs = [...this.runs].join(",");
+    const seq = (this.configSeq = (this.configSeq || 0) + 1);
+    let cfg;
     try {
-      this.cfg = await getJSON(`/api/config?runs=${encodeURIComponent(runs)}`);
+      cfg = await getJSON(`/api/config?runs=${encodeURIComponent(runs)}`);
     } catch (err) {
-      this.cfg = { chunks: [], surfels: 0, shDegree: 0, semanticClasses: [], semanticColors: [] };
+      cfg = { chunks: [], surfels: 0, shDegree: 0, semanticClasses: [], semanticColors: [] };
       this._clientProblem("surfels", err.message);
     }
+    if (seq !== this.configSeq) return;  // a later toggle won
+    this.cfg = cfg;
     const colors = new Float32Array(48);
     (this.cfg.semanticColors || []).slice(0, 16).forEach((c, k) => colors.set(c, 3 * k));
     this.classColors = colors;
@@ -107,16 +111,19 @@ class Viewer {
 
   async loadEnv(variant) {
     this.have.env = false;
+    const seq = (this.envSeq = (this.envSeq || 0) + 1);
+    let info, map = null;
     try {
-      this.envInfo = await getJSON("/api/env" + (variant ? `?variant=${encodeURIComponent(variant)}` : ""));
-      const m = this.envInfo.map;
-      this.renderer.setEnv(m ? decodeEnv(await fetchBinary(m.url)) : null, m);
-      this._mark("env");
+      info = await getJSON("/api/env" + (variant ? `?variant=${encodeURIComponent(variant)}` : ""));
+      if (info.map) map = decodeEnv(await fetchBinary(info.map.url));
     } catch (err) {
-      this.envInfo = { lighting: null };
-      this.renderer.setEnv(null, null);
+      info = { lighting: null, map: null };
       this._clientProblem("environment", err.message);
     }
+    if (seq !== this.envSeq) return;     // a later choice won
+    this.envInfo = info;
+    this.renderer.setEnv(map, info.map);
+    this._mark("env");
     this.have.env = true;
     this.dirty = true;
   }
@@ -304,9 +311,7 @@ class Viewer {
     this.dirty = true;
   }
 
-  _chunksChanged() {
-    if (this.surfels.loaded.size && !this.surfels.inFlight.size && !this.surfels.wanted) this._mark("chunks");
-    this.chunkVersion++; this.linesDirty = true; this.dirty = true; this._stats(); }
+  _chunksChanged() { this.chunkVersion++; this.linesDirty = true; this.dirty = true; this._stats(); }
 
   _requestSort(cam, key) {
     this.sortInFlight = true;
@@ -399,11 +404,11 @@ class Viewer {
       if (this.linesDirty) this._rebuildLines();
       const key = this._viewKey(cam);
       if (key !== this.lastViewKey) { this.lastViewKey = key; this.dirty = true; }
-      // While chunks stream in, frames that would be redrawn soon are skipped: in a software
-      // renderer one frame of 1 M surfels takes seconds.
-      // The first load draws the background, then the complete set (progress in the status line).
+      // Frames wait while chunks stream in (one frame of 1 M surfels takes seconds in a software
+      // renderer): the first load draws the background, then the complete set; later streaming
+      // redraws at most every 3 frame times. After the chunk set changed, a frame waits for its
+      // sort (milliseconds) rather than draw a stale order.
       const loading = this.surfels.inFlight.size > 0 || this.surfels.wanted > 0;
-      // After the chunk set changed, wait for its sort (a few ms) rather than draw a stale order.
       const stale = this.sortedVersion !== this.chunkVersion && this.frames > 0;
       const due = !stale && (!loading || !this.frames
         || (this.firstIdleMs !== null && now - this.lastDraw >= Math.max(300, 3 * this.frameMs)));
