@@ -96,8 +96,9 @@ class ViewerService:
     def _problem(self, where: str, message: str, severity: str = "error") -> None:
         entry = {"severity": severity, "where": where, "message": message}
         with self.lock:
-            if entry not in self.problems:
-                self.problems.append(entry)
+            if entry in self.problems:
+                return
+            self.problems.append(entry)
         self.log(f"{severity}: {where}: {message}")
 
     def _read(self, what: str, fn, *args, default=None):
