@@ -99,9 +99,18 @@ def psnr(a, b):
     return float("inf") if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
 
 
-def cpu_render(root, camera, out):
-    from lsd3d_usd.render.preview import render_preview
-    return read_png(render_preview(root, camera, out, resolution=(W, H), progress=False)[0])
+def cli(*args):
+    """The command line as a user runs it (stable across library refactors)."""
+    r = subprocess.run([sys.executable, "-m", "lsd3d_usd", *map(str, args)], capture_output=True, text=True,
+                       timeout=900)
+    assert r.returncode == 0, r.stderr
+    return r.stdout
+
+
+def cpu_render(root, camera, out, size=(W, H)):
+    """Our CPU renderer's PNG of a scene camera (`lsd3d-usd render`, ACES, sRGB)."""
+    cli("render", root, "--camera", camera, "--resolution", f"{size[0]}x{size[1]}", "-o", out)
+    return read_png(Path(out) / f"{camera.rsplit('/', 1)[1]}.png")
 
 
 def report(page, what):
@@ -140,15 +149,13 @@ def generated(tmp_path_factory):
     from pxr import Usd
 
     from lsd3d_usd.actors.usdio import ActorSet
-    from lsd3d_usd.pipeline import GenerateOptions, generate
     from lsd3d_usd.render.camera import Camera, look_at, to_usd
     from lsd3d_usd.splats.usdio import read_surfel_file, write_surfels
 
     base = tmp_path_factory.mktemp("viewer")
     root = base / "scene"
-    generate(GenerateOptions(out=root, layout=LAYOUT, steps=0, surfels=20000, env_resolution=(256, 128),
-                             views=4, progress=False, perceptual=False, parked=2, moving=3,
-                             log=lambda *a: None))
+    cli("generate", "--layout", LAYOUT, "-o", root, "--steps", 0, "--surfels", 20000,
+        "--env-resolution", "256x128", "--parked", 2, "--moving", 3)
     # A GGDS run layer as `generate` writes it (overs of the optimised attributes over the
     # initial surfels), here with recoloured and slightly moved surfels so that switching it
     # off changes the picture unmistakably.
@@ -249,10 +256,8 @@ def test_scene_camera_matches_cpu_renderer_and_run_toggle(browser, generated, ge
 
 def test_large_canvas_quad_path_matches_cpu_renderer(browser, generated, generated_viewer):
     """Above the largest point size (1023 px in SwiftShader) surfels are drawn as quads."""
-    from lsd3d_usd.render.preview import render_preview
     w, h = 1040, 585
-    cpu = read_png(render_preview(generated["root"], "/World/Cameras/Street", generated["base"] / "cpu_large",
-                                  resolution=(w, h), progress=False)[0])
+    cpu = cpu_render(generated["root"], "/World/Cameras/Street", generated["base"] / "cpu_large", (w, h))
     errors = []
     page = browser.new_page(viewport={"width": w, "height": h}, device_scale_factor=1)
     page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
