@@ -354,6 +354,7 @@ class Viewer {
     this.gl.readPixels(0, 0, 1, 1, this.gl.RGBA, this.gl.UNSIGNED_BYTE, px); // waits for the frame
     this.frameMs = performance.now() - t0;
     this.frames++;
+    if (this.frames <= 8) (this.timeline.frames ??= []).push([Math.round(t0), Math.round(this.frameMs), this.renderer.count]);
     this.dirty = false;
   }
 
