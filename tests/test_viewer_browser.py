@@ -66,6 +66,8 @@ class Viewer:
 
 
 def open_page(browser, url, errors):
+    """A page of the viewer at W x H CSS pixels (pixel comparisons ask for scale=1: full
+    resolution, which a software renderer does not use by default)."""
     page = browser.new_page(viewport={"width": W, "height": H}, device_scale_factor=1)
     page.on("console", lambda m: errors.append(f"console: {m.text}") if m.type == "error" else None)
     page.on("pageerror", lambda e: errors.append(f"pageerror: {e}"))
@@ -202,7 +204,7 @@ def generated_viewer(generated):
 # --------------------------------------------------------------------------------- tests
 def test_page_loads_without_console_errors_and_shows_lane_ids(browser, generated_viewer):
     errors = []
-    page = open_page(browser, generated_viewer.url + "?lanes=1&chunks=1&proxy=1", errors)
+    page = open_page(browser, generated_viewer.url + "?lanes=1&chunks=1&proxy=1&scale=1", errors)
     report(page, "generated scene, overlays on")
     st = page.evaluate("window.viewer.stats()")
     assert st["loadedSurfels"] == 20000 and st["drawn"] > 0 and st["runs"] == [RUN]
@@ -233,7 +235,7 @@ def test_page_loads_without_console_errors_and_shows_lane_ids(browser, generated
 
 def test_scene_camera_matches_cpu_renderer_and_run_toggle(browser, generated, generated_viewer):
     errors = []
-    page = open_page(browser, generated_viewer.url + "?camera=/World/Cameras/Street&actors=0", errors)
+    page = open_page(browser, generated_viewer.url + "?camera=/World/Cameras/Street&actors=0&scale=1", errors)
     report(page, "Street camera, run on")
     with_run = shot(page, generated["base"] / "web_run.png")
     q_run = psnr(with_run, generated["frames"]["run"])
@@ -261,7 +263,7 @@ def test_large_canvas_quad_path_matches_cpu_renderer(browser, generated, generat
     errors = []
     page = browser.new_page(viewport={"width": w, "height": h}, device_scale_factor=1)
     page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-    page.goto(generated_viewer.url + "?camera=/World/Cameras/Street&actors=0")
+    page.goto(generated_viewer.url + "?camera=/World/Cameras/Street&actors=0&scale=1")
     page.wait_for_function("window.viewer && window.viewer.ready", timeout=60_000)
     idle(page)
     assert page.evaluate("window.viewer.renderer.maxPointSize") < w
@@ -275,7 +277,7 @@ def test_large_canvas_quad_path_matches_cpu_renderer(browser, generated, generat
 
 def test_time_slider_moves_an_actor(browser, generated, generated_viewer):
     errors = []
-    page = open_page(browser, generated_viewer.url + "?camera=/World/Cameras/Actor", errors)
+    page = open_page(browser, generated_viewer.url + "?camera=/World/Cameras/Actor&scale=1", errors)
     t0, t1 = generated["times"]
     slider = page.locator("#time")
 
@@ -375,7 +377,7 @@ def test_environment_variants_switch_the_background(browser, tmp_path):
     v = Viewer(root, tmp_path / "view.log")
     try:
         errors = []
-        page = open_page(browser, v.url + "?camera=/World/Cameras/Sky&exposure=-6", errors)  # raw sky radiance
+        page = open_page(browser, v.url + "?camera=/World/Cameras/Sky&exposure=-6&scale=1", errors)  # raw sky radiance
         options = page.locator("#env-variant option").all_inner_texts()
         assert options == ["dusk", "noon"] or options == ["noon", "dusk"]
         assert page.locator("#env-variant").input_value() == "noon"
@@ -395,6 +397,9 @@ def test_environment_variants_switch_the_background(browser, tmp_path):
 def test_drive_mode_follows_a_lane(browser, generated, generated_viewer):
     errors = []
     page = open_page(browser, generated_viewer.url, errors)
+    # without a GPU the page draws at half resolution by default
+    assert page.evaluate("window.viewer.stats().size") == [W // 2, H // 2]
+    assert "software renderer" in page.locator("#status").inner_text()
     lane = page.evaluate("[...window.viewer.lanes.values()].find((l) => l.successors.length).id")
     page.locator("input[name=mode][value=drive]").check()
     page.locator("#route").fill(lane)

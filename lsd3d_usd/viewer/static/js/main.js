@@ -47,8 +47,11 @@ class Viewer {
     this.fly.onSpeed = (v) => { $("fly-speed").value = v.toFixed(1); };
     this.mode = "fly"; this.sceneCam = null; this.drive = null; this.fovDeg = 60;
     this.time = 0; this.playing = false;
-    this.opts = { exposure: 0, tonemap: "aces", shDegree: 1, colorMode: 0, scale: 1, radius: 250,
-                  actors: true, lanes: false, chunks: false, proxy: false };
+    // A software renderer (no GPU) draws at half resolution unless asked otherwise: frames of a
+    // million surfels take seconds there, and most of that is per pixel near the camera.
+    this.software = /swiftshader|llvmpipe|software/i.test(rendererName(gl));
+    this.opts = { exposure: 0, tonemap: "aces", shDegree: 1, colorMode: 0, scale: this.software ? 0.5 : 1,
+                  radius: 250, actors: true, lanes: false, chunks: false, proxy: false };
     this.problems = [];
     this.clientProblems = [];
     this.runs = new Set();
@@ -625,8 +628,14 @@ class Viewer {
     const loaded = this.surfels.loaded.size;
     const pending = this.surfels.wanted + this.surfels.inFlight.size;
     $("status").textContent = (pending ? `loading ${pending} chunk(s) · ` : "") + `frame ${this.frameMs.toFixed(0)} ms · sort ${this.sortMs.toFixed(0)} ms · ${this.renderer.count.toLocaleString("en")} surfels drawn · chunks ${loaded}/${this.cfg?.chunks.length || 0}` +
-      ` · ${this.canvas.width}×${this.canvas.height} · ${this.mode}` + (this.renderer.note ? ` · ${this.renderer.note}` : "");
+      ` · ${this.canvas.width}×${this.canvas.height}${this.software ? " (software renderer)" : ""} · ${this.mode}`
+      + (this.renderer.note ? ` · ${this.renderer.note}` : "");
   }
+}
+
+function rendererName(gl) {
+  const info = gl.getExtension("WEBGL_debug_renderer_info");
+  return String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
 }
 
 // Lighting when the scene has no env layer (actors/relight.py default_lighting).
