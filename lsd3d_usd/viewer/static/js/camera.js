@@ -80,6 +80,14 @@ export function makeCamera(pose, width, height, lens) {
            fx, fy, cx, cy, width, height, near, far };
 }
 
+// Inward unit normals (world) of the planes through the camera centre and the image's left,
+// right, top and bottom edges: a point p is in view when n . (p - eye) >= 0 for all four.
+export function sidePlanes(cam) {
+  const { fx, fy, cx, cy, width: w, height: h } = cam;
+  return [[fx, 0, cx], [-fx, 0, w - cx], [0, fy, cy], [0, -fy, h - cy]].map(([a, b, c]) =>
+    unit(add(add(scale(cam.right, a), scale(cam.down, b)), scale(cam.forward, c))));
+}
+
 // Pixel position (x right, y down) and depth of a world point.
 export function project(cam, p) {
   const v = sub(p, cam.eye64);

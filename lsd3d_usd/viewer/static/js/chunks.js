@@ -104,7 +104,7 @@ export function surfelStreamer(renderer, sorter, tps, onChange) {
       const chunk = decodeChunk(await fetchBinary(e.url), tps);
       const token = `${e.key}#${++tokens}`;
       const start = renderer.addChunk(token, chunk.gpu, chunk.n);
-      sorter.postMessage({ type: "add", start, count: chunk.n, positions: chunk.positions }, [chunk.positions.buffer]);
+      sorter.postMessage({ type: "add", start, count: chunk.n, spheres: chunk.spheres }, [chunk.spheres.buffer]);
       surfels += chunk.n;
       return { token, start, n: chunk.n };
     },

@@ -3,7 +3,8 @@
 //   texel 0: float bits of x, y, z (world), packed quaternion
 //   texel 1: f16 scales, f16 dc r|g, f16 dc b|u8 opacity|u8 semantic, SH-1 word 0
 //   texel 2: SH-1 words 1..3 (only when the scene has SH degree 1)
-// so the quantised wire format is expanded only for the positions (needed by the sorter too).
+// so the quantised wire format is expanded only for the positions, which the sorter needs too,
+// with each surfel's reach: the radius around its centre outside which its alpha < 1/255.
 
 const CHUNK_HEADER = 96;
 
@@ -11,6 +12,14 @@ function magic(view, text) {
   for (let k = 0; k < 4; k++) if (view.getUint8(k) !== text.charCodeAt(k)) return false;
   return true;
 }
+
+const HALF = new Float32Array(65536).map((_, b) => {
+  const e = (b >> 10) & 31, m = b & 1023, sign = b >> 15 ? -1 : 1;
+  if (e === 0) return sign * m * 2 ** -24;
+  if (e === 31) return m ? NaN : sign * Infinity;
+  return sign * (1 + m / 1024) * 2 ** (e - 15);
+});
+const half = (bits) => HALF[bits];
 
 export function decodeChunk(buffer, tps) {
   const view = new DataView(buffer);
@@ -28,12 +37,15 @@ export function decodeChunk(buffer, tps) {
   off += n * 16;
   const sh = deg >= 1 ? new Uint32Array(buffer, off, n * 4) : null;
 
-  const positions = new Float32Array(n * 3);
+  const spheres = new Float32Array(n * 4);
   const gpu = new Uint32Array(n * tps * 4);
   const gpuF = new Float32Array(gpu.buffer);
   for (let s = 0; s < n; s++) {
     const x = lo[0] + q[3 * s] * step[0], y = lo[1] + q[3 * s + 1] * step[1], z = lo[2] + q[3 * s + 2] * step[2];
-    positions[3 * s] = x; positions[3 * s + 1] = y; positions[3 * s + 2] = z;
+    const scale = Math.max(half(rec[4 * s + 1] & 0xffff), half(rec[4 * s + 1] >>> 16));
+    const opacity = ((rec[4 * s + 3] >>> 16) & 255) / 255;
+    spheres[4 * s] = x; spheres[4 * s + 1] = y; spheres[4 * s + 2] = z;
+    spheres[4 * s + 3] = Math.sqrt(Math.max(0, 2 * Math.log(255 * opacity))) * scale * 1.001;
     const g = s * tps * 4;
     gpuF[g] = x; gpuF[g + 1] = y; gpuF[g + 2] = z;
     gpu[g + 3] = rec[4 * s];
@@ -42,7 +54,7 @@ export function decodeChunk(buffer, tps) {
       gpu[g + 7] = sh[4 * s]; gpu[g + 8] = sh[4 * s + 1]; gpu[g + 9] = sh[4 * s + 2]; gpu[g + 10] = sh[4 * s + 3];
     }
   }
-  return { i, j, n, deg, lo, hi, positions, gpu };
+  return { i, j, n, deg, lo, hi, spheres, gpu };
 }
 
 // Latlong env map: RGBA half floats, top row first.

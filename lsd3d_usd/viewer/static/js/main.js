@@ -1,8 +1,8 @@
 // The viewer page: loads the scene description, streams chunks, draws on demand, wires the panel.
 // window.viewer exposes the same operations the panel uses (and the browser tests drive).
 import { Renderer } from "./renderer.js";
-import { Drive, FlyController, makeCamera, poseFromForward, poseFromMatrix, project, sampleIndex, sampleMatrix, norm, sub }
-  from "./camera.js";
+import { Drive, FlyController, makeCamera, poseFromForward, poseFromMatrix, project, sampleIndex, sampleMatrix, norm, sub,
+  sidePlanes } from "./camera.js";
 import { fetchBinary, proxyStreamer, surfelStreamer } from "./chunks.js";
 import { decodeEnv } from "./formats.js";
 
@@ -320,7 +320,8 @@ class Viewer {
     this.sortInFlight = true;
     this.pendingKey = key;
     this.pendingVersion = this.chunkVersion;
-    this.sorter.postMessage({ type: "sort", id: ++this.sortId, centre: cam.eye64, forward: cam.forward, near: cam.near, far: cam.far });
+    this.sorter.postMessage({ type: "sort", id: ++this.sortId, centre: cam.eye64, forward: cam.forward, near: cam.near,
+                              far: cam.far, planes: sidePlanes(cam), pixelAngle: 1 / Math.min(cam.fx, cam.fy) });
   }
 
   _sorted(msg) {

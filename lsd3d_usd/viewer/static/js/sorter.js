@@ -1,18 +1,21 @@
-// Depth-sort worker. Holds the centres of every loaded surfel by global index (a surfel's slot
-// in the GPU pool) and answers "sort for this camera" with the indices of the surfels whose
-// centre depth lies in [near, far], farthest first (back-to-front "over" compositing gives
-// the same image as the CPU renderer's front-to-back pass in centre-depth order).
+// Depth-sort worker. Holds the centre and reach of every loaded surfel by global index (a
+// surfel's slot in the GPU pool) and answers "sort for this camera" with the indices of the
+// surfels that can show: centre depth in [near, far] (the CPU renderer's culling) and not
+// wholly outside one of the four side planes of the view, farthest first (back-to-front "over"
+// compositing gives the same image as the CPU renderer's front-to-back pass in centre-depth
+// order). Outside a side plane means beyond the surfel's reach (where its alpha < 1/255) plus
+// 4 pixels at its distance, the reach of its low-pass footprint.
 // Exact order: an LSD radix sort on the float32 bit patterns of the depths (positive floats
 // order like their bits), 3 passes of 11/11/10 bits, stable, so ties keep index order.
 
-let centres = new Float32Array(0);
+let spheres = new Float32Array(0); // x, y, z, reach per surfel
 let ranges = new Map(); // start -> count
 
 function ensure(capacity) {
-  if (centres.length >= capacity * 3) return;
-  const grown = new Float32Array(Math.max(capacity * 3, centres.length * 2));
-  grown.set(centres);
-  centres = grown;
+  if (spheres.length >= capacity * 4) return;
+  const grown = new Float32Array(Math.max(capacity * 4, spheres.length * 2));
+  grown.set(spheres);
+  spheres = grown;
 }
 
 let keys = new Uint32Array(0), keys2 = new Uint32Array(0), vals = new Uint32Array(0), vals2 = new Uint32Array(0);
@@ -22,6 +25,7 @@ const counts = new Uint32Array(2048);
 function sort(msg) {
   const t0 = performance.now();
   const [cx, cy, cz] = msg.centre, [fx, fy, fz] = msg.forward;
+  const P = msg.planes.flat(), margin = msg.pixelAngle * 4;
   let total = 0;
   for (const count of ranges.values()) total += count;
   if (keys.length < total) {
@@ -33,9 +37,13 @@ function sort(msg) {
   for (const start of starts) {
     const end = start + ranges.get(start);
     for (let s = start; s < end; s++) {
-      const o = 3 * s;
-      const d = (centres[o] - cx) * fx + (centres[o + 1] - cy) * fy + (centres[o + 2] - cz) * fz;
+      const o = 4 * s;
+      const vx = spheres[o] - cx, vy = spheres[o + 1] - cy, vz = spheres[o + 2] - cz;
+      const d = vx * fx + vy * fy + vz * fz;
       if (!(d >= msg.near && d <= msg.far)) continue;
+      const out = -(spheres[o + 3] + Math.sqrt(vx * vx + vy * vy + vz * vz) * margin);
+      if (vx * P[0] + vy * P[1] + vz * P[2] < out || vx * P[3] + vy * P[4] + vz * P[5] < out
+          || vx * P[6] + vy * P[7] + vz * P[8] < out || vx * P[9] + vy * P[10] + vz * P[11] < out) continue;
       depthF[0] = d;
       keys[n] = depthU[0];
       vals[n] = s;
@@ -66,7 +74,7 @@ onmessage = (e) => {
   const msg = e.data;
   if (msg.type === "add") {
     ensure(msg.start + msg.count);
-    centres.set(msg.positions, msg.start * 3);
+    spheres.set(msg.spheres, msg.start * 4);
     ranges.set(msg.start, msg.count);
   } else if (msg.type === "remove") {
     ranges.delete(msg.start);
