@@ -34,7 +34,8 @@ def _extent(shape: str, chunks: int) -> tuple[int, int]:
 
 
 def _child(cmd: list, log_path: Path) -> tuple[int, float, float]:
-    """Run a command; (exit code, wall seconds, peak RSS MB of that process)."""
+    """Run a command; (exit code, wall seconds, peak RSS MB of the largest process among it
+    and the children it waited for)."""
     t0 = time.perf_counter()
     with open(log_path, "w") as fh:
         p = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT)
@@ -103,8 +104,9 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
            "surfels_per_m2_footprint": round(surf["count"] / (extent[0] * extent[1]), 3),
            "per_chunk_s": round(statistics.median(walls), 2), "total_s": round(wall, 1),
            "ggds_s": s["timings"].get("ggds_s"),
+           # wait4 reports the largest process of the tree (driver or a worker it waited for)
            "peak_rss_mb": round(max(rss, g.get("worker_peak_rss_mb") or 0.0), 1),
-           "driver_rss_mb": round(rss, 1), "worker_rss_mb": g.get("worker_peak_rss_mb"),
+           "driver_rss_mb": s.get("peak_rss_mb"), "worker_rss_mb": g.get("worker_peak_rss_mb"),
            "psnr_heldout": g.get("psnr_novel"),
            "seam_psnr_drop_db": seams.get("psnr_drop_db") if seams else None,
            "border_coverage": seams.get("border_coverage") if seams else None,
