@@ -14,6 +14,7 @@ def _batch(args) -> int:
     from .tasks import plan_batch
 
     spec = load_spec(args.spec)
+    spec.executor, spec.address = args.executor, args.address
     retries = args.retries if args.retries is not None else (
         spec.retries if spec.retries is not None else DEFAULT_RETRIES)
     if retries < 0:
