@@ -55,14 +55,18 @@ def phases_from_plan(plan: dict) -> list[list[Region]]:
             for phase in plan["phases"]]
 
 
-def plan_regions(keys, cfg: RegionConfig) -> list[list[Region]]:
-    """Phases of regions over the scene's chunk keys (see module doc)."""
-    keys = sorted(tuple(int(v) for v in k) for k in keys)
+def plan_regions(chunks, cfg: RegionConfig) -> list[list[Region]]:
+    """Phases of regions over the scene's chunks ({key: info with "count"}, or keys; see the
+    module doc)."""
+    counts = chunks if isinstance(chunks, dict) else {k: {} for k in chunks}
+    keys = sorted(tuple(int(v) for v in k) for k in counts)
     if not keys:
         raise InputError("GGDS: the scene has no surfel chunks")
     mode = cfg.mode
     if mode == "auto":
-        mode = "scene" if len(keys) <= cfg.max_scene_chunks else "chunk"
+        total = sum(int((v or {}).get("count", 0)) for v in counts.values())
+        small = len(keys) <= cfg.max_scene_chunks and total <= cfg.max_scene_surfels
+        mode = "scene" if small else "chunk"
     if mode == "scene":
         return [[Region(tuple(keys), "")]]
     phases = {}
@@ -310,7 +314,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
     else:
         rss = [v.get("peak_rss_mb") for v in summaries.values() if v.get("peak_rss_mb")]
         summary["worker_peak_rss_mb"] = max(rss) if rss else None
-    if len(plan["regions"]) > 1:
+    if any(plan["regions"]):   # chunk regions (a whole-scene region is the summary itself)
         summary["per_region"] = {
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
                                             "metrics")},
