@@ -159,7 +159,7 @@ def region_context(sc: S.Scene, run: str, region: Region, finished: set, band_m:
 # ---------------------------------------------------------------------------- a region task
 def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                refresh: bool = True) -> dict:
-    """Optimise one region (plain-data ``job``, see :func:`region_job`). Returns its summary."""
+    """Optimise one region (``job``: the plain data run_regions builds). Returns its summary."""
     from lsd3d_usd.env.exr import write_env
     from lsd3d_usd.ggds.cameras import sample_views
     from lsd3d_usd.ggds.conditioning import shadow_map
@@ -180,7 +180,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
     proxy, offsets = _proxy_neighbourhood(sc.layer_path("proxy"), region.neighbourhood())
     field, owners, face = region_surfels(sc, region, offsets)
     if field is None:
-        return {"region": region.name, "skipped": "no surfels", "complete": True}
+        return skip_region(sc, job["run"], region, "no surfels")
     rseed = region_seed(seed, region)
     g = replace(g, seed=rseed)
     w, h = g.resolution
@@ -196,7 +196,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
         if whole:
             raise
         log(f"ggds: {region.name}: no drivable lane inside: its initial surfels are kept")
-        return {"region": region.name, "skipped": "no lanes", "complete": True}
+        return skip_region(sc, job["run"], region, "no drivable lane inside")
     params = env_params(job["env"], seed)
     ew, eh = job["env"]["resolution"]
     light = scene_light(params, write_env(params, sc.textures_dir, int(ew), int(eh)))
@@ -221,6 +221,16 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                    context=int(context.n) if context is not None else 0,
                    wall_s=round(time.perf_counter() - t0, 2), views=len(views))
     return summary
+
+
+def skip_region(sc: S.Scene, run: str, region: Region, reason: str) -> dict:
+    """A region GGDS cannot optimise (no surfels, or no lane to place views on) keeps its
+    initial surfels; recorded as done so the run can complete."""
+    from lsd3d_usd.ggds.store import region_dir, write_json
+    progress = {"complete": True, "skipped": reason, "stepsDone": 0,
+                "keys": [list(k) for k in region.keys], "surfels": 0}
+    write_json(region_dir(sc, run, region.name) / "progress.json", progress)
+    return {"region": region.name, **progress}
 
 
 def run_region_task(payload: dict) -> dict:
@@ -300,7 +310,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
     write_plan(sc, run, plan)
     refresh_run_layer(sc, run)
     done = [p for p in regions_done.values() if p.get("complete")]
-    steps = [int(p.get("stepsDone", 0)) for p in regions_done.values()]
+    steps = [int(p.get("stepsDone", 0)) for p in regions_done.values() if not p.get("skipped")]
     seconds = sum(float(p.get("seconds", 0.0)) for p in regions_done.values())
     summary = {"run": run, "regions": len(plan["regions"]), "complete": complete,
                "steps": min(steps) if steps else 0, "seconds": round(seconds, 1),
