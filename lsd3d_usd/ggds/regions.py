@@ -187,9 +187,11 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
     whole = not region.name
     n_views = g.views if whole else rcfg.views_per_chunk * len(region.keys)
     bounds = region.bounds(size)
+    m = rcfg.view_margin_m
+    around = (bounds[0] - m, bounds[1] - m, bounds[2] + m, bounds[3] + m)
     try:
         views = sample_views(layout, n_views, w, h, seed=rseed, novel_frac=g.novel_frac,
-                             fov_deg=g.fov_deg, region=None if whole else bounds, clip=not whole)
+                             fov_deg=g.fov_deg, region=None if whole else around, clip=not whole)
         held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
                             fov_deg=g.fov_deg, region=None if whole else bounds, clip=not whole)
     except InputError:
