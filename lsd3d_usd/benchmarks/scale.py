@@ -97,8 +97,9 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
     # per-chunk time over the chunks that hold a full share of surfels (not the few surfels
     # of a building overhanging into an otherwise empty neighbour)
     big = max((r.get("surfels") or 0 for r in per.values()), default=0)
-    walls = [r["wall_s"] for r in per.values() if r.get("wall_s") and
-             (r.get("surfels") or 0) >= 0.25 * big] or [g.get("wall_s", 0.0)]
+    full = [r for r in per.values() if r.get("wall_s") and (r.get("surfels") or 0) >= 0.25 * big]
+    walls = [r["wall_s"] for r in full] or [g.get("wall_s", 0.0)]
+    cpus = [r["cpu_s"] for r in full if r.get("cpu_s")]
     seams = _seams(out, seams_views, seed=seed)
     surf = s["surfels"]
     row = {"config": name, "shape": shape, "chunks": int(surf["chunks"]),
@@ -107,6 +108,8 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
            "surfels_per_m2": round(surf["count"] / max(surf["viewWeightedArea_m2"], 1e-9), 3),
            "surfels_per_m2_footprint": round(surf["count"] / (extent[0] * extent[1]), 3),
            "per_chunk_s": round(statistics.median(walls), 2), "total_s": round(wall, 1),
+           # CPU seconds do not depend on how many regions run at once (wall seconds do)
+           "per_chunk_cpu_s": round(statistics.median(cpus), 2) if cpus else None,
            "ggds_s": s["timings"].get("ggds_s"),
            # wait4 reports the largest process of the tree (driver or a worker it waited for)
            "peak_rss_mb": round(max(rss, g.get("worker_peak_rss_mb") or 0.0), 1),
@@ -228,6 +231,8 @@ def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_
             "largest_chunks": big["chunks"],
             "density_ratio": round(big["surfels_per_m2"] / one["surfels_per_m2"], 4),
             "per_chunk_time_ratio": round(big["per_chunk_s"] / one["per_chunk_s"], 3),
+            "per_chunk_cpu_ratio": (round(big["per_chunk_cpu_s"] / one["per_chunk_cpu_s"], 3)
+                                    if big["per_chunk_cpu_s"] and one["per_chunk_cpu_s"] else None),
             "psnr_chunk_0_0_delta_db": (round(big["psnr_chunk_0_0"] - one["psnr_chunk_0_0"], 3)
                                         if big["psnr_chunk_0_0"] and one["psnr_chunk_0_0"] else None),
             "peak_rss_ratio": round(big["peak_rss_mb"] / one["peak_rss_mb"], 3),

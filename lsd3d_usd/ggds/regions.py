@@ -215,13 +215,14 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                            checkpoint_meta={"keys": [list(k) for k in region.keys]})
     resume = store.has_checkpoint()
     prior = make_prior(ct.from_dict(PriorConfig, job["prior"]), seed=seed)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu_seconds()
     summary = run_ggds(inputs, prior, g, store, resume=resume, stop_at=job.get("stop_at"),
                        keep_checkpoint=job.get("keep_checkpoint", False), term_state=term_state,
                        progress=progress, log=log)
     summary.update(region=region.name, keys=[list(k) for k in region.keys],
                    context=int(context.n) if context is not None else 0,
-                   wall_s=round(time.perf_counter() - t0, 2), views=len(views))
+                   wall_s=round(time.perf_counter() - t0, 2), views=len(views),
+                   cpu_s=round(_cpu_seconds() - c0, 2))
     return summary
 
 
@@ -249,6 +250,13 @@ def run_region_task(payload: dict) -> dict:
         summary["peak_rss_mb"] = peak_rss_mb()
         log(f"done: {summary}")
     return summary
+
+
+def _cpu_seconds() -> float:
+    """CPU time of this process (all threads) so far: comparable across worker counts."""
+    import resource
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
 
 
 def peak_rss_mb() -> float:
@@ -330,7 +338,8 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
         summary["per_region"] = {
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
                                             "metrics")},
-                **{kk: summaries.get(k, {}).get(kk) for kk in ("wall_s", "context", "views")}}
+                **{kk: summaries.get(k, {}).get(kk) for kk in ("wall_s", "cpu_s", "context",
+                                                               "views")}}
             for k, v in regions_done.items()}
     from lsd3d_usd.ggds.store import write_json
     write_json(sc.run_files(run).dir / "summary.json", summary)
