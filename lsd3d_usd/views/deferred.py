@@ -244,26 +244,36 @@ class Deferrer:
         """The deferred (H, W, 3) float32 scene-linear image of one rendered frame ``rgb``
         (display-scaled radiance, as render_scene and GGDS produce) seen by ``camera``.
         ``actor_mask`` / ``depth``: where mesh actors are in front and their depth."""
+        return self.images(rgb, camera, (self.strength,), actor_mask, depth)[0]
+
+    def images(self, rgb: np.ndarray, camera, levels, actor_mask: np.ndarray | None = None,
+               depth: np.ndarray | None = None) -> list:
+        """The prior's images of one frame at each noise level in ``levels`` (one G-buffer for
+        all): ``defer`` is levels = (strength,); eval adds t = 1, the prior's own image of the
+        view, as the reference distribution."""
         import torch
 
         rgb = np.asarray(rgb, np.float32)
         if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape[:2] != (camera.height, camera.width):
             raise InputError(f"deferral: frame of shape {rgb.shape} does not match the camera's "
                              f"{camera.width}x{camera.height}")
+        levels = [check_strength(t, "deferral noise level") for t in levels]
         t0 = time.perf_counter()
         gb = self.sp.gbuffer(camera)
         if actor_mask is not None:
             gb = _overlay_actors(gb, camera, actor_mask, depth)
         x = torch.from_numpy(np.clip(np.nan_to_num(rgb, nan=0.0, posinf=0.0), 0.0, None))
-        with torch.no_grad():
-            y = self.sp.prior.target(x, gb, self.sp.env, self.strength, n_steps=self.steps,
-                                     seed=self.seed)
-        out = y.detach().cpu().numpy().astype(np.float32)
-        if actor_mask is not None:
-            out = np.where(np.asarray(actor_mask, bool)[..., None], rgb, out)
-        self.frames += 1
-        self.seconds += time.perf_counter() - t0
-        return out
+        keep = None if actor_mask is None else np.asarray(actor_mask, bool)[..., None]
+        outs = []
+        for t in levels:
+            with torch.no_grad():
+                y = self.sp.prior.target(x, gb, self.sp.env, t, n_steps=self.steps, seed=self.seed)
+            out = y.detach().cpu().numpy().astype(np.float32)
+            outs.append(out if keep is None else np.where(keep, rgb, out))
+            if t == self.strength and len(outs) == 1:
+                self.frames += 1
+                self.seconds += time.perf_counter() - t0
+        return outs
 
     def defer_frame(self, frame, camera):
         """A views.frame.Frame with its colour deferred (alpha and depths are the raw frame's:
