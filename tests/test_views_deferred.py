@@ -236,6 +236,7 @@ def test_controlnet_sees_the_cameras_proxy_gbuffer(tiny_diffusers):
     root, cn = tiny_diffusers
     prior = DiffusersPrior.from_pretrained(root, controlnet_dir=cn, guidance_scale=2.0)
     sp = scene_prior(prior=prior)
+    assert "CPU" in sp.note() and scene_prior().note() is None   # the slow path says so
     cam = camera(width=64, height=48)
     x = np.random.default_rng(2).uniform(0, 1, (48, 64, 3)).astype(np.float32)
     mask = np.zeros((48, 64), bool)

@@ -371,6 +371,8 @@ def _deferrer(o: EvalOptions):
     d = Deferrer(sp, DEFAULT_STRENGTH if o.deferred_strength is None else o.deferred_strength,
                  DEFAULT_STEPS if o.deferred_steps is None else o.deferred_steps, o.deferred_seed)
     o.log(f"eval: deferred with prior {sp.spec} ({sp.source}), T {d.strength}, N {d.steps}")
+    if sp.note():
+        o.log(f"eval: note: {sp.note()}")
     return d
 
 

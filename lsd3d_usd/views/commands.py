@@ -62,6 +62,8 @@ def make_deferrer(scene, args, log=None):
     if log is not None:
         log(f"deferred: prior {sp.spec} ({sp.source}), T {args.deferred_strength or DEFAULT_STRENGTH}"
             f", N {args.deferred_steps or DEFAULT_STEPS}")
+        if sp.note():
+            log(f"note: {sp.note()}")
     return Deferrer(sp, DEFAULT_STRENGTH if args.deferred_strength is None else args.deferred_strength,
                     DEFAULT_STEPS if args.deferred_steps is None else args.deferred_steps,
                     args.deferred_seed)

@@ -87,6 +87,14 @@ class ScenePrior:
     setup_s: float = 0.0
     info: dict = field(default_factory=dict)
 
+    def note(self) -> str | None:
+        """A one-line warning where the prior will be slow (a diffusion model on the CPU)."""
+        device = str(getattr(self.prior, "device", "cpu"))
+        if hasattr(self.prior, "unet") and device == "cpu":
+            return ("the diffusion prior runs on the CPU: an SD-1.5-sized model takes minutes per "
+                    "frame here (a GPU path; docs/render.md has the measured figures)")
+        return None
+
     def gbuffer(self, camera):
         """The proxy G-buffer of ``camera`` with sun visibility (as GGDS computes it)."""
         from lsd3d_usd.ggds.conditioning import view_gbuffer
