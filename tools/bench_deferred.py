@@ -113,8 +113,13 @@ def main(argv=None) -> dict:
     ext = EffNetFeatureExtractor()
 
     def embed(imgs):
-        x = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).contiguous()
-        return ext.embed(x, linear=False, size=224).double().numpy()
+        """Features of images of any sizes (the rig's side cameras are shorter): per size."""
+        out = []
+        for shape in dict.fromkeys(im.shape for im in imgs):
+            x = torch.from_numpy(np.stack([im for im in imgs if im.shape == shape]))
+            out.append(ext.embed(x.permute(0, 3, 1, 2).contiguous(), linear=False,
+                                 size=224).double().numpy())
+        return np.concatenate(out)
 
     def fd(f1, f2):
         with warnings.catch_warnings():
