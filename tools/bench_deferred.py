@@ -63,15 +63,12 @@ def main(argv=None) -> dict:
     ap.add_argument("--steps", type=int, default=5)
     ap.add_argument("--time-resolution", default="480x270")
     ap.add_argument("--time-frames", type=int, default=10)
+    ap.add_argument("--time-only", action="store_true", help="only the seconds per frame")
     ap.add_argument("--json")
     a = ap.parse_args(argv)
 
-    import torch
-
-    from lsd3d_usd.eval.metrics import FewSamplesWarning, frechet_distance_features
-    from lsd3d_usd.ggds.effnet import EffNetFeatureExtractor
-    from lsd3d_usd.render.camera import Camera, from_usd
-    from lsd3d_usd.views.deferred import DEFAULT_STRENGTH, Deferrer, load_scene_prior
+    from lsd3d_usd.render.camera import from_usd
+    from lsd3d_usd.views.deferred import Deferrer, load_scene_prior
     from lsd3d_usd.views.frame import render_scene
     from lsd3d_usd.views.rig_stage import build_rig_stage
     from lsd3d_usd.views.rigs import RIGS
@@ -91,7 +88,10 @@ def main(argv=None) -> dict:
     d = Deferrer(sp, levels[0], a.steps)
     raw, per_level, cams, frames = {}, {}, {}, {}
     t_render = 0.0
-    for name in names:
+    result = {"scene": a.scene, "route": a.route, "seconds": a.seconds, "fps": a.fps,
+              "width": a.width, "cameras": names, "prior": sp.spec, "prior_source": sp.source,
+              "steps": a.steps, "setup_s": round(sp.setup_s, 2)}
+    for name in ([] if a.time_only else names):
         path = next(p for p in paths if p.endswith("/" + name))
         raw[name], cams[name], frames[name] = [], [], []
         per_level[name] = {t: [] for t in levels}
@@ -108,8 +108,21 @@ def main(argv=None) -> dict:
             for lv, im in zip(levels, d.images(fr.rgb, cam, levels, fr.actor_mask, fr.depth)):
                 per_level[name][lv].append(_display(im))
         print(f"{name}: {len(raw[name])} frames")
-    n_frames = sum(len(v) for v in raw.values())
+    if not a.time_only:
+        _sweep(a, result, names, raw, per_level, cams, frames, levels, t_render)
+    _timing(a, result, sp, reader, stage, paths, track, tcps, specs[names[0]])
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump(result, fh, indent=2)
+    return result
 
+
+def _sweep(a, result, names, raw, per_level, cams, frames, levels, t_render):
+    import torch
+
+    from lsd3d_usd.eval.metrics import FewSamplesWarning, frechet_distance_features
+    from lsd3d_usd.ggds.effnet import EffNetFeatureExtractor
+    n_frames = sum(len(v) for v in raw.values())
     ext = EffNetFeatureExtractor()
 
     def embed(imgs):
@@ -128,10 +141,7 @@ def main(argv=None) -> dict:
 
     f_target = embed([im for n in names for im in per_level[n][1.0]])
     f_raw = embed([im for n in names for im in raw[n]])
-    result = {"scene": a.scene, "route": a.route, "seconds": a.seconds, "fps": a.fps,
-              "width": a.width, "cameras": names, "frames": n_frames, "prior": sp.spec,
-              "prior_source": sp.source, "steps": a.steps, "setup_s": round(sp.setup_s, 2),
-              "render_s_per_frame": round(t_render / n_frames, 4)}
+    result.update(frames=n_frames, render_s_per_frame=round(t_render / n_frames, 4))
     result["raw"] = {"temporal": _warp_mean({n: _warp(cams[n], raw[n], frames[n]) for n in names}),
                      "fd_vs_prior_image": fd(f_raw, f_target)}
     result["sweep"] = {}
@@ -146,25 +156,42 @@ def main(argv=None) -> dict:
     print(f"raw: warp {result['raw']['temporal']['warp_err']} (naive "
           f"{result['raw']['temporal']['naive_err']}), fd vs prior image {result['raw']['fd_vs_prior_image']}")
 
-    # seconds per frame at the timing resolution (square pixels, the front camera's poses)
+
+
+def _timing(a, result, sp, reader, stage, paths, track, tcps, spec):
+    """Seconds per deferred frame at the timing resolution (square pixels, the first camera's
+    poses along the route): wall time, and CPU time of the process (an upper bound of the
+    wall time on idle cores when the machine is shared)."""
+    import os
+
+    import torch
+
+    from lsd3d_usd.render.camera import Camera, from_usd
+    from lsd3d_usd.views.deferred import DEFAULT_STRENGTH, Deferrer
+    from lsd3d_usd.views.frame import render_scene
     w, h = (int(v) for v in a.time_resolution.split("x"))
+    path = next(p for p in paths if p.endswith("/" + spec.name))
     dt = Deferrer(sp, DEFAULT_STRENGTH, a.steps)
-    times = []
-    for cam in cams[names[0]][:a.time_frames]:
-        f = cam.fx * w / cam.width
+    wall, cpu = [], []
+    for k, t in enumerate(track.times[:a.time_frames + 1]):
+        code = round(float(t) * tcps, 6)
+        cam = from_usd(stage.GetPrimAtPath(path), code, w, spec.height_for(w))
+        f = cam.fx
         c2 = Camera(w, h, f, f, w / 2, h / 2, cam.pose, cam.near, cam.far)
-        fr = render_scene(reader, c2, None)
-        t1 = time.perf_counter()
+        fr = render_scene(reader, c2, code)
+        t1, c1 = time.perf_counter(), time.process_time()
         dt.defer(fr.rgb, c2, fr.actor_mask, fr.depth)
-        times.append(time.perf_counter() - t1)
+        if k:   # the first frame compiles / warms caches
+            wall.append(time.perf_counter() - t1)
+            cpu.append(time.process_time() - c1)
     result["s_per_frame"] = {"resolution": a.time_resolution, "strength": DEFAULT_STRENGTH,
-                             "median": round(float(np.median(times)), 4),
-                             "min": round(float(np.min(times)), 4), "frames": len(times)}
-    print(f"s/frame at {a.time_resolution}: median {np.median(times):.3f} (min {np.min(times):.3f})")
-    if a.json:
-        with open(a.json, "w") as fh:
-            json.dump(result, fh, indent=2)
-    return result
+                             "wall_median": round(float(np.median(wall)), 4),
+                             "wall_min": round(float(np.min(wall)), 4),
+                             "cpu_median": round(float(np.median(cpu)), 4), "frames": len(wall),
+                             "torch_threads": torch.get_num_threads(),
+                             "load_average": [round(v, 1) for v in os.getloadavg()]}
+    print(f"s/frame at {a.time_resolution}: wall median {np.median(wall):.3f} (min "
+          f"{np.min(wall):.3f}), process CPU median {np.median(cpu):.3f}; load {os.getloadavg()}")
 
 
 if __name__ == "__main__":
