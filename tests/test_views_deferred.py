@@ -156,6 +156,7 @@ def test_frame_size_must_match_the_camera():
     (["--deferred-strength", "0.3"], "--deferred-strength needs --deferred"),
     (["--deferred", "--deferred-prior", "nosuch"], "--deferred-prior 'nosuch': unknown prior"),
     (["--deferred", "--deferred-steps", "0"], "--deferred-steps 0"),
+    (["--deferred", "--deferred-device", "gpu"], "--deferred-device 'gpu': expected cpu"),
 ])
 def test_cli_bad_deferred_flags(run_cli, tmp_path, args, match):
     r = run_cli("render", tmp_path / "nowhere", "--camera", "/World/Cam", "-o", tmp_path / "o", *args)

@@ -73,13 +73,16 @@ def _check(o: EvalOptions) -> None:
         raise InputError(f"--step {o.step_m}: must be positive")
     if o.tonemap not in TONEMAPS:
         raise InputError(f"--tonemap {o.tonemap!r}: choose from {', '.join(TONEMAPS)}")
-    from lsd3d_usd.views.deferred import check_prior_name, check_steps, check_strength
+    from lsd3d_usd.views.deferred import (check_device, check_prior_name, check_steps,
+                                          check_strength)
     if o.deferred_strength is not None:
         check_strength(o.deferred_strength)
     if o.deferred_steps is not None:
         check_steps(o.deferred_steps)
     if o.deferred_prior is not None:
         check_prior_name(o.deferred_prior)
+    if o.deferred_device is not None:
+        check_device(o.deferred_device)
 
 
 def reference_images(ref, limit: int) -> list[Path]:

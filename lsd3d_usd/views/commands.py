@@ -41,7 +41,8 @@ def deferred_flags_given(args) -> list[str]:
 def check_deferred_args(args) -> None:
     """Flag checks before anything is loaded or written."""
     from lsd3d_usd.errors import InputError
-    from lsd3d_usd.views.deferred import check_prior_name, check_steps, check_strength
+    from lsd3d_usd.views.deferred import (check_device, check_prior_name, check_steps,
+                                          check_strength)
     given = deferred_flags_given(args)
     if given and not args.deferred:
         raise InputError(f"{given[0]} needs --deferred")
@@ -51,6 +52,8 @@ def check_deferred_args(args) -> None:
         check_steps(args.deferred_steps)
     if args.deferred_prior is not None:
         check_prior_name(args.deferred_prior)
+    if args.deferred_device is not None:
+        check_device(args.deferred_device)
 
 
 def make_deferrer(scene, args, log=None):

@@ -67,6 +67,13 @@ def check_prior_name(spec, where: str = "--deferred-prior") -> str:
     return str(spec)
 
 
+def check_device(device, where: str = "--deferred-device") -> str:
+    d = str(device)
+    if d != "cpu" and not (d == "cuda" or (d.startswith("cuda:") and d[5:].isdigit())):
+        raise InputError(f"{where} {device!r}: expected cpu, cuda or cuda:N")
+    return d
+
+
 def deferred_name(path) -> Path:
     """<stem>_deferred<suffix> beside ``path`` (Front.0003.png -> Front.0003_deferred.png)."""
     p = Path(path)
@@ -147,7 +154,7 @@ def _scene_seed(sc) -> int:
 
 
 def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
-                     device: str | None = None, log=None) -> ScenePrior:
+                     device: str | None = None) -> ScenePrior:
     """The prior the scene's newest unmuted GGDS run was made with (its recorded `generate`
     configuration), or ``prior`` ("procedural", "diffusers:DIR", another registered name) to
     override it; ``controlnet`` / ``device`` override those settings. Also the scene's env
@@ -171,7 +178,7 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
         source = f"recorded by GGDS run {run}"
     else:
         cfg, seed, prompt = PriorConfig(), _scene_seed(sc), ""
-        source = ("default (GGDS run {run} records no configuration)".format(run=run) if run
+        source = (f"default (GGDS run {run} records no configuration)" if run
                   else "default (the scene has no GGDS run)")
     if prior is not None:
         cfg.name = check_prior_name(prior)
@@ -179,7 +186,7 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
     if controlnet is not None:
         cfg.controlnet = Path(controlnet)
     if device is not None:
-        cfg.device = device
+        cfg.device = check_device(device)
     try:
         p = make_prior(cfg, seed=seed)
     except InputError as e:

@@ -24,9 +24,9 @@ class RigResult:
     frames: dict            # camera name -> list of PNG paths
     videos: dict            # camera name -> mp4 path
     notes: list
-    deferred_frames: dict = None    # camera name -> list of *_deferred.png paths (deferral only)
-    deferred_videos: dict = None    # camera name -> *_deferred.mp4 path
-    deferred: dict = None           # the deferral's provenance (views.deferred.Deferrer.describe)
+    deferred_frames: dict | None = None    # camera name -> list of *_deferred.png paths (deferral only)
+    deferred_videos: dict | None = None    # camera name -> *_deferred.mp4 path
+    deferred: dict | None = None           # the deferral's provenance (views.deferred.Deferrer.describe)
 
 
 def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajectory=None,
