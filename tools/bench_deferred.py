@@ -147,14 +147,16 @@ def _sweep(a, result, names, raw, per_level, cams, frames, levels, t_render):
     result["sweep"] = {}
     for lv in levels:
         tm = _warp_mean({n: _warp(cams[n], per_level[n][lv], frames[n]) for n in names})
-        row = {"temporal": tm, "warp_ratio": round(tm["warp_err"] / result["raw"]["temporal"]["warp_err"], 3)}
+        ratio = tm["warp_err"] / result["raw"]["temporal"]["warp_err"]
+        row = {"temporal": tm, "warp_ratio": round(ratio, 3)}
         if lv != 1.0:
             row["fd_vs_prior_image"] = fd(embed([im for n in names for im in per_level[n][lv]]), f_target)
         result["sweep"][f"{lv:g}"] = row
         print(f"T {lv:g}: warp {tm['warp_err']} ({row['warp_ratio']}x raw), fd vs prior image "
               f"{row.get('fd_vs_prior_image', 0.0)}")
-    print(f"raw: warp {result['raw']['temporal']['warp_err']} (naive "
-          f"{result['raw']['temporal']['naive_err']}), fd vs prior image {result['raw']['fd_vs_prior_image']}")
+    r = result["raw"]
+    print(f"raw: warp {r['temporal']['warp_err']} (naive {r['temporal']['naive_err']}), "
+          f"fd vs prior image {r['fd_vs_prior_image']}")
 
 
 
