@@ -5,6 +5,7 @@ import argparse
 import sys
 
 from lsd3d_usd.cliutil import parse_size
+from lsd3d_usd.views.commands import add_deferred_arguments, check_deferred_args
 
 
 def _bins(text: str) -> tuple[float, ...]:
@@ -30,7 +31,12 @@ def _eval(args) -> int:
         seed=args.seed, frames=args.frames, step_m=args.step, tonemap=args.tonemap,
         exposure=args.exposure, max_reference=args.max_reference,
         progress=not args.no_progress and sys.stderr.isatty(),
-        log=lambda *a: print(*a, file=sys.stderr))
+        log=lambda *a: print(*a, file=sys.stderr), deferred=args.deferred,
+        deferred_strength=args.deferred_strength, deferred_steps=args.deferred_steps,
+        deferred_prior=args.deferred_prior,
+        deferred_controlnet=Path(args.deferred_controlnet) if args.deferred_controlnet else None,
+        deferred_device=args.deferred_device, deferred_seed=args.deferred_seed)
+    check_deferred_args(args)
     res = evaluate(o)
     if args.json:
         from lsd3d_usd.eval.report import write_json
@@ -50,6 +56,15 @@ def _eval(args) -> int:
           f"{g['normal_err_deg_median']} deg, coverage {_pct(g['coverage'])}")
     print(f"multi-view depth err median {_pct(mv['median'])}; temporal warp err {t['warp_err']} "
           f"(naive {t['naive_err']})")
+    if "deferred" in res:
+        d = res["deferred"]
+        dfd, td = d["fd_effnet_lite0"], d["temporal_warp_err"]
+        print(f"deferred (prior {d['prior']}, T {d['strength']}, N {d['steps']}, "
+              f"{d.get('s_per_frame', 0):.3f} s/frame): fd seen vs novel "
+              f"{dfd['seen_vs_novel']['overall']['value']:.2f}; fd vs the prior's images raw "
+              f"{dfd['vs_prior_target']['raw']['value']:.2f} -> deferred "
+              f"{dfd['vs_prior_target']['deferred']['value']:.2f}; temporal warp err raw "
+              f"{t['warp_err']} -> deferred {td['warp_err']}")
     for u in res["unavailable"]:
         print(f"{u['metric']}: unavailable: {u['reason']}")
     for w in res["warnings"]:
@@ -104,4 +119,5 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-reference", type=int, default=500, help="use at most this many reference images")
     p.add_argument("-o", "--out", metavar="DIR", help="report folder (default SCENE/eval)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_deferred_arguments(p, "the seen, novel and trajectory views (figures beside the raw ones)")
     p.set_defaults(func=_eval)

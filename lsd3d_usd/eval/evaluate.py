@@ -44,6 +44,13 @@ class EvalOptions:
     max_reference: int = 500
     progress: bool = True
     log: object = print
+    deferred: bool = False               # also measure deferred frames (views/deferred.py)
+    deferred_strength: float | None = None   # default views.deferred.DEFAULT_STRENGTH
+    deferred_steps: int | None = None
+    deferred_prior: str | None = None    # default: the prior the scene's GGDS run recorded
+    deferred_controlnet: Path | None = None
+    deferred_device: str | None = None
+    deferred_seed: int | None = None
 
 
 # ------------------------------------------------------------------ input checks
@@ -66,6 +73,16 @@ def _check(o: EvalOptions) -> None:
         raise InputError(f"--step {o.step_m}: must be positive")
     if o.tonemap not in TONEMAPS:
         raise InputError(f"--tonemap {o.tonemap!r}: choose from {', '.join(TONEMAPS)}")
+    from lsd3d_usd.views.deferred import (check_device, check_prior_name, check_steps,
+                                          check_strength)
+    if o.deferred_strength is not None:
+        check_strength(o.deferred_strength)
+    if o.deferred_steps is not None:
+        check_steps(o.deferred_steps)
+    if o.deferred_prior is not None:
+        check_prior_name(o.deferred_prior)
+    if o.deferred_device is not None:
+        check_device(o.deferred_device)
 
 
 def reference_images(ref, limit: int) -> list[Path]:
@@ -144,6 +161,7 @@ def evaluate(o: EvalOptions) -> dict:
     if not sc.layer_path("proxy").is_file():
         raise InputError(f"{sc.layer_path('proxy')}: the scene has no proxy layer (needed for geometry)")
     out_dir = Path(o.out_dir) if o.out_dir else sc.root / "eval"
+    deferrer = _deferrer(o) if o.deferred else None
 
     from lsd3d_usd.eval import geometry as G
     from lsd3d_usd.eval import metrics as M
@@ -182,6 +200,7 @@ def evaluate(o: EvalOptions) -> dict:
     mv_err = {b: [] for b in o.bins}
     mv_shared = {b: [] for b in o.bins}
     bar = _bar(len(seen_sel) + len(novel) + len(heldout) + len(traj), "eval render", o)
+    dfr = DeferredImages()
     for v in seen_sel:
         fr = render_view(surfels, env, v.camera)
         gb = render_gbuffer(PV, PF, v.camera, PC)
@@ -189,12 +208,16 @@ def evaluate(o: EvalOptions) -> dict:
         seen_img.append(display(fr["rgb"], o.tonemap, o.exposure))
         seen_frames.append(fr)
         seen_gb.append(gb)
+        if deferrer is not None:
+            dfr.add("seen", deferrer, fr["rgb"], v.camera, o)
         bar.update(1)
     for nv in novel:
         fr = render_view(surfels, env, nv.view.camera)
         gb = render_gbuffer(PV, PF, nv.view.camera, PC)
         agree["novel"].add(fr, gb, nv.view.camera)
         novel_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        if deferrer is not None:
+            dfr.add("novel", deferrer, fr["rgb"], nv.view.camera, o)
         r = G.reprojection_depth_error(seen_sel[nv.source].camera, seen_frames[nv.source],
                                        seen_gb[nv.source], nv.view.camera, fr, gb)
         if r is not None:
@@ -216,11 +239,15 @@ def evaluate(o: EvalOptions) -> dict:
         fr = render_view(surfels, env, cam)
         traj_frames.append({k: fr[k] for k in ("alpha", "depth_median", "depth_expected")})
         traj_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        if deferrer is not None:
+            dfr.add("traj", deferrer, fr["rgb"], cam, o, target=False)
         bar.update(1)
     bar.close()
     temporal = T.trajectory_warp_errors(traj, traj_img, traj_frames)
     temporal.update(traj_info)
     timings["render_trajectory_s"] = time.perf_counter() - t
+    if deferrer is not None:
+        timings["deferred_s"] = dfr.seconds
 
     # --- features and Fréchet distances
     t = time.perf_counter()
@@ -260,6 +287,25 @@ def evaluate(o: EvalOptions) -> dict:
         fd_out["vs_reference"] = {
             "seen": fd(f_seen, f_ref).to_json(), "novel": fd(f_novel, f_ref).to_json(),
             "novel_per_bin": {f"{b:g}": fd(f_novel[bins_arr == b], f_ref).to_json() for b in o.bins}}
+    deferred = None
+    if deferrer is not None:
+        f_dseen, f_dnovel = embed(dfr.images["seen"]), embed(dfr.images["novel"])
+        f_raw = np.concatenate([f_seen, f_novel])
+        f_target = embed(dfr.targets["seen"] + dfr.targets["novel"])
+        d_temporal = T.trajectory_warp_errors(traj, dfr.images["traj"], traj_frames)
+        d_temporal.update(traj_info)
+        deferred = {
+            **deferrer.describe(),
+            "fd_effnet_lite0": {
+                "seen_vs_novel": {"overall": fd(f_dseen, f_dnovel).to_json(),
+                                  "per_bin": {f"{b:g}": fd(f_dseen, f_dnovel[bins_arr == b]).to_json()
+                                              for b in o.bins}},
+                "vs_prior_target": {
+                    "views": "seen + novel views against the prior's own image of the same views "
+                             "(t = 1)",
+                    "raw": fd(f_raw, f_target).to_json(),
+                    "deferred": fd(np.concatenate([f_dseen, f_dnovel]), f_target).to_json()}},
+            "temporal_warp_err": d_temporal}
     timings["features_fd_s"] = time.perf_counter() - t
 
     # --- seams between chunks
@@ -319,6 +365,7 @@ def evaluate(o: EvalOptions) -> dict:
         "multiview_depth_err": multiview,
         "seams": seams,
         "temporal_warp_err": temporal,
+        **({"deferred": deferred} if deferred is not None else {}),
         "unavailable": unavailable,
         "warnings": fd_warnings,
         "timings": {k: round(v, 2) for k, v in timings.items()},
@@ -326,11 +373,42 @@ def evaluate(o: EvalOptions) -> dict:
     from lsd3d_usd.eval import report
     t = time.perf_counter()
     files = report.write_report(out_dir, result, sc, seen_img, novel_img, novel, traj_img,
-                                seen_frames=seen_frames, seen_gb=seen_gb)
+                                seen_frames=seen_frames, seen_gb=seen_gb,
+                                deferred=dfr if deferrer is not None else None)
     result["timings"]["report_s"] = round(time.perf_counter() - t, 2)
     result["files"] = {k: str(v) for k, v in files.items()}
     report.write_json(out_dir / "eval.json", result)
     return result
+
+
+def _deferrer(o: EvalOptions):
+    from lsd3d_usd.views.deferred import DEFAULT_STEPS, DEFAULT_STRENGTH, Deferrer, load_scene_prior
+    sp = load_scene_prior(o.scene, o.deferred_prior, o.deferred_controlnet, o.deferred_device)
+    d = Deferrer(sp, DEFAULT_STRENGTH if o.deferred_strength is None else o.deferred_strength,
+                 DEFAULT_STEPS if o.deferred_steps is None else o.deferred_steps, o.deferred_seed)
+    o.log(f"eval: deferred with prior {sp.spec} ({sp.source}), T {d.strength}, N {d.steps}")
+    if sp.note():
+        o.log(f"eval: note: {sp.note()}")
+    return d
+
+
+class DeferredImages:
+    """Display images of the deferred views (and the prior's own image at t = 1 of the seen
+    and novel views), by view set."""
+
+    def __init__(self):
+        self.images = {"seen": [], "novel": [], "traj": []}
+        self.targets = {"seen": [], "novel": []}
+        self.seconds = 0.0
+
+    def add(self, kind: str, deferrer, rgb, camera, o: EvalOptions, target: bool = True):
+        t = time.perf_counter()
+        levels = (deferrer.strength, 1.0) if target else (deferrer.strength,)
+        outs = deferrer.images(rgb, camera, levels)
+        self.images[kind].append(display(outs[0], o.tonemap, o.exposure))
+        if target:
+            self.targets[kind].append(display(outs[1], o.tonemap, o.exposure))
+        self.seconds += time.perf_counter() - t
 
 
 def _bin_stats(nvs: list) -> dict:

@@ -109,15 +109,44 @@ def geometry_panel(path: Path, img, frame, gbuf) -> Path:
     return _save_fig(fig, path)
 
 
-def temporal_panel(path: Path, traj_img, temporal: dict) -> Path:
+def temporal_panel(path: Path, traj_img, temporal: dict, deferred: dict | None = None) -> Path:
     plt = _plt()
     picks = sorted({0, len(traj_img) // 2, len(traj_img) - 1})
     fig, ax = plt.subplots(1, len(picks) + 1, figsize=(3.2 * (len(picks) + 1), 2.3))
     for a, i in zip(ax, picks):
         a.imshow(traj_img[i]); a.set_title(f"frame {i}", fontsize=9); a.set_xticks([]); a.set_yticks([])
-    per = [np.nan if e is None else e for e in temporal["per_pair"]]
-    ax[-1].plot(range(1, len(per) + 1), per, ".-", label="warp err")
+    curves = [("warp err", temporal)] + ([("deferred", deferred)] if deferred else [])
+    for label, tm in curves:
+        per = [np.nan if e is None else e for e in tm["per_pair"]]
+        ax[-1].plot(range(1, len(per) + 1), per, ".-", label=label)
+    if deferred:
+        ax[-1].legend(fontsize=7)
     ax[-1].set_xlabel("frame"); ax[-1].set_ylabel("mean |Δ sRGB|"); ax[-1].set_ylim(bottom=0)
+    fig.tight_layout(pad=0.3)
+    return _save_fig(fig, path)
+
+
+def deferred_sheet(path: Path, seen_img, deferred, traj_img, rows: int = 3) -> Path:
+    """Raw | deferred | the prior's own image (t = 1) for a few seen views, then raw | deferred
+    for trajectory frames."""
+    plt = _plt()
+    n_seen = min(rows, len(seen_img))
+    picks = sorted({0, len(traj_img) // 2, len(traj_img) - 1})
+    panels = [(seen_img[i], deferred.images["seen"][i], deferred.targets["seen"][i], f"seen {i}")
+              for i in range(n_seen)]
+    panels += [(traj_img[i], deferred.images["traj"][i], None, f"trajectory frame {i}") for i in picks]
+    h, w = seen_img[0].shape[:2]
+    fig, ax = plt.subplots(len(panels), 3, figsize=(9.6, 3.2 * h / w * len(panels) + 0.4), squeeze=False)
+    for r, (raw, dfd, tgt, label) in enumerate(panels):
+        for c, im in enumerate((raw, dfd, tgt)):
+            if im is not None:
+                ax[r, c].imshow(im)
+            else:
+                ax[r, c].axis("off")
+            ax[r, c].set_xticks([]); ax[r, c].set_yticks([])
+        ax[r, 0].set_ylabel(label, fontsize=8)
+    for c, title in enumerate(("raw", "deferred", "prior's image (t = 1)")):
+        ax[0, c].set_title(title, fontsize=9)
     fig.tight_layout(pad=0.3)
     return _save_fig(fig, path)
 
@@ -195,12 +224,34 @@ def html_report(result: dict, images: dict) -> str:
                   [[f"lane {html.escape(str(t.get('lane')))}, {t.get('path_m')} m", t["pairs"] + 1,
                     _fmt(t["warp_err"], digits=4), _fmt(t["naive_err"], digits=4),
                     _fmt(t["valid_frac"], pct=True)]])
+    def img(key, alt):
+        return f'<p><img src="{images[key]}" alt="{alt}"></p>' if key in images else ""
+
+    dfd = ""
+    if "deferred" in result:
+        d = result["deferred"]
+        dfd_fd = d["fd_effnet_lite0"]
+        td = d["temporal_warp_err"]
+        d_rows = [["seen vs all novel", _fmt(fd["seen_vs_novel"]["overall"]["value"]),
+                   _fmt(dfd_fd["seen_vs_novel"]["overall"]["value"])]]
+        d_rows += [[f"seen vs novel {b} m", _fmt(fd["seen_vs_novel"]["per_bin"][b]["value"]),
+                    _fmt(dfd_fd["seen_vs_novel"]["per_bin"][b]["value"])] for b in bins]
+        d_rows.append(["seen + novel vs the prior's own images (t = 1)",
+                       _fmt(dfd_fd["vs_prior_target"]["raw"]["value"]),
+                       _fmt(dfd_fd["vs_prior_target"]["deferred"]["value"])])
+        d_rows.append(["temporal warp err", _fmt(t["warp_err"], digits=4),
+                       _fmt(td["warp_err"], digits=4)])
+        d_rows.append(["naive frame diff", _fmt(t["naive_err"], digits=4),
+                       _fmt(td["naive_err"], digits=4)])
+        dfd = (f"<h2>Deferred rendering</h2><p>Prior {html.escape(str(d['prior']))} "
+               f"({html.escape(str(d['prior_source']))}), strength T = {d['strength']}, "
+               f"N = {d['steps']} steps, seed {d['seed']}, "
+               f"{_fmt(d.get('s_per_frame'), digits=3)} s per frame.</p>"
+               + _table(["measure", "raw", "deferred"], d_rows)
+               + img("deferred", "raw and deferred frames side by side"))
     unav = "".join(f"<li><b>{html.escape(u['metric'])}</b>: unavailable: {html.escape(u['reason'])}</li>"
                    for u in result["unavailable"])
     warn = "".join(f"<li>{html.escape(w)}</li>" for w in result["warnings"])
-
-    def img(key, alt):
-        return f'<p><img src="{images[key]}" alt="{alt}"></p>' if key in images else ""
 
     c = result["counts"]
     return f"""<!doctype html>
@@ -220,6 +271,7 @@ seed {result['seed']}.</p>
 {fd_table}{img('fd_plot', 'FD by distance')}{ref}
 <h2>Geometry against the proxy</h2>{geo}{img('geometry', 'geometry panel')}
 <h2>Temporal consistency</h2>{temp}{img('temporal', 'temporal path')}
+{dfd}
 <h2>Chunk seams</h2>{_seams_html(result)}
 <h2>GGDS loss</h2>{img('loss', 'GGDS loss curve') or '<p>no loss curve (no GGDS run)</p>'}
 <h2>Not computed</h2><ul>{unav}</ul>
@@ -230,7 +282,7 @@ seed {result['seed']}.</p>
 
 
 def write_report(out_dir: Path, result: dict, sc, seen_img, novel_img, novel, traj_img, *,
-                 seen_frames, seen_gb) -> dict:
+                 seen_frames, seen_gb, deferred=None) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {"contact_sheet": contact_sheet(out_dir / "eval_contact_sheet.png", seen_img, novel_img,
@@ -239,7 +291,11 @@ def write_report(out_dir: Path, result: dict, sc, seen_img, novel_img, novel, tr
              "geometry": geometry_panel(out_dir / "eval_geometry.png", seen_img[0], seen_frames[0],
                                         seen_gb[0]),
              "temporal": temporal_panel(out_dir / "eval_temporal.png", traj_img,
-                                        result["temporal_warp_err"])}
+                                        result["temporal_warp_err"],
+                                        result["deferred"]["temporal_warp_err"]
+                                        if deferred is not None else None)}
+    if deferred is not None:
+        files["deferred"] = deferred_sheet(out_dir / "eval_deferred.png", seen_img, deferred, traj_img)
     if result.get("run"):
         loss = sc.root / "ggds" / result["run"] / "loss.png"
         if loss.is_file():

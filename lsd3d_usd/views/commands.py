@@ -29,30 +29,111 @@ def _parse_times(args):
     return [a + i * step for i in range(n)]
 
 
+def deferred_flags_given(args) -> list[str]:
+    return [f for f, v in (("--deferred-strength", args.deferred_strength),
+                           ("--deferred-steps", args.deferred_steps),
+                           ("--deferred-prior", args.deferred_prior),
+                           ("--deferred-controlnet", args.deferred_controlnet),
+                           ("--deferred-device", args.deferred_device),
+                           ("--deferred-seed", args.deferred_seed)) if v is not None]
+
+
+def check_deferred_args(args) -> None:
+    """Flag checks before anything is loaded or written."""
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.views.deferred import (check_device, check_prior_name, check_steps,
+                                          check_strength)
+    given = deferred_flags_given(args)
+    if given and not args.deferred:
+        raise InputError(f"{given[0]} needs --deferred")
+    if args.deferred_strength is not None:
+        check_strength(args.deferred_strength)
+    if args.deferred_steps is not None:
+        check_steps(args.deferred_steps)
+    if args.deferred_prior is not None:
+        check_prior_name(args.deferred_prior)
+    if args.deferred_device is not None:
+        check_device(args.deferred_device)
+
+
+def make_deferrer(scene, args, log=None):
+    """The Deferrer of the deferred flags (None without --deferred)."""
+    if not args.deferred:
+        return None
+    from lsd3d_usd.views.deferred import DEFAULT_STEPS, DEFAULT_STRENGTH, Deferrer, load_scene_prior
+    sp = load_scene_prior(scene, args.deferred_prior, args.deferred_controlnet, args.deferred_device)
+    if log is not None:
+        log(f"deferred: prior {sp.spec} ({sp.source}), T {args.deferred_strength or DEFAULT_STRENGTH}"
+            f", N {args.deferred_steps or DEFAULT_STEPS}")
+        if sp.note():
+            log(f"note: {sp.note()}")
+    return Deferrer(sp, DEFAULT_STRENGTH if args.deferred_strength is None else args.deferred_strength,
+                    DEFAULT_STEPS if args.deferred_steps is None else args.deferred_steps,
+                    args.deferred_seed)
+
+
+def add_deferred_arguments(p: argparse.ArgumentParser, what: str) -> None:
+    from lsd3d_usd.views.deferred import DEFAULT_STEPS, DEFAULT_STRENGTH
+    g = p.add_argument_group("deferred rendering (docs/render.md)")
+    g.add_argument("--deferred", action="store_true",
+                   help=f"also pass {what} through the scene's image prior from a low noise level "
+                        "(the paper's deferred rendering), conditioned on the proxy G-buffer")
+    g.add_argument("--deferred-strength", type=float, metavar="T",
+                   help=f"noise level T in (0, 1] (default {DEFAULT_STRENGTH}, chosen by measurement)")
+    g.add_argument("--deferred-steps", type=int, metavar="N",
+                   help=f"denoising steps N of a diffusion prior (default {DEFAULT_STEPS})")
+    g.add_argument("--deferred-prior", metavar="PRIOR",
+                   help="prior to use instead of the one the scene's GGDS run recorded: "
+                        "'procedural', 'diffusers:DIR' or another registered prior")
+    g.add_argument("--deferred-controlnet", metavar="DIR",
+                   help="local depth ControlNet directory for a diffusers prior (overrides the "
+                        "recorded one)")
+    g.add_argument("--deferred-device", metavar="DEV", help="torch device of the prior (cpu, cuda[:N])")
+    g.add_argument("--deferred-seed", type=int, metavar="S",
+                   help="seed handed to the prior for every frame (default: the scene's seed; "
+                        "the built-in priors are deterministic and do not use it)")
+
+
 def _render(args) -> int:
     from lsd3d_usd.errors import InputError
 
     progress = not args.no_progress and sys.stderr.isatty()
     size = parse_size(args.resolution, width_only=True)
+    check_deferred_args(args)
     if args.rig:
         from lsd3d_usd.views.rig import render_rig
+        log = (lambda m: print(m, file=sys.stderr))
         res = render_rig(args.scene, args.output, args.rig, args.route, args.trajectory, args.fps,
                          args.seconds, size[0] if size else RIG_WIDTH, args.speed,
                          overview=not args.no_overview, video=not args.no_video,
                          use_env=not args.no_env, exposure=args.exposure,
                          tonemap_method=args.tonemap, progress=progress,
-                         stream_radius=args.stream_radius)
+                         stream_radius=args.stream_radius,
+                         deferrer=make_deferrer(args.scene, args, log))
         print(res.rig_layer)
         for name, fr in res.frames.items():
             print(f"{name}: {len(fr)} frames" + (f", {res.videos[name]}" if name in res.videos else ""))
+            if res.deferred_frames is not None:
+                print(f"{name}: {len(res.deferred_frames[name])} deferred frames"
+                      + (f", {res.deferred_videos[name]}" if name in res.deferred_videos else ""))
+        if res.deferred is not None:
+            d = res.deferred
+            print(f"deferred: prior {d['prior']}, T {d['strength']}, N {d['steps']}, "
+                  f"{d.get('s_per_frame', 0):.2f} s/frame")
         return 0
     if not args.camera:
         raise InputError("render: give --camera PRIM_PATH (or --rig with --route/--trajectory)")
     from lsd3d_usd.views.preview import render_preview
+    from lsd3d_usd.views.stage_data import camera_prim
+    if args.deferred:   # a wrong camera fails before the prior is loaded
+        from lsd3d_usd import scene
+        camera_prim(scene.open_stage(args.scene, load=False), args.camera)
     files = render_preview(args.scene, args.camera, args.output, times=_parse_times(args),
                            resolution=size, fmt=args.format, exposure=args.exposure,
                            tonemap_method=args.tonemap, use_env=not args.no_env,
-                           sh_degree=args.sh_degree, progress=progress)
+                           sh_degree=args.sh_degree, progress=progress,
+                           deferrer=make_deferrer(args.scene, args,
+                                                  lambda m: print(m, file=sys.stderr)))
     for f in files:
         print(f)
     return 0
@@ -105,4 +186,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "whole scene)")
     g.add_argument("--no-video", action="store_true", help="PNG frames only, no MP4")
     g.add_argument("--no-overview", action="store_true", help="skip the third-person overview camera")
+    add_deferred_arguments(p, "every frame")
     p.set_defaults(func=_render)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.views.deferred import deferred_name, write_provenance
 from lsd3d_usd.views.images import TONEMAPS
 
 
@@ -25,9 +26,12 @@ def frame_name(camera_path: str, time, fmt: str, multiple: bool) -> str:
 
 def render_preview(scene_path, camera_path: str, out_dir, *, times=(None,), resolution=None,
                    fmt: str = "png", exposure: float = 0.0, tonemap_method: str = "aces",
-                   use_env: bool = True, sh_degree=None, progress: bool = True) -> list[Path]:
+                   use_env: bool = True, sh_degree=None, progress: bool = True,
+                   deferrer=None) -> list[Path]:
     """Render frames of ``scene_path`` (scene folder or USD file) from ``camera_path`` at
-    ``times`` (time codes; None = the stage's earliest time). Returns the written files."""
+    ``times`` (time codes; None = the stage's earliest time). Returns the written files.
+    With ``deferrer`` (views.deferred.Deferrer) each frame is also deferred through the
+    scene's prior: <name>_deferred.<fmt> beside it, provenance in OUT/deferred.json."""
     from tqdm import tqdm
 
     from lsd3d_usd import scene
@@ -50,7 +54,14 @@ def render_preview(scene_path, camera_path: str, out_dir, *, times=(None,), reso
         if reader.surfels(t) is None:
             raise InputError(f"{scene_path}: no surfels to render (no visible ParticleField prim "
                              "with particles; run mesh -> surfel initialisation or import a PLY)")
-        frame = render_scene(reader, from_usd(prim, usd_time(t), width, height), t, sh_degree)
+        cam = from_usd(prim, usd_time(t), width, height)
+        frame = render_scene(reader, cam, t, sh_degree)
         path = Path(out_dir) / frame_name(camera_path, t if t is not None else 0, fmt, len(times) > 1)
         written.append(write_frame(path, frame, fmt, exposure, tonemap_method))
+        if deferrer is not None:
+            written.append(write_frame(deferred_name(path), deferrer.defer_frame(frame, cam), fmt,
+                                       exposure, tonemap_method))
+    if deferrer is not None:
+        written.append(write_provenance(Path(out_dir) / "deferred.json", deferrer,
+                                        camera=camera_path, format=fmt))
     return written

@@ -6,10 +6,12 @@ camera at every frame from that stage with views.frame.render_scene — the same
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.views.deferred import deferred_name, write_provenance
 from lsd3d_usd.views.rig_stage import build_rig_stage
 from lsd3d_usd.views.rigs import OVERVIEW, RIGS
 
@@ -25,17 +27,24 @@ class RigResult:
     frames: dict            # camera name -> list of PNG paths
     videos: dict            # camera name -> mp4 path
     notes: list
+    deferred_frames: dict | None = None    # camera name -> list of *_deferred.png paths (deferral only)
+    deferred_videos: dict | None = None    # camera name -> *_deferred.mp4 path
+    deferred: dict | None = None           # the deferral's provenance (views.deferred.Deferrer.describe)
 
 
 def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajectory=None,
                fps: float = 10.0, seconds: float = 8.0, width: int = DEFAULT_WIDTH, speed=None,
                seed: int = 0, overview: bool = True, video: bool = True, use_env: bool = True,
                exposure: float = 0.0, tonemap_method: str = "aces", progress: bool = True,
-               stream_radius: float = DEFAULT_STREAM_RADIUS, log=print) -> RigResult:
+               stream_radius: float = DEFAULT_STREAM_RADIUS, log=print,
+               deferrer=None) -> RigResult:
     """Render every rig camera (and the overview) at every frame; PNGs under OUT/<camera>/,
     an MP4 per camera when the encoder is available. ``stream_radius`` > 0: only the chunks
     within that distance of the cameras are loaded (memory independent of the route's
-    length); 0 loads the whole scene."""
+    length); 0 loads the whole scene. With ``deferrer`` (a views.deferred.Deferrer of this
+    scene) every frame is also deferred through the scene's prior: *_deferred.png beside each
+    PNG, *_deferred.mp4 beside each MP4, and the deferral's provenance in rig.usda and
+    OUT/deferred.json."""
     from tqdm import tqdm
 
     from lsd3d_usd.render.camera import from_usd
@@ -60,6 +69,8 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
     specs = {c.name: c for c in list(RIGS[rig_name]) + [OVERVIEW]}
     frames = {p.rsplit("/", 1)[-1]: [] for p in paths}
     images = {k: [] for k in frames}
+    d_frames = {k: [] for k in frames} if deferrer is not None else None
+    d_images = {k: [] for k in frames}
     bar = tqdm(total=len(track.times) * len(paths), desc="render rig", unit="frame", disable=not progress)
     for k, t in enumerate(track.times):
         code = round(float(t) * tcps, 6)
@@ -71,16 +82,40 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
                                             exposure, tonemap_method))
             if video:
                 images[name].append(display_uint8(frame.rgb, exposure, tonemap_method))
+            if deferrer is not None:
+                dframe = deferrer.defer_frame(frame, cam)
+                d_frames[name].append(write_frame(deferred_name(frames[name][-1]), dframe, "png",
+                                                  exposure, tonemap_method))
+                if video:
+                    d_images[name].append(display_uint8(dframe.rgb, exposure, tonemap_method))
             bar.update(1)
     bar.close()
-    videos = {}
+    videos, d_videos = {}, {}
     if video:
         ok, why = encoder_available()
         if ok:
             for name, ims in images.items():
                 videos[name] = write_mp4(out / f"{name}.mp4", ims, fps)
+                if deferrer is not None:
+                    d_videos[name] = write_mp4(deferred_name(videos[name]), d_images[name], fps)
         else:
             notes.append(f"no MP4 written: {why}; PNG frames only")
+    described = None
+    if deferrer is not None:
+        described = deferrer.describe()
+        record_deferral(out / "rig.usda", described)
+        write_provenance(out / "deferred.json", deferrer, rig=rig_name, fps=fps, seconds=seconds,
+                         width=int(width))
     for n in notes:
         log(f"note: {n}")
-    return RigResult(out / "rig.usda", frames, videos, notes)
+    return RigResult(out / "rig.usda", frames, videos, notes, d_frames,
+                     d_videos if deferrer is not None else None, described)
+
+
+def record_deferral(rig_file: Path, described: dict) -> Path:
+    """Add the deferral's provenance to rig.usda (customLayerData lsd3d.deferred)."""
+    from pxr import Sdf
+
+    from lsd3d_usd.scene import save_layer
+    layer = Sdf.Layer.FindOrOpen(str(rig_file))
+    return save_layer(layer, rig_file, {"deferred": json.dumps(described, default=str)})
