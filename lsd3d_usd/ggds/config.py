@@ -71,7 +71,7 @@ class RegionConfig:
                                     lo=1, hi=100_000_000)
     views_per_chunk: int = option(128, help="training views of a one-chunk region", lo=1,
                                   hi=100_000)
-    band_m: float = option(50.0, help="frozen neighbour surfels within this distance of a "
+    band_m: float = option(30.0, help="frozen neighbour surfels within this distance of a "
                                       "region condition it (metres)", lo=0.0, hi=1000.0)
     view_margin_m: float = option(20.0, help="a region's training views stand on lanes inside "
                                              "it or up to this far outside, so surfels at its "
