@@ -13,7 +13,7 @@ from lsd3d_usd.semantics import CLASSES
 from lsd3d_usd.splats.field import SurfelField
 from lsd3d_usd.splats.ply import write_gaussian_splat_prim
 from lsd3d_usd.splats.usdio import write_surfels
-from lsd3d_usd.views.stage_data import SceneReader, TextureCache, read_env, scene_surfels
+from lsd3d_usd.views.stage_data import SceneReader, TextureCache, read_dome, scene_surfels
 
 
 def _field(n, x0, classes=CLASSES, seed=0):
@@ -91,12 +91,12 @@ def test_texture_cache_decodes_once_and_sees_file_changes(tmp_path, monkeypatch)
     real = images.read_image
     monkeypatch.setattr(images, "read_image", lambda p: reads.append(p) or real(p))
     cache = TextureCache()
-    a, b = read_env(stage, None, cache), read_env(stage, None, cache)
+    a, b = read_dome(stage, None, cache), read_dome(stage, None, cache)
     assert len(reads) == 1 and np.allclose(a.image, 0.5) and np.allclose(b.image, 0.5)
     _write_exr(exr, 2.0)
     os.utime(exr, (1e9, 1e9))                          # a different modification time
-    assert np.allclose(read_env(stage, None, cache).image, 2.0) and len(reads) == 2
-    read_env(stage, None)                              # no cache given: a private one
+    assert np.allclose(read_dome(stage, None, cache).image, 2.0) and len(reads) == 2
+    read_dome(stage, None)                              # no cache given: a private one
     assert len(reads) == 3
 
 

@@ -13,22 +13,14 @@ import numpy as np
 
 from lsd3d_usd.env.mapping import pixel_solid_angles
 
-C0 = 0.28209479177387814
-C1 = 0.4886025119029199
-C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
-      -1.0925484305920792, 0.5462742152960396)
+from lsd3d_usd.shmath import C0, C1, C2, sh_basis9  # noqa: F401
+
 BAND_FACTORS = np.array([math.pi] + [2.0 * math.pi / 3.0] * 3 + [math.pi / 4.0] * 5)
 
 
 def sh_basis(dirs: np.ndarray) -> np.ndarray:
     """(..., 3) unit directions -> (..., 9) real SH values, 3DGS ordering and signs."""
-    d = np.asarray(dirs, dtype=np.float64)
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return np.stack([
-        np.full_like(x, C0),
-        -C1 * y, C1 * z, -C1 * x,
-        C2[0] * x * y, C2[1] * y * z, C2[2] * (2 * z * z - x * x - y * y),
-        C2[3] * x * z, C2[4] * (x * x - y * y)], axis=-1)
+    return sh_basis9(np.asarray(dirs, dtype=np.float64))
 
 
 def sh_project(image: np.ndarray) -> np.ndarray:

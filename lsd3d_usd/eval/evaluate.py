@@ -169,7 +169,7 @@ def evaluate(o: EvalOptions) -> dict:
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
     from lsd3d_usd.render.gbuffer import render_gbuffer
-    from lsd3d_usd.views.stage_data import read_env, scene_surfels
+    from lsd3d_usd.views.stage_data import read_dome, scene_surfels
 
     timings = {}
     t = time.perf_counter()
@@ -177,7 +177,7 @@ def evaluate(o: EvalOptions) -> dict:
     surfels = scene_surfels(stage)
     if surfels is None:
         raise InputError(f"{sc.root}: no surfels to render (no visible ParticleField prim)")
-    env = read_env(stage)
+    env = read_dome(stage)
     layout = read_layout(layout_path)
     PV, PF, PC = proxy_arrays(sc.layer_path("proxy"))
     w, h = o.resolution

@@ -33,6 +33,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
+from lsd3d_usd.colour import srgb_decode as srgb_to_linear  # noqa: F401
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.ddim import DDIMSchedule, eps_from_model_output
 from lsd3d_usd.ggds.effnet import linear_to_srgb
@@ -41,10 +42,6 @@ from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv, check_image, che
 _MODEL_WEIGHTS = ("diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.bin")
 _TEXT_WEIGHTS = ("model.safetensors", "pytorch_model.bin")
 
-
-def srgb_to_linear(x: torch.Tensor) -> torch.Tensor:
-    x = x.clamp(0.0, 1.0)
-    return torch.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
 
 
 def _need_dir(root: Path, sub: str, files_any: tuple[str, ...], what: str, config="config.json") -> Path:

@@ -30,6 +30,7 @@ import torch
 import torch.nn as nn
 import torch.nn.functional as F
 
+from lsd3d_usd.colour import srgb_encode as linear_to_srgb  # noqa: F401
 from lsd3d_usd.errors import InputError
 
 BN_EPS = 1e-3
@@ -168,11 +169,6 @@ def load_efficientnet_lite0(path: str | Path | None = None, device="cpu") -> Eff
     _CACHE[key] = model
     return model
 
-
-def linear_to_srgb(x: torch.Tensor) -> torch.Tensor:
-    """sRGB transfer function (IEC 61966-2-1), input clamped to [0, 1]."""
-    x = x.clamp(0.0, 1.0)
-    return torch.where(x <= 0.0031308, 12.92 * x, 1.055 * x.clamp_min(0.0031308) ** (1 / 2.4) - 0.055)
 
 
 def to_batch(images: torch.Tensor) -> torch.Tensor:

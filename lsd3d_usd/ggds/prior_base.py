@@ -16,12 +16,11 @@ from typing import Callable, Optional
 import torch
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.shmath import C0 as _SH_C0, C1 as _SH_C1
 
 VEGETATION_HINTS = ("green", "autumn", "bare", "snow")
 
-# Real SH constants (3DGS ordering, as lsd3d_usd.env.sh): Y_0 = C0, Y_2 = C1 * z.
-_SH_C0 = 0.28209479177387814
-_SH_C1 = 0.4886025119029199
+# Real SH (3DGS ordering, lsd3d_usd.shmath): Y_0 = C0, Y_2 = C1 * z.
 
 
 @dataclass

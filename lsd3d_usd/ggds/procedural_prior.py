@@ -24,19 +24,7 @@ import torch
 from lsd3d_usd.ggds import materials as mat
 from lsd3d_usd.ggds.filters import guided_filter
 from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv, check_image, check_t
-
-_C0 = 0.28209479177387814
-_C1 = 0.4886025119029199
-_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.0925484305920792, 0.5462742152960396)
-
-
-def sh_basis9(d: torch.Tensor) -> torch.Tensor:
-    """(..., 3) unit directions -> (..., 9) real SH (3DGS ordering, as lsd3d_usd.env.sh)."""
-    x, y, z = d[..., 0], d[..., 1], d[..., 2]
-    return torch.stack([
-        torch.full_like(x, _C0), -_C1 * y, _C1 * z, -_C1 * x,
-        _C2[0] * x * y, _C2[1] * y * z, _C2[2] * (2 * z * z - x * x - y * y),
-        _C2[3] * x * z, _C2[4] * (x * x - y * y)], dim=-1)
+from lsd3d_usd.shmath import sh_basis9
 
 
 def _smoothstep(e0, e1, x):

@@ -11,12 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from lsd3d_usd.colour import srgb_encode as _srgb
+
 from .mesh import ClassMesh
 
-
-def _srgb(lin: np.ndarray) -> np.ndarray:
-    lin = np.clip(lin, 0.0, 1.0)
-    return np.where(lin <= 0.0031308, 12.92 * lin, 1.055 * lin ** (1 / 2.4) - 0.055)
 
 
 def _face_colors(cm: ClassMesh) -> np.ndarray:

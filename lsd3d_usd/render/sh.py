@@ -8,13 +8,7 @@ from __future__ import annotations
 
 import torch
 
-# Normalisation constants of the real SH basis (standard values, as used by 3DGS).
-C0 = 0.28209479177387814
-C1 = 0.4886025119029199
-C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
-      -1.0925484305920792, 0.5462742152960396)
-C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154,
-      -0.4570457994644658, 1.445305721320277, -0.5900435899266435)
+from lsd3d_usd.shmath import C0, C1, C2, C3  # noqa: F401  (the real SH constants)
 
 
 def sh_degree_of(k: int) -> int:

@@ -15,7 +15,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-SH_C0 = 0.28209479177387814
+from lsd3d_usd.shmath import C0 as SH_C0
+
 KERNEL_SIGMAS = 3.0  # support of the surflet kernel per the schema: 99.7 % within 3 sigma
 
 

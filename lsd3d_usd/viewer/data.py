@@ -245,9 +245,9 @@ class SceneSource:
             if path and not self.inside(path):
                 raise InputError(f"{prim.GetPath()}.inputs:texture:file: {asset.path!r} resolves outside "
                                  f"the scene folder; the viewer reads files inside {self.root} only")
-        from lsd3d_usd.views.stage_data import read_env
+        from lsd3d_usd.views.stage_data import read_dome
 
-        env = read_env(stage)
+        env = read_dome(stage)
         if env is None:
             return None
         return EnvData(env.image, np.asarray(env.world_from_dome, np.float64), env.pole_axis, env.source)

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lsd3d_usd.colour import srgb_encode  # noqa: F401  (the display transfer, one definition)
 from lsd3d_usd.errors import InputError
 
 TONEMAPS = ("aces", "reinhard", "clamp")
@@ -25,10 +26,6 @@ def tonemap(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.
         raise InputError(f"unknown tone map {method!r}; choose from {', '.join(TONEMAPS)}")
     return np.clip(y, 0.0, 1.0)
 
-
-def srgb_encode(x: np.ndarray) -> np.ndarray:
-    x = np.clip(x, 0.0, 1.0)
-    return np.where(x <= 0.0031308, 12.92 * x, 1.055 * np.power(x, 1.0 / 2.4) - 0.055)
 
 
 def display_uint8(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.ndarray:

@@ -5,7 +5,7 @@ command, rig, eval, usdview) gets its surfels, env map and actors from.
                                  /World/Cameras (our Lsd3dSurfelField and the official
                                  ParticleField3DGaussianSplat, flattened to surfels by
                                  splats.usdio.read_surfels), in world space, as one SurfelField
-    read_env(stage, time)        the first visible DomeLight's latlong texture (EnvMap)
+    read_dome(stage, time)       the first visible DomeLight's latlong texture (EnvMap)
     camera_prim(stage, path)     a UsdGeom.Camera prim, or one clear error listing the cameras
     SceneReader                  the above for one stage, plus the actors placed and relit at
                                  a time (`actors_at`); reads what cannot change only once
@@ -98,25 +98,17 @@ class EnvMap:
     source: str = ""
 
     def lookup(self, dirs: np.ndarray) -> np.ndarray:
-        """Bilinear radiance (…,3) for world directions (…,3), wrapping in longitude."""
-        from lsd3d_usd.env.mapping import direction_to_uv
+        """Radiance (…,3) for world directions (…,3): into the dome's frame (and from a Y pole
+        axis to ours), then env.lookup.env_lookup — the one latlong lookup of the project
+        (bilinear, wrapping in longitude, continuous at the poles)."""
+        import torch
 
+        from lsd3d_usd.env.lookup import env_lookup
         d = np.asarray(dirs, np.float64) @ self.world_from_dome  # = R^T d: into the dome frame
         if self.pole_axis == "Y":
             d = np.stack([d[..., 0], -d[..., 2], d[..., 1]], axis=-1)
-        uv = direction_to_uv(d)
-        h, w = self.image.shape[:2]
-        x = uv[..., 0] * w - 0.5
-        y = np.clip(uv[..., 1] * h - 0.5, 0.0, h - 1.0)
-        x0 = np.floor(x).astype(np.int64)
-        y0 = np.minimum(np.floor(y).astype(np.int64), h - 2) if h > 1 else np.zeros_like(x0)
-        fx, fy = (x - x0)[..., None], (y - y0)[..., None]
-        x0m, x1m = x0 % w, (x0 + 1) % w
-        y1 = np.minimum(y0 + 1, h - 1)
-        im = self.image
-        top = im[y0, x0m] * (1 - fx) + im[y0, x1m] * fx
-        bot = im[y1, x0m] * (1 - fx) + im[y1, x1m] * fx
-        return (top * (1 - fy) + bot * fy).astype(np.float32)
+        image = torch.from_numpy(np.ascontiguousarray(self.image, np.float32))
+        return env_lookup(image, torch.from_numpy(d.astype(np.float32))).numpy()
 
 
 class TextureCache:
@@ -139,7 +131,7 @@ class TextureCache:
         return img
 
 
-def read_env(stage, time=None, textures: TextureCache | None = None) -> EnvMap | None:
+def read_dome(stage, time=None, textures: TextureCache | None = None) -> EnvMap | None:
     """The first visible DomeLight with a texture (intensity, exposure and colour applied),
     or None (black background). ``textures`` caches decoded images across calls."""
     from pxr import Usd, UsdGeom, UsdLux
@@ -335,7 +327,7 @@ class SceneReader:
         """The env map at ``time`` (None without one, or with use_env=False)."""
         if not self.use_env:
             return None
-        return self._memo("env", time, lambda t: read_env(self.stage, t, self.textures))
+        return self._memo("env", time, lambda t: read_dome(self.stage, t, self.textures))
 
     def actors_at(self, time=None) -> ActorFrame:
         """Actor geometry in world space at ``time``, relit by the scene's lighting."""
