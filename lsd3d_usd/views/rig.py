@@ -30,17 +30,19 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
                exposure: float = 0.0, tonemap_method: str = "aces", progress: bool = True,
                log=print) -> RigResult:
     """Render every rig camera (and the overview) at every frame; PNGs under OUT/<camera>/,
-    an MP4 per camera when the encoder is available."""
+    and an MP4 per camera unless ``video`` is False."""
     from tqdm import tqdm
 
     from lsd3d_usd.render.camera import from_usd
     from lsd3d_usd.views.frame import render_scene
     from lsd3d_usd.views.images import display_uint8, write_frame
     from lsd3d_usd.views.stage_data import SceneReader
-    from lsd3d_usd.views.video import encoder_available, write_mp4
+    from lsd3d_usd.views.video import ffmpeg_exe, write_mp4
 
     if int(width) < 8:
         raise InputError(f"--resolution: rig frames need a width >= 8, got {width}")
+    if video:
+        ffmpeg_exe()   # checked before minutes of rendering
     stage, paths, track, tcps, notes = build_rig_stage(scene_path, out_dir, rig_name, route, trajectory,
                                                        fps, seconds, speed, seed)
     if not overview:
@@ -67,12 +69,8 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
     bar.close()
     videos = {}
     if video:
-        ok, why = encoder_available()
-        if ok:
-            for name, ims in images.items():
-                videos[name] = write_mp4(out / f"{name}.mp4", ims, fps)
-        else:
-            notes.append(f"no MP4 written: {why}; PNG frames only")
+        for name, ims in images.items():
+            videos[name] = write_mp4(out / f"{name}.mp4", ims, fps)
     for n in notes:
         log(f"note: {n}")
     return RigResult(out / "rig.usda", frames, videos, notes)
