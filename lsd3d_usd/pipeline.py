@@ -26,7 +26,7 @@ from lsd3d_usd.config import GenerateConfig
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.hashing import content_hash
 
-SURFELS_VERSION = "surfels-v3"
+SURFELS_VERSION = "surfels-v4"   # v4: density from the drivable lanes only (model.DRIVABLE_TYPES)
 
 
 @dataclass
@@ -71,10 +71,12 @@ def read_layout_for(cfg: GenerateConfig):
         layout, source = read_layout(cfg.layout), Path(cfg.layout)
     else:
         layout, source = generator.generate(cfg.seed, cfg.extent, cfg.style), None
-    if not any(ln.lane_type in ("driving", "bus") for ln in layout.lanes):
+    if not layout.drivable_lanes():
+        from lsd3d_usd.layout.model import DRIVABLE_TYPES
         where = cfg.layout or "generated layout"
-        raise InputError(f"{where}: the layout has no driving lanes (GGDS places its cameras "
-                         "along lanes, and the proxy needs roads)")
+        raise InputError(f"{where}: the layout has no drivable lanes (of type "
+                         f"{', '.join(DRIVABLE_TYPES)}; GGDS places its cameras along them, and "
+                         "the proxy needs roads)")
     return layout, source
 
 

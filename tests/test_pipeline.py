@@ -71,7 +71,7 @@ def test_layout_without_lanes_is_refused(tmp_path):
     lay.write_text('#usda 1.0\n(\n defaultPrim = "World"\n metersPerUnit = 1\n upAxis = "Z"\n)\n'
                    'def Xform "World" {\n def Scope "Layout" {\n }\n}\n')
     out = tmp_path / "scene"
-    with pytest.raises(InputError, match="no driving lanes"):
+    with pytest.raises(InputError, match="no drivable lanes"):
         generate(opts(out, layout=lay))
     assert not out.exists()
 

@@ -46,7 +46,8 @@ def _render(args) -> int:
             print(f"{name}: {len(fr)} frames" + (f", {res.videos[name]}" if name in res.videos else ""))
         return 0
     if not args.camera:
-        raise InputError("render: give --camera PRIM_PATH (or --rig with --route/--trajectory)")
+        raise InputError("render: give --camera PRIM_PATH, or --rig (driving --route, --trajectory "
+                         "or by default the longest drivable route)")
     from lsd3d_usd.views.preview import render_preview
     files = render_preview(args.scene, args.camera, args.output, times=_parse_times(args),
                            resolution=size, fmt=args.format, exposure=args.exposure,
@@ -92,7 +93,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "--trajectory: every camera's frames under OUT/<camera>/, an MP4 per camera, a "
                    "third-person Overview, and OUT/rig.usda (the scene + the animated rig)")
     g.add_argument("--route", help="comma-separated lane ids the ego drives, each a successor of the one "
-                   "before (IDM speed on an empty road unless --speed)")
+                   "before (IDM speed on an empty road unless --speed); `lsd3d-usd layout lanes SCENE` "
+                   "lists them. Default (without --trajectory): the longest drivable successor path, "
+                   "printed so it can be reused")
     g.add_argument("--trajectory", help="poses.json: a list of {t, x, y, z, yaw (degrees)} or "
                    "{t, matrix (4x4 world-from-ego)}; see docs/actors.md")
     g.add_argument("--fps", type=float, default=10.0, help="rig frames per second (default 10)")

@@ -22,6 +22,7 @@ class RigResult:
     frames: dict            # camera name -> list of PNG paths
     videos: dict            # camera name -> mp4 path
     notes: list
+    route: list | None = None   # lane ids driven (given or default), None for a trajectory
 
 
 def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajectory=None,
@@ -43,8 +44,8 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
         raise InputError(f"--resolution: rig frames need a width >= 8, got {width}")
     if video:
         ffmpeg_exe()   # checked before minutes of rendering
-    stage, paths, track, tcps, notes = build_rig_stage(scene_path, out_dir, rig_name, route, trajectory,
-                                                       fps, seconds, speed, seed)
+    stage, paths, track, tcps, notes, route_ids = build_rig_stage(
+        scene_path, out_dir, rig_name, route, trajectory, fps, seconds, speed, seed)
     if not overview:
         paths = [p for p in paths if not p.endswith("/" + OVERVIEW.name)]
     reader = SceneReader(stage, use_env=use_env)
@@ -73,4 +74,4 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
             videos[name] = write_mp4(out / f"{name}.mp4", ims, fps)
     for n in notes:
         log(f"note: {n}")
-    return RigResult(out / "rig.usda", frames, videos, notes)
+    return RigResult(out / "rig.usda", frames, videos, notes, route_ids)
