@@ -4,7 +4,8 @@ The one place that knows where things live in a scene folder::
 
     scene/
       scene.usda          root layer: metadata + subLayers (strongest first)
-      layers/ggds_<run>.usdc, surfels.usdc, actors.usda, env.usda, proxy.usdc, layout.usda
+      layers/ggds_<run>.usdc, surfels.usdc, cameras.usda, actors.usda, env.usda, proxy.usdc,
+              layout.usda
       textures/  assets/
       ggds/<run>/         a run's checkpoint (while unfinished), summary.json, plots
 
@@ -59,6 +60,7 @@ STEP_LAYERS: dict[str, str] = {
     "proxy": "proxy.usdc",
     "env": "env.usda",
     "actors": "actors.usda",
+    "cameras": "cameras.usda",
     "surfels": "surfels.usdc",
 }
 GGDS_PREFIX = "ggds_"
@@ -293,7 +295,7 @@ class RunFiles:
 
 def order_layers(files: Iterable[str]) -> list[str]:
     """Strongest first: GGDS runs (newest first: run names sort by time), then fixed steps
-    strong→weak (surfels, actors, env, proxy, layout), then anything else by name."""
+    strong→weak (surfels, cameras, actors, env, proxy, layout), then anything else by name."""
     files = set(files)
     runs = sorted((f for f in files if f.startswith(GGDS_PREFIX)), reverse=True)
     steps = [f for f in reversed(list(STEP_LAYERS.values())) if f in files]

@@ -94,3 +94,17 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
         cam = Camera.from_fov(width, height, fov_deg, pose=look_at(eye, target), near=0.1, far=far)
         views.append(View(cam, kind_novel if novel else kind_lane, lane.id, float(offset)))
     return views
+
+
+HELD_OUT_SEED_OFFSET = 7919   # held-out views come from their own stream of the run's seed
+
+
+def run_views(layout, g) -> tuple[list[View], list[View]]:
+    """(training views, held-out views) of a GGDS run configured by ``g`` (a GGDSConfig
+    whose ``seed`` is the run's), sampled as `generate` samples them."""
+    w, h = g.resolution
+    views = sample_views(layout, g.views, w, h, seed=g.seed, novel_frac=g.novel_frac,
+                         fov_deg=g.fov_deg)
+    held_out = sample_views(layout, g.held_out, w, h, seed=g.seed + HELD_OUT_SEED_OFFSET,
+                            novel_frac=0.5, fov_deg=g.fov_deg)
+    return views, held_out
