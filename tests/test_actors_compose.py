@@ -1,6 +1,8 @@
 """Actor assets and the actors layer: composition by reference, validation, time samples."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -160,3 +162,24 @@ def test_cli_actors_add(scene, library, capsys):
     assert "3 parked, 2 moving" in capsys.readouterr().out
     assert main(["actors", "add", str(scene.root), "--assets", str(scene.root / "nothing")]) == 1
     assert "nothing: no such folder" in capsys.readouterr().err
+
+
+def test_parked_shortfall_says_why(tmp_path, layout, library):
+    """A layout without any parking says so; one whose slots run out says how many there are."""
+    from lsd3d_usd.actors.placement import parking_slots
+    from lsd3d_usd.layout.usdio import layout_to_stage, read_layout
+    lib_dir = next(iter(library.values())).parent
+    crossing = read_layout(Path(__file__).resolve().parents[1] / "samples/layouts/hand_crossing.usda")
+    assert parking_slots(crossing) == []
+    sc = Scene.create(tmp_path / "a")
+    sc.write_layer("layout", layout_to_stage(crossing))
+    res = add_actors(sc, crossing, parked=12, moving=0, seed=0, assets_dir=lib_dir)
+    assert res.parked == [] and res.notes == [
+        "no parked actors: the layout has no parking (no free parking spot, no lane of type parking)"]
+    n_slots = len(parking_slots(layout))
+    assert n_slots > 0
+    sc = Scene.create(tmp_path / "b")
+    sc.write_layer("layout", layout_to_stage(layout))
+    res = add_actors(sc, layout, parked=n_slots + 5, moving=0, seed=0, assets_dir=lib_dir)
+    assert res.notes == [f"only {len(res.parked)} of {n_slots + 5} parked actors fit in the layout's "
+                         f"{n_slots} free parking slots"]

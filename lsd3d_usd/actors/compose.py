@@ -47,7 +47,7 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
     Replaces any previous actors layer (a step owns its layer)."""
     from lsd3d_usd import scene as S
     from lsd3d_usd.actors import assets as A
-    from lsd3d_usd.actors.placement import KIND_WEIGHTS, parked_placements
+    from lsd3d_usd.actors.placement import KIND_WEIGHTS, parked_placements, parking_slots
     from lsd3d_usd.actors.traffic import simulate
     from lsd3d_usd.actors.usdio import (ActorSpec, actors_layer, extend_root_time_range,
                                         scene_time_codes_per_second)
@@ -69,7 +69,11 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
 
     places = parked_placements(layout, parked, seed, dims, weights)
     if len(places) < parked:
-        notes.append(f"only {len(places)} of {parked} parked actors fit (free parking slots ran out)")
+        n_slots = len(parking_slots(layout))
+        notes.append(f"no parked actors: the layout has no parking (no free parking spot, no lane "
+                     "of type parking)" if n_slots == 0 else
+                     f"only {len(places)} of {parked} parked actors fit in the layout's {n_slots} "
+                     "free parking slots")
     moving_kinds = [wk[int(rng.choice(len(wk), p=wp))] for _ in range(moving)]
     run = None
     if moving:
