@@ -394,6 +394,12 @@ class Scene:
 
     @classmethod
     def open(cls, root: str | os.PathLike) -> "Scene":
+        """The scene in folder ``root``, also given as its root layer (``root/scene.usda``)."""
+        p = Path(root)
+        if p.name == ROOT_FILE and p.is_file():
+            root = p.parent
+        elif p.is_file():
+            raise InputError(f"{p}: not an lsd3d-usd scene (give the scene folder or its {ROOT_FILE})")
         scene = cls(root)
         if not scene.root_layer_path.is_file():
             raise InputError(f"{scene.root}: not an lsd3d-usd scene folder (no {ROOT_FILE})")

@@ -76,7 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "and frame-to-frame warp error along a lane. Writes SCENE/eval/report.html with "
                     "PNGs and eval.json. Inception FID, FD-DINOv2, CLIP score and FVD need local weight"
                     " files (--weights) and are otherwise reported as unavailable. See docs/eval.md.")
-    p.add_argument("scene", help="scene folder (holding scene.usda)")
+    p.add_argument("scene", help="scene folder, or its root layer scene.usda")
     p.add_argument("--json", metavar="FILE", help="also write the metrics JSON here "
                                                    "(always written to SCENE/eval/eval.json)")
     p.add_argument("--reference", metavar="DIR",
