@@ -55,7 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run usd-core's UsdValidation validators plus lsd3d checks: unknown prim types; "
                     "missing upAxis/metersPerUnit/defaultPrim; array lengths; finite values; opacity in "
                     "[0,1]; scales > 0; unit quaternions; SH degree vs coefficient count; extent covering "
-                    "the particles; unresolvable asset paths; bulk surfel data in .usda. Works on any USD "
+                    "the particles; BasisCurves that USD tools can draw (curveVertexCounts adding up to the "
+                    "points, enough vertices per curve for its type); unresolvable asset paths; bulk "
+                    "surfel data in .usda. Works on any USD "
                     "file. Exit 0 when valid, 1 with one line per problem.")
     p.add_argument("path", help="a USD file (.usda/.usdc/.usd) or a scene folder holding scene.usda")
     p.add_argument("--json", action="store_true", help="print a JSON report instead of text")
