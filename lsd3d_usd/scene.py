@@ -86,6 +86,17 @@ def parse_chunk_prim_name(name: str) -> tuple[int, int]:
     return dec(m.group(1)), dec(m.group(2))
 
 
+def author_fallback_prim_types(layer: Sdf.Layer) -> None:
+    """Merge lsd3d_usd.FALLBACK_PRIM_TYPES into the layer's ``fallbackPrimTypes`` metadata, so
+    a USD reader without our plugin opening it as its root layer sees ParticleField prims."""
+    info = dict(layer.pseudoRoot.GetInfo("fallbackPrimTypes")) \
+        if layer.pseudoRoot.HasInfo("fallbackPrimTypes") else {}
+    want = {t: Vt.TokenArray(list(f)) for t, f in lsd3d_usd.FALLBACK_PRIM_TYPES.items()}
+    if any(list(info.get(t, ())) != list(v) for t, v in want.items()):
+        info.update(want)
+        layer.pseudoRoot.SetInfo("fallbackPrimTypes", info)
+
+
 def new_stage() -> Usd.Stage:
     """In-memory stage with the scene conventions: Z up, metres, defaultPrim /World."""
     stage = Usd.Stage.CreateInMemory()
@@ -381,6 +392,7 @@ class Scene:
                                   variability=Sdf.VariabilityUniform).Set(
                 [(x0, y0, z0), (x1, y1, z1)])
         stage.GetRootLayer().documentation = "lsd3d-usd scene: root layer (metadata + subLayers)"
+        author_fallback_prim_types(stage.GetRootLayer())
         if scene.root_layer_path.exists():  # exist_ok: keep the existing stack
             old = Sdf.Layer.FindOrOpen(str(scene.root_layer_path))
             stage.GetRootLayer().subLayerPaths = list(old.subLayerPaths)
@@ -445,6 +457,7 @@ class Scene:
 
     def _write_root(self, layer: Sdf.Layer, stack: Iterable[str], muted: Iterable[str]) -> None:
         layer.subLayerPaths = [self._rel(f) for f in order_layers(stack)]
+        author_fallback_prim_types(layer)   # scenes made before it was authored get it too
         data = dict(layer.customLayerData)
         lsd = dict(data.get("lsd3d", {}))
         muted = order_layers(muted)

@@ -29,12 +29,6 @@ import numpy as np
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.splats.field import SurfelField
 
-SURFEL_API_SCHEMAS = (    # explicit, so readers without our plugin still see a 2DGS field
-    "ParticleFieldPositionAttributeAPI", "ParticleFieldOrientationAttributeAPI",
-    "ParticleFieldScaleAttributeAPI", "ParticleFieldOpacityAttributeAPI",
-    "ParticleFieldSphericalHarmonicsAttributeAPI", "ParticleFieldKernelGaussianSurfletAPI")
-
-
 def chunk_keys(positions: np.ndarray, chunk_size: float) -> np.ndarray:
     """(N, 2) int64 chunk index of each position (floor of x / size, y / size)."""
     p = np.asarray(positions, np.float64)
@@ -77,14 +71,11 @@ def _stage():
 
 def write_chunk(root_path, key, field: SurfelField, provenance: dict | None = None) -> Path:
     """The initial surfels of one chunk to its own file (atomic), defaultPrim Chunk_<i>_<j>."""
-    from pxr import Sdf
-
     from lsd3d_usd.scene import chunk_prim_name, save_layer
     from lsd3d_usd.splats.usdio import write_surfels
     name = chunk_prim_name(*key)
     stage = _stage()
-    prim = write_surfels(stage, f"/{name}", field)
-    prim.SetMetadata("apiSchemas", Sdf.TokenListOp.Create(prependedItems=list(SURFEL_API_SCHEMAS)))
+    prim = write_surfels(stage, f"/{name}", field)   # + the official APIs and type fallback
     stage.SetDefaultPrim(prim)
     return save_layer(stage.GetRootLayer(), chunk_path(root_path, key), provenance)
 
@@ -111,6 +102,8 @@ def _root(chunks: Iterable, folder_name: str, *, define: bool):
     layer = Sdf.Layer.CreateAnonymous(".usdc")
     spec_kind = Sdf.SpecifierDef if define else Sdf.SpecifierOver
     if define:
+        from lsd3d_usd.scene import author_fallback_prim_types
+        author_fallback_prim_types(layer)   # its chunk prims are ours, typed by this layer
         layer.defaultPrim = WORLD.strip("/")
         layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.z)
         layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
