@@ -210,4 +210,4 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
                       "weight of the perceptual loss (default: the prior's: 0 for the "
                       "procedural prior, whose targets are exact per pixel; 0.05 for a "
                       "diffusion prior)")
-    p.set_defaults(func=_generate)
+    p.set_defaults(func=_generate, compiles_kernels=True)

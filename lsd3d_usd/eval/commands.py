@@ -104,4 +104,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-reference", type=int, default=500, help="use at most this many reference images")
     p.add_argument("-o", "--out", metavar="DIR", help="report folder (default SCENE/eval)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=_eval)
+    p.set_defaults(func=_eval, compiles_kernels=True)

@@ -103,4 +103,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--speed", type=float, help="constant ego speed along --route in m/s (default: IDM)")
     g.add_argument("--no-video", action="store_true", help="PNG frames only, no MP4")
     g.add_argument("--no-overview", action="store_true", help="skip the third-person overview camera")
-    p.set_defaults(func=_render)
+    p.set_defaults(func=_render, compiles_kernels=True)
