@@ -183,3 +183,15 @@ def test_parked_shortfall_says_why(tmp_path, layout, library):
     res = add_actors(sc, layout, parked=n_slots + 5, moving=0, seed=0, assets_dir=lib_dir)
     assert res.notes == [f"only {len(res.parked)} of {n_slots + 5} parked actors fit in the layout's "
                          f"{n_slots} free parking slots"]
+
+
+def test_default_library_is_the_scenes_own(scene, layout):
+    """Without --assets the actors reference SCENE/assets (written there): the scene folder
+    is self-contained, whether or not it sits next to a source checkout."""
+    from lsd3d_usd.cli import main
+    assert main(["actors", "add", str(scene.root), "--parked", "2", "--moving", "1", "--seconds", "1"]) == 0
+    stage = scene.open_stage()
+    refs = [r.assetPath for p in stage.Traverse() if p.GetParent().GetName() in ("Parked", "Moving")
+            for r in p.GetPrimStack()[0].referenceList.prependedItems]
+    assert refs and all(r.startswith("../assets/") for r in refs)
+    assert all((scene.root / "layers" / r).resolve().is_file() for r in refs)

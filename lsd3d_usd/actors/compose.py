@@ -23,14 +23,12 @@ class ActorsResult:
 
 
 def resolve_library(scene, assets_dir=None) -> dict[str, Path]:
-    """kind -> asset file: ``assets_dir`` if given, else the repository's samples/assets,
-    else the procedural library written (not copied) into the scene's assets/ folder."""
+    """kind -> asset file: ``assets_dir`` if given, else the scene's own assets/ folder, the
+    procedural library written into it where missing (so the scene folder is
+    self-contained: it never references a source checkout)."""
     from lsd3d_usd.actors import assets as A
     if assets_dir is not None:
         return A.library_assets(assets_dir)
-    lib = A.default_library_dir()
-    if lib is not None and any(lib.glob("*.usd*")):
-        return A.library_assets(lib)
     folder = Path(scene.root) / "assets"
     missing = [k for k in A.LIBRARY_KINDS if not (folder / f"{k}.usda").is_file()]
     if missing:
