@@ -10,6 +10,7 @@ along a route, video clips, and the `render` command.
     rig_stage    the rig's USD layer (animated cameras + ego car, sublayering the scene)
     rig          `render --rig`: every camera of a rig at every frame, MP4 per camera
     video        MP4 writing
+    scene_cameras  the scene's cameras layer (GGDS views and overviews under /World/Cameras)
     commands     the `render` CLI
 
 Layering: above actors and ggds, below pipeline; render/ is only the rasteriser.
