@@ -22,7 +22,6 @@ SEM_CLASSES_ATTR = "lsd3d:semanticClasses"
 FIELD_ATTRS = ("positions", "orientations", "scales", "opacities", "sh", "semantic_ids")
 
 
-
 def is_particle_field(prim: Usd.Prim) -> bool:
     return prim.IsA(UsdVol.ParticleField)
 
