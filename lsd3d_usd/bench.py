@@ -66,6 +66,39 @@ register_benchmark(
     _ggds_args, _ggds_run)
 
 
+# ------------------------------------------------------------------ scale ---
+def _scale_args(p: argparse.ArgumentParser):
+    p.add_argument("--json", metavar="OUT.json", help="write results as JSON (per configuration: "
+                   "chunks, surfels, surfels_per_m2, per_chunk_s, total_s, peak_rss_mb, "
+                   "driver_rss_mb, seam_psnr_drop_db, border_coverage)")
+    p.add_argument("--png", metavar="OUT.png", help="time and memory against chunks (default: "
+                                                    "next to --json)")
+    p.add_argument("--full", action="store_true",
+                   help="also 16-chunk corridor and grid, streaming rig renders along 200 m and "
+                        "2 km, and a 10 km corridor with --steps 0 (an hour or more on 2 cores)")
+    p.add_argument("--steps", type=int, default=30, help="GGDS steps per chunk (default 30)")
+    p.add_argument("--workers", type=int, help="regions in parallel (default: one per core)")
+    p.add_argument("--views-per-chunk", type=int, default=24, help="training views per chunk "
+                                                                   "(default 24)")
+    p.add_argument("--seed", type=int, default=11, help="seed of the generated layouts (default 11)")
+    p.add_argument("--work", help="keep the generated scenes in this folder (default: a temporary "
+                                  "one, removed)")
+
+
+def _scale_run(args) -> int:
+    from lsd3d_usd.benchmarks.scale import main
+
+    main(json_path=args.json, full=args.full, steps=args.steps, workers=args.workers,
+         seed=args.seed, views_per_chunk=args.views_per_chunk, work=args.work, png_path=args.png)
+    return 0
+
+
+register_benchmark(
+    "scale",
+    "chunk-wise generate at growing extent: time, memory, density and seams per configuration",
+    _scale_args, _scale_run)
+
+
 def register(subparsers):
     p = subparsers.add_parser(
         "bench", help="run benchmarks (speed and accuracy numbers)",

@@ -27,6 +27,7 @@ COMMAND_MODULES = (
     "lsd3d_usd.bench",
     "lsd3d_usd.batch.commands",
     "lsd3d_usd.eval.commands",
+    "lsd3d_usd.viewer.commands",
 )
 
 

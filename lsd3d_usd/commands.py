@@ -149,11 +149,16 @@ def _generate(args) -> int:
     layers.append(("", flags))
     layers.append(("--set ", ct.parse_assignments(args.set, C.GenerateConfig)))
     cfg = C.build(layers)
+    if args.workers is not None and args.workers < 1:
+        raise InputError(f"--workers {args.workers}: must be >= 1")
+    if args.address and args.executor != "ray":
+        raise InputError("--address is for --executor ray")
     if args.json:   # checked now, not after the whole run
         from lsd3d_usd.cliutil import check_output_path
         check_output_path(args.json, "--json", what="summary file")
     run = RunOptions(out=Path(args.output), resume=args.resume, force=args.force,
                      retire_runs=args.retire_runs, keep_checkpoint=args.keep_checkpoint,
+                     workers=args.workers, executor=args.executor, address=args.address,
                      progress=not args.no_progress and sys.stderr.isatty(),
                      log=(lambda *a: print(*a, file=sys.stderr)),
                      explicit=frozenset(k for _, values in layers for k in values))
@@ -205,6 +210,14 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
                         "run layer holds the result)")
     p.add_argument("--json", help="also write the summary JSON here")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    x = p.add_argument_group("where GGDS regions run (docs/ggds.md: chunk-wise GGDS)")
+    x.add_argument("--workers", type=int, metavar="N",
+                   help="regions optimised in parallel (default: one per CPU core; a scene "
+                        "that is one region runs in this process)")
+    x.add_argument("--executor", choices=("local", "ray"), default="local",
+                   help="local process pool (default) or a Ray cluster")
+    x.add_argument("--address", help="Ray cluster address (with --executor ray; default: a "
+                                     "local Ray instance), e.g. ray://head:10001")
     groups = ct.add_arguments(p, GenerateConfig, titles=GROUP_TITLES)
     ct.add_entry_flag(groups["ggds"], "--perceptual-weight", "ggds.weights.perceptual",
                       "weight of the perceptual loss (default: the prior's: 0 for the "

@@ -11,14 +11,10 @@ with its own recorded configuration.
 """
 from __future__ import annotations
 
-import io
-import json
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
-
-import numpy as np
 
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
@@ -27,7 +23,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.hashing import content_hash
 from lsd3d_usd.views.scene_cameras import write_scene_cameras
 
-SURFELS_VERSION = "surfels-v4"   # v4: density from the drivable lanes only (model.DRIVABLE_TYPES)
+SURFELS_VERSION = "surfels-v5"   # v5: density from the drivable lanes only (model.DRIVABLE_TYPES)
 
 
 @dataclass
@@ -40,6 +36,9 @@ class RunOptions:
     keep_checkpoint: bool = False
     progress: bool = True
     log: Callable = print
+    workers: int | None = None          # GGDS regions in parallel (None: one per core)
+    executor: str = "local"             # "local" process pool or "ray"
+    address: str | None = None          # Ray cluster address (executor "ray")
     # Configuration keys the user gave explicitly (flags, --set, config file). With --resume,
     # any of them that differs from the run's recorded configuration is refused; None (a
     # library call): the keys whose value differs from the default.
@@ -79,18 +78,6 @@ def read_layout_for(cfg: GenerateConfig):
                          f"{', '.join(DRIVABLE_TYPES)}; GGDS places its cameras along them, and "
                          "the proxy needs roads)")
     return layout, source
-
-
-def env_params(cfg: GenerateConfig, log=print):
-    from lsd3d_usd.env import build_params
-    e = cfg.env
-    params, unknown = build_params(e.prompt, when=e.when, lat=e.lat, lon=e.lon, weather=e.weather,
-                                   season=e.season, seed=cfg.seed)
-    if e.prompt:
-        params.extras["prompt"] = e.prompt
-    if unknown:
-        log(f"warning: prompt words not understood (ignored): {', '.join(unknown)}")
-    return params
 
 
 def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | None:
@@ -150,7 +137,8 @@ def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
     layout, source = read_layout_for(cfg)
     from lsd3d_usd.proxy.usdio import layout_hash
     lhash = layout_hash(layout)
-    params = env_params(cfg, run.log)
+    from lsd3d_usd.ggds.envbridge import env_params
+    params = env_params(ct.to_dict(cfg.env), cfg.seed, run.log)
     w, h = cfg.env.resolution
     ehash = params.content_hash(w, h)
     shash = _surfels_hash(lhash, ehash, cfg)
@@ -159,15 +147,15 @@ def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
 
 def _resume_config(sc: S.Scene, cfg: GenerateConfig, run: RunOptions):
     """The newest unfinished run's recorded configuration; explicit conflicting keys refused."""
-    from lsd3d_usd.ggds.store import SceneRunStore
+    from lsd3d_usd.ggds.store import read_plan, region_progress
     names = sc.unfinished_runs()
     if not names:
         raise InputError(f"{sc.root}: no unfinished GGDS run to resume")
     name = names[0]
-    _, meta = SceneRunStore(sc, name).load_checkpoint()
-    if "generate" not in meta:
-        raise InputError(f"{sc.run_files(name).meta}: the checkpoint records no configuration")
-    recorded = ct.from_dict(GenerateConfig, meta["generate"])
+    plan = read_plan(sc, name)
+    recorded = ct.from_dict(GenerateConfig, plan["generate"])
+    at = min((int(region_progress(sc, name, r).get("stepsDone", 0)) for r in plan["regions"]),
+             default=0)
     stop_at = None
     explicit = run.explicit
     if explicit is None:
@@ -177,8 +165,8 @@ def _resume_config(sc: S.Scene, cfg: GenerateConfig, run: RunOptions):
         if key not in explicit:
             continue
         if key == "ggds.steps":
-            if not int(meta["step"]) < new <= recorded.ggds.steps:
-                raise InputError(f"--resume --steps {new}: {name} is at step {meta['step']} of "
+            if not at < new <= recorded.ggds.steps:
+                raise InputError(f"--resume --steps {new}: {name} is at step {at} of "
                                  f"{recorded.ggds.steps}; give a step in between")
             stop_at = new
             continue
@@ -187,8 +175,7 @@ def _resume_config(sc: S.Scene, cfg: GenerateConfig, run: RunOptions):
         raise InputError(f"--resume continues {name} with its recorded settings; conflicting: "
                          f"{', '.join(conflicts)} (drop them, or start a new run without "
                          "--resume)")
-    run.log(f"resume: {name} at step {meta['step']} of {recorded.ggds.steps}, with its recorded "
-            "settings")
+    run.log(f"resume: {name} at step {at} of {recorded.ggds.steps}, with its recorded settings")
     return recorded, name, stop_at
 
 
@@ -285,44 +272,28 @@ def _env_step(sc: S.Scene, p: Plan):
     return light
 
 
-def _surfel_step(sc: S.Scene, p: Plan, proxy, light) -> tuple:
-    from lsd3d_usd.ggds.initial import initial_surfels
-    from lsd3d_usd.splats.usdio import read_surfel_file, write_surfel_file
-    path, faces_path = sc.layer_path("surfels"), sc.surfel_faces_path
-    if (sc.layer_inputs_hash("surfels") == p.surfels_hash and path.is_file()
-            and faces_path.is_file()):
-        field = read_surfel_file(str(path))
+def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
+    """The initial surfels, chunk by chunk (ggds.initial), unless they are up to date."""
+    from lsd3d_usd.ggds.initial import write_initial_surfels
+    from lsd3d_usd.splats import chunkio
+    path = sc.layer_path("surfels")
+    chunks = chunkio.read_chunk_map(path) if path.is_file() else {}
+    folder = chunkio.chunk_folder(path) if chunks else None
+    if (sc.layer_inputs_hash("surfels") == p.surfels_hash and chunks and
+            all((folder / chunkio.chunk_file_name(k)).is_file() for k in chunks)):
         sc.add_layer("surfels")
-        return field, _load_faces(faces_path, field.n), {"reused": True, "count": int(field.n)}
+        return {"reused": True, "count": int(sum(c["count"] for c in chunks.values())),
+                "chunks": len(chunks)}
     t0 = time.perf_counter()
-    c = p.cfg.surfels
-    field, face, info = initial_surfels(proxy, p.layout, light, count=c.count, density=c.density,
-                                        max_count=c.max_count, sh_degree=c.sh_degree,
-                                        seed=p.cfg.seed)
-    dt = time.perf_counter() - t0
     sc.guard_step_layer("surfels", p.surfels_hash)   # (runs were retired up front if allowed)
-    write_surfel_file(str(path), field, provenance=S.provenance(
-        "surfels", {**info, "density": c.density}, seed=p.cfg.seed,
-        timings={"init_s": round(dt, 2)}, inputsHash=p.surfels_hash))
-    buf = io.BytesIO()
-    np.save(buf, face.astype(np.int32), allow_pickle=False)
-    S.atomic_write_bytes(faces_path, buf.getvalue())
+    c = p.cfg.surfels
+    info = write_initial_surfels(
+        sc.layer_path("proxy"), p.layout, light, path, count=c.count, density=c.density,
+        max_count=c.max_count, sh_degree=c.sh_degree, seed=p.cfg.seed,
+        inputs_hash=p.surfels_hash, progress=run.progress,
+        provenance=S.provenance("surfels", ct.to_dict(c), seed=p.cfg.seed))
     sc.add_layer("surfels")
-    return read_surfel_file(str(path)), face, {"reused": False, "count": int(field.n),
-                                               "init_s": round(dt, 2)}
-
-
-def _load_faces(path: Path, n: int) -> np.ndarray:
-    """The seed-face index file, checked (never unpickled)."""
-    try:
-        face = np.load(path, allow_pickle=False)
-    except (ValueError, OSError) as e:
-        raise InputError(f"{path}: not a plain integer .npy file ({str(e).splitlines()[0]}); "
-                         "delete it to re-initialise the surfels") from None
-    if face.dtype.kind not in "iu" or face.shape != (n,):
-        raise InputError(f"{path}: expected {n} integer face indices, got {face.dtype} "
-                         f"{face.shape}; delete it to re-initialise the surfels")
-    return face.astype(np.int64)
+    return {"reused": False, **info, "init_s": round(time.perf_counter() - t0, 2)}
 
 
 def _actors_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
@@ -342,30 +313,35 @@ def _actors_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     return {"parked": len(res.parked), "moving": len(res.moving_kinds), "seconds": res.seconds}
 
 
-def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions, proxy, field, face, light) -> dict:
-    from lsd3d_usd.ggds.cameras import sample_views
-    from lsd3d_usd.ggds.conditioning import shadow_map
-    from lsd3d_usd.ggds.priors import make_prior
-    from lsd3d_usd.ggds.runner import GGDSInputs, run_ggds
-    from lsd3d_usd.ggds.store import SceneRunStore
+def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
+    """GGDS region by region (ggds.regions): a new run, or the unfinished one resumed."""
+    import os
+
+    from lsd3d_usd.ggds.regions import phases_from_plan, plan_regions, run_regions
+    from lsd3d_usd.ggds.store import read_plan, write_plan
+    from lsd3d_usd.splats.chunkio import read_chunk_map
     cfg = p.cfg
-    g = replace(cfg.ggds, seed=cfg.seed)
-    w, h = g.resolution
-    views = sample_views(p.layout, g.views, w, h, seed=g.seed, novel_frac=g.novel_frac,
-                         fov_deg=g.fov_deg)
-    held_out = sample_views(p.layout, g.held_out, w, h, seed=g.seed + 7919, novel_frac=0.5,
-                            fov_deg=g.fov_deg)
-    name = p.resume_run or sc.new_run_name()
-    store = SceneRunStore(sc, name, {"prompt": cfg.env.prompt or "",
-                                     "dependsOn": {"surfels": p.surfels_hash, "env": p.env_hash},
-                                     "generate": json.dumps(ct.to_dict(cfg))},
-                          checkpoint_meta={"generate": ct.to_dict(cfg)})
-    inputs = GGDSInputs(field, proxy, views, held_out, light.prior_env, light.background,
-                        shadow_map(proxy[0], proxy[1], light.sun_direction), face)
-    prior = make_prior(cfg.prior, seed=cfg.seed)
-    return run_ggds(inputs, prior, g, store, resume=p.resume_run is not None, stop_at=p.stop_at,
-                    keep_checkpoint=run.keep_checkpoint, term_state=p.term_state,
-                    progress=run.progress, log=run.log)
+    if p.resume_run:
+        name = p.resume_run
+        phases = phases_from_plan(read_plan(sc, name))
+    else:
+        name = sc.new_run_name()
+        phases = plan_regions(read_chunk_map(sc.layer_path("surfels")), cfg.ggds.regions)
+        write_plan(sc, name, {
+            "generate": ct.to_dict(cfg), "seed": cfg.seed, "prompt": cfg.env.prompt or "",
+            "params": {**ct.to_dict(cfg.ggds), "prior": cfg.prior.name},
+            "dependsOn": {"surfels": p.surfels_hash, "env": p.env_hash},
+            "regions": {r.name: [list(k) for k in r.keys] for ph in phases for r in ph},
+            "phases": [[r.name for r in ph] for ph in phases], "complete": False})
+    n = sum(len(ph) for ph in phases)
+    run.log(f"ggds: {name}: {n} region(s) in {len(phases)} phase(s)")
+    return run_regions(sc, name, phases=phases, ggds=ct.to_dict(cfg.ggds),
+                       prior=ct.to_dict(cfg.prior), env=ct.to_dict(cfg.env), seed=cfg.seed,
+                       resume=p.resume_run is not None, stop_at=p.stop_at,
+                       keep_checkpoint=run.keep_checkpoint,
+                       workers=run.workers or os.cpu_count() or 1, executor=run.executor,
+                       address=run.address, term_state=p.term_state, progress=run.progress,
+                       log=run.log)
 
 
 # --------------------------------------------------------------------------- driver
@@ -393,10 +369,9 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
     run.log(f"proxy: {prep['built']} chunk(s) built, {prep['skipped']} reused")
     light = timed("env_s", _env_step, sc, p)
     run.log(f"env: {p.env_params.resolved().variant_name()} (display exposure {light.exposure:.4g})")
-    from lsd3d_usd.proxy.usdio import proxy_arrays
-    proxy = proxy_arrays(sc.layer_path("proxy"))
-    field, face, sinfo = timed("surfels_s", _surfel_step, sc, p, proxy, light)
-    run.log(f"surfels: {field.n:,} ({'reused' if sinfo['reused'] else 'initialised'})")
+    sinfo = timed("surfels_s", _surfel_step, sc, p, light, run)
+    run.log(f"surfels: {sinfo['count']:,} in {sinfo['chunks']} chunk(s) "
+            f"({'reused' if sinfo['reused'] else 'initialised'})")
     summary = {"scene": str(sc.root), "proxy": prep, "surfels": sinfo}
     a = cfg.actors
     if a.enabled and (a.parked or a.moving):
@@ -405,7 +380,7 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
                 f"{summary['actors']['moving']} moving")
     summary["cameras"] = timed("cameras_s", write_scene_cameras, sc, p.layout, cfg, run.log)
     if cfg.ggds.steps > 0 or p.resume_run:
-        summary["ggds"] = g = timed("ggds_s", _ggds_step, sc, p, run, proxy, field, face, light)
+        summary["ggds"] = g = timed("ggds_s", _ggds_step, sc, p, run)
         if g.get("complete") and "psnr_novel" in g:
             run.log(f"ggds: {g['run']}: {g['steps']} steps, {g['s_per_step']} s/step, held-out "
                     f"PSNR {g['psnr_novel']:.2f} dB, depth err {100 * g['depth_rel_err']:.2f} %, "
@@ -413,4 +388,6 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
                     f"{100 * g['off_surface_frac']:.2f} %")
     timings["total_s"] = time.perf_counter() - t0
     summary["timings"] = {k: round(v, 2) for k, v in timings.items()}
+    from lsd3d_usd.ggds.regions import peak_rss_mb
+    summary["peak_rss_mb"] = peak_rss_mb()
     return summary

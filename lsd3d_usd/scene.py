@@ -266,6 +266,11 @@ def open_stage(path: str | os.PathLike, load: bool = True) -> Usd.Stage:
     return stage
 
 
+def first_error_line(e: Exception) -> str:
+    """The message of a USD (Tf) error without its C++ location preamble, one line."""
+    return _first_line(e)
+
+
 def _first_line(e: Exception) -> str:
     text = " ".join(str(e).split())
     # Tf errors read "Error in 'func' at line N in file F : 'message'"; keep the message.
@@ -293,15 +298,10 @@ class LayerInfo:
 
 @dataclass(frozen=True)
 class RunFiles:
-    """Where one GGDS run keeps its files beside its layer (all inside ggds/<run>/)."""
+    """Where one GGDS run keeps its files beside its layer: ggds/<run>/ (see ggds/store.py)."""
     dir: Path
-    meta: Path              # checkpoint JSON (step, RNG state, history, configuration, and
-                            # the name of its state-<step>.safetensors), while resumable
-    summary: Path           # summary.json of a finished run
+    summary: Path           # summary.json of the run
     legacy_state: Path      # state.pt of older versions (pickle: never loaded)
-
-    def plot(self, name: str) -> Path:
-        return self.dir / name
 
 
 def order_layers(files: Iterable[str]) -> list[str]:
@@ -351,12 +351,7 @@ class Scene:
         if not _RUN_RE.match(f"{run}.usdc"):
             raise InputError(f"{self.root}: {run!r} is not a GGDS run name (ggds_<name>)")
         d = self.root / RUNS_DIR / run
-        return RunFiles(d, d / "state.json", d / "summary.json", d / "state.pt")
-
-    @property
-    def surfel_faces_path(self) -> Path:
-        """Seed proxy face of every initial surfel (int32 .npy), beside the surfel layer."""
-        return self.root / RUNS_DIR / "surfel_faces.npy"
+        return RunFiles(d, d / "summary.json", d / "state.pt")
 
     @property
     def assets_dir(self) -> Path:
@@ -547,12 +542,24 @@ class Scene:
         return [li for li in self.layers() if li.is_run]
 
     def unfinished_runs(self) -> list[str]:
-        """Runs with a resumable checkpoint, newest first."""
+        """Runs that can be resumed (a plan not marked complete, or an older version's
+        checkpoint, which --resume then refuses by name), newest first."""
         d = self.root / RUNS_DIR
         if not d.is_dir():
             return []
-        names = [p.name for p in d.iterdir() if p.is_dir() and p.name.startswith(GGDS_PREFIX)
-                 and ((p / "state.json").is_file() or (p / "state.pt").is_file())]
+        names = []
+        for p in d.iterdir():
+            if not (p.is_dir() and p.name.startswith(GGDS_PREFIX)):
+                continue
+            plan = p / "run.json"
+            if (p / "state.pt").is_file() and not plan.is_file():
+                names.append(p.name)
+                continue
+            try:
+                if plan.is_file() and not json.loads(plan.read_text()).get("complete"):
+                    names.append(p.name)
+            except (OSError, ValueError):
+                names.append(p.name)   # unreadable: --resume names the file
         return sorted(names, reverse=True)
 
     def layer_inputs_hash(self, name: str) -> str | None:

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdValidation, UsdVol
+from pxr import Tf, Sdf, Usd, UsdGeom, UsdValidation, UsdVol
 
 import lsd3d_usd
 from lsd3d_usd import scene
@@ -62,6 +62,18 @@ def _usd_validators(stage: Usd.Stage) -> list[Problem]:
                 break
         name = err.GetValidator().GetMetadata().name if err.GetValidator() else err.GetName()
         out.append(Problem(sev, prim, attr, " ".join(err.GetMessage().split()), name))
+    return out
+
+
+def _composition_errors(stage: Usd.Stage) -> list[Problem]:
+    """Layers, payloads and references that could not be composed (missing or corrupt files):
+    usd-core only prints them."""
+    out = []
+    for err in stage.GetCompositionErrors():
+        site = err.rootSite if hasattr(err, "rootSite") else None
+        prim = str(site.path) if site is not None and hasattr(site, "path") else "/"
+        out.append(Problem("error", prim or "/", None, " ".join(str(err).split())[:400],
+                           "lsd3d:Composition"))
     return out
 
 
@@ -355,7 +367,12 @@ def validate(path: str | Path) -> list[Problem]:
     the file cannot be opened at all."""
     with captured_stderr():
         stage = scene.open_stage(path)
-        problems = _usd_validators(stage)
+        problems = _composition_errors(stage)
+        try:
+            problems += _usd_validators(stage)
+        except Tf.ErrorException as e:   # e.g. a corrupt payload file the validators touch
+            problems.append(Problem("error", "/", None, "usd-core's validators could not run: "
+                                    + scene.first_error_line(e), "usdValidation"))
         problems += _unknown_types(stage)
         for prim in stage.Traverse():
             if prim.IsA(UsdVol.ParticleField):

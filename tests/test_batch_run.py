@@ -9,7 +9,7 @@ import pytest
 
 from conftest import ROOT
 from lsd3d_usd import validation
-from lsd3d_usd.batch.executors import LocalExecutor
+from lsd3d_usd.execution import LocalExecutor
 from lsd3d_usd.batch.runner import run_batch
 from lsd3d_usd.batch.spec import load_spec
 from lsd3d_usd.cli import main
@@ -136,7 +136,7 @@ def test_interrupted_batch_rerun_redoes_nothing_finished(tmp_path):
 
 def test_ray_local_two_cpus(tmp_path):
     ray = pytest.importorskip("ray", reason="ray is not installed (optional extra [ray])")
-    from lsd3d_usd.batch.executors import RayExecutor
+    from lsd3d_usd.execution import RayExecutor
     p = spec_file(tmp_path, """
 [[scene]]
 name = "split"

@@ -92,10 +92,10 @@ def test_eval_end_to_end(tiny_scene, tmp_path):
     assert not list(out.glob(".*tmp*"))
 
 
-def test_seen_views_come_from_the_run_provenance(tiny_scene):
+def test_seen_views_come_from_the_run_record(tiny_scene):
     sc = S.Scene.open(tiny_scene)
     info = sc.runs()[0]
-    stored = json.loads(info.provenance["trainViews"])
+    stored = json.loads((tiny_scene / "ggds" / info.name / "views.json").read_text())
     seen = V.seen_views(sc, read_layout(sc.layer_path("layout")), None, 128, 96)
     assert seen.run == info.name and len(seen.views) == len(stored)
     for v, d in zip(seen.views, stored):

@@ -70,9 +70,10 @@ def test_prior_and_loss_from_entry_points_run_in_generate(plugin_path, tmp_path)
     params = run.provenance["params"]
     params = json.loads(params) if isinstance(params, str) else params
     assert params["prior"] == "flat" and params["gain"] == 0.8
-    meta = json.loads(sc.run_files(run.name).meta.read_text())
+    meta = json.loads((sc.run_files(run.name).dir / "state.json").read_text())
     assert all("sky_alpha" in rec for rec in meta["history"])
-    assert meta["generate"]["ggds"]["weights"]["sky_alpha"] == 0.5
+    plan = json.loads((sc.run_files(run.name).dir / "run.json").read_text())
+    assert plan["generate"]["ggds"]["weights"]["sky_alpha"] == 0.5
     bad = subprocess.run([sys.executable, "-m", "lsd3d_usd", "generate", "-o", tmp_path / "x",
                           "--prior", "flat:abc", "--steps", "1", "--layout", LAYOUT],
                          capture_output=True, text=True, env=env, timeout=300)

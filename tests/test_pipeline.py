@@ -128,13 +128,17 @@ def test_ggds_writes_overs_and_survives_interrupt(tmp_path, monkeypatch):
     assert summary["ggds"]["steps"] == 6
     layer = Sdf.Layer.FindOrOpen(str(runs[0].path))
     spec = layer.GetPrimAtPath(S.SURFELS_PATH)
-    assert spec.specifier == Sdf.SpecifierOver
-    assert set(spec.attributes.keys()) <= {"positions", "orientations", "scales", "opacities",
-                                           "radiance:sphericalHarmonicsCoefficients",
-                                           "radiance:sphericalHarmonicsDegree", "extent"}
+    assert spec.specifier == Sdf.SpecifierOver and not spec.attributes
+    for chunk in (out / "layers" / f"{runs[0].name}_chunks").glob("chunk_*.usdc"):
+        cl = Sdf.Layer.FindOrOpen(str(chunk))
+        cspec = cl.GetPrimAtPath("/" + cl.defaultPrim)
+        assert cspec.specifier == Sdf.SpecifierOver
+        assert set(cspec.attributes.keys()) <= {
+            "positions", "orientations", "scales", "opacities", "extent",
+            "radiance:sphericalHarmonicsCoefficients", "radiance:sphericalHarmonicsDegree"}
     prov = S.read_provenance(layer)
     assert prov["complete"] and prov["stepsDone"] == 6
-    assert len(json.loads(prov["trainViews"])) == 4
+    assert len(json.loads((out / "ggds" / runs[0].name / "views.json").read_text())) == 4
     # GGDS never rewrites the initial surfels.
     assert (out / "layers" / "surfels.usdc").read_bytes() == surfels_before
     for f in ("loss.png", "before_after.png", "summary.json"):
@@ -158,8 +162,10 @@ def test_generated_scene_has_cameras_to_look_through(tmp_path, capsys):
                           + [f"/World/Cameras/HeldOut/HeldOut_{k:03d}" for k in range(2)]
                           + [f"/World/Cameras/Overview/{n}" for n in
                              ("Top", "SouthWest", "SouthEast", "NorthEast", "NorthWest")])
+    from lsd3d_usd.ggds.store import run_views
     run = next(li for li in S.Scene.open(out).layers() if li.is_run)
-    trained = [View.from_json(d) for d in json.loads(run.provenance["trainViews"])]
+    trained = [View.from_json(d) for d in run_views(S.Scene.open(out), run.name)]
+    assert len(trained) == 4
     for k, v in enumerate(trained):
         prim = stage.GetPrimAtPath(f"/World/Cameras/Train/Train_{k:03d}")
         cam = from_usd(prim, None, v.camera.width, v.camera.height, conform="stretch")

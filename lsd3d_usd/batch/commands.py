@@ -8,12 +8,13 @@ import sys
 def _batch(args) -> int:
     from lsd3d_usd.errors import InputError
 
-    from .executors import make_executor
+    from lsd3d_usd.execution import make_executor
     from .runner import DEFAULT_RETRIES, format_report, run_batch
     from .spec import load_spec
     from .tasks import plan_batch
 
     spec = load_spec(args.spec)
+    spec.executor, spec.address = args.executor, args.address
     retries = args.retries if args.retries is not None else (
         spec.retries if spec.retries is not None else DEFAULT_RETRIES)
     if retries < 0:

@@ -4,7 +4,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from .executors import ERROR, LOST, OK, SUSPECT
+from lsd3d_usd.execution import ERROR, LOST, OK, SUSPECT
 from .spec import BatchSpec
 from .state import BatchLock, BatchState
 from .tasks import ScenePlan, finalize_chunks, plan_batch, prepare_scene

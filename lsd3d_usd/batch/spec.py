@@ -99,7 +99,7 @@ def _split(v, where, base):
 
 # Run control a scene (or [defaults]) may set besides the generate settings of the
 # configuration tree (lsd3d_usd.config.GenerateConfig: flat keys such as steps, tables).
-RUN_KEYS = {"force": _bool}
+RUN_KEYS = {"force": _bool, "region_workers": _int(1)}
 # batch-only keys of a scene (and of [defaults], except name/output)
 SCENE_KEYS = {"name": _str, "output": _path, "split_chunks": _split,
               "test_crash": _choice(TEST_CRASH_MODES)}
@@ -113,6 +113,7 @@ class SceneSpec:
     output: Path                     # absolute scene folder
     options: dict                    # {setting key: value} given for this scene (config tree)
     force: bool = False
+    region_workers: int = 1          # GGDS regions of this scene in parallel (docs/batch.md)
     split_chunks: str = "auto"       # auto: split large layouts (tasks.AUTO_SPLIT_MIN_CHUNKS)
     test_crash: str | None = None
     index: int = 0
@@ -135,6 +136,8 @@ class BatchSpec:
     scenes: list[SceneSpec] = field(default_factory=list)
     workers: int | None = None
     retries: int | None = None
+    executor: str = "local"          # where tasks run (set by the command); a scene's GGDS
+    address: str | None = None       # regions use the same executor
 
     @property
     def state_path(self) -> Path:
@@ -237,9 +240,10 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
         split = own.pop("split_chunks", "auto")
         crash = own.pop("test_crash", None)
         force = own.pop("force", False)
+        region_workers = own.pop("region_workers", 1)
         if "layout" in merged and not Path(merged["layout"]).is_file():
             raise InputError(f"{where}.layout: no such file: {merged['layout']}")
-        spec.scenes.append(SceneSpec(name, out_dir, merged, force, split, crash, i))
+        spec.scenes.append(SceneSpec(name, out_dir, merged, force, region_workers, split, crash, i))
     return spec
 
 

@@ -64,9 +64,11 @@ def scene_config(options: dict):
     return ct.apply(GenerateConfig(), options, "")
 
 
-def run_options(out, force: bool = False, log=None):
+def run_options(out, force: bool = False, log=None, workers: int = 1, executor: str = "local",
+                address: str | None = None):
     from lsd3d_usd.pipeline import RunOptions
-    return RunOptions(out=Path(out), force=force, progress=False, log=log or (lambda *a: None))
+    return RunOptions(out=Path(out), force=force, progress=False, log=log or (lambda *a: None),
+                      workers=workers, executor=executor, address=address)
 
 
 def _json_options(options: dict) -> dict:
@@ -85,7 +87,8 @@ def chunk_file(scene_out: Path, key) -> Path:
     return chunks_dir(Path(scene_out) / S.LAYERS_DIR / S.STEP_LAYERS["proxy"]) / chunk_file_name(*key)
 
 
-def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
+def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
+               address: str | None = None) -> ScenePlan:
     """Tasks of one scene. Reads (or generates) the layout and checks the options, so bad
     input is refused here, before any task runs."""
     import lsd3d_usd
@@ -104,7 +107,9 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
     jopts = _json_options(sc.options)
     layout_file = sc.options.get("layout")
     layout_id = file_hash(layout_file) if layout_file else None
-    base = {"scene": sc.name, "out": str(sc.output), "options": jopts, "force": sc.force,
+    base = {"target": "lsd3d_usd.batch.tasks:run_task", "scene": sc.name,
+            "out": str(sc.output), "options": jopts, "force": sc.force,
+            "region_workers": sc.region_workers, "executor": executor, "address": address,
             "test_crash": sc.test_crash, "marker_dir": str(logs_dir)}
     builder = ProxyBuilder(layout, ProxyParams())
     keys = sorted(builder.chunks())
@@ -138,7 +143,7 @@ def plan_scene(sc: SceneSpec, logs_dir: Path) -> ScenePlan:
 
 def plan_batch(spec: BatchSpec) -> list[ScenePlan]:
     logs = spec.output / ".batch"
-    return [plan_scene(sc, logs) for sc in spec.scenes]
+    return [plan_scene(sc, logs, spec.executor, spec.address) for sc in spec.scenes]
 
 
 def prepare_scene(plan: ScenePlan) -> None:
@@ -202,7 +207,9 @@ def _run_chunk(p: dict, log) -> dict:
 
 def _run_scene(p: dict, log) -> dict:
     from lsd3d_usd.pipeline import generate
-    return generate(scene_config(p["options"]), run_options(p["out"], p.get("force", False), log))
+    return generate(scene_config(p["options"]),
+                    run_options(p["out"], p.get("force", False), log, p.get("region_workers", 1),
+                                p.get("executor", "local"), p.get("address")))
 
 
 def run_task(payload: dict) -> dict:

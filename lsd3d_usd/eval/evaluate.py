@@ -201,9 +201,11 @@ def evaluate(o: EvalOptions) -> dict:
             mv_err[nv.bin_m].append(r["errors"])
             mv_shared[nv.bin_m].append(r["shared_frac"])
         bar.update(1)
-    heldout_img = []
+    heldout_img, heldout_frames = [], []
     for cam in heldout:
-        heldout_img.append(display(render_view(surfels, env, cam)["rgb"], o.tonemap, o.exposure))
+        fr = render_view(surfels, env, cam)
+        heldout_frames.append(fr)
+        heldout_img.append(display(fr["rgb"], o.tonemap, o.exposure))
         bar.update(1)
     timings["render_seen_novel_s"] = time.perf_counter() - t
 
@@ -260,6 +262,14 @@ def evaluate(o: EvalOptions) -> dict:
             "novel_per_bin": {f"{b:g}": fd(f_novel[bins_arr == b], f_ref).to_json() for b in o.bins}}
     timings["features_fd_s"] = time.perf_counter() - t
 
+    # --- seams between chunks
+    t = time.perf_counter()
+    from lsd3d_usd.eval.seams_eval import measure_seams
+    seams, why = measure_seams(sc, seen.run, layout, (PV, PF, PC),
+                               [v.camera for v in seen_sel] + list(heldout),
+                               seen_frames + heldout_frames)
+    timings["seams_s"] = time.perf_counter() - t
+
     # --- multi-view summary
     multiview = {"pairs": "each novel view vs the seen view it was displaced from (seen depth "
                           "reprojected into the novel view; proxy decides mutual visibility)",
@@ -287,6 +297,8 @@ def evaluate(o: EvalOptions) -> dict:
     if ref_imgs is None:
         unavailable.insert(0, {"metric": "fd_effnet_lite0.vs_reference",
                                "reason": "no --reference DIR of images given"})
+    if why:
+        unavailable.append({"metric": "seams", "reason": why})
     timings["total_s"] = time.perf_counter() - t_start
     result = {
         "scene": str(sc.root),
@@ -305,6 +317,7 @@ def evaluate(o: EvalOptions) -> dict:
         "fd_effnet_lite0": fd_out,
         "geometry": {"seen": agree["seen"].result(), "novel": agree["novel"].result()},
         "multiview_depth_err": multiview,
+        "seams": seams,
         "temporal_warp_err": temporal,
         "unavailable": unavailable,
         "warnings": fd_warnings,

@@ -131,6 +131,24 @@ def _fmt(x, pct=False, digits=3):
     return f"{x:.{digits}f}" if isinstance(x, float) else html.escape(str(x))
 
 
+def _seams_html(result) -> str:
+    s = result.get("seams")
+    if not s:
+        return "<p>not measured (see Not computed)</p>"
+    rows = []
+    for k in ("border", "interior"):
+        v = s[k]
+        rows.append([f"{k} ({'≤' if k == 'border' else '>'} {s['band_m']:g} m from a chunk border)",
+                     "–" if v["psnr_db"] is None else f"{v['psnr_db']:.2f}",
+                     "–" if v["coverage"] is None else f"{100 * v['coverage']:.2f} %",
+                     "–" if v["depth_rel_err"] is None else f"{100 * v['depth_rel_err']:.2f} %",
+                     "–" if v["normal_err_deg"] is None else f"{v['normal_err_deg']:.2f}°",
+                     f"{s['pixels'][k]:,}"])
+    drop = "" if s["psnr_drop_db"] is None else f"<p>PSNR drop at the borders: {s['psnr_drop_db']:.2f} dB</p>"
+    return _table(["pixels", "PSNR vs prior (dB)", "coverage", "depth err", "normal err",
+                   "pixels"], rows) + drop
+
+
 def _table(header, rows) -> str:
     th = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
@@ -202,6 +220,7 @@ seed {result['seed']}.</p>
 {fd_table}{img('fd_plot', 'FD by distance')}{ref}
 <h2>Geometry against the proxy</h2>{geo}{img('geometry', 'geometry panel')}
 <h2>Temporal consistency</h2>{temp}{img('temporal', 'temporal path')}
+<h2>Chunk seams</h2>{_seams_html(result)}
 <h2>GGDS loss</h2>{img('loss', 'GGDS loss curve') or '<p>no loss curve (no GGDS run)</p>'}
 <h2>Not computed</h2><ul>{unav}</ul>
 {'<h2>Warnings</h2><ul>' + warn + '</ul>' if warn else ''}

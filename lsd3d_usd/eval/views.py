@@ -74,17 +74,20 @@ def seen_views(sc: S.Scene, layout, run: str | None, width: int, height: int) ->
                                     f"(sample_views, scene seed {seed}, fov {GGDS_FOV_DEG:g} deg)")
     if not info.exists:
         raise InputError(f"{info.path}: GGDS run layer file is missing")
-    raw = info.provenance.get("trainViews")
+    from lsd3d_usd.ggds.store import run_views
+    raw = run_views(sc, info.name)      # ggds/<run>/**/views.json
+    if raw is None:                     # older runs: in the layer's provenance
+        raw = info.provenance.get("trainViews")
+        raw = json.loads(raw) if isinstance(raw, str) else raw
     if not raw:
-        raise InputError(f"{info.path}: customLayerData lsd3d.trainViews is missing: cannot "
-                         "tell which cameras this GGDS run trained on")
+        raise InputError(f"{info.path}: the run records no training views (ggds/{info.name}/"
+                         "views.json or customLayerData lsd3d.trainViews): cannot tell which "
+                         "cameras it trained on")
     try:
-        views = [View.from_json(d) for d in json.loads(raw)]
+        views = [View.from_json(d) for d in raw]
     except (ValueError, KeyError, TypeError) as e:
-        raise InputError(f"{info.path}: customLayerData lsd3d.trainViews is not a list of "
-                         f"views ({e})") from None
-    if not views:
-        raise InputError(f"{info.path}: customLayerData lsd3d.trainViews is empty")
+        raise InputError(f"{info.path}: the run's training views are not a list of views "
+                         f"({e})") from None
     views = [View(v.camera.with_resolution(width, height), v.kind, v.lane_id, v.offset_m)
              for v in views]
     muted = " (muted: its edits are not in the rendered stage)" if info.muted else ""

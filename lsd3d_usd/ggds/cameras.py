@@ -55,24 +55,53 @@ def _point_on(points: np.ndarray, s: float):
     return p, t
 
 
+def _inside_arcs(lanes, region, step: float = 0.5):
+    """Per lane, the arc lengths (sampled every ``step`` m) whose point lies in ``region``."""
+    x0, y0, x1, y1 = region
+    out = []
+    for ln in lanes:
+        pts = ln.points[:, :2]
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        s = np.arange(0.0, cum[-1] + 1e-9, step)
+        x, y = np.interp(s, cum, pts[:, 0]), np.interp(s, cum, pts[:, 1])
+        out.append(s[(x >= x0) & (x < x1) & (y >= y0) & (y < y1)])
+    return out
+
+
 def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_deg: float = 70.0,
                  eye_height: float = 1.6, lateral_jitter: float = 0.5, heading_jitter_deg: float = 8.0,
-                 pitch_deg: float = -4.0, novel_frac: float = 0.25, region=None,
+                 pitch_deg: float = -4.0, novel_frac: float = 0.25, region=None, clip: bool = False,
                  kind_lane: str = "lane", kind_novel: str = "novel", far: float = 400.0) -> list[View]:
     """`n` views: (1-novel_frac) along lanes (driving direction, small jitter) and novel_frac
-    off the lanes (larger offsets, free headings, eye heights 1.2-3 m). Deterministic per seed."""
+    off the lanes (larger offsets, free headings, eye heights 1.2-3 m). Deterministic per seed.
+    region (x0, y0, x1, y1): only lanes that pass through it; with ``clip`` the views' lane
+    points themselves lie inside it (chunk-wise GGDS: views of the chunk being optimised)."""
     if n <= 0:
         return []
     rng = np.random.default_rng(seed)
     lanes = _lanes(layout, region)
-    lengths = np.array([max(ln.length(), 1e-6) for ln in lanes])
+    if clip and region is not None:
+        arcs = _inside_arcs(lanes, region)
+        lengths = np.array([float(len(a)) for a in arcs])
+        if not lengths.sum():
+            raise InputError(f"layout has no drivable lane points inside {region}: GGDS samples "
+                             "its cameras along lanes")
+    else:
+        arcs = None
+        lengths = np.array([max(ln.length(), 1e-6) for ln in lanes])
     prob = lengths / lengths.sum()
     views = []
     n_novel = int(round(n * novel_frac))
     for i in range(n):
         novel = i >= n - n_novel
-        lane = lanes[int(rng.choice(len(lanes), p=prob))]
-        p, t = _point_on(lane.points, rng.uniform(0, lane.length()))
+        li = int(rng.choice(len(lanes), p=prob))
+        lane = lanes[li]
+        if arcs is None:
+            p, t = _point_on(lane.points, rng.uniform(0, lane.length()))
+        else:   # a sampled inside point, jittered within its half-metre step
+            s0 = arcs[li][int(rng.integers(len(arcs[li])))]
+            p, t = _point_on(lane.points, s0 + rng.uniform(0.0, 0.5))
         if lane.direction == "backward":
             t = -t
         t2 = np.array([t[0], t[1]]) / max(np.hypot(t[0], t[1]), 1e-12)
@@ -95,16 +124,3 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
         views.append(View(cam, kind_novel if novel else kind_lane, lane.id, float(offset)))
     return views
 
-
-HELD_OUT_SEED_OFFSET = 7919   # held-out views come from their own stream of the run's seed
-
-
-def run_views(layout, g) -> tuple[list[View], list[View]]:
-    """(training views, held-out views) of a GGDS run configured by ``g`` (a GGDSConfig
-    whose ``seed`` is the run's), sampled as `generate` samples them."""
-    w, h = g.resolution
-    views = sample_views(layout, g.views, w, h, seed=g.seed, novel_frac=g.novel_frac,
-                         fov_deg=g.fov_deg)
-    held_out = sample_views(layout, g.held_out, w, h, seed=g.seed + HELD_OUT_SEED_OFFSET,
-                            novel_frac=0.5, fov_deg=g.fov_deg)
-    return views, held_out

@@ -52,6 +52,24 @@ class StrategyConfig:
                                       lo=0.0, hi=1.0)
 
 
+REGION_MODES = ("auto", "scene", "chunk")
+
+
+@dataclass
+class RegionConfig:
+    """How GGDS splits a scene into regions optimised one after another (ggds/regions.py)."""
+    mode: str = option("auto", help="'scene' (one region), 'chunk' (one region per chunk, in "
+                                    "parallel phases, each conditioned on its neighbours) or "
+                                    "'auto' (scene when it spans at most max_scene_chunks "
+                                    "chunks)", choices=REGION_MODES, flag="--regions")
+    max_scene_chunks: int = option(4, help="auto: scenes spanning at most this many chunks "
+                                           "run as one region", lo=1, hi=10_000)
+    views_per_chunk: int = option(128, help="training views of a one-chunk region", lo=1,
+                                  hi=100_000)
+    band_m: float = option(50.0, help="frozen neighbour surfels within this distance of a "
+                                      "region condition it (metres)", lo=0.0, hi=1000.0)
+
+
 @dataclass
 class GGDSConfig:
     steps: int = option(250, help="GGDS steps (0 = no optimisation)", flag="--steps",
@@ -94,6 +112,7 @@ class GGDSConfig:
              "default)", default_factory=_loss_weights, keys=_loss_weights, lo=0.0)
     lr: LearningRates = field(default_factory=LearningRates)
     strategy: StrategyConfig = field(default_factory=StrategyConfig)
+    regions: RegionConfig = field(default_factory=RegionConfig)
     # Not options: set by the caller for each run.
     seed: int = 0
 

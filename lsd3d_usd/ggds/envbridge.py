@@ -78,3 +78,18 @@ def scene_light(params: EnvParams, exr_path=None, sh_resolution: int = 128) -> S
         sky_lookup=sky_lookup, exposure=float(exposure),
         prompt=str(params.extras.get("prompt", "")))
     return SceneLight(penv, float(exposure), sky_sh, sun_dir, sun_lux, envmap)
+
+
+def env_params(env_settings: dict, seed: int = 0, log=None) -> EnvParams:
+    """EnvParams from a configuration's env settings (prompt, when, lat, lon, weather,
+    season), the prompt kept for text-conditioned priors. Unknown prompt words go to ``log``."""
+    from lsd3d_usd.env import build_params
+    e = env_settings
+    params, unknown = build_params(e.get("prompt"), when=e.get("when"), lat=e.get("lat"),
+                                   lon=e.get("lon"), weather=e.get("weather"),
+                                   season=e.get("season"), seed=seed)
+    if e.get("prompt"):
+        params.extras["prompt"] = e["prompt"]
+    if unknown and log is not None:
+        log(f"warning: prompt words not understood (ignored): {', '.join(unknown)}")
+    return params

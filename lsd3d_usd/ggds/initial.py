@@ -1,44 +1,160 @@
 """GGDS's starting point: surfels seeded on the proxy mesh (splats.init) and coloured by the
 scene's light — class albedo times sky irradiance plus the sun where the proxy does not shadow
-it — so the first renders already look like the scene and GGDS refines from there."""
+it — so the first renders already look like the scene and GGDS refines from there.
+
+Surfels are made chunk by chunk and written to per-chunk files as soon as a chunk is complete
+(splats.chunkio), so memory follows a few chunks, not the scene: a 10 km corridor initialises
+in the memory of a 100 m one. The count of a chunk is ``density`` per m² of its proxy surface
+weighted by nearness to the lanes (splats.importance), at most ``max_count`` per chunk; an
+explicit total ``count`` is shared between chunks in proportion to the same weighted areas.
+Surfels seeded on chunk K's proxy faces belong to the chunk holding their centre (a building
+may overhang its chunk), so a chunk is written once every neighbour that can contribute to it
+has been seeded.
+"""
 from __future__ import annotations
+
+from collections import OrderedDict
 
 import numpy as np
 
 from lsd3d_usd.splats.field import SurfelField
 
 
-def surfel_count(vertices: np.ndarray, faces: np.ndarray, layout, *, density: float,
-                 max_count: int, minimum: int = 1000) -> tuple[int, dict]:
-    """Default count: ``density`` per m² of proxy surface weighted by nearness to the lanes
-    (splats.importance), clamped to [minimum, max_count]. Returns (count, areas)."""
+def _chunk_seed(seed: int, key) -> int:
+    return int(np.random.SeedSequence([int(seed), int(key[0]) & 0xFFFFFFFF,
+                                       int(key[1]) & 0xFFFFFFFF]).generate_state(1)[0])
+
+
+def _weighted_area(V: np.ndarray, F: np.ndarray, layout) -> tuple[np.ndarray, np.ndarray]:
     from lsd3d_usd.splats.importance import face_weights
-    V, F = vertices, faces
-    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    weighted = float((area * face_weights(V, F, layout)).sum())
-    count = int(min(max_count, max(minimum, density * weighted)))
-    return count, {"proxyArea_m2": round(float(area.sum()), 1),
-                   "viewWeightedArea_m2": round(weighted, 1)}
+    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]),
+                                axis=1)
+    return area, face_weights(V, F, layout)
 
 
-def initial_surfels(proxy, layout, light, *, count: int | None, density: float, max_count: int,
-                    sh_degree: int = 1, seed: int = 0) -> tuple[SurfelField, np.ndarray, dict]:
-    """(field, seed face index per surfel, info) for proxy arrays (V, F, face class ids)."""
-    from lsd3d_usd.ggds.conditioning import shadow_map
-    from lsd3d_usd.semantics import CLASS_COLORS, CLASSES
+def colour_by_light(field: SurfelField, light, shadow) -> None:
+    """Initial DC colours in place: class albedo × (sky + shadowed sun) irradiance."""
+    from lsd3d_usd.semantics import CLASS_COLORS
     from lsd3d_usd.splats.field import rgb_to_sh_dc
-    from lsd3d_usd.splats.importance import face_weights
-    from lsd3d_usd.splats.init import mesh_to_surfels
-    V, F, ids = proxy
-    default, info = surfel_count(V, F, layout, density=density, max_count=max_count)
-    n = int(count or default)
-    field, face = mesh_to_surfels(V, F, ids, count=n, seed=seed, sh_degree=sh_degree,
-                                  semantic_classes=CLASSES, return_face_index=True,
-                                  face_weights=face_weights(V, F, layout))
-    shadow = shadow_map(V, F, light.sun_direction)
     vis = shadow.visibility(field.positions.astype(np.float64) + 0.05 * field.normals()) \
         if shadow is not None else None
     albedo = CLASS_COLORS[np.clip(field.semantic_ids, 0, None)]
     rgb = np.clip(albedo * light.irradiance(field.normals(), vis), 0.0, 4.0)
     field.sh[:, 0, :] = rgb_to_sh_dc(rgb)
-    return field, face, {"count": n, **info}
+
+
+class _ProxyCache:
+    """Per-chunk proxy arrays, the last few kept (a chunk and its neighbours)."""
+
+    def __init__(self, path, keys, size: int = 16):
+        self.path, self.keys, self.size = path, set(keys), size
+        self._cache: OrderedDict = OrderedDict()
+
+    def get(self, key):
+        from lsd3d_usd.proxy.usdio import proxy_arrays
+        if key not in self._cache:
+            self._cache[key] = proxy_arrays(self.path, [key])
+            if len(self._cache) > self.size:
+                self._cache.popitem(last=False)
+        self._cache.move_to_end(key)
+        return self._cache[key]
+
+    def neighbourhood(self, key):
+        parts = [self.get((key[0] + di, key[1] + dj)) for di in (-1, 0, 1) for dj in (-1, 0, 1)
+                 if (key[0] + di, key[1] + dj) in self.keys]
+        V, F, base = [], [], 0
+        for v, f, _ in parts:
+            V.append(v)
+            F.append(f + base)
+            base += len(v)
+        return np.concatenate(V), np.concatenate(F)
+
+
+def _counts(keys, cache, layout, count, density, max_count) -> tuple[dict, dict]:
+    """Surfels per chunk, and the areas (for provenance)."""
+    wareas, total_area = {}, 0.0
+    for key in keys:
+        V, F, _ = cache.get(key)
+        area, w = _weighted_area(V, F, layout)
+        wareas[key] = float((area * w).sum())
+        total_area += float(area.sum())
+    if count is None:
+        counts = {k: int(min(max_count, round(density * a))) for k, a in wareas.items()}
+    else:  # an explicit total, shared by weighted area (largest remainders)
+        total = sum(wareas.values()) or 1.0
+        exact = {k: count * a / total for k, a in wareas.items()}
+        counts = {k: int(np.floor(v)) for k, v in exact.items()}
+        rest = count - sum(counts.values())
+        for k in sorted(exact, key=lambda k: exact[k] - counts[k], reverse=True)[:rest]:
+            counts[k] += 1
+        over = [k for k, c in counts.items() if c > max_count]
+        if over:
+            from lsd3d_usd.errors import InputError
+            raise InputError(f"--surfels {count}: chunk {over[0]} would get {counts[over[0]]:,} "
+                             f"surfels, above the per-chunk limit {max_count:,}")
+    return counts, {"proxyArea_m2": round(total_area, 1),
+                    "viewWeightedArea_m2": round(sum(wareas.values()), 1)}
+
+
+def write_initial_surfels(proxy_path, layout, light, out_root, *, count: int | None,
+                          density: float, max_count: int, sh_degree: int = 1, seed: int = 0,
+                          inputs_hash: str, provenance: dict | None = None,
+                          progress: bool = False) -> dict:
+    """Seed, colour and write the initial surfels of every proxy chunk to a new chunk folder
+    named by ``inputs_hash``, then the surfel root layer ``out_root`` (splats.chunkio), then
+    remove the folders of earlier versions. Returns a summary."""
+    from lsd3d_usd.ggds.conditioning import shadow_map
+    from lsd3d_usd.proxy.usdio import read_chunk_map
+    from lsd3d_usd.scene import parse_chunk_prim_name
+    from lsd3d_usd.semantics import CLASSES
+    from lsd3d_usd.splats import chunkio
+    from lsd3d_usd.splats.init import mesh_to_surfels
+
+    keys = sorted(parse_chunk_prim_name(n) for n in read_chunk_map(proxy_path))
+    cache = _ProxyCache(proxy_path, keys)
+    counts, areas = _counts(keys, cache, layout, count, density, max_count)
+    chunk_size = float(layout.chunk_size)
+    folder = chunkio.chunks_base(out_root) / inputs_hash[:16]
+    pending: dict = {}           # target chunk -> [(field, seed chunks, seed faces)]
+    done_sources: set = set()
+    infos: dict = {}
+    written_total = 0
+
+    def complete(target) -> bool:
+        return all((target[0] + di, target[1] + dj) in done_sources or
+                   (target[0] + di, target[1] + dj) not in counts
+                   for di in (-1, 0, 1) for dj in (-1, 0, 1))
+
+    def flush(target):
+        nonlocal written_total
+        parts = pending.pop(target)
+        field = SurfelField.concat([p[0] for p in parts])
+        chunks = np.concatenate([p[1] for p in parts])
+        faces = np.concatenate([p[2] for p in parts])
+        chunkio.write_chunk(folder, target, field, seed_faces=(chunks, faces))
+        infos[target] = chunkio.chunk_info(target, field)
+        written_total += field.n
+
+    from tqdm import tqdm
+    for key in tqdm(keys, desc="surfels", unit="chunk", disable=not progress):
+        V, F, ids = cache.get(key)
+        n = counts[key]
+        if n > 0:
+            _, weights = _weighted_area(V, F, layout)
+            field, face = mesh_to_surfels(V, F, ids, count=n, seed=_chunk_seed(seed, key),
+                                          sh_degree=sh_degree, semantic_classes=CLASSES,
+                                          return_face_index=True, face_weights=weights,
+                                          max_count=max_count)
+            NV, NF = cache.neighbourhood(key)
+            colour_by_light(field, light, shadow_map(NV, NF, light.sun_direction))
+            for target, idx in chunkio.split_by_chunk(field.positions, chunk_size).items():
+                src = np.tile(np.asarray(key, np.int32), (len(idx), 1))
+                pending.setdefault(target, []).append((field.subset(idx), src, face[idx]))
+        done_sources.add(key)
+        for target in [t for t in pending if complete(t)]:
+            flush(target)
+    for target in list(pending):
+        flush(target)
+    chunkio.write_root(out_root, folder, infos, {**(provenance or {}), "inputsHash": inputs_hash})
+    chunkio.prune_chunk_folders(out_root)
+    return {"count": int(written_total), "chunks": len(infos), **areas}

@@ -37,6 +37,19 @@ class ViewData:
     view: View
     gbuffer: GBuffer
     background: torch.Tensor | None     # (H,W,3) env radiance behind the surfels
+    mask: torch.Tensor | None = None    # (H,W) bool: pixels the image terms compare (None: all)
+
+
+def focus_mask(gbuffer: GBuffer, focus) -> torch.Tensor | None:
+    """Pixels whose proxy surface lies inside ``focus`` (x0, y0, x1, y1), or that show no
+    proxy surface (the sky): what a region's render can be compared on. Beyond the focus the
+    scene's surfels are not loaded, so the render shows the sky where the prior sees geometry."""
+    if focus is None:
+        return None
+    x0, y0, x1, y1 = focus
+    w = gbuffer.world_pos
+    inside = (w[..., 0] >= x0) & (w[..., 0] <= x1) & (w[..., 1] >= y0) & (w[..., 1] <= y1)
+    return torch.where(gbuffer.valid, inside, torch.ones_like(inside))
 
 
 def point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -67,8 +80,9 @@ def point_triangle_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.n
     return dist
 
 
-def psnr(x: torch.Tensor, y: torch.Tensor) -> float:
-    mse = float(((x.clamp(0, 1) - y.clamp(0, 1)) ** 2).mean())
+def psnr(x: torch.Tensor, y: torch.Tensor, mask: torch.Tensor | None = None) -> float:
+    err = (x.clamp(0, 1) - y.clamp(0, 1)) ** 2
+    mse = float(err.mean() if mask is None else err[mask].mean() if mask.any() else 0.0)
     return 99.0 if mse <= 1e-10 else -10.0 * math.log10(mse)
 
 
@@ -76,14 +90,25 @@ class GGDSRun:
     """State of one GGDS run: parameters, optimizer, strategy, views and history.
 
     ``terms``: (LossTerm, weight) pairs (default: ggds.terms.active_terms(config, prior));
-    per-term state (e.g. the perceptual network) is built once here by each term's setup."""
+    per-term state (e.g. the perceptual network) is built once here by each term's setup.
+    ``context``: frozen surfels rendered with the trainable ones (a region's neighbours, for
+    chunk-wise GGDS); ``focus`` (x0, y0, x1, y1): where the loaded surfels cover the scene —
+    image terms and held-out PSNR compare only pixels whose proxy surface lies there."""
 
     def __init__(self, field: SurfelField, proxy: tuple[np.ndarray, np.ndarray, np.ndarray | None],
                  views: list[View], prior: Prior, env: PriorEnv, config: GGDSConfig, *,
                  background_fn=None, shadow: ShadowMap | None = None,
-                 face_index: np.ndarray | None = None, terms=None, term_state: dict | None = None):
+                 face_index: np.ndarray | None = None, terms=None, term_state: dict | None = None,
+                 context: SurfelField | None = None, focus=None):
         self.cfg = config
         self.init_field = field
+        self.focus = focus
+        self.context = None
+        if context is not None and context.n:
+            c = context.with_sh_degree(field.sh_degree)
+            self.context = {k: torch.from_numpy(np.ascontiguousarray(v, np.float32)) for k, v in
+                            (("means", c.positions), ("quats", c.orientations),
+                             ("scales", c.scales), ("opacities", c.opacities), ("sh", c.sh))}
         self.params = P.to_params(field)
         for p in self.params.values():
             p.requires_grad_(True)
@@ -133,7 +158,7 @@ class GGDSRun:
             v = self.views[i]
             gb = view_gbuffer(v.camera, self.vertices, self.faces, self.face_ids, self.shadow)
             bg = self.background_fn(v.camera) if self.background_fn else None
-            self._view_cache[i] = ViewData(v, gb, bg)
+            self._view_cache[i] = ViewData(v, gb, bg, focus_mask(gb, self.focus))
         return self._view_cache[i]
 
     # ------------------------------------------------------------ rendering
@@ -141,6 +166,8 @@ class GGDSRun:
         """Rasterise the (activated) parameters for ``camera``; ``settings`` are RasterSettings
         fields (near/far come from the camera)."""
         a = P.activated(self.params if params is None else params)
+        if self.context is not None:   # trainable rows first: visible_index < n are ours
+            a = {k: torch.cat([a[k], self.context[k]]) for k in a}
         return rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
                          camera.viewmat, camera.K, camera.width, camera.height,
                          settings=RasterSettings.for_camera(camera, **settings), background=background)
@@ -163,6 +190,8 @@ class GGDSRun:
                                       n_steps=cfg.n_denoise, seed=cfg.seed * 100003 + k)
         t_prior = time.perf_counter()
         w = losses.omega(t, cfg.omega)
+        if vd.mask is not None:   # outside the focus the target stands in: no difference there
+            x = torch.where(vd.mask[..., None], x, x_hat)
         ctx = StepContext(x, x_hat, out, vd.gbuffer, cam, t, cfg, self.term_state)
         terms = {}
         for term, weight in self.terms:
@@ -174,6 +203,8 @@ class GGDSRun:
         loss.backward()
         t_backward = time.perf_counter()
         rows = out.visible_index
+        if self.context is not None:
+            rows = rows[rows < self.params["means"].shape[0]]
         lrs = self._lrs(k)
         self.optimizer.lrs = lrs
         self.optimizer.step(rows)
@@ -300,7 +331,7 @@ class GGDSRun:
             out = self.render(cam, background=bg, normal_space="world")
             x_hat = self.prior.target(out.rgb.clamp(0, None), gb, self.env, t_eval,
                                       n_steps=self.cfg.n_denoise, seed=10_000 + j)
-            psnrs.append(psnr(out.rgb, x_hat))
+            psnrs.append(psnr(out.rgb, x_hat, focus_mask(gb, self.focus)))
             mask = gb.valid & (out.alpha > 0.5)
             if mask.any():
                 d = out.depth_expected[mask]
@@ -317,9 +348,14 @@ class GGDSRun:
         return res
 
     def off_surface_fraction(self, threshold: float = 0.2) -> float:
+        """Fraction of surfels farther than ``threshold`` from their seed proxy face (surfels
+        whose seed face is not among the run's proxy faces, index -1, are left out)."""
         if self.face_index is None or len(self.faces) == 0:
             return float("nan")
-        pos = self.params["means"].detach().numpy().astype(np.float64)
-        tri = self.vertices[self.faces[self.face_index]].astype(np.float64)
+        known = self.face_index >= 0
+        if not known.any():
+            return float("nan")
+        pos = self.params["means"].detach().numpy().astype(np.float64)[known]
+        tri = self.vertices[self.faces[self.face_index[known]]].astype(np.float64)
         d = point_triangle_distance(pos, tri[:, 0], tri[:, 1], tri[:, 2])
         return float((d > threshold).mean())

@@ -8,7 +8,6 @@ arrays — surfels, proxy, views, lighting — and decides where results go (the
 """
 from __future__ import annotations
 
-import json
 import signal
 import time
 from dataclasses import dataclass, field
@@ -17,7 +16,6 @@ from typing import Callable
 import numpy as np
 import torch
 
-from lsd3d_usd.configtree import to_dict
 from lsd3d_usd.ggds.config import GGDSConfig
 from lsd3d_usd.ggds.run import GGDSRun
 from lsd3d_usd.splats.field import SurfelField
@@ -36,26 +34,22 @@ class GGDSInputs:
     background: Callable | None = None      # camera -> (H,W,3) env radiance behind the surfels
     shadow: object | None = None            # conditioning.ShadowMap of the sun
     face_index: np.ndarray | None = None    # seed proxy face of every surfel
-    provenance: dict = field(default_factory=dict)   # extra provenance for the run layer
+    context: SurfelField | None = None      # frozen neighbour surfels rendered with them
+    focus: tuple | None = None              # (x0, y0, x1, y1) the loaded surfels cover
 
 
 def _log_nothing(*a):
     pass
 
 
-def _layer_provenance(run: GGDSRun, prior, inputs: GGDSInputs, metrics=None, final=False) -> dict:
-    steps = max(run.step_index, 1)
-    return {"params": {**to_dict(run.cfg), **prior.describe()}, "seed": run.cfg.seed,
-            "timings": {"optimise_s": round(run.seconds, 2),
-                        "s_per_step": round(run.seconds / steps, 4)},
-            "stepsDone": run.step_index, "complete": bool(final),
-            "trainViews": json.dumps([v.to_json() for v in inputs.views]),
-            "metrics": metrics, **inputs.provenance}
+def _progress(run: GGDSRun, prior, metrics=None, final=False) -> dict:
+    return {"stepsDone": run.step_index, "steps": run.cfg.steps, "complete": bool(final),
+            "seconds": round(run.seconds, 3), "metrics": metrics, "prior": prior.describe()}
 
 
 def _save(store, run: GGDSRun, prior, inputs: GGDSInputs, *, metrics=None, final=False,
           keep_checkpoint=False) -> None:
-    store.write_layer(run.field(), _layer_provenance(run, prior, inputs, metrics, final))
+    store.write_layer(run.field(), _progress(run, prior, metrics, final))
     if final and not keep_checkpoint:
         store.drop_checkpoint()
     else:
@@ -75,7 +69,9 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     Returns the run summary (also written by the store)."""
     run = GGDSRun(inputs.field, inputs.proxy, inputs.views, prior, inputs.env, config,
                   background_fn=inputs.background, shadow=inputs.shadow,
-                  face_index=inputs.face_index, term_state=term_state)
+                  face_index=inputs.face_index, term_state=term_state,
+                  context=inputs.context, focus=inputs.focus)
+    store.write_views(inputs.views)
     before = []
     if resume:
         tensors, meta = store.load_checkpoint()

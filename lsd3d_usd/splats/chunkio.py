@@ -1,14 +1,18 @@
 """Surfels stored per chunk: one payload per chunk of the scene's grid, so a scene of any
 extent opens with nothing heavy loaded, and GGDS runs that add per-chunk opinions the same way.
 
-On disk (a scene's layers/ folder; file names follow the proxy's ``<stem>_chunks`` rule)::
+On disk (a scene's layers/ folder)::
 
-    surfels.usdc                          /World/Surfels (Xform)
-                                            Chunk_<i>_<j> (Lsd3dSurfelField, payload arc)
-    surfels_chunks/chunk_<i>_<j>.usdc     Chunk_<i>_<j> (defaultPrim): the initial surfels
-    ggds_<run>.usdc                       over /World/Surfels/Chunk_<i>_<j> (prepend payload),
-                                          one per chunk the run has finished
-    ggds_<run>_chunks/chunk_<i>_<j>.usdc  over Chunk_<i>_<j>: the optimised attributes
+    surfels.usdc                              /World/Surfels (Xform)
+                                                Chunk_<i>_<j> (Lsd3dSurfelField, payload arc)
+    surfels_chunks/<inputs>/chunk_<i>_<j>.usdc  Chunk_<i>_<j> (defaultPrim): initial surfels
+    ggds_<run>.usdc                           over /World/Surfels/Chunk_<i>_<j> (prepend
+                                              payload), one per chunk the run has written
+    ggds_<run>_chunks/chunk_<i>_<j>.usdc      over Chunk_<i>_<j>: the optimised attributes
+
+The initial surfels go to a new folder named by their inputs hash; the root layer, written
+last and atomically, switches to it, and then older folders are removed. A crash mid-way
+leaves the previous root pointing at its own, intact chunks.
 
 A surfel belongs to the chunk that holds its centre (floor(x / size), floor(y / size)): no
 duplicates at seams. The run's payload sits on a stronger sublayer, so its attribute opinions
@@ -28,6 +32,10 @@ import numpy as np
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.splats.field import SurfelField
+
+SEED_CHUNK_ATTR = "lsd3d:seedChunk"
+SEED_FACE_ATTR = "lsd3d:seedFace"
+
 
 def chunk_keys(positions: np.ndarray, chunk_size: float) -> np.ndarray:
     """(N, 2) int64 chunk index of each position (floor of x / size, y / size)."""
@@ -52,13 +60,26 @@ def chunk_file_name(key) -> str:
     return chunk_prim_name(*key).lower() + ".usdc"
 
 
-def chunks_dir(root_path) -> Path:
+def chunks_base(root_path) -> Path:
+    """``<stem>_chunks`` beside a root layer."""
     p = Path(root_path)
     return p.with_name(f"{p.stem}_chunks")
 
 
-def chunk_path(root_path, key) -> Path:
-    return chunks_dir(root_path) / chunk_file_name(key)
+def chunk_folder(root_path) -> Path:
+    """The folder a root layer's chunk payloads point into (recorded in it), or the plain
+    ``<stem>_chunks`` folder of a run layer."""
+    from pxr import Sdf
+    p = Path(root_path)
+    if p.is_file():
+        layer = Sdf.Layer.OpenAsAnonymous(str(p), metadataOnly=True)
+        rel = layer.customLayerData.get("lsd3d", {}).get("chunkFolder") if layer else None
+        if rel:
+            folder = (p.parent / rel).resolve()
+            if not folder.is_relative_to(p.parent.resolve()) or ".." in Path(rel).parts:
+                raise InputError(f"{p}: chunk folder {rel!r} lies outside {p.parent}")
+            return folder
+    return chunks_base(p)
 
 
 def _stage():
@@ -69,18 +90,30 @@ def _stage():
     return stage
 
 
-def write_chunk(root_path, key, field: SurfelField, provenance: dict | None = None) -> Path:
-    """The initial surfels of one chunk to its own file (atomic), defaultPrim Chunk_<i>_<j>."""
+def write_chunk(folder, key, field: SurfelField, provenance: dict | None = None,
+                seed_faces: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
+    """The initial surfels of one chunk to ``folder`` (atomic), defaultPrim Chunk_<i>_<j>.
+    ``seed_faces``: (proxy chunk (n, 2), face index (n,)) each surfel was seeded on."""
+    from pxr import Sdf, Vt
+
     from lsd3d_usd.scene import chunk_prim_name, save_layer
     from lsd3d_usd.splats.usdio import write_surfels
     name = chunk_prim_name(*key)
     stage = _stage()
     prim = write_surfels(stage, f"/{name}", field)   # + the official APIs and type fallback
+    if seed_faces is not None:
+        chunks, faces = (np.ascontiguousarray(a, np.int32) for a in seed_faces)
+        if chunks.shape != (field.n, 2) or faces.shape != (field.n,):
+            raise ValueError(f"seed faces of {name}: need ({field.n}, 2) and ({field.n},)")
+        prim.CreateAttribute(SEED_CHUNK_ATTR, Sdf.ValueTypeNames.Int2Array).Set(
+            Vt.Vec2iArray.FromNumpy(chunks))
+        prim.CreateAttribute(SEED_FACE_ATTR, Sdf.ValueTypeNames.IntArray).Set(
+            Vt.IntArray.FromNumpy(faces))
     stage.SetDefaultPrim(prim)
-    return save_layer(stage.GetRootLayer(), chunk_path(root_path, key), provenance)
+    return save_layer(stage.GetRootLayer(), Path(folder) / chunk_file_name(key), provenance)
 
 
-def write_run_chunk(run_root_path, key, field: SurfelField, attributes: tuple[str, ...],
+def write_run_chunk(folder, key, field: SurfelField, attributes: tuple[str, ...],
                     provenance: dict | None = None) -> Path:
     """One chunk's optimised attributes of a GGDS run: overs only (atomic)."""
     from lsd3d_usd.scene import chunk_prim_name, save_layer
@@ -89,10 +122,10 @@ def write_run_chunk(run_root_path, key, field: SurfelField, attributes: tuple[st
     stage = _stage()
     prim = write_surfels(stage, f"/{name}", field, over=True, attributes=attributes)
     stage.SetDefaultPrim(prim)
-    return save_layer(stage.GetRootLayer(), chunk_path(run_root_path, key), provenance)
+    return save_layer(stage.GetRootLayer(), Path(folder) / chunk_file_name(key), provenance)
 
 
-def _root(chunks: Iterable, folder_name: str, *, define: bool):
+def _root(chunks: Iterable, folder_rel: str, *, define: bool):
     """Root layer (Sdf, no composition): /World/Surfels with a payload per chunk; ``define``
     for the initial surfels (defs), else overs (a run layer)."""
     from pxr import Sdf, UsdGeom
@@ -116,7 +149,7 @@ def _root(chunks: Iterable, folder_name: str, *, define: bool):
     for key in sorted(chunks):
         spec = Sdf.PrimSpec(parent, chunk_prim_name(*key), spec_kind,
                             lsd3d_usd.SURFEL_TYPE if define else "")
-        spec.payloadList.Prepend(Sdf.Payload(f"./{folder_name}/{chunk_file_name(key)}"))
+        spec.payloadList.Prepend(Sdf.Payload(f"./{folder_rel}/{chunk_file_name(key)}"))
     return layer
 
 
@@ -127,15 +160,32 @@ def chunk_info(key, field: SurfelField, inputs_hash: str = "") -> dict:
             "inputsHash": inputs_hash}
 
 
-def write_root(root_path, chunks: dict, provenance: dict | None = None, *,
+def write_root(root_path, folder, chunks: dict, provenance: dict | None = None, *,
                define: bool = True) -> Path:
-    """The root layer listing ``chunks`` ({key: chunk_info}), atomically."""
+    """The root layer listing ``chunks`` ({key: chunk_info}) with payloads into ``folder``
+    (beside or below the root), atomically."""
     from lsd3d_usd.scene import chunk_prim_name, save_layer
-    path = Path(root_path)
-    layer = _root(chunks, chunks_dir(path).name, define=define)
+    path = Path(root_path).absolute()
+    rel = Path(folder).absolute().relative_to(path.parent).as_posix()
+    layer = _root(chunks, rel, define=define)
     prov = dict(provenance or {})
     prov["chunks"] = json.dumps({chunk_prim_name(*k): v for k, v in sorted(chunks.items())})
+    prov["chunkFolder"] = rel
     return save_layer(layer, path, prov)
+
+
+def prune_chunk_folders(root_path) -> list[Path]:
+    """Remove the versioned chunk folders under ``<stem>_chunks`` the root no longer uses."""
+    import shutil
+    keep = chunk_folder(root_path)
+    base = chunks_base(root_path)
+    removed = []
+    if base.is_dir() and keep != base:
+        for d in base.iterdir():
+            if d.is_dir() and d.resolve() != keep.resolve():
+                shutil.rmtree(d)
+                removed.append(d)
+    return removed
 
 
 def read_chunk_map(root_path) -> dict[tuple[int, int], dict]:
@@ -164,10 +214,11 @@ def read_chunk(root_path, key, run_roots: Iterable = ()) -> SurfelField:
 
     from lsd3d_usd.scene import chunk_prim_name
     from lsd3d_usd.splats.usdio import read_surfels
-    base = chunk_path(root_path, key)
+    base = chunk_folder(root_path) / chunk_file_name(key)
     if not base.is_file():
         raise InputError(f"{base}: no such surfel chunk file")
-    layers = [str(chunk_path(r, key)) for r in run_roots if chunk_path(r, key).is_file()]
+    runs = [chunk_folder(r) / chunk_file_name(key) for r in run_roots]
+    layers = [str(p) for p in runs if p.is_file()]
     root = Sdf.Layer.CreateAnonymous(".usda")
     root.subLayerPaths = layers + [str(base)]
     stage = Usd.Stage.Open(root)
@@ -175,3 +226,21 @@ def read_chunk(root_path, key, run_roots: Iterable = ()) -> SurfelField:
     if not prim:
         raise InputError(f"{base}: no prim /{chunk_prim_name(*key)}")
     return read_surfels(prim)
+
+
+def read_seed_faces(root_path, key) -> tuple[np.ndarray, np.ndarray] | None:
+    """(proxy chunk (n, 2), face (n,)) of a chunk's initial surfels, or None if not recorded."""
+    from pxr import Usd
+
+    from lsd3d_usd.scene import chunk_prim_name
+    path = chunk_folder(root_path) / chunk_file_name(key)
+    stage = Usd.Stage.Open(str(path))
+    prim = stage.GetPrimAtPath(f"/{chunk_prim_name(*key)}")
+    a, b = prim.GetAttribute(SEED_CHUNK_ATTR), prim.GetAttribute(SEED_FACE_ATTR)
+    if not (a and a.HasValue() and b and b.HasValue()):
+        return None
+    chunks = np.asarray(a.Get(), np.int64).reshape(-1, 2)
+    faces = np.asarray(b.Get(), np.int64).reshape(-1)
+    if len(chunks) != len(faces):
+        raise InputError(f"{path}: {len(chunks)} seed chunks for {len(faces)} seed faces")
+    return chunks, faces

@@ -7,7 +7,7 @@ import sys
 
 from lsd3d_usd.cliutil import parse_size
 from lsd3d_usd.render.camera import DEFAULT_WIDTH as SINGLE_WIDTH
-from lsd3d_usd.views.rig import DEFAULT_WIDTH as RIG_WIDTH
+from lsd3d_usd.views.rig import DEFAULT_STREAM_RADIUS, DEFAULT_WIDTH as RIG_WIDTH
 from lsd3d_usd.views.rigs import RIGS
 
 
@@ -40,7 +40,8 @@ def _render(args) -> int:
                          args.seconds, size[0] if size else RIG_WIDTH, args.speed,
                          overview=not args.no_overview, video=not args.no_video,
                          use_env=not args.no_env, exposure=args.exposure,
-                         tonemap_method=args.tonemap, progress=progress)
+                         tonemap_method=args.tonemap, progress=progress,
+                         stream_radius=args.stream_radius)
         print(res.rig_layer)
         for name, fr in res.frames.items():
             print(f"{name}: {len(fr)} frames" + (f", {res.videos[name]}" if name in res.videos else ""))
@@ -101,6 +102,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--fps", type=float, default=10.0, help="rig frames per second (default 10)")
     g.add_argument("--seconds", type=float, default=8.0, help="rig clip length in seconds (default 8)")
     g.add_argument("--speed", type=float, help="constant ego speed along --route in m/s (default: IDM)")
+    g.add_argument("--stream-radius", type=float, default=DEFAULT_STREAM_RADIUS, metavar="M",
+                   help="load only the scene chunks within M metres of the cameras and unload "
+                        f"those left behind (default {DEFAULT_STREAM_RADIUS:g}; 0 = load the "
+                        "whole scene)")
     g.add_argument("--no-video", action="store_true", help="PNG frames only, no MP4")
     g.add_argument("--no-overview", action="store_true", help="skip the third-person overview camera")
     p.set_defaults(func=_render, compiles_kernels=True)

@@ -110,6 +110,7 @@ def composite(surfels, actors, camera: Camera, env=None, sh_degree=None) -> Fram
 
 def render_scene(reader, camera: Camera, time=None, sh_degree=None) -> Frame:
     """The scene of a stage_data.SceneReader seen by ``camera`` at ``time`` (a time code;
-    None = the stage's earliest time): surfels + actors over the env."""
-    return composite(reader.surfels(time), reader.actors_at(time), camera, reader.env(time),
-                     sh_degree)
+    None = the stage's earliest time): surfels + actors over the env. A streaming reader loads
+    the chunks around the camera first."""
+    surfels = reader.surfels(time, near=camera.center[None, :])
+    return composite(surfels, reader.actors_at(time), camera, reader.env(time), sh_degree)

@@ -14,6 +14,9 @@ from lsd3d_usd.views.rig_stage import build_rig_stage
 from lsd3d_usd.views.rigs import OVERVIEW, RIGS
 
 DEFAULT_WIDTH = 480  # rig frames: five cameras x frames add up; `render --camera` uses 960
+# Chunks within this distance of a camera are loaded (views.stage_data.ChunkStreamer): well
+# beyond where 100 m chunks of surfels still cover more than a few pixels at rig resolutions.
+DEFAULT_STREAM_RADIUS = 300.0
 
 
 @dataclass
@@ -29,9 +32,11 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
                fps: float = 10.0, seconds: float = 8.0, width: int = DEFAULT_WIDTH, speed=None,
                seed: int = 0, overview: bool = True, video: bool = True, use_env: bool = True,
                exposure: float = 0.0, tonemap_method: str = "aces", progress: bool = True,
-               log=print) -> RigResult:
+               stream_radius: float = DEFAULT_STREAM_RADIUS, log=print) -> RigResult:
     """Render every rig camera (and the overview) at every frame; PNGs under OUT/<camera>/,
-    and an MP4 per camera unless ``video`` is False."""
+    and an MP4 per camera unless ``video`` is False. ``stream_radius`` > 0: only the chunks
+    within that distance of the cameras are loaded (memory independent of the route's
+    length); 0 loads the whole scene."""
     from tqdm import tqdm
 
     from lsd3d_usd.render.camera import from_usd
@@ -42,14 +47,17 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
 
     if int(width) < 8:
         raise InputError(f"--resolution: rig frames need a width >= 8, got {width}")
+    if not stream_radius >= 0:
+        raise InputError(f"--stream-radius {stream_radius}: must be >= 0 (0 loads everything)")
     if video:
         ffmpeg_exe()   # checked before minutes of rendering
     stage, paths, track, tcps, notes, route_ids = build_rig_stage(
-        scene_path, out_dir, rig_name, route, trajectory, fps, seconds, speed, seed)
+        scene_path, out_dir, rig_name, route, trajectory, fps, seconds, speed, seed,
+        load_all=not stream_radius)
     if not overview:
         paths = [p for p in paths if not p.endswith("/" + OVERVIEW.name)]
-    reader = SceneReader(stage, use_env=use_env)
-    if reader.surfels() is None:
+    reader = SceneReader(stage, use_env=use_env, stream_radius=stream_radius or None)
+    if not (reader.stream.chunks if reader.stream else reader.surfels() is not None):
         notes.append("the scene has no surfels: frames show actors over the env only")
     out = Path(out_dir).absolute()
     specs = {c.name: c for c in list(RIGS[rig_name]) + [OVERVIEW]}

@@ -89,7 +89,7 @@ def default_route(layout, seconds: float, speed: float | None = None) -> tuple[l
 
 def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajectory=None,
                     fps: float = 10.0, seconds: float = 8.0, speed: float | None = None,
-                    seed: int = 0, ego_body: bool = True):
+                    seed: int = 0, ego_body: bool = True, load_all: bool = True):
     """Write OUT/rig.usda (sublayering the scene) and return (composed stage, camera paths,
     track, timeCodesPerSecond, notes, route lane ids or None). Without ``route`` and
     ``trajectory`` the ego drives :func:`default_route` (said in a note, to be reused)."""
@@ -145,4 +145,5 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", route=None, t
     S.save_layer(layer, rig_file, S.provenance("rig", {"rig": rig_name, "fps": fps, "seconds": seconds,
                                                        "route": ",".join(route) if isinstance(route, list)
                                                        else route, "trajectory": trajectory}, seed=seed))
-    return Usd.Stage.Open(str(rig_file)), paths, track, tcps, notes, ids
+    load = Usd.Stage.LoadAll if load_all else Usd.Stage.LoadNone
+    return Usd.Stage.Open(str(rig_file), load), paths, track, tcps, notes, ids

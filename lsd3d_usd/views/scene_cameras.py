@@ -2,18 +2,19 @@
 views and a few overviews as UsdGeom.Camera prims under /World/Cameras, so usdview, `render
 --camera` and any USD tool can look through them::
 
-    /World/Cameras/Train/Train_<k>        the views GGDS trains on (ggds.cameras.run_views)
+    /World/Cameras/Train/Train_<k>        the views GGDS trains on (ggds.regions.region_views),
+                                          region by region in region-name order, as the run
+                                          records them (ggds/<run>/[<region>/]views.json)
     /World/Cameras/HeldOut/HeldOut_<k>    the held-out views its metrics are measured from
     /World/Cameras/Overview/Top           straight down over the layout, north up
     /World/Cameras/Overview/<SouthWest|SouthEast|NorthEast|NorthWest>
                                           35 degrees down from each corner, framing the layout
 
 Each camera carries ``lsd3d:camera:kind`` (lane | novel | overview) and, for the GGDS views,
-``lsd3d:camera:lane`` (the lane it was sampled along).
+``lsd3d:camera:lane`` (the lane it was sampled along) and ``lsd3d:camera:region`` (the GGDS
+region: "" for the whole scene, else chunk_<i>_<j>).
 """
 from __future__ import annotations
-
-from dataclasses import replace
 
 import numpy as np
 
@@ -48,25 +49,49 @@ def overview_cameras(layout) -> dict:
     return cams
 
 
+def ggds_views(sc: S.Scene, layout, cfg) -> tuple[list, list]:
+    """([(region, View)] training, [(region, View)] held-out) of a GGDS run of ``cfg`` on the
+    scene's surfel chunks: its regions (ggds.regions.plan_regions) in name order, each
+    sampled by ggds.regions.region_views; a region without lanes inside has none (GGDS
+    keeps its surfels as they are)."""
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.ggds.regions import plan_regions, region_views
+    from lsd3d_usd.splats.chunkio import read_chunk_map
+    regions = sorted((r for phase in plan_regions(read_chunk_map(sc.layer_path("surfels")),
+                                                  cfg.ggds.regions) for r in phase),
+                     key=lambda r: r.name)
+    train, held = [], []
+    for r in regions:
+        try:
+            views, held_out = region_views(layout, cfg.ggds, cfg.seed, r)
+        except InputError:
+            if not r.name:
+                raise
+            continue
+        train += [(r.name, v) for v in views]
+        held += [(r.name, v) for v in held_out]
+    return train, held
+
+
 def write_scene_cameras(sc: S.Scene, layout, cfg, log=print) -> dict:
     """Write (or keep, when unchanged) the scene's cameras layer for a `generate`
-    configuration ``cfg`` (GenerateConfig): the GGDS views of ``cfg.ggds`` with the scene's
-    seed, and the overviews. Returns a summary for generate's."""
+    configuration ``cfg`` (GenerateConfig) on the scene's surfels: the views GGDS trains and
+    evaluates on, and the overviews. Returns a summary for generate's."""
     from pxr import Sdf, UsdGeom
 
-    from lsd3d_usd.ggds.cameras import run_views
     from lsd3d_usd.hashing import content_hash
     from lsd3d_usd.render.camera import to_usd
 
-    train, held_out = run_views(layout, replace(cfg.ggds, seed=cfg.seed))
+    train, held_out = ggds_views(sc, layout, cfg)
     overview = overview_cameras(layout)
-    groups = [("Train", [(f"Train_{k:03d}", v.camera, v.kind, v.lane_id) for k, v in enumerate(train)]),
-              ("HeldOut", [(f"HeldOut_{k:03d}", v.camera, v.kind, v.lane_id)
-                           for k, v in enumerate(held_out)]),
-              ("Overview", [(name, cam, "overview", None) for name, cam in overview.items()])]
-    inputs = content_hash("cameras-v1", [[(n, c.pose.round(9).tolist(), [c.width, c.height, c.fx, c.fy,
-                                                                          c.cx, c.cy, c.near, c.far])
-                                          for n, c, _, _ in cams] for _, cams in groups])
+    groups = [("Train", [(f"Train_{k:03d}", v.camera, v.kind, v.lane_id, r)
+                         for k, (r, v) in enumerate(train)]),
+              ("HeldOut", [(f"HeldOut_{k:03d}", v.camera, v.kind, v.lane_id, r)
+                           for k, (r, v) in enumerate(held_out)]),
+              ("Overview", [(name, cam, "overview", None, None) for name, cam in overview.items()])]
+    inputs = content_hash("cameras-v2", [[(n, r, c.pose.round(9).tolist(),
+                                           [c.width, c.height, c.fx, c.fy, c.cx, c.cy, c.near, c.far])
+                                          for n, c, _, _, r in cams] for _, cams in groups])
     summary = {"train": len(train), "held_out": len(held_out), "overview": len(overview)}
     if sc.layer_inputs_hash("cameras") == inputs:
         sc.add_layer("cameras")
@@ -76,13 +101,14 @@ def write_scene_cameras(sc: S.Scene, layout, cfg, log=print) -> dict:
     UsdGeom.Xform.Define(stage, S.CAMERAS_PATH)
     for group, cams in groups:
         UsdGeom.Xform.Define(stage, f"{S.CAMERAS_PATH}/{group}")
-        for name, cam, kind, lane in cams:
+        for name, cam, kind, lane, region in cams:
             prim = to_usd(stage, f"{S.CAMERAS_PATH}/{group}/{name}", cam).GetPrim()
             prim.CreateAttribute("lsd3d:camera:kind", Sdf.ValueTypeNames.Token, custom=True,
                                  variability=Sdf.VariabilityUniform).Set(kind)
-            if lane is not None:
-                prim.CreateAttribute("lsd3d:camera:lane", Sdf.ValueTypeNames.String, custom=True,
-                                     variability=Sdf.VariabilityUniform).Set(lane)
+            for attr, value in (("lane", lane), ("region", region)):
+                if value is not None:
+                    prim.CreateAttribute(f"lsd3d:camera:{attr}", Sdf.ValueTypeNames.String,
+                                         custom=True, variability=Sdf.VariabilityUniform).Set(value)
     sc.write_layer("cameras", stage, S.provenance(
         "cameras", {"views": cfg.ggds.views, "heldOut": cfg.ggds.held_out,
                     "resolution": list(cfg.ggds.resolution), "fovDeg": cfg.ggds.fov_deg},

@@ -9,6 +9,10 @@ command, rig, eval, usdview) gets its surfels, env map and actors from.
     camera_prim(stage, path)     a UsdGeom.Camera prim, or one clear error listing the cameras
     SceneReader                  the above for one stage, plus the actors placed and relit at
                                  a time (`actors_at`); reads what cannot change only once
+    ChunkStreamer                with a stage opened with Usd.Stage.LoadNone: loads the surfel
+                                 and proxy chunk payloads within a radius of the cameras and
+                                 unloads those left behind, so memory follows the radius, not
+                                 the length of a route
 
 The proxy mesh and the layout are read by their own packages (proxy.usdio.proxy_arrays,
 layout.usdio.read_layout / layout_from_stage). Times are USD time codes; None means the
@@ -203,29 +207,117 @@ class ActorFrame:
         return ActorFrame(np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3), np.float32), None)
 
 
+class ChunkStreamer:
+    """Payload chunks (/World/Surfels/Chunk_<i>_<j>, /World/Proxy/Chunk_<i>_<j>) loaded within
+    ``radius`` metres of the cameras and unloaded beyond ``radius`` + one chunk (hysteresis:
+    a chunk at the edge does not flicker in and out). Chunk (i, j) covers [i s, (i+1) s) ×
+    [j s, (j+1) s) with s the scene's chunk size. Surfels of a loaded chunk are read once."""
+
+    def __init__(self, stage, radius: float, chunk_size: float | None = None):
+        from lsd3d_usd.scene import PROXY_PATH, SURFELS_PATH, parse_chunk_prim_name
+        self.stage = stage
+        self.radius = float(radius)
+        self.size = float(chunk_size or _scene_chunk_size(stage))
+        self.chunks: dict = {}          # key -> [prim paths] (surfels and proxy)
+        for root in (SURFELS_PATH, PROXY_PATH):
+            prim = stage.GetPrimAtPath(root)
+            if not prim:
+                continue
+            for child in prim.GetFilteredChildren(_all_defined()):
+                try:
+                    key = parse_chunk_prim_name(child.GetName())
+                except ValueError:
+                    continue
+                self.chunks.setdefault(key, []).append(child.GetPath())
+        self.loaded: set = set()
+        self.version = 0                # bumped whenever the loaded set changes
+        self._fields: dict = {}         # key -> world-space SurfelField of its surfel prims
+
+    def _distance(self, key, points: np.ndarray) -> float:
+        lo = np.array([key[0], key[1]], np.float64) * self.size
+        d = np.maximum(np.maximum(lo - points[:, :2], points[:, :2] - (lo + self.size)), 0.0)
+        return float(np.min(np.hypot(d[:, 0], d[:, 1])))
+
+    def update(self, points) -> None:
+        """Load the chunks within the radius of any of ``points`` (cameras, (n, 3))."""
+        pts = np.atleast_2d(np.asarray(points, np.float64))
+        dist = {k: self._distance(k, pts) for k in self.chunks}
+        want = {k for k, d in dist.items() if d <= self.radius}
+        drop = {k for k in self.loaded if dist[k] > self.radius + self.size}
+        add = want - self.loaded
+        if not add and not drop:
+            return
+        load = [p for k in add for p in self.chunks[k]]
+        unload = [p for k in drop for p in self.chunks[k]]
+        self.stage.LoadAndUnload(load, unload)
+        self.loaded = (self.loaded | add) - drop
+        for k in drop:
+            self._fields.pop(k, None)
+        self.version += 1
+
+    def surfels(self, time=None):
+        """Surfels of the loaded chunks (in scene order), or None."""
+        from lsd3d_usd.splats.field import SurfelField
+        parts = []
+        for key in sorted(self.loaded, key=lambda k: str(self.chunks[k][0])):
+            if key not in self._fields:
+                prims = [self.stage.GetPrimAtPath(p) for p in self.chunks[key]]
+                prims = [p for p in prims if p and p.IsLoaded()]
+                from lsd3d_usd.splats.usdio import is_particle_field
+                self._fields[key] = scene_surfels(self.stage, time,
+                                                  [p for p in prims if is_particle_field(p)])
+            if self._fields[key] is not None:
+                parts.append(self._fields[key])
+        return SurfelField.concat(parts, drop_mismatched_semantics=True) if parts else None
+
+
+def _scene_chunk_size(stage) -> float:
+    from lsd3d_usd.scene import WORLD
+    world = stage.GetPrimAtPath(WORLD)
+    attr = world.GetAttribute("lsd3d:scene:chunkSize") if world else None
+    v = attr.Get() if attr and attr.HasValue() else None
+    return float(v) if v else 100.0
+
+
+def _all_defined():
+    from pxr import Usd
+    return Usd.PrimIsActive & Usd.PrimIsDefined & ~Usd.PrimIsAbstract
+
+
 class SceneReader:
     """One composed stage read for rendering frames at any time: scene surfels (read once
     unless something about them is animated), the env map (textures decoded once), and the
     actors (asset geometry read once, placed and relit per time). Every frame is a pure
-    function of (stage, time, camera): nothing carries over between frames."""
+    function of (stage, time, camera): nothing carries over between frames.
+
+    ``stream_radius``: the stage was opened with Usd.Stage.LoadNone and chunk payloads are
+    loaded around the cameras given to ``surfels(time, near=...)`` (ChunkStreamer); a frame
+    is the same as with everything loaded when the radius covers what the camera sees."""
 
     def __init__(self, stage, *, use_env: bool = True, actors: bool = True,
-                 textures: TextureCache | None = None):
+                 textures: TextureCache | None = None, stream_radius: float | None = None):
         from lsd3d_usd.actors.usdio import ActorSet
         self.stage = stage
         self.use_env = use_env
         self.textures = TextureCache() if textures is None else textures
         self.actors = ActorSet(stage) if actors else None
+        self.stream = ChunkStreamer(stage, stream_radius) if stream_radius else None
         self._prims = scene_surfel_prims(stage)
         self._static = not any(_might_vary(p) for p in self._prims)
         self._field = None
         self._field_read = False
         self._lighting = None
         self._occluder = None
+        self._occluder_version = -1
         self._last = {}  # per kind, (time, value) of the last call: a rig's cameras share a time
 
-    def surfels(self, time=None):
-        """The scene's surfels (world space) at ``time``, or None."""
+    def surfels(self, time=None, near=None):
+        """The scene's surfels (world space) at ``time``, or None. ``near``: camera positions
+        (n, 3), with streaming: the chunks around them are loaded first."""
+        if self.stream is not None:
+            if near is not None:
+                self.stream.update(near)
+            return self.stream.surfels(time)
         if not self._static:
             return scene_surfels(self.stage, time, self._prims)
         if not self._field_read:
@@ -261,9 +353,12 @@ class SceneReader:
                                            self.actors.visible(t)) if v]
         if not shown:
             return ActorFrame.empty()
-        if self._lighting is None:  # the proxy occluder is built once, when an actor shows
+        version = self.stream.version if self.stream is not None else 0
+        if self._lighting is None or self._occluder_version != version:
+            # built when an actor shows, and again when streaming changed the loaded proxy
             self._lighting = lighting_from_stage(self.stage)
             self._occluder = proxy_occluder(self.stage)
+            self._occluder_version = version
         light = self._lighting
         vs, fs, cs, surf = [], [], [], []
         n = 0

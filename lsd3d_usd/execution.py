@@ -1,7 +1,9 @@
-"""Where tasks run: a local process pool (default) or a Ray cluster.
+"""Where tasks run: a local process pool (default) or a Ray cluster. Used by `batch` (scene
+and proxy-chunk tasks) and by chunk-wise GGDS (region tasks).
 
-Both executors run the same function (``tasks.run_task``) on plain-dict payloads and give
-the driver the same three outcomes per task:
+Both executors run the function a payload names (``payload["target"] = "module:function"``,
+set by our own code, never read from a file) on plain-dict payloads and give the driver the
+same three outcomes per task:
 
 - ``OK``: the task returned;
 - ``ERROR``: the task raised (the message names the exception);
@@ -53,8 +55,9 @@ def _quiet_exit() -> None:
 
 
 def _call(payload: dict) -> dict:
-    from .tasks import run_task
-    return run_task(payload)
+    import importlib
+    module, _, name = payload["target"].partition(":")
+    return getattr(importlib.import_module(module), name)(payload)
 
 
 class LocalExecutor:
@@ -164,6 +167,8 @@ class RayExecutor:
         self._owns = not ray.is_initialized()
         if self._owns:
             kw = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+            if address and address != "auto":
+                _check_reachable(address)
             try:
                 if address:
                     ray.init(address=address, **kw)
@@ -220,6 +225,23 @@ class RayExecutor:
         self._refs = {}
         if self._owns:
             self.ray.shutdown()
+
+
+def _check_reachable(address: str, timeout: float = 5.0) -> None:
+    """Fail fast (one line) when a Ray address's host:port does not answer: ray.init itself
+    keeps retrying for a minute or more."""
+    import socket
+
+    from lsd3d_usd.errors import InputError
+    hostport = address.split("://", 1)[-1].rsplit("/", 1)[0]
+    host, _, port = hostport.rpartition(":")
+    if not host or not port.isdigit():
+        raise InputError(f"--address {address!r}: expected HOST:PORT or ray://HOST:PORT")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout).close()
+    except OSError as e:
+        raise InputError(f"--executor ray: --address {address}: not reachable "
+                         f"({e.strerror or e})") from None
 
 
 def make_executor(kind: str, workers: int | None = None, address: str | None = None):

@@ -1,0 +1,235 @@
+"""`lsd3d-usd bench scale`: chunk-wise generation at growing extent — time, memory, density and
+seams per configuration, so "linear time, bounded memory, constant density" is a measured
+claim.
+
+Each configuration generates a procedural layout (corridor or grid of chunks) and runs
+`generate` in a child process with GGDS in chunk regions at fixed, small settings; the child's
+peak memory is read from the operating system (wait4), the workers' from their own reports.
+With --full: 16-chunk corridor and grid, rig renders along a 200 m and a 2 km route of a 2 km
+corridor with chunk streaming (peak memory of each), and a 10 km corridor through layout,
+proxy and surfel initialisation (`--steps 0`).
+"""
+from __future__ import annotations
+
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+CONFIGS = [("corridor", 1), ("corridor", 4), ("grid", 4)]
+FULL_CONFIGS = [("corridor", 16), ("grid", 16)]
+
+
+def _extent(shape: str, chunks: int) -> tuple[int, int]:
+    if shape == "corridor":
+        return 100 * chunks, 100
+    side = int(round(chunks ** 0.5))
+    return 100 * side, 100 * side
+
+
+def _child(cmd: list, log_path: Path) -> tuple[int, float, float]:
+    """Run a command; (exit code, wall seconds, peak RSS MB of the largest process among it
+    and the children it waited for)."""
+    t0 = time.perf_counter()
+    with open(log_path, "w") as fh:
+        p = subprocess.Popen(cmd, stdout=fh, stderr=subprocess.STDOUT)
+        _, status, usage = os.wait4(p.pid, 0)
+    code = os.waitstatus_to_exitcode(status)
+    return code, time.perf_counter() - t0, usage.ru_maxrss / 1024.0
+
+
+def _cli(*args) -> list:
+    return [sys.executable, "-m", "lsd3d_usd", *map(str, args)]
+
+
+def _layout(path: Path, extent, seed: int) -> Path:
+    from lsd3d_usd.layout import generator
+    from lsd3d_usd.layout.usdio import write_layout
+    write_layout(generator.generate(seed, extent, "urban"), path)
+    return path
+
+
+def _seams(scene: Path, views: int, size=(240, 135), seed: int = 0) -> dict | None:
+    """The seam measure on held-out-style views over the whole scene."""
+    from lsd3d_usd import scene as S
+    from lsd3d_usd.eval.seams_eval import measure_seams
+    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.layout.usdio import read_layout
+    from lsd3d_usd.proxy.usdio import proxy_arrays
+    from lsd3d_usd.eval.evaluate import render_view
+    from lsd3d_usd.views.stage_data import SceneReader
+    sc = S.Scene.open(scene)
+    layout = read_layout(sc.layer_path("layout"))
+    cams = [v.camera for v in sample_views(layout, views, *size, seed=seed + 4242,
+                                           novel_frac=0.25)]
+    reader = SceneReader(sc.open_stage(), actors=False)
+    frames = [render_view(reader.surfels(), reader.env(), cam) for cam in cams]
+    runs = sc.runs()
+    res, why = measure_seams(sc, runs[0].name if runs else None, layout,
+                             proxy_arrays(sc.layer_path("proxy")), cams, frames)
+    return res if res is not None else {"unavailable": why}
+
+
+def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int, seed: int,
+               views_per_chunk: int, mode: str = "chunk", seams_views: int = 16, log=print) -> dict:
+    extent = _extent(shape, chunks)
+    name = f"{shape}{chunks}" + ("" if mode == "chunk" else f"_{mode}")
+    lay = _layout(work / f"{name}.usda", extent, seed)
+    out = work / name
+    summary = work / f"{name}.json"
+    code, wall, rss = _child(_cli(
+        "generate", "--layout", lay, "-o", out, "--steps", steps, "--resolution", "240x135",
+        "--env-resolution", "256x128", "--no-actors", "--no-progress", "--regions", mode,
+        "--workers", workers, "--seed", seed, "--json", summary,
+        "--set", f"ggds.regions.views_per_chunk={views_per_chunk}", "--set", "ggds.held_out=4",
+        "--set", "ggds.checkpoint_every=1000"), work / f"{name}.log")
+    if code != 0:
+        raise RuntimeError(f"bench scale: {name} failed (see {work / (name + '.log')})")
+    s = json.loads(summary.read_text())
+    g = s.get("ggds", {})
+    per = g.get("per_region") or {}
+    walls = [r["wall_s"] for r in per.values() if r.get("wall_s")] or [g.get("wall_s", 0.0)]
+    seams = _seams(out, seams_views, seed=seed)
+    surf = s["surfels"]
+    row = {"config": name, "shape": shape, "chunks": int(surf["chunks"]),
+           "extent_m": list(extent), "regions": g.get("regions"), "mode": mode,
+           "surfels": int(surf["count"]),
+           "surfels_per_m2": round(surf["count"] / max(surf["viewWeightedArea_m2"], 1e-9), 3),
+           "surfels_per_m2_footprint": round(surf["count"] / (extent[0] * extent[1]), 3),
+           "per_chunk_s": round(statistics.median(walls), 2), "total_s": round(wall, 1),
+           "ggds_s": s["timings"].get("ggds_s"),
+           # wait4 reports the largest process of the tree (driver or a worker it waited for)
+           "peak_rss_mb": round(max(rss, g.get("worker_peak_rss_mb") or 0.0), 1),
+           "driver_rss_mb": s.get("peak_rss_mb"), "worker_rss_mb": g.get("worker_peak_rss_mb"),
+           "psnr_heldout": g.get("psnr_novel"),
+           "seam_psnr_drop_db": seams.get("psnr_drop_db") if seams else None,
+           "border_coverage": seams.get("border_coverage") if seams else None,
+           "seams": seams, "steps": steps, "workers": workers}
+    log(f"{name:>14s}: {row['chunks']:3d} chunks {row['surfels']:>9,} surfels "
+        f"({row['surfels_per_m2']:.1f}/m² weighted) per chunk {row['per_chunk_s']:7.1f} s, total "
+        f"{row['total_s']:7.1f} s, peak {row['peak_rss_mb']:7.0f} MB (driver "
+        f"{row['driver_rss_mb']:.0f}), held-out {row['psnr_heldout'] or float('nan'):.2f} dB, "
+        f"seam drop {row['seam_psnr_drop_db']}, border coverage {row['border_coverage']}")
+    return row
+
+
+def _trajectory(layout, length_m: float, path: Path, speed: float = 10.0) -> Path:
+    """Poses along the lane that runs farthest in x, at constant speed."""
+    best = max((ln for ln in layout.lanes if ln.lane_type == "driving"),
+               key=lambda ln: np.ptp(ln.points[:, 0]))
+    y = float(np.median(best.points[:, 1]))
+    x0 = float(best.points[:, 0].min()) + 5.0
+    n = int(length_m / speed) + 1
+    poses = [{"t": float(k), "x": x0 + speed * k, "y": y, "z": 0.0, "yaw": 0.0} for k in range(n)]
+    path.write_text(json.dumps(poses))
+    return path
+
+
+def stream_test(work: Path, seed: int, log=print) -> dict:
+    """Rig render peak memory along a 200 m and a 2 km route of a 2 km corridor."""
+    from lsd3d_usd.layout import generator
+    lay = _layout(work / "stream.usda", (2100, 100), seed)
+    out = work / "stream"
+    code, wall, rss = _child(_cli("generate", "--layout", lay, "-o", out, "--steps", 0,
+                                  "--env-resolution", "256x128", "--no-actors", "--no-progress"),
+                             work / "stream_gen.log")
+    if code != 0:
+        raise RuntimeError(f"bench scale: the 2 km corridor failed (see {work / 'stream_gen.log'})")
+    layout = generator.generate(seed, (2100, 100), "urban")
+    res = {"scene_generate_s": round(wall, 1), "scene_generate_rss_mb": round(rss, 1)}
+    for length in (200, 2000):
+        traj = _trajectory(layout, length, work / f"traj_{length}.json")
+        code, wall, rss = _child(_cli("render", out, "--rig", "waymo5", "--trajectory", traj,
+                                      "--fps", 1, "--seconds", length / 10.0, "--resolution", 64,
+                                      "--no-video", "--no-overview", "--no-progress", "-o",
+                                      work / f"rig_{length}"), work / f"rig_{length}.log")
+        if code != 0:
+            raise RuntimeError(f"bench scale: rig render over {length} m failed "
+                               f"(see {work / f'rig_{length}.log'})")
+        res[f"rig_{length}m_rss_mb"] = round(rss, 1)
+        res[f"rig_{length}m_s"] = round(wall, 1)
+    res["rss_ratio_2km_over_200m"] = round(res["rig_2000m_rss_mb"] / res["rig_200m_rss_mb"], 3)
+    log(f"streaming rig render: 200 m {res['rig_200m_rss_mb']:.0f} MB, 2 km "
+        f"{res['rig_2000m_rss_mb']:.0f} MB (ratio {res['rss_ratio_2km_over_200m']})")
+    return res
+
+
+def corridor_10km(work: Path, seed: int, log=print) -> dict:
+    lay = _layout(work / "c10k.usda", (10_000, 100), seed)
+    code, wall, rss = _child(_cli("generate", "--layout", lay, "-o", work / "c10k", "--steps", 0,
+                                  "--env-resolution", "256x128", "--no-actors", "--no-progress",
+                                  "--json", work / "c10k.json"), work / "c10k.log")
+    if code != 0:
+        raise RuntimeError(f"bench scale: the 10 km corridor failed (see {work / 'c10k.log'})")
+    s = json.loads((work / "c10k.json").read_text())
+    res = {"chunks": s["surfels"]["chunks"], "surfels": s["surfels"]["count"],
+           "total_s": round(wall, 1), "peak_rss_mb": round(rss, 1), "timings": s["timings"]}
+    log(f"10 km corridor, --steps 0: {res['chunks']} chunks, {res['surfels']:,} surfels, "
+        f"{res['total_s']:.0f} s, peak {res['peak_rss_mb']:.0f} MB")
+    return res
+
+
+def plot(rows: list, path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))
+    for shape, marker in (("corridor", "o"), ("grid", "s")):
+        r = sorted((x for x in rows if x["shape"] == shape and x["mode"] == "chunk"),
+                   key=lambda x: x["chunks"])
+        if not r:
+            continue
+        n = [x["chunks"] for x in r]
+        ax[0].plot(n, [x["total_s"] for x in r], marker + "-", label=f"{shape}: total")
+        ax[0].plot(n, [x["per_chunk_s"] for x in r], marker + "--", label=f"{shape}: per chunk")
+        ax[1].plot(n, [x["peak_rss_mb"] for x in r], marker + "-", label=f"{shape}: largest process")
+        ax[1].plot(n, [x["driver_rss_mb"] for x in r], marker + ":", label=f"{shape}: driver")
+    for a, t in zip(ax, ("time (s)", "peak memory (MB)")):
+        a.set_xlabel("chunks"); a.set_ylabel(t); a.set_xscale("log", base=2); a.legend(fontsize=7)
+    fig.suptitle("chunk-wise generate: time and memory against extent")
+    fig.tight_layout(); fig.savefig(path, dpi=100); plt.close(fig)
+
+
+def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_chunk=24,
+         work=None, png_path=None, log=print) -> dict:
+    workers = workers or os.cpu_count() or 1
+    with tempfile.TemporaryDirectory(prefix="lsd3d-bench-scale-") as tmp:
+        wdir = Path(work) if work else Path(tmp)
+        wdir.mkdir(parents=True, exist_ok=True)
+        rows = [run_config(shape, n, wdir, steps=steps, workers=workers, seed=seed,
+                           views_per_chunk=views_per_chunk, log=log)
+                for shape, n in CONFIGS + (FULL_CONFIGS if full else [])]
+        # the same 4-chunk grid as one region: the seam measure's content baseline
+        base = run_config("grid", 4, wdir, steps=steps, workers=workers, seed=seed,
+                          views_per_chunk=views_per_chunk, mode="scene", log=log)
+        result = {"configs": rows, "scene_region_grid4": base}
+        one = next(r for r in rows if r["chunks"] == 1)
+        big = max(rows, key=lambda r: r["chunks"])
+        result["summary"] = {
+            "largest_chunks": big["chunks"],
+            "density_ratio": round(big["surfels_per_m2"] / one["surfels_per_m2"], 4),
+            "per_chunk_time_ratio": round(big["per_chunk_s"] / one["per_chunk_s"], 3),
+            "peak_rss_ratio": round(big["peak_rss_mb"] / one["peak_rss_mb"], 3),
+            "max_peak_rss_mb": max(r["peak_rss_mb"] for r in rows),
+            "seam_psnr_drop_db": big["seam_psnr_drop_db"],
+            "seam_psnr_drop_scene_region_db": base["seam_psnr_drop_db"],
+            "border_coverage": big["border_coverage"]}
+        if full:
+            result["streaming"] = stream_test(wdir, seed, log=log)
+            result["corridor_10km_steps0"] = corridor_10km(wdir, seed, log=log)
+        png = png_path or (str(json_path).rsplit(".", 1)[0] + ".png" if json_path else
+                           "bench_scale.png")
+        plot(rows, png)
+        result["plot"] = str(png)
+    log(json.dumps(result["summary"], indent=1))
+    if json_path:
+        from lsd3d_usd.scene import atomic_write_text
+        atomic_write_text(json_path, json.dumps(result, indent=2))
+        log(f"wrote {json_path}")
+    return result

@@ -1,0 +1,156 @@
+"""Chunk-wise GGDS: regions and phases, conditioning on neighbours, resume with finished
+chunks untouched, a failing chunk named in one line with the scene left valid."""
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Sdf
+
+from conftest import ROOT
+from lsd3d_usd import scene as S
+from lsd3d_usd import validation
+from lsd3d_usd.config import generate_config
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.ggds.config import RegionConfig
+from lsd3d_usd.ggds.regions import Region, plan_regions, region_context
+from lsd3d_usd.pipeline import RunOptions, generate
+
+LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"   # 4 chunks: (-1|0, -1|0)
+CHUNKED = {"regions": {"mode": "chunk", "views_per_chunk": 3}, "held_out": 1}
+
+
+def gen(out, run=None, **kw):
+    base = dict(layout=LAYOUT, steps=3, surfels=3000, env_resolution=(64, 32),
+                resolution=(48, 32), perceptual=False, actors=False, ggds=CHUNKED)
+    base.update(kw)
+    return generate(generate_config(**base),
+                    RunOptions(out=Path(out), progress=False, log=lambda *a: None,
+                               **{"workers": 1, **(run or {})}))
+
+
+def test_small_scenes_are_one_region_and_phases_share_no_band():
+    keys = [(i, j) for i in range(3) for j in range(3)]
+    assert plan_regions(keys[:4], RegionConfig()) == [[Region(tuple(sorted(keys[:4])), "")]]
+    phases = plan_regions(keys, RegionConfig(mode="chunk"))
+    assert len(phases) == 4 and sorted(r.keys[0] for ph in phases for r in ph) == sorted(keys)
+    for ph in phases:   # no two regions of a phase touch (8-neighbourhood)
+        for a in ph:
+            for b in ph:
+                if a is not b:
+                    assert max(abs(a.keys[0][0] - b.keys[0][0]),
+                               abs(a.keys[0][1] - b.keys[0][1])) >= 2
+    corridor = plan_regions([(i, 0) for i in range(7)], RegionConfig())
+    assert len(corridor) == 2 and [len(p) for p in corridor] == [4, 3]
+    with pytest.raises(InputError, match="no surfel chunks"):
+        plan_regions([], RegionConfig())
+
+
+@pytest.fixture(scope="module")
+def chunked(tmp_path_factory):
+    out = tmp_path_factory.mktemp("regions") / "scene"
+    summary = gen(out)
+    return out, summary
+
+
+def test_chunk_mode_writes_every_chunk_and_a_valid_scene(chunked):
+    out, summary = chunked
+    g = summary["ggds"]
+    assert g["regions"] == 4 and g["complete"] and g["steps"] == 3
+    sc = S.Scene.open(out)
+    run = sc.runs()[0]
+    assert sorted(p.name for p in (out / "layers" / f"{run.name}_chunks").iterdir()) == \
+        ["chunk_0_0.usdc", "chunk_0_m1.usdc", "chunk_m1_0.usdc", "chunk_m1_m1.usdc"]
+    layer = Sdf.Layer.FindOrOpen(str(run.path))
+    assert len(layer.GetPrimAtPath(S.SURFELS_PATH).nameChildren) == 4
+    assert [p.line() for p in validation.validate(out) if p.severity == "error"] == []
+    per = json.loads((out / "ggds" / run.name / "summary.json").read_text())["per_region"]
+    assert set(per) == {"chunk_0_0", "chunk_0_m1", "chunk_m1_0", "chunk_m1_m1"}
+    assert all(r["complete"] and r["stepsDone"] == 3 for r in per.values())
+    plan = json.loads((out / "ggds" / run.name / "run.json").read_text())
+    assert plan["complete"] and len(plan["phases"]) == 4
+
+
+def test_neighbours_condition_a_region_within_the_band(chunked):
+    out, _ = chunked
+    sc = S.Scene.open(out)
+    region = Region(((0, 0),), "chunk_0_0")
+    ctx = region_context(sc, sc.runs()[0].name, region, set(), band_m=20.0, chunk_size=100.0)
+    p = ctx.positions
+    inside = (p[:, 0] >= 0) & (p[:, 0] < 100) & (p[:, 1] >= 0) & (p[:, 1] < 100)
+    assert ctx.n > 0 and not inside.any()
+    assert np.all((p[:, 0] >= -20) & (p[:, 1] >= -20) & (p[:, 0] <= 120) & (p[:, 1] <= 120))
+    # a finished neighbour conditions with its optimised surfels, not its initial ones
+    run = sc.runs()[0].name
+    done = region_context(sc, run, region, {(-1, 0), (0, -1), (-1, -1)}, 20.0, 100.0)
+    assert done.n == ctx.n and not np.array_equal(done.sh, ctx.sh)
+    assert region_context(sc, run, region, set(), 0.0, 100.0) is None
+
+
+def test_interrupted_run_resumes_with_finished_chunks_untouched(tmp_path, monkeypatch):
+    from lsd3d_usd.ggds import run as R
+    out = tmp_path / "scene"
+    real = R.GGDSRun.step
+    calls = {"n": 0}
+
+    def stop_in_third_region(self):
+        calls["n"] += 1
+        if calls["n"] == 8:          # regions 1-2 done (3 steps each), region 3 at step 2
+            raise KeyboardInterrupt
+        return real(self)
+    monkeypatch.setattr(R.GGDSRun, "step", stop_in_third_region)
+    with pytest.raises(KeyboardInterrupt):
+        gen(out, checkpoint_every=1)
+    monkeypatch.setattr(R.GGDSRun, "step", real)
+    sc = S.Scene.open(out)
+    run = sc.unfinished_runs()[0]
+    assert [p.line() for p in validation.validate(out) if p.severity == "error"] == []
+    folder = out / "layers" / f"{run}_chunks"
+    done = {f.name: f.stat().st_mtime_ns for f in folder.iterdir()}
+    assert len(done) == 3            # two finished regions + the interrupted one so far
+    progress = {d.name: json.loads((d / "progress.json").read_text())
+                for d in (out / "ggds" / run).iterdir() if (d / "progress.json").is_file()}
+    finished = [n for n, p in progress.items() if p["complete"]]
+    assert len(finished) == 2
+    summary = gen(out, run={"resume": True})
+    assert summary["ggds"]["complete"] and summary["ggds"]["regions"] == 4
+    for name in finished:
+        f = f"{name}.usdc"
+        assert (folder / f).stat().st_mtime_ns == done[f]      # finished chunks untouched
+    assert S.Scene.open(out).unfinished_runs() == []
+
+
+def test_failing_chunk_is_named_and_the_scene_stays_valid(chunked, tmp_path):
+    src, _ = chunked
+    out = tmp_path / "scene"
+    shutil.copytree(src, out)
+    from lsd3d_usd.splats import chunkio
+    bad = chunkio.chunk_folder(out / "layers" / "surfels.usdc") / "chunk_0_0.usdc"
+    bad.write_bytes(bad.read_bytes()[:100])
+    with pytest.raises(InputError, match=r"GGDS chunk chunk_0_0 failed: .*--resume"):
+        gen(out, run={"workers": 2})
+    # the corrupt file is reported (validate names it) and nothing else went wrong
+    lines = [p.line() for p in validation.validate(out) if p.severity == "error"]
+    assert lines and all("chunk_0_0" in ln or "crate file corrupt" in ln for ln in lines)
+
+
+def test_cameras_layer_holds_every_regions_training_views(chunked):
+    """Chunk mode: /World/Cameras/Train are the views each region trained on (views.json),
+    in region-name order, each naming its region."""
+    from lsd3d_usd.ggds.cameras import View
+    from lsd3d_usd.ggds.store import run_views
+    from lsd3d_usd.render.camera import from_usd
+    out, summary = chunked
+    sc = S.Scene.open(out)
+    trained = [View.from_json(d) for d in run_views(sc, sc.runs()[0].name)]
+    assert len(trained) == 4 * 3 and summary["cameras"]["train"] == 12
+    stage = sc.open_stage(load=False)
+    regions = []
+    for k, v in enumerate(trained):
+        prim = stage.GetPrimAtPath(f"/World/Cameras/Train/Train_{k:03d}")
+        cam = from_usd(prim, None, v.camera.width, v.camera.height, conform="stretch")
+        np.testing.assert_allclose(cam.pose, v.camera.pose, atol=1e-5)
+        regions.append(prim.GetAttribute("lsd3d:camera:region").Get())
+    assert regions == sorted(regions) and set(regions) == {"chunk_0_0", "chunk_0_m1", "chunk_m1_0",
+                                                          "chunk_m1_m1"}
