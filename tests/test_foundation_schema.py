@@ -117,8 +117,9 @@ def test_plain_usd_without_the_plugin_sees_particle_fields(tmp_path, field_facto
     usdio.write_surfels(st, scene.SURFELS_PATH, field_factory(50))
     sc.write_layer("surfels", st)
     usdio.write_surfel_file(str(tmp_path / "alone.usdc"), field_factory(40))
-    chunkio.write_chunk(tmp_path / "c.usdc", (0, 1), field_factory(30))
-    chunkio.write_root(tmp_path / "c.usdc", {(0, 1): chunkio.chunk_info((0, 1), field_factory(30))})
+    chunkio.write_chunk(tmp_path / "c_chunks", (0, 1), field_factory(30))
+    chunkio.write_root(tmp_path / "c.usdc", tmp_path / "c_chunks",
+                       {(0, 1): chunkio.chunk_info((0, 1), field_factory(30))})
     files = [(str(sc.root_layer_path), "/World/Surfels"), (str(tmp_path / "alone.usdc"), "/World/Surfels"),
              (str(tmp_path / "c.usdc"), "/World/Surfels/Chunk_0_1")]
 
