@@ -122,9 +122,9 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", route=None, t
                 raise InputError(f"{scene_path}: the layout has no drivable lanes to drive the rig "
                                  "along; give --trajectory poses.json")
             route = ",".join(ids)
-            notes.append(f"no --route given: driving the longest drivable successor path "
-                         f"({length:.0f} m; see `lsd3d-usd layout lanes`); reuse it with "
-                         f"--route {route}")
+            notes.append(f"no --route given: driving the longest drivable successor path, cut "
+                         f"where it covers the clip ({length:.0f} m; `lsd3d-usd layout lanes` "
+                         f"lists the lanes); reuse it with --route {route}")
         ids = [r.strip() for r in (route.split(",") if isinstance(route, str) else route) if r.strip()]
         track = track_from_route(layout, ids, times, speed, seed)
     else:
