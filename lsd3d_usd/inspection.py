@@ -199,9 +199,10 @@ def format_text(info: dict) -> str:
     size = info.get("size")
     if size and size["folders"]:
         out += ["", f"Disk use: {human_size(size['total_bytes'])}"]
-        for name, n in _folder_order(size["folders"]):
-            depth = name.rstrip("/").count("/")
-            out.append(f"  {'  ' * depth}{name:{28 - 2 * depth}s} {human_size(n):>9s}")
+        rows = [(f"{'  ' * name.rstrip('/').count('/')}{name}", n)
+                for name, n in _folder_order(size["folders"])]
+        width = max(len(label) for label, _ in rows)
+        out += [f"  {label:{width}s} {human_size(n):>9s}" for label, n in rows]
     out += ["", "Prims:"]
     for row in info["prims"]:
         extra = {k: v for k, v in row.items() if k not in ("path", "depth", "type", "children")}
