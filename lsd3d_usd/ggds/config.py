@@ -61,13 +61,22 @@ class RegionConfig:
     mode: str = option("auto", help="'scene' (one region), 'chunk' (one region per chunk, in "
                                     "parallel phases, each conditioned on its neighbours) or "
                                     "'auto' (scene when it spans at most max_scene_chunks "
-                                    "chunks)", choices=REGION_MODES, flag="--regions")
+                                    "chunks and holds at most max_scene_surfels surfels)",
+                       choices=REGION_MODES, flag="--regions")
     max_scene_chunks: int = option(4, help="auto: scenes spanning at most this many chunks "
-                                           "run as one region", lo=1, hi=10_000)
+                                           "may run as one region", lo=1, hi=10_000)
+    max_scene_surfels: int = option(1_000_000, help="auto: ... and holding at most this many "
+                                                   "surfels (one region's memory grows with "
+                                                   "its surfels: ~1 GB per million)",
+                                    lo=1, hi=100_000_000)
     views_per_chunk: int = option(128, help="training views of a one-chunk region", lo=1,
                                   hi=100_000)
     band_m: float = option(50.0, help="frozen neighbour surfels within this distance of a "
                                       "region condition it (metres)", lo=0.0, hi=1000.0)
+    view_margin_m: float = option(20.0, help="a region's training views stand on lanes inside "
+                                             "it or up to this far outside, so surfels at its "
+                                             "border are seen from both sides (metres)",
+                                  lo=0.0, hi=1000.0)
 
 
 @dataclass

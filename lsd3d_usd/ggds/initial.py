@@ -43,6 +43,26 @@ def colour_by_light(field: SurfelField, light, shadow) -> None:
     field.sh[:, 0, :] = rgb_to_sh_dc(rgb)
 
 
+def _owners(positions: np.ndarray, seed_key, chunk_size: float, tol: float = 1e-3) -> dict:
+    """{chunk: indices} of surfels seeded on chunk ``seed_key``'s proxy: the chunk holding each
+    centre, except that centres within ``tol`` of the seed chunk stay in it (a float32 centre
+    on the chunk's edge rounds across it; a true overhang is farther)."""
+    from lsd3d_usd.splats import chunkio
+    p = np.asarray(positions, np.float64)
+    lo = np.asarray(seed_key, np.float64) * chunk_size
+    near = np.all((p[:, :2] >= lo - tol) & (p[:, :2] <= lo + chunk_size + tol), axis=1)
+    out = {}
+    if near.any():
+        out[tuple(seed_key)] = np.flatnonzero(near)
+    far = np.flatnonzero(~near)
+    for target, idx in chunkio.split_by_chunk(p[far], chunk_size).items():
+        if target in out:
+            out[target] = np.sort(np.concatenate([out[target], far[idx]]))
+        else:
+            out[target] = far[idx]
+    return out
+
+
 class _ProxyCache:
     """Per-chunk proxy arrays, the last few kept (a chunk and its neighbours)."""
 
@@ -147,7 +167,7 @@ def write_initial_surfels(proxy_path, layout, light, out_root, *, count: int | N
                                           max_count=max_count)
             NV, NF = cache.neighbourhood(key)
             colour_by_light(field, light, shadow_map(NV, NF, light.sun_direction))
-            for target, idx in chunkio.split_by_chunk(field.positions, chunk_size).items():
+            for target, idx in _owners(field.positions, key, chunk_size).items():
                 src = np.tile(np.asarray(key, np.int32), (len(idx), 1))
                 pending.setdefault(target, []).append((field.subset(idx), src, face[idx]))
         done_sources.add(key)

@@ -55,14 +55,18 @@ def phases_from_plan(plan: dict) -> list[list[Region]]:
             for phase in plan["phases"]]
 
 
-def plan_regions(keys, cfg: RegionConfig) -> list[list[Region]]:
-    """Phases of regions over the scene's chunk keys (see module doc)."""
-    keys = sorted(tuple(int(v) for v in k) for k in keys)
+def plan_regions(chunks, cfg: RegionConfig) -> list[list[Region]]:
+    """Phases of regions over the scene's chunks ({key: info with "count"}, or keys; see the
+    module doc)."""
+    counts = chunks if isinstance(chunks, dict) else {k: {} for k in chunks}
+    keys = sorted(tuple(int(v) for v in k) for k in counts)
     if not keys:
         raise InputError("GGDS: the scene has no surfel chunks")
     mode = cfg.mode
     if mode == "auto":
-        mode = "scene" if len(keys) <= cfg.max_scene_chunks else "chunk"
+        total = sum(int((v or {}).get("count", 0)) for v in counts.values())
+        small = len(keys) <= cfg.max_scene_chunks and total <= cfg.max_scene_surfels
+        mode = "scene" if small else "chunk"
     if mode == "scene":
         return [[Region(tuple(keys), "")]]
     phases = {}
@@ -82,16 +86,22 @@ def region_seed(seed: int, region: Region) -> int:
 def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     """(training views, held-out views) GGDS samples for ``region`` of a run with config ``g``
     and scene seed ``seed``: ``g.views`` over the whole scene for a whole-scene region, else
-    ``views_per_chunk`` per chunk along the lane points inside the region (InputError when it
-    holds none). The scene's cameras layer (views.scene_cameras) authors the same views."""
+    ``views_per_chunk`` per chunk standing on lanes inside the region or up to
+    ``view_margin_m`` outside it (so border surfels are seen from both sides), held-out views
+    inside it (InputError when it holds no lane). The scene's cameras layer
+    (views.scene_cameras) authors the same views."""
     from lsd3d_usd.ggds.cameras import sample_views
     rseed = region_seed(seed, region)
     w, h = g.resolution
     whole = not region.name
     n_views = g.views if whole else g.regions.views_per_chunk * len(region.keys)
-    bounds = None if whole else region.bounds(float(layout.chunk_size))
+    bounds = around = None
+    if not whole:
+        bounds = region.bounds(float(layout.chunk_size))
+        m = g.regions.view_margin_m
+        around = (bounds[0] - m, bounds[1] - m, bounds[2] + m, bounds[3] + m)
     views = sample_views(layout, n_views, w, h, seed=rseed, novel_frac=g.novel_frac,
-                         fov_deg=g.fov_deg, region=bounds, clip=not whole)
+                         fov_deg=g.fov_deg, region=around, clip=not whole)
     held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
                         fov_deg=g.fov_deg, region=bounds, clip=not whole)
     return views, held
@@ -173,7 +183,7 @@ def region_context(sc: S.Scene, run: str, region: Region, finished: set, band_m:
 # ---------------------------------------------------------------------------- a region task
 def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                refresh: bool = True) -> dict:
-    """Optimise one region (plain-data ``job``, see :func:`region_job`). Returns its summary."""
+    """Optimise one region (``job``: the plain data run_regions builds). Returns its summary."""
     from lsd3d_usd.env.exr import write_env
     from lsd3d_usd.ggds.conditioning import shadow_map
     from lsd3d_usd.ggds.config import GGDSConfig
@@ -193,7 +203,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
     proxy, offsets = _proxy_neighbourhood(sc.layer_path("proxy"), region.neighbourhood())
     field, owners, face = region_surfels(sc, region, offsets)
     if field is None:
-        return {"region": region.name, "skipped": "no surfels", "complete": True}
+        return skip_region(sc, job["run"], region, "no surfels")
     g = replace(g, seed=region_seed(seed, region))
     whole = not region.name
     bounds = region.bounds(size)
@@ -203,7 +213,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
         if whole:
             raise
         log(f"ggds: {region.name}: no drivable lane inside: its initial surfels are kept")
-        return {"region": region.name, "skipped": "no lanes", "complete": True}
+        return skip_region(sc, job["run"], region, "no drivable lane inside")
     params = env_params(job["env"], seed)
     ew, eh = job["env"]["resolution"]
     light = scene_light(params, write_env(params, sc.textures_dir, int(ew), int(eh)))
@@ -228,6 +238,16 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                    context=int(context.n) if context is not None else 0,
                    wall_s=round(time.perf_counter() - t0, 2), views=len(views))
     return summary
+
+
+def skip_region(sc: S.Scene, run: str, region: Region, reason: str) -> dict:
+    """A region GGDS cannot optimise (no surfels, or no lane to place views on) keeps its
+    initial surfels; recorded as done so the run can complete."""
+    from lsd3d_usd.ggds.store import region_dir, write_json
+    progress = {"complete": True, "skipped": reason, "stepsDone": 0,
+                "keys": [list(k) for k in region.keys], "surfels": 0}
+    write_json(region_dir(sc, run, region.name) / "progress.json", progress)
+    return {"region": region.name, **progress}
 
 
 def run_region_task(payload: dict) -> dict:
@@ -307,7 +327,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
     write_plan(sc, run, plan)
     refresh_run_layer(sc, run)
     done = [p for p in regions_done.values() if p.get("complete")]
-    steps = [int(p.get("stepsDone", 0)) for p in regions_done.values()]
+    steps = [int(p.get("stepsDone", 0)) for p in regions_done.values() if not p.get("skipped")]
     seconds = sum(float(p.get("seconds", 0.0)) for p in regions_done.values())
     summary = {"run": run, "regions": len(plan["regions"]), "complete": complete,
                "steps": min(steps) if steps else 0, "seconds": round(seconds, 1),
@@ -321,7 +341,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
     else:
         rss = [v.get("peak_rss_mb") for v in summaries.values() if v.get("peak_rss_mb")]
         summary["worker_peak_rss_mb"] = max(rss) if rss else None
-    if len(plan["regions"]) > 1:
+    if any(plan["regions"]):   # chunk regions (a whole-scene region is the summary itself)
         summary["per_region"] = {
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
                                             "metrics")},

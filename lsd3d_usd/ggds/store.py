@@ -104,7 +104,7 @@ def refresh_run_layer(sc: S.Scene, run: str) -> Path:
             infos[key] = {"file": f.name}
     regions = {name: region_progress(sc, run, name) for name in plan["regions"]}
     done = [r for r in regions.values() if r.get("complete")]
-    steps = [int(r.get("stepsDone", 0)) for r in regions.values()]
+    steps = [int(r.get("stepsDone", 0)) for r in regions.values() if not r.get("skipped")]
     metrics = aggregate_metrics([r.get("metrics") or {} for r in done],
                                 [r.get("surfels", 0) for r in done])
     seconds = sum(float(r.get("seconds", 0.0)) for r in regions.values())
