@@ -21,6 +21,16 @@ __version__ = "0.1.0"
 SCHEMA_DIR = Path(__file__).resolve().parent / "schemas"
 SURFEL_TYPE = "Lsd3dSurfelField"
 SCENE_API = "Lsd3dSceneAPI"
+USDVIEW_PLUGIN_DIR = Path(__file__).resolve().parent / "usdview"
+
+# For USD readers without our plugin: the official APIs our schema auto-applies, authored
+# explicitly on every surfel prim, and the type they use instead of ours (a layer's
+# ``fallbackPrimTypes`` metadata, read from the root layer of the stage opened).
+SURFEL_API_SCHEMAS = (
+    "ParticleFieldPositionAttributeAPI", "ParticleFieldOrientationAttributeAPI",
+    "ParticleFieldScaleAttributeAPI", "ParticleFieldOpacityAttributeAPI",
+    "ParticleFieldSphericalHarmonicsAttributeAPI", "ParticleFieldKernelGaussianSurfletAPI")
+FALLBACK_PRIM_TYPES = {SURFEL_TYPE: ("ParticleField",)}
 
 
 def _register_schema() -> bool:

@@ -1,7 +1,9 @@
 """`lsd3d-usd` command line. Thin: parses, calls the library, prints.
 
 Each command lives in a module with ``register(subparsers)``, which adds its
-parser and sets ``func`` (taking the parsed args, returning an exit code).
+parser and sets ``func`` (taking the parsed args, returning an exit code), and
+``compiles_kernels=True`` when it runs numba kernels (the first run then says
+that it compiles them).
 Heavy imports (torch, numba, ...) stay inside the handlers so --help is fast.
 """
 from __future__ import annotations
@@ -57,6 +59,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     from lsd3d_usd.memtune import reuse_large_buffers
     reuse_large_buffers()  # per-frame render buffers reused, not page-faulted in again
+    notice = None
+    if getattr(args, "compiles_kernels", False):   # numba is imported by these anyway
+        from lsd3d_usd.diagnostics import KernelCompileNotice
+        notice = KernelCompileNotice(lambda m: print(f"lsd3d-usd: {m}", file=sys.stderr, flush=True))
     try:
         return int(args.func(args) or 0)
     except Lsd3dError as e:
@@ -67,6 +73,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("lsd3d-usd: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if notice is not None:
+            notice.close()
 
 
 def run() -> None:

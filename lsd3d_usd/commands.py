@@ -24,6 +24,23 @@ def _inspect(args) -> int:
     return 0
 
 
+def plugin_path(usdview: bool = False) -> str:
+    """The folder to put on PXR_PLUGINPATH_NAME for this install (the package's own folder:
+    site-packages for a wheel, the checkout for an editable install): the surfel schema's, or
+    the usdview plugin's (which includes the schema)."""
+    import lsd3d_usd
+    return str(lsd3d_usd.USDVIEW_PLUGIN_DIR if usdview else lsd3d_usd.SCHEMA_DIR)
+
+
+def _plugin_path(args) -> int:
+    path = plugin_path(args.usdview)
+    if args.export:
+        print(f'export PXR_PLUGINPATH_NAME="{path}${{PXR_PLUGINPATH_NAME:+:$PXR_PLUGINPATH_NAME}}"')
+    else:
+        print(path)
+    return 0
+
+
 def _scene(args) -> int:
     from lsd3d_usd.errors import InputError
     from lsd3d_usd.scene import Scene
@@ -55,22 +72,41 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Run usd-core's UsdValidation validators plus lsd3d checks: unknown prim types; "
                     "missing upAxis/metersPerUnit/defaultPrim; array lengths; finite values; opacity in "
                     "[0,1]; scales > 0; unit quaternions; SH degree vs coefficient count; extent covering "
-                    "the particles; unresolvable asset paths; bulk surfel data in .usda. Works on any USD "
+                    "the particles; BasisCurves that USD tools can draw (curveVertexCounts adding up to the "
+                    "points, enough vertices per curve for its type); unresolvable asset paths; bulk "
+                    "surfel data in .usda. Works on any USD "
                     "file. Exit 0 when valid, 1 with one line per problem.")
     p.add_argument("path", help="a USD file (.usda/.usdc/.usd) or a scene folder holding scene.usda")
     p.add_argument("--json", action="store_true", help="print a JSON report instead of text")
     p.set_defaults(func=_validate)
 
     p = sub.add_parser(
-        "inspect", help="show layer stack with provenance, prim tree with counts, surfel statistics",
+        "inspect", help="show layer stack with provenance and sizes, disk use, prim tree, surfel statistics",
         description="Summarise a USD file or scene: its layer stack (strongest first, with each layer's "
-                    "provenance), the prim tree with types and counts, and statistics per surfel prim. "
+                    "size, its per-chunk files included, and provenance), a scene folder's disk use "
+                    "per folder, the prim tree with types and counts, statistics per surfel prim, and "
+                    "how USD tools without our plugin read the surfels (`lsd3d-usd plugin-path`). "
                     "--flatten prints the composed stage as usda, like `usdcat --flatten`.")
     p.add_argument("path", help="a USD file or a scene folder holding scene.usda")
     p.add_argument("--flatten", action="store_true", help="print the flattened composed stage as usda")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.add_argument("--depth", type=int, default=4, help="prim tree depth to show (default 4)")
     p.set_defaults(func=_inspect)
+
+    p = sub.add_parser(
+        "plugin-path", help="print the PXR_PLUGINPATH_NAME that lets other USD tools read our schema",
+        description="Print the folder of this install's lsd3d surfel schema (plugInfo.json) to put on "
+                    "PXR_PLUGINPATH_NAME, so usdview, usdcat or any USD program that does not import "
+                    "lsd3d_usd knows the Lsd3dSurfelField type: "
+                    'export PXR_PLUGINPATH_NAME="$(lsd3d-usd plugin-path)", or eval "$(lsd3d-usd '
+                    'plugin-path --export)" to prepend it to the current value. Without it such tools '
+                    "still read our surfels as ParticleField prims with the official attribute APIs "
+                    "(the scene's fallbackPrimTypes metadata), only without our schema's extras.")
+    p.add_argument("--usdview", action="store_true",
+                   help="the usdview plugin's folder instead (the LSD3D menu; it includes the schema)")
+    p.add_argument("--export", action="store_true",
+                   help="print a shell line that prepends it to PXR_PLUGINPATH_NAME")
+    p.set_defaults(func=_plugin_path)
 
     p = sub.add_parser(
         "scene", help="list, mute, unmute or remove the layers of a scene",
@@ -187,4 +223,4 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
                       "weight of the perceptual loss (default: the prior's: 0 for the "
                       "procedural prior, whose targets are exact per pixel; 0.05 for a "
                       "diffusion prior)")
-    p.set_defaults(func=_generate)
+    p.set_defaults(func=_generate, compiles_kernels=True)

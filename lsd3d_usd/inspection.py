@@ -1,4 +1,5 @@
-"""`lsd3d-usd inspect`: layer stack with provenance, prim tree with counts, surfel statistics."""
+"""`lsd3d-usd inspect`: layer stack with provenance, prim tree with counts, surfel statistics,
+disk use (per layer, and per folder of a scene), and how other USD tools read our schema."""
 from __future__ import annotations
 
 import json
@@ -13,10 +14,59 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.splats.usdio import particle_bounds, read_surfels
 
 
+def human_size(n: int) -> str:
+    """Bytes as people read them: 512 B, 3.4 kB, 159.2 MB, 1.1 GB (powers of 1000)."""
+    for unit, scale in (("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if n >= scale:
+            return f"{n / scale:.1f} {unit}"
+    return f"{n} B"
+
+
+def _tree_bytes(path: Path) -> int:
+    """Bytes of the files under ``path`` (symbolic links not followed)."""
+    if path.is_file():
+        return path.stat().st_size
+    total = 0
+    for p in path.rglob("*"):
+        if p.is_file() and not p.is_symlink():
+            total += p.stat().st_size
+    return total
+
+
+def layer_bytes(path: Path) -> int:
+    """A layer file's bytes plus its per-chunk files (``<stem>_chunks/``, brought in by
+    payloads), which belong to it."""
+    chunks = path.with_name(f"{path.stem}_chunks")
+    return path.stat().st_size + (_tree_bytes(chunks) if chunks.is_dir() else 0)
+
+
+def disk_use(root_file: Path) -> dict:
+    """Disk use of a scene folder (``root_file`` its scene.usda): the total and every folder
+    (two levels: layers/proxy_chunks, ggds/<run>) and file at the top, largest first. For
+    another USD file: the file alone."""
+    root = root_file.parent
+    if root_file.name != scene.ROOT_FILE or not (root / scene.LAYERS_DIR).is_dir():
+        return {"total_bytes": root_file.stat().st_size, "folders": {}}
+    folders, total = {}, 0
+    for p in sorted(root.iterdir()):
+        if p.is_symlink():
+            continue
+        n = _tree_bytes(p)
+        total += n
+        folders[p.name + ("/" if p.is_dir() else "")] = n
+        if p.is_dir() and p.name in (scene.LAYERS_DIR, scene.RUNS_DIR):
+            for q in sorted(p.iterdir()):
+                if q.is_dir() and not q.is_symlink():
+                    folders[f"{p.name}/{q.name}/"] = _tree_bytes(q)
+    return {"total_bytes": total, "folders": folders}
+
+
 def _layer_summary(layer: Sdf.Layer, muted: bool = False) -> dict:
     prov = scene.read_provenance(layer)
+    path = Path(layer.realPath) if layer.realPath else None
     return {"identifier": layer.realPath or layer.identifier,
             "format": layer.GetFileFormat().formatId, "muted": muted,
+            "bytes": layer_bytes(path) if path and path.is_file() else None,
             "provenance": {k: (v if isinstance(v, (str, int, float, bool)) else str(v))
                            for k, v in prov.items()}}
 
@@ -105,6 +155,20 @@ def surfel_stats(prim: Usd.Prim) -> dict:
     return stats
 
 
+def schema_note(stage: Usd.Stage) -> dict | None:
+    """How a USD tool that does not import lsd3d_usd reads the stage's Lsd3dSurfelField
+    prims: the plugin path that registers the schema, and whether the root layer names a
+    fallback type for it. None when the stage has none of our prims."""
+    import lsd3d_usd
+    if not any(p.GetTypeName() == lsd3d_usd.SURFEL_TYPE for p in stage.Traverse()):
+        return None
+    root = stage.GetRootLayer()
+    info = root.pseudoRoot.GetInfo("fallbackPrimTypes") if root.pseudoRoot.HasInfo("fallbackPrimTypes") else {}
+    fallback = list(dict(info).get(lsd3d_usd.SURFEL_TYPE, []))
+    return {"type": lsd3d_usd.SURFEL_TYPE, "plugin_path": str(lsd3d_usd.SCHEMA_DIR),
+            "fallback": fallback}
+
+
 def inspect(path: str | Path, max_depth: int = 4) -> dict:
     with captured_stderr():
         stage = scene.open_stage(path)
@@ -112,8 +176,10 @@ def inspect(path: str | Path, max_depth: int = 4) -> dict:
                 "metersPerUnit": UsdGeom.GetStageMetersPerUnit(stage),
                 "defaultPrim": stage.GetRootLayer().defaultPrim or None}
         return {"path": str(path), "stage": meta, "layers": layer_stack(stage),
+                "size": disk_use(Path(stage.GetRootLayer().realPath)),
                 "prims": prim_tree(stage, max_depth),
-                "surfels": [surfel_stats(p) for p in stage.Traverse() if p.IsA(UsdVol.ParticleField)]}
+                "surfels": [surfel_stats(p) for p in stage.Traverse() if p.IsA(UsdVol.ParticleField)],
+                "schema": schema_note(stage)}
 
 
 def flatten(path: str | Path) -> str:
@@ -127,8 +193,16 @@ def format_text(info: dict) -> str:
     for layer in info["layers"]:
         prov = layer["provenance"]
         bits = [f"{k}={prov[k]}" for k in ("step", "created", "seed", "version") if k in prov]
-        out.append(f"  {'[muted] ' if layer['muted'] else ''}{layer['identifier']} ({layer['format']})"
+        size = f", {human_size(layer['bytes'])}" if layer.get("bytes") is not None else ""
+        out.append(f"  {'[muted] ' if layer['muted'] else ''}{layer['identifier']} ({layer['format']}{size})"
                    + (f"  {' '.join(bits)}" if bits else ""))
+    size = info.get("size")
+    if size and size["folders"]:
+        out += ["", f"Disk use: {human_size(size['total_bytes'])}"]
+        rows = [(f"{'  ' * name.rstrip('/').count('/')}{name}", n)
+                for name, n in _folder_order(size["folders"])]
+        width = max(len(label) for label, _ in rows)
+        out += [f"  {label:{width}s} {human_size(n):>9s}" for label, n in rows]
     out += ["", "Prims:"]
     for row in info["prims"]:
         extra = {k: v for k, v in row.items() if k not in ("path", "depth", "type", "children")}
@@ -146,7 +220,26 @@ def format_text(info: dict) -> str:
             for k in ("extent", "opacity", "scale_max", "scale_aspect", "color_dc_mean", "classes"):
                 if k in s:
                     out.append(f"    {k}: {s[k]}")
+    note = info.get("schema")
+    if note:
+        how = (f"read the surfel prims as {', '.join(note['fallback'])} with the official attribute "
+               "APIs (the root layer's fallbackPrimTypes)" if note["fallback"] else
+               "see the surfel prims as an unknown type (the root layer names no fallbackPrimTypes)")
+        out += ["", f"Schema: USD tools that do not import lsd3d_usd {how}; to give them "
+                    f"{note['type']}: export PXR_PLUGINPATH_NAME={note['plugin_path']} "
+                    "(`lsd3d-usd plugin-path`)"]
     return "\n".join(out)
+
+
+def _folder_order(folders: dict) -> list:
+    """Top-level entries largest first, each followed by its sub-folders largest first."""
+    tops = sorted((k for k in folders if not k.rstrip("/").count("/")), key=lambda k: -folders[k])
+    rows = []
+    for t in tops:
+        rows.append((t, folders[t]))
+        subs = [k for k in folders if k != t and k.startswith(t) and k.rstrip("/").count("/") == 1]
+        rows += sorted(((k, folders[k]) for k in subs), key=lambda kv: -kv[1])
+    return rows
 
 
 def format_json(info: dict) -> str:

@@ -1,4 +1,4 @@
-"""`generate`: layout → proxy → env → surfels → actors → GGDS, each step writing its own layer.
+"""`generate`: layout → proxy → env → surfels → actors → cameras → GGDS, each step writing its own layer.
 It composes the steps and nothing else: what a step computes lives in its package.
 
 Steps whose inputs did not change are reused (proxy chunks by content hash, the env EXR and
@@ -21,8 +21,9 @@ from lsd3d_usd import scene as S
 from lsd3d_usd.config import GenerateConfig
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.hashing import content_hash
+from lsd3d_usd.views.scene_cameras import write_scene_cameras
 
-SURFELS_VERSION = "surfels-v4"
+SURFELS_VERSION = "surfels-v5"   # v5: density from the drivable lanes only (model.DRIVABLE_TYPES)
 
 
 @dataclass
@@ -70,10 +71,12 @@ def read_layout_for(cfg: GenerateConfig):
         layout, source = read_layout(cfg.layout), Path(cfg.layout)
     else:
         layout, source = generator.generate(cfg.seed, cfg.extent, cfg.style), None
-    if not any(ln.lane_type in ("driving", "bus") for ln in layout.lanes):
+    if not layout.drivable_lanes():
+        from lsd3d_usd.layout.model import DRIVABLE_TYPES
         where = cfg.layout or "generated layout"
-        raise InputError(f"{where}: the layout has no driving lanes (GGDS places its cameras "
-                         "along lanes, and the proxy needs roads)")
+        raise InputError(f"{where}: the layout has no drivable lanes (of type "
+                         f"{', '.join(DRIVABLE_TYPES)}; GGDS places its cameras along them, and "
+                         "the proxy needs roads)")
     return layout, source
 
 
@@ -375,6 +378,7 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
         summary["actors"] = timed("actors_s", _actors_step, sc, p, run)
         run.log(f"actors: {summary['actors']['parked']} parked, "
                 f"{summary['actors']['moving']} moving")
+    summary["cameras"] = timed("cameras_s", write_scene_cameras, sc, p.layout, cfg, run.log)
     if cfg.ggds.steps > 0 or p.resume_run:
         summary["ggds"] = g = timed("ggds_s", _ggds_step, sc, p, run)
         if g.get("complete") and "psnr_novel" in g:

@@ -4,7 +4,8 @@ The one place that knows where things live in a scene folder::
 
     scene/
       scene.usda          root layer: metadata + subLayers (strongest first)
-      layers/ggds_<run>.usdc, surfels.usdc, actors.usda, env.usda, proxy.usdc, layout.usda
+      layers/ggds_<run>.usdc, surfels.usdc, cameras.usda, actors.usda, env.usda, proxy.usdc,
+              layout.usda
       textures/  assets/
       ggds/<run>/         a run's checkpoint (while unfinished), summary.json, plots
 
@@ -59,6 +60,7 @@ STEP_LAYERS: dict[str, str] = {
     "proxy": "proxy.usdc",
     "env": "env.usda",
     "actors": "actors.usda",
+    "cameras": "cameras.usda",
     "surfels": "surfels.usdc",
 }
 GGDS_PREFIX = "ggds_"
@@ -82,6 +84,17 @@ def parse_chunk_prim_name(name: str) -> tuple[int, int]:
         raise ValueError(f"not a chunk prim name: {name!r}")
     dec = lambda s: -int(s[1:]) if s.startswith("m") else int(s)  # noqa: E731
     return dec(m.group(1)), dec(m.group(2))
+
+
+def author_fallback_prim_types(layer: Sdf.Layer) -> None:
+    """Merge lsd3d_usd.FALLBACK_PRIM_TYPES into the layer's ``fallbackPrimTypes`` metadata, so
+    a USD reader without our plugin opening it as its root layer sees ParticleField prims."""
+    info = dict(layer.pseudoRoot.GetInfo("fallbackPrimTypes")) \
+        if layer.pseudoRoot.HasInfo("fallbackPrimTypes") else {}
+    want = {t: Vt.TokenArray(list(f)) for t, f in lsd3d_usd.FALLBACK_PRIM_TYPES.items()}
+    if any(list(info.get(t, ())) != list(v) for t, v in want.items()):
+        info.update(want)
+        layer.pseudoRoot.SetInfo("fallbackPrimTypes", info)
 
 
 def new_stage() -> Usd.Stage:
@@ -293,7 +306,7 @@ class RunFiles:
 
 def order_layers(files: Iterable[str]) -> list[str]:
     """Strongest first: GGDS runs (newest first: run names sort by time), then fixed steps
-    strong→weak (surfels, actors, env, proxy, layout), then anything else by name."""
+    strong→weak (surfels, cameras, actors, env, proxy, layout), then anything else by name."""
     files = set(files)
     runs = sorted((f for f in files if f.startswith(GGDS_PREFIX)), reverse=True)
     steps = [f for f in reversed(list(STEP_LAYERS.values())) if f in files]
@@ -374,6 +387,7 @@ class Scene:
                                   variability=Sdf.VariabilityUniform).Set(
                 [(x0, y0, z0), (x1, y1, z1)])
         stage.GetRootLayer().documentation = "lsd3d-usd scene: root layer (metadata + subLayers)"
+        author_fallback_prim_types(stage.GetRootLayer())
         if scene.root_layer_path.exists():  # exist_ok: keep the existing stack
             old = Sdf.Layer.FindOrOpen(str(scene.root_layer_path))
             stage.GetRootLayer().subLayerPaths = list(old.subLayerPaths)
@@ -387,6 +401,12 @@ class Scene:
 
     @classmethod
     def open(cls, root: str | os.PathLike) -> "Scene":
+        """The scene in folder ``root``, also given as its root layer (``root/scene.usda``)."""
+        p = Path(root)
+        if p.name == ROOT_FILE and p.is_file():
+            root = p.parent
+        elif p.is_file():
+            raise InputError(f"{p}: not an lsd3d-usd scene (give the scene folder or its {ROOT_FILE})")
         scene = cls(root)
         if not scene.root_layer_path.is_file():
             raise InputError(f"{scene.root}: not an lsd3d-usd scene folder (no {ROOT_FILE})")
@@ -432,6 +452,7 @@ class Scene:
 
     def _write_root(self, layer: Sdf.Layer, stack: Iterable[str], muted: Iterable[str]) -> None:
         layer.subLayerPaths = [self._rel(f) for f in order_layers(stack)]
+        author_fallback_prim_types(layer)   # scenes made before it was authored get it too
         data = dict(layer.customLayerData)
         lsd = dict(data.get("lsd3d", {}))
         muted = order_layers(muted)

@@ -298,6 +298,54 @@ def _check_mesh(prim: Usd.Prim) -> list[Problem]:
     return out
 
 
+def _curve_rule(kind: str, basis: str, wrap: str) -> tuple[int, int, int, str]:
+    """(minimum vertices, step, offset, wording) of one curve: a count is valid when it is
+    >= minimum and (count - offset) % step == 0 (UsdGeom.BasisCurves' segment rules)."""
+    if kind == "linear":
+        return (3, 1, 0, "at least 3") if wrap == "periodic" else (2, 1, 0, "at least 2")
+    if basis == "bezier":
+        return (3, 3, 0, "a multiple of 3") if wrap == "periodic" else (4, 3, 4, "4 + 3k")
+    if wrap == "pinned":
+        return 2, 1, 0, "at least 2"
+    return (3, 1, 0, "at least 3") if wrap == "periodic" else (4, 1, 0, "at least 4")
+
+
+def _check_curves(prim: Usd.Prim) -> list[Problem]:
+    """A BasisCurves prim that USD tools can draw: curveVertexCounts authored, adding up to
+    the points, each curve long enough for its type / basis / wrap (type defaults to cubic
+    bezier, which a two-point polyline is not)."""
+    path, out = str(prim.GetPath()), []
+    curves = UsdGeom.BasisCurves(prim)
+    pts = curves.GetPointsAttr().Get()
+    if pts is None or len(pts) == 0:
+        return out
+    n = len(pts)
+    counts = curves.GetCurveVertexCountsAttr().Get()
+    if counts is None or len(counts) == 0:
+        return [Problem("error", path, "curveVertexCounts",
+                        f"missing for {n} points, so USD tools draw no curve (author [{n}] for one "
+                        "curve through all points)", "lsd3d:BasisCurves")]
+    counts = np.asarray(counts, np.int64)
+    if counts.sum() != n or (counts < 1).any():
+        return [Problem("error", path, "curveVertexCounts",
+                        f"{counts.tolist()[:8]}{'...' if len(counts) > 8 else ''} do not add up to the "
+                        f"{n} points", "lsd3d:BasisCurves")]
+    kind = curves.GetTypeAttr().Get() or "cubic"
+    basis = curves.GetBasisAttr().Get() or "bezier"
+    wrap = curves.GetWrapAttr().Get() or "nonperiodic"
+    lo, step, offset, words = _curve_rule(str(kind), str(basis), str(wrap))
+    bad = np.flatnonzero((counts < lo) | ((counts - offset) % step != 0))
+    if len(bad):
+        authored = curves.GetTypeAttr().HasAuthoredValue()
+        what = f"type {kind}" + ("" if kind == "linear" else f", basis {basis}")
+        hint = "" if authored else " (type is not authored: USD's fallback is cubic bezier; " \
+                                   "author type = \"linear\" for polylines)"
+        out.append(Problem("error", path, "curveVertexCounts",
+                           f"curve {bad[0]} has {counts[bad[0]]} vertices; {what}, wrap {wrap} needs "
+                           f"{words}{hint}", "lsd3d:BasisCurves"))
+    return out
+
+
 def _check_assets(stage: Usd.Stage) -> list[Problem]:
     out = []
     for prim in stage.Traverse():
@@ -331,6 +379,8 @@ def validate(path: str | Path) -> list[Problem]:
                 problems += _check_particle_field(prim)
             elif prim.IsA(UsdGeom.Mesh):
                 problems += _check_mesh(prim)
+            elif prim.IsA(UsdGeom.BasisCurves):
+                problems += _check_curves(prim)
         problems += _check_assets(stage)
     # usd-core's MissingReference validator may also name a missing texture we report per attribute.
     ours = {Path(p.message.split("@")[1]).name for p in problems if p.check == "lsd3d:AssetPath"}

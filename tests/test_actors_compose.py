@@ -1,6 +1,8 @@
 """Actor assets and the actors layer: composition by reference, validation, time samples."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -160,3 +162,36 @@ def test_cli_actors_add(scene, library, capsys):
     assert "3 parked, 2 moving" in capsys.readouterr().out
     assert main(["actors", "add", str(scene.root), "--assets", str(scene.root / "nothing")]) == 1
     assert "nothing: no such folder" in capsys.readouterr().err
+
+
+def test_parked_shortfall_says_why(tmp_path, layout, library):
+    """A layout without any parking says so; one whose slots run out says how many there are."""
+    from lsd3d_usd.actors.placement import parking_slots
+    from lsd3d_usd.layout.usdio import layout_to_stage, read_layout
+    lib_dir = next(iter(library.values())).parent
+    crossing = read_layout(Path(__file__).resolve().parents[1] / "samples/layouts/hand_crossing.usda")
+    assert parking_slots(crossing) == []
+    sc = Scene.create(tmp_path / "a")
+    sc.write_layer("layout", layout_to_stage(crossing))
+    res = add_actors(sc, crossing, parked=12, moving=0, seed=0, assets_dir=lib_dir)
+    assert res.parked == [] and res.notes == [
+        "no parked actors: the layout has no parking (no free parking spot, no lane of type parking)"]
+    n_slots = len(parking_slots(layout))
+    assert n_slots > 0
+    sc = Scene.create(tmp_path / "b")
+    sc.write_layer("layout", layout_to_stage(layout))
+    res = add_actors(sc, layout, parked=n_slots + 5, moving=0, seed=0, assets_dir=lib_dir)
+    assert res.notes == [f"only {len(res.parked)} of {n_slots + 5} parked actors fit in the layout's "
+                         f"{n_slots} free parking slots"]
+
+
+def test_default_library_is_the_scenes_own(scene, layout):
+    """Without --assets the actors reference SCENE/assets (written there): the scene folder
+    is self-contained, whether or not it sits next to a source checkout."""
+    from lsd3d_usd.cli import main
+    assert main(["actors", "add", str(scene.root), "--parked", "2", "--moving", "1", "--seconds", "1"]) == 0
+    stage = scene.open_stage()
+    refs = [r.assetPath for p in stage.Traverse() if p.GetParent().GetName() in ("Parked", "Moving")
+            for r in p.GetPrimStack()[0].referenceList.prependedItems]
+    assert refs and all(r.startswith("../assets/") for r in refs)
+    assert all((scene.root / "layers" / r).resolve().is_file() for r in refs)

@@ -90,7 +90,7 @@ def test_route_validation_and_constant_speed(layout):
     route = [g.ids[i], g.ids[g.succ[i][0]]]
     pos, yaw = constant_speed_route(layout, route, 5.0, np.arange(0, 3, 0.5))
     assert np.allclose(np.linalg.norm(np.diff(pos[:, :2], axis=0), axis=1)[:2], 2.5, atol=0.05)
-    with pytest.raises(InputError, match="not a drivable lane"):
+    with pytest.raises(InputError, match="not a lane of the layout; drivable lanes nearby"):
         constant_speed_route(layout, ["no_such_lane"], 5.0, [0.0])
     bad = next(k for k in range(len(g.ids)) if k != i and k not in g.succ[i])
     with pytest.raises(InputError, match="does not follow"):

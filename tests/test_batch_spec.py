@@ -103,7 +103,7 @@ def test_layout_errors_found_at_planning_name_the_scene(tmp_path):
     p = write_spec(tmp_path, f'[[scene]]\nname = "a"\nlayout = "{LAYOUT}"\n'
                              f'[[scene]]\nname = "b"\nlayout = "{lay}"\n')
     spec = load_spec(p)
-    with pytest.raises(InputError, match=r"scene\[1\] \('b'\): .*nolanes.usda: the layout has no driving"):
+    with pytest.raises(InputError, match=r"scene\[1\] \('b'\): .*nolanes.usda: the layout has no drivable"):
         plan_batch(spec)
     assert not spec.output.exists()         # planning writes nothing
 

@@ -172,7 +172,8 @@ def test_bad_input_is_one_clear_error(tiny_scene, tmp_path, kind, match):
 def test_cli_eval_json(tiny_scene, tmp_path, capsys):
     from lsd3d_usd.cli import main
     js = tmp_path / "o.json"
-    code = main(["eval", str(tiny_scene), "--json", str(js), "--seen", "2", "--per-bin", "1",
+    code = main(["eval", str(tiny_scene / "scene.usda"), "--json", str(js),  # the root layer, as
+                                                                          # every command takes "--seen", "2", "--per-bin", "1",
                  "--bins", "2", "--resolution", "64x48", "--frames", "2", "-o", str(tmp_path / "r"),
                  "--no-progress"])
     assert code == 0

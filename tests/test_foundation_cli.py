@@ -48,7 +48,7 @@ def test_inspect_reports_stack_tree_and_stats(tmp_path, field_factory, run_cli):
     sc.write_layer("surfels", st, scene.provenance("surfels", seed=11))
     r = run_cli("inspect", sc.root)
     assert r.returncode == 0, r.stderr
-    assert "surfels.usdc (usdc)  step=surfels" in r.stdout
+    assert "surfels.usdc (usdc, " in r.stdout and "step=surfels" in r.stdout
     assert "Surfels [Lsd3dSurfelField] particles=300" in r.stdout
     assert "300 surfels, SH degree 1" in r.stdout
 
@@ -76,3 +76,42 @@ def test_scene_command_mutes_and_lists(tmp_path, run_cli):
     assert "ggds_20260101-000000" in r.stdout and "muted" in r.stdout
     r = run_cli("scene", "mute", sc.root, "nonexistent")
     assert r.returncode == 1 and "no layer 'nonexistent'" in r.stderr
+
+
+def test_inspect_reports_disk_use_and_the_plugin_path(tmp_path, field_factory, capsys):
+    """Sizes per layer (with its per-chunk files) and per folder, human-readable and in
+    --json; the schema note names `lsd3d-usd plugin-path`'s folder."""
+    import json
+
+    import lsd3d_usd
+    from lsd3d_usd import inspection
+    from lsd3d_usd.cli import main
+    sc = scene.Scene.create(tmp_path / "s")
+    st = scene.new_stage()
+    usdio.write_surfels(st, scene.SURFELS_PATH, field_factory(300))
+    surfels = sc.write_layer("surfels", st)
+    chunks = surfels.with_name("surfels_chunks")
+    chunks.mkdir()
+    (chunks / "chunk_0_0.usdc").write_bytes(b"x" * 2_500_000)
+    run = sc.root / "ggds" / "ggds_20260101-000000"
+    run.mkdir(parents=True)
+    (run / "summary.json").write_bytes(b"y" * 1234)
+    assert main(["inspect", str(sc.root), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    layer = next(x for x in info["layers"] if x["identifier"].endswith("surfels.usdc"))
+    assert layer["bytes"] == surfels.stat().st_size + 2_500_000
+    size = info["size"]
+    assert size["folders"]["layers/surfels_chunks/"] == 2_500_000
+    assert size["folders"]["ggds/ggds_20260101-000000/"] == 1234
+    files = [p for p in sc.root.rglob("*") if p.is_file()]
+    assert size["total_bytes"] == sum(p.stat().st_size for p in files)
+    assert size["total_bytes"] == sum(v for k, v in size["folders"].items() if k.rstrip("/").count("/") == 0)
+    assert info["schema"] == {"type": "Lsd3dSurfelField", "plugin_path": str(lsd3d_usd.SCHEMA_DIR),
+                              "fallback": ["ParticleField"]}
+    assert main(["inspect", str(sc.root)]) == 0
+    text = capsys.readouterr().out
+    assert f"Disk use: {inspection.human_size(size['total_bytes'])}" in text
+    assert "    layers/surfels_chunks/" in text and "2.5 MB" in text
+    assert f"PXR_PLUGINPATH_NAME={lsd3d_usd.SCHEMA_DIR} (`lsd3d-usd plugin-path`)" in text
+    assert [inspection.human_size(n) for n in (999, 1000, 159_234_567, 3_500_000_000)] == [
+        "999 B", "1.0 kB", "159.2 MB", "3.5 GB"]

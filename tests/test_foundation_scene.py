@@ -32,14 +32,14 @@ def test_chunk_names_round_trip():
 
 def test_stack_order_strongest_first(tmp_path):
     sc = Scene.create(tmp_path / "s", seed=5)
-    for name in ("surfels", "layout", "env", "proxy", "actors"):
+    for name in ("surfels", "layout", "env", "proxy", "actors", "cameras"):
         sc.write_layer(name, _layer_with(name))
     sc.write_layer("ggds_20260101-000000.usdc", _layer_with("g1"))
     sc.write_layer("ggds_20260102-000000.usdc", _layer_with("g2"))
     root = Sdf.Layer.FindOrOpen(str(sc.root_layer_path))
     assert [p.split("/")[-1] for p in root.subLayerPaths] == [
         "ggds_20260102-000000.usdc", "ggds_20260101-000000.usdc", "surfels.usdc",
-        "actors.usda", "env.usda", "proxy.usdc", "layout.usda"]
+        "cameras.usda", "actors.usda", "env.usda", "proxy.usdc", "layout.usda"]
     stage = sc.open_stage()
     assert stage.GetPrimAtPath("/World/g1") and stage.GetPrimAtPath("/World/layout")
     assert stage.GetPrimAtPath("/World").HasAPI("Lsd3dSceneAPI")
@@ -108,3 +108,12 @@ def test_layer_names_are_checked(tmp_path):
     with pytest.raises(InputError, match="unknown scene layer"):
         sc.layer_path("../../etc/passwd")
     assert sc.new_run_name().startswith("ggds_")
+
+
+def test_open_takes_the_folder_or_its_root_layer(tmp_path):
+    sc = Scene.create(tmp_path / "s")
+    assert Scene.open(tmp_path / "s" / "scene.usda").root == sc.root == Scene.open(tmp_path / "s").root
+    other = tmp_path / "s" / "layers" / "x.usda"
+    other.write_text("#usda 1.0\n")
+    with pytest.raises(InputError, match="not an lsd3d-usd scene .give the scene folder or its scene.usda"):
+        Scene.open(other)

@@ -194,3 +194,42 @@ def test_cli_exit_codes_and_json(tmp_path, field_factory, run_cli):
     r = run_cli("validate", bad, "--json")
     report = json.loads(r.stdout)
     assert r.returncode == 1 and report["valid"] is False and report["problems"][0]["prim"] == "/World/X"
+
+
+@pytest.mark.parametrize("counts,kind,basis,wrap,n,message", [
+    (None, "linear", None, None, 2, "missing for 2 points"),
+    ([2, 2], "linear", None, None, 5, "do not add up to the 5 points"),
+    ([2], None, None, None, 2, "type cubic, basis bezier, wrap nonperiodic needs 4 + 3k (type is not authored"),
+    ([5], "cubic", "bezier", None, 5, "needs 4 + 3k"),
+    ([2], "linear", None, "periodic", 2, "needs at least 3"),
+    ([3], "cubic", "bspline", None, 3, "needs at least 4"),
+    ([2], "linear", None, None, 2, None),
+    ([7, 4], "cubic", "bezier", None, 11, None),
+    ([6], "cubic", "bezier", "periodic", 6, None),
+    ([2], "cubic", "catmullRom", "pinned", 2, None),
+])
+def test_basis_curves_checks(tmp_path, counts, kind, basis, wrap, n, message):
+    st = scene.new_stage()
+    c = UsdGeom.BasisCurves.Define(st, "/World/C")
+    c.CreatePointsAttr([(float(i), 0.0, 0.0) for i in range(n)])
+    if counts is not None:
+        c.CreateCurveVertexCountsAttr(counts)
+    for attr, value in (("type", kind), ("basis", basis), ("wrap", wrap)):
+        if value is not None:
+            c.GetPrim().GetAttribute(attr).Set(value)
+    errs = [p for p in _errors(_problems(tmp_path, st)) if p.check == "lsd3d:BasisCurves"]
+    if message is None:
+        assert errs == []
+    else:
+        assert len(errs) == 1 and errs[0].attribute == "curveVertexCounts"
+        assert message in errs[0].message
+
+
+def test_sample_layouts_are_valid_basis_curves(tmp_path):
+    """Every curve of the sample layouts is one USD tools draw; inspect counts them."""
+    from conftest import ROOT
+    from lsd3d_usd import inspection
+    for f in sorted((ROOT / "samples" / "layouts").glob("*.usda")):
+        assert _errors(validation.validate(f)) == [], f
+        rows = [r for r in inspection.inspect(f, max_depth=10)["prims"] if r["type"] == "BasisCurves"]
+        assert rows and all(r["curves"] >= 1 for r in rows), f

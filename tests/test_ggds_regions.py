@@ -136,3 +136,24 @@ def test_failing_chunk_is_named_and_the_scene_stays_valid(chunked, tmp_path):
     # the corrupt file is reported (validate names it) and nothing else went wrong
     lines = [p.line() for p in validation.validate(out) if p.severity == "error"]
     assert lines and all("chunk_0_0" in ln or "crate file corrupt" in ln for ln in lines)
+
+
+def test_cameras_layer_holds_every_regions_training_views(chunked):
+    """Chunk mode: /World/Cameras/Train are the views each region trained on (views.json),
+    in region-name order, each naming its region."""
+    from lsd3d_usd.ggds.cameras import View
+    from lsd3d_usd.ggds.store import run_views
+    from lsd3d_usd.render.camera import from_usd
+    out, summary = chunked
+    sc = S.Scene.open(out)
+    trained = [View.from_json(d) for d in run_views(sc, sc.runs()[0].name)]
+    assert len(trained) == 4 * 3 and summary["cameras"]["train"] == 12
+    stage = sc.open_stage(load=False)
+    regions = []
+    for k, v in enumerate(trained):
+        prim = stage.GetPrimAtPath(f"/World/Cameras/Train/Train_{k:03d}")
+        cam = from_usd(prim, None, v.camera.width, v.camera.height, conform="stretch")
+        np.testing.assert_allclose(cam.pose, v.camera.pose, atol=1e-5)
+        regions.append(prim.GetAttribute("lsd3d:camera:region").Get())
+    assert regions == sorted(regions) and set(regions) == {"chunk_0_0", "chunk_0_m1", "chunk_m1_0",
+                                                          "chunk_m1_m1"}

@@ -40,7 +40,7 @@ def test_steps_zero_builds_a_valid_scene_and_reuses_it(tmp_path):
     summary = generate(opts(out))
     assert summary["surfels"]["count"] == 4000 and not summary["surfels"]["reused"]
     names = [i.name for i in S.Scene.open(out).layers()]
-    assert names == ["surfels", "actors", "env", "proxy", "layout"]
+    assert names == ["surfels", "cameras", "actors", "env", "proxy", "layout"]
     assert summary["actors"]["moving"] > 0
     # Actor assets are referenced from the scene's own assets/ folder, never copied elsewhere.
     assert sorted(p.name for p in (out / "assets").glob("*.usda")) == ["bus.usda", "car.usda",
@@ -71,7 +71,7 @@ def test_layout_without_lanes_is_refused(tmp_path):
     lay.write_text('#usda 1.0\n(\n defaultPrim = "World"\n metersPerUnit = 1\n upAxis = "Z"\n)\n'
                    'def Xform "World" {\n def Scope "Layout" {\n }\n}\n')
     out = tmp_path / "scene"
-    with pytest.raises(InputError, match="no driving lanes"):
+    with pytest.raises(InputError, match="no drivable lanes"):
         generate(opts(out, layout=lay))
     assert not out.exists()
 
@@ -143,3 +143,44 @@ def test_ggds_writes_overs_and_survives_interrupt(tmp_path, monkeypatch):
     assert (out / "layers" / "surfels.usdc").read_bytes() == surfels_before
     for f in ("loss.png", "before_after.png", "summary.json"):
         assert (out / "ggds" / runs[0].name / f).is_file()
+
+
+def test_generated_scene_has_cameras_to_look_through(tmp_path, capsys):
+    """layers/cameras.usda: the very views GGDS trained on (pose and intrinsics), held-out
+    views and overviews as UsdGeom.Camera prims; `render --camera` works on a fresh scene."""
+    from pxr import UsdGeom
+
+    from lsd3d_usd.cli import main
+    from lsd3d_usd.ggds.cameras import View
+    from lsd3d_usd.render.camera import from_usd
+    out = tmp_path / "scene"
+    summary = generate(opts(out, steps=2, **{"ggds.held_out": 2}))
+    assert summary["cameras"] == {"train": 4, "held_out": 2, "overview": 5, "reused": False}
+    stage = S.Scene.open(out).open_stage()
+    cams = sorted(str(p.GetPath()) for p in stage.Traverse() if p.IsA(UsdGeom.Camera))
+    assert cams == sorted([f"/World/Cameras/Train/Train_{k:03d}" for k in range(4)]
+                          + [f"/World/Cameras/HeldOut/HeldOut_{k:03d}" for k in range(2)]
+                          + [f"/World/Cameras/Overview/{n}" for n in
+                             ("Top", "SouthWest", "SouthEast", "NorthEast", "NorthWest")])
+    from lsd3d_usd.ggds.store import run_views
+    run = next(li for li in S.Scene.open(out).layers() if li.is_run)
+    trained = [View.from_json(d) for d in run_views(S.Scene.open(out), run.name)]
+    assert len(trained) == 4
+    for k, v in enumerate(trained):
+        prim = stage.GetPrimAtPath(f"/World/Cameras/Train/Train_{k:03d}")
+        cam = from_usd(prim, None, v.camera.width, v.camera.height, conform="stretch")
+        np.testing.assert_allclose(cam.pose, v.camera.pose, atol=1e-5)
+        np.testing.assert_allclose(cam.K, v.camera.K, rtol=1e-5)
+        assert prim.GetAttribute("lsd3d:camera:lane").Get() == v.lane_id
+    # unchanged settings: the layer is kept as it is
+    layer_bytes = (out / "layers" / "cameras.usda").read_bytes()
+    assert generate(opts(out, steps=0, **{"ggds.held_out": 2}))["cameras"]["reused"]
+    assert (out / "layers" / "cameras.usda").read_bytes() == layer_bytes
+    capsys.readouterr()
+    for cam in ("/World/Cameras/Train/Train_000", "/World/Cameras/Overview/Top"):
+        assert main(["render", str(out), "--camera", cam, "--resolution", "64",
+                     "-o", str(tmp_path / "frames"), "--no-progress"]) == 0
+    from lsd3d_usd.views.images import read_image
+    for name, h in (("Train_000", 48), ("Top", 36)):   # heights from each aperture's aspect
+        im = read_image(tmp_path / "frames" / f"{name}.png")
+        assert im.shape[:2] == (h, 64) and im[..., :3].std() > 0.02

@@ -15,6 +15,8 @@ from lsd3d_usd.render.camera import from_usd
 from lsd3d_usd.views import ego, frame, rig, rig_stage, rigs
 from lsd3d_usd.views.stage_data import ActorFrame, SceneReader
 
+SAMPLES = Path(__file__).resolve().parents[1] / "samples" / "layouts"
+
 
 def _box_surfels(lo, hi, count=8000, color=(0.6, 0.3, 0.2), seed=0):
     from lsd3d_usd.proxy.shapes import box
@@ -86,7 +88,7 @@ def rig_scene(tmp_path):
 
 def test_rig_stage_cameras_follow_ego(rig_scene, tmp_path):
     sc, _, traj = rig_scene
-    stage, paths, track, tcps, notes = rig_stage.build_rig_stage(sc.root, tmp_path / "out", trajectory=traj,
+    stage, paths, track, tcps, notes, _ = rig_stage.build_rig_stage(sc.root, tmp_path / "out", trajectory=traj,
                                                          fps=10.0, seconds=1.0)
     assert not notes and len(paths) == 6
     # the rig file references the scene, it does not copy it
@@ -156,7 +158,7 @@ def test_surfels_in_front_composite_over_actor():
 
 def test_rendering_is_stateless_and_writes_clips(rig_scene, tmp_path):
     sc, _, traj = rig_scene
-    stage, paths, track, tcps, _ = rig_stage.build_rig_stage(sc.root, tmp_path / "o", trajectory=traj,
+    stage, paths, track, tcps, *_ = rig_stage.build_rig_stage(sc.root, tmp_path / "o", trajectory=traj,
                                                      fps=10.0, seconds=1.0)
     reader = SceneReader(stage, use_env=False)
     assert len(reader.actors) == 3                 # parked, moving and the ego body
@@ -182,18 +184,59 @@ def test_rendering_is_stateless_and_writes_clips(rig_scene, tmp_path):
                        use_env=False, progress=False, log=lambda *_: None)
     assert set(res.frames) == {c.name for c in rigs.WAYMO5} | {"Overview"}
     assert all(len(v) == 2 and all(p.is_file() for p in v) for v in res.frames.values())
-    from lsd3d_usd.views.video import encoder_available
-    if encoder_available()[0]:
-        assert all(p.is_file() and p.stat().st_size > 0 for p in res.videos.values())
+    # an MP4 per camera (imageio-ffmpeg is a dependency): decoded, it has every frame at the
+    # PNGs' size (padded to even for yuv420p) and the rig's rate
+    from lsd3d_usd.views.images import read_image
+    from lsd3d_usd.views.video import read_mp4
+    assert set(res.videos) == set(res.frames)
+    for name, mp4 in res.videos.items():
+        decoded, fps = read_mp4(mp4)
+        png = read_image(res.frames[name][1])[..., :3] * 255.0
+        h, w = png.shape[:2]
+        assert decoded.shape == (2, h + h % 2, w + w % 2, 3) and fps == 2.0
+        assert np.abs(decoded[1, :h, :w].astype(np.float32) - png).mean() < 8.0  # lossy H.264
 
 
 def test_render_command_rig_errors(rig_scene, tmp_path, capsys):
     from lsd3d_usd.cli import main
     sc, _, traj = rig_scene
-    assert main(["render", str(sc.root), "-o", str(tmp_path / "x"), "--rig", "waymo5"]) == 1
-    assert "exactly one of --route" in capsys.readouterr().err
+    assert main(["render", str(sc.root), "-o", str(tmp_path / "x"), "--rig", "waymo5", "--route", "a",
+                 "--trajectory", str(traj)]) == 1
+    assert "not both" in capsys.readouterr().err
     assert main(["render", str(sc.root), "-o", str(tmp_path / "x"), "--rig", "waymo5", "--route", "a"]) == 1
     assert "needs the scene's layout" in capsys.readouterr().err
+    assert main(["render", str(sc.root), "-o", str(tmp_path / "x"), "--rig", "waymo5"]) == 1
+    assert "needs the scene's layout" in capsys.readouterr().err   # no layout: no default route
+
+
+def test_rig_default_route_is_printed_and_reusable(tmp_path, capsys):
+    """Without --route / --trajectory the rig drives the longest drivable successor path,
+    says which, and that --route gives the very same drive."""
+    import shutil
+
+    from lsd3d_usd.cli import main
+    from lsd3d_usd.scene import Scene
+    sc = Scene.create(tmp_path / "scene")
+    shutil.copy(SAMPLES / "hand_crossing.usda", sc.layer_path("layout"))
+    sc.add_layer("layout")
+    args = ["render", str(sc.root), "--rig", "waymo5", "--seconds", "0.3", "--fps", "10",
+            "--resolution", "16", "--no-video", "--no-overview", "--no-progress"]
+    assert main(args + ["-o", str(tmp_path / "a")]) == 0
+    out = capsys.readouterr().out
+    route = out.split("reuse it with --route ", 1)[1].split()[0]
+    lanes = route.split(",")
+    from lsd3d_usd.layout.usdio import read_layout
+    layout = read_layout(SAMPLES / "hand_crossing.usda")
+    assert all(b in layout.lane_by_id(a).successors for a, b in zip(lanes, lanes[1:]))
+    assert sum(layout.lane_by_id(x).length() for x in lanes) >= 0.3 * 13.9   # covers the clip
+    assert main(args + ["-o", str(tmp_path / "b"), "--route", route]) == 0
+    assert "no --route given" not in capsys.readouterr().out
+
+    def track(folder):
+        st = Usd.Stage.Open(str(folder / "rig.usda"))
+        op = UsdGeom.Xformable(st.GetPrimAtPath(rig_stage.EGO_PATH)).GetOrderedXformOps()[0]
+        return [tuple(op.Get(t)) for t in op.GetTimeSamples()]
+    assert track(tmp_path / "a") == track(tmp_path / "b") and len(track(tmp_path / "a")) == 3
 
 
 def test_camera_render_draws_actors_like_the_rig(rig_scene, tmp_path):

@@ -331,12 +331,6 @@ def read_asset(path) -> AssetInfo:
     return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels)
 
 
-def default_library_dir() -> Path | None:
-    """samples/assets of a source checkout, if present."""
-    p = Path(__file__).resolve().parents[2] / "samples" / "assets"
-    return p if p.is_dir() else None
-
-
 def library_assets(folder) -> dict[str, Path]:
     """kind -> asset file of a library folder (``<kind>.usd[a|c]``), validated."""
     folder = Path(folder)

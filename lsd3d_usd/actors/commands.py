@@ -49,8 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.add_argument("--fps", type=float, default=10.0,
                    help="traffic samples per second written as time samples (default 10)")
     a.add_argument("--assets", help="folder of asset files named <kind>.usda|usdc|usd (default: "
-                                    "samples/assets of the checkout, else the procedural library "
-                                    "written into SCENE/assets)")
+                                    "SCENE/assets, the procedural library written there where "
+                                    "missing)")
     a.set_defaults(func=_add)
     b = s.add_parser("assets", help="write the procedural vehicle library, or convert a splat .ply",
                      description="Write car/van/truck/bus asset files into OUTPUT (a folder), or with "

@@ -23,14 +23,12 @@ class ActorsResult:
 
 
 def resolve_library(scene, assets_dir=None) -> dict[str, Path]:
-    """kind -> asset file: ``assets_dir`` if given, else the repository's samples/assets,
-    else the procedural library written (not copied) into the scene's assets/ folder."""
+    """kind -> asset file: ``assets_dir`` if given, else the scene's own assets/ folder, the
+    procedural library written into it where missing (so the scene folder is
+    self-contained: it never references a source checkout)."""
     from lsd3d_usd.actors import assets as A
     if assets_dir is not None:
         return A.library_assets(assets_dir)
-    lib = A.default_library_dir()
-    if lib is not None and any(lib.glob("*.usd*")):
-        return A.library_assets(lib)
     folder = Path(scene.root) / "assets"
     missing = [k for k in A.LIBRARY_KINDS if not (folder / f"{k}.usda").is_file()]
     if missing:
@@ -47,7 +45,7 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
     Replaces any previous actors layer (a step owns its layer)."""
     from lsd3d_usd import scene as S
     from lsd3d_usd.actors import assets as A
-    from lsd3d_usd.actors.placement import KIND_WEIGHTS, parked_placements
+    from lsd3d_usd.actors.placement import KIND_WEIGHTS, parked_placements, parking_slots
     from lsd3d_usd.actors.traffic import simulate
     from lsd3d_usd.actors.usdio import (ActorSpec, actors_layer, extend_root_time_range,
                                         scene_time_codes_per_second)
@@ -69,7 +67,11 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
 
     places = parked_placements(layout, parked, seed, dims, weights)
     if len(places) < parked:
-        notes.append(f"only {len(places)} of {parked} parked actors fit (free parking slots ran out)")
+        n_slots = len(parking_slots(layout))
+        notes.append(f"no parked actors: the layout has no parking (no free parking spot, no lane "
+                     "of type parking)" if n_slots == 0 else
+                     f"only {len(places)} of {parked} parked actors fit in the layout's {n_slots} "
+                     "free parking slots")
     moving_kinds = [wk[int(rng.choice(len(wk), p=wp))] for _ in range(moving)]
     run = None
     if moving:

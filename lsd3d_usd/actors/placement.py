@@ -34,7 +34,7 @@ def footprint(center, yaw: float, length: float, width: float, pad: float = 0.0)
     return Polygon([p - u - v, p + u - v, p + u + v, p - u + v])
 
 
-def _slots(layout, pitch: float = 6.0):
+def parking_slots(layout, pitch: float = 6.0):
     """(id, centre, heading, max length, max width) of every candidate slot."""
     out = []
     for sp in layout.parking_spots:
@@ -64,7 +64,7 @@ def parked_placements(layout, n: int, seed: int, dims: dict, weights: dict | Non
     taken: list[Polygon] = [footprint(sp.center, sp.heading, min(sp.length, 5.0), min(sp.width, 2.0))
                             for sp in layout.parking_spots if sp.occupied]
     taken += list(avoid or [])
-    slots = _slots(layout)
+    slots = parking_slots(layout)
     order = rng.permutation(len(slots))
     out: list[Placement] = []
     tree = STRtree(taken) if taken else None

@@ -28,8 +28,6 @@ import numpy as np
 
 from lsd3d_usd.errors import InputError
 
-DRIVABLE = ("driving", "bus", "entry", "exit")
-
 
 @dataclass(frozen=True)
 class IDMParams:
@@ -100,11 +98,9 @@ class LaneGraph:
     """Drivable lanes of a layout with successor indices and junction conflict sets."""
 
     def __init__(self, layout, params: IDMParams = IDMParams()):
-        lanes = [ln for ln in layout.lanes if ln.lane_type in DRIVABLE and ln.speed_limit_mps > 0]
+        self.layout = layout
+        lanes = layout.drivable_lanes()
         self.geoms = [LaneGeom(ln) for ln in lanes]
-        keep = [i for i, g in enumerate(self.geoms) if g.length > 1e-6]
-        self.geoms = [self.geoms[i] for i in keep]
-        lanes = [lanes[i] for i in keep]
         self.ids = [g.id for g in self.geoms]
         self.index = {lid: i for i, lid in enumerate(self.ids)}
         self.succ = [[self.index[s] for s in ln.successors if s in self.index] for ln in lanes]
@@ -143,7 +139,8 @@ class LaneGraph:
         idx = []
         for k, lid in enumerate(lane_ids):
             if lid not in self.index:
-                raise InputError(f"route: lane {lid!r} is not a drivable lane of the layout")
+                from lsd3d_usd.layout.lanes import route_hint
+                raise InputError(f"route: {route_hint(self.layout, lid)}")
             i = self.index[lid]
             if idx and i not in self.succ[idx[-1]]:
                 raise InputError(f"route: lane {lid!r} does not follow lane {lane_ids[k - 1]!r} "

@@ -67,4 +67,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--dry-run", action="store_true",
                    help="check the spec and list the tasks with their input hashes; run nothing")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.set_defaults(func=_batch)
+    p.set_defaults(func=_batch, compiles_kernels=True)

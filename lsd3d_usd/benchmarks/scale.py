@@ -137,7 +137,7 @@ def _get(d, *keys):
 
 def _trajectory(layout, length_m: float, path: Path, speed: float = 10.0) -> Path:
     """Poses along the lane that runs farthest in x, at constant speed."""
-    best = max((ln for ln in layout.lanes if ln.lane_type == "driving"),
+    best = max(layout.drivable_lanes(),
                key=lambda ln: np.ptp(ln.points[:, 0]))
     y = float(np.median(best.points[:, 1]))
     x0 = float(best.points[:, 0].min()) + 5.0

@@ -90,4 +90,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--replace", action="store_true",
                    help="rewrite the --usd layer instead of adding a variant to it")
     p.add_argument("--force", action="store_true", help="re-render even if the EXR is up to date")
-    p.set_defaults(func=_env)
+    p.set_defaults(func=_env, compiles_kernels=True)

@@ -91,7 +91,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "and frame-to-frame warp error along a lane. Writes SCENE/eval/report.html with "
                     "PNGs and eval.json. Inception FID, FD-DINOv2, CLIP score and FVD need local weight"
                     " files (--weights) and are otherwise reported as unavailable. See docs/eval.md.")
-    p.add_argument("scene", help="scene folder (holding scene.usda)")
+    p.add_argument("scene", help="scene folder, or its root layer scene.usda")
     p.add_argument("--json", metavar="FILE", help="also write the metrics JSON here "
                                                    "(always written to SCENE/eval/eval.json)")
     p.add_argument("--reference", metavar="DIR",
@@ -120,4 +120,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--out", metavar="DIR", help="report folder (default SCENE/eval)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_deferred_arguments(p, "the seen, novel and trajectory views (figures beside the raw ones)")
-    p.set_defaults(func=_eval)
+    p.set_defaults(func=_eval, compiles_kernels=True)

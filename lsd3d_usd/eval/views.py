@@ -214,8 +214,7 @@ def lane_trajectory(layout, n_frames: int, step_m: float, width: int, height: in
     """Cameras driving along the longest drivable lane (its direction of travel), `step_m`
     apart, at eye height, heading along the lane tangent smoothed over ±look_ahead_m: a
     smooth path with known poses. Centred on the lane's middle when the lane is longer."""
-    from lsd3d_usd.ggds.cameras import DRIVABLE
-    lanes = [ln for ln in layout.lanes if ln.lane_type in DRIVABLE and len(ln.points) >= 2]
+    lanes = layout.drivable_lanes()
     if not lanes:
         raise InputError("layout has no drivable lanes: the temporal check drives along one")
     lane = max(lanes, key=lambda ln: ln.length())

@@ -10,8 +10,6 @@ import numpy as np
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import Camera, look_at
 
-DRIVABLE = ("driving", "bus", "bike", "parking")
-
 
 @dataclass
 class View:
@@ -34,7 +32,7 @@ class View:
 
 
 def _lanes(layout, region=None):
-    lanes = [ln for ln in layout.lanes if ln.lane_type in DRIVABLE and len(ln.points) >= 2]
+    lanes = layout.drivable_lanes()
     if region is not None:
         x0, y0, x1, y1 = region
         lanes = [ln for ln in lanes if np.any((ln.points[:, 0] >= x0) & (ln.points[:, 0] <= x1)
@@ -125,3 +123,4 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
         cam = Camera.from_fov(width, height, fov_deg, pose=look_at(eye, target), near=0.1, far=far)
         views.append(View(cam, kind_novel if novel else kind_lane, lane.id, float(offset)))
     return views
+

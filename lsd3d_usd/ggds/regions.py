@@ -83,6 +83,30 @@ def region_seed(seed: int, region: Region) -> int:
     return int(ss.generate_state(1)[0] % (2**31))
 
 
+def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
+    """(training views, held-out views) GGDS samples for ``region`` of a run with config ``g``
+    and scene seed ``seed``: ``g.views`` over the whole scene for a whole-scene region, else
+    ``views_per_chunk`` per chunk standing on lanes inside the region or up to
+    ``view_margin_m`` outside it (so border surfels are seen from both sides), held-out views
+    inside it (InputError when it holds no lane). The scene's cameras layer
+    (views.scene_cameras) authors the same views."""
+    from lsd3d_usd.ggds.cameras import sample_views
+    rseed = region_seed(seed, region)
+    w, h = g.resolution
+    whole = not region.name
+    n_views = g.views if whole else g.regions.views_per_chunk * len(region.keys)
+    bounds = around = None
+    if not whole:
+        bounds = region.bounds(float(layout.chunk_size))
+        m = g.regions.view_margin_m
+        around = (bounds[0] - m, bounds[1] - m, bounds[2] + m, bounds[3] + m)
+    views = sample_views(layout, n_views, w, h, seed=rseed, novel_frac=g.novel_frac,
+                         fov_deg=g.fov_deg, region=around, clip=not whole)
+    held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
+                        fov_deg=g.fov_deg, region=bounds, clip=not whole)
+    return views, held
+
+
 # ---------------------------------------------------------------------------- inputs
 def _proxy_neighbourhood(proxy_path, keys):
     """Proxy arrays of ``keys`` (those that exist) concatenated, and each chunk's face offset."""
@@ -161,7 +185,6 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                refresh: bool = True) -> dict:
     """Optimise one region (``job``: the plain data run_regions builds). Returns its summary."""
     from lsd3d_usd.env.exr import write_env
-    from lsd3d_usd.ggds.cameras import sample_views
     from lsd3d_usd.ggds.conditioning import shadow_map
     from lsd3d_usd.ggds.config import GGDSConfig
     from lsd3d_usd.ggds.envbridge import env_params, scene_light
@@ -181,19 +204,11 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
     field, owners, face = region_surfels(sc, region, offsets)
     if field is None:
         return skip_region(sc, job["run"], region, "no surfels")
-    rseed = region_seed(seed, region)
-    g = replace(g, seed=rseed)
-    w, h = g.resolution
+    g = replace(g, seed=region_seed(seed, region))
     whole = not region.name
-    n_views = g.views if whole else rcfg.views_per_chunk * len(region.keys)
     bounds = region.bounds(size)
-    m = rcfg.view_margin_m
-    around = (bounds[0] - m, bounds[1] - m, bounds[2] + m, bounds[3] + m)
     try:
-        views = sample_views(layout, n_views, w, h, seed=rseed, novel_frac=g.novel_frac,
-                             fov_deg=g.fov_deg, region=None if whole else around, clip=not whole)
-        held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
-                            fov_deg=g.fov_deg, region=None if whole else bounds, clip=not whole)
+        views, held = region_views(layout, g, seed, region)
     except InputError:
         if whole:
             raise

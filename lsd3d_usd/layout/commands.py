@@ -71,6 +71,17 @@ def register(subparsers) -> None:
     s.add_argument("input", help="layout layer or scene")
     s.set_defaults(func=_info)
 
+    ln = sub.add_parser(
+        "lanes", help="list the drivable lanes (ids, lengths, successors) and draw them",
+        description="List the lanes a car drives (types driving, bus, entry, exit) with length, "
+                    "speed limit and drivable successors, and the longest route along them "
+                    "(a ready `--route` for `render --rig`). --png draws a top view with the "
+                    "lane ids.")
+    ln.add_argument("input", help="layout layer or scene")
+    ln.add_argument("--png", help="also write a top view with lane ids to this PNG file")
+    ln.add_argument("--json", action="store_true", help="print JSON instead of text")
+    ln.set_defaults(func=_lanes)
+
 
 def _tqdm(total, desc):
     from tqdm import tqdm
@@ -180,7 +191,34 @@ def _info(args) -> int:
     return 0
 
 
+def _lanes(args) -> int:
+    import json
+
+    from lsd3d_usd.cliutil import check_output_path
+    from lsd3d_usd.layout import lanes, usdio
+    if args.png:
+        check_output_path(args.png, "--png", suffixes=(".png",), what="PNG file")
+    layout = usdio.read_layout(args.input)
+    rows = lanes.lane_graph(layout)
+    route = lanes.longest_route(layout)
+    if args.png:
+        lanes.draw_lanes(layout, args.png, title=f"{args.input}: drivable lanes")
+    if args.json:
+        print(json.dumps({"path": str(args.input), "lanes": [r.to_json() for r in rows],
+                          "longest_route": {"lanes": route[0], "length_m": round(route[1], 2)},
+                          "png": args.png}, indent=2))
+    else:
+        print(lanes.format_lanes(rows, route, args.input))
+        if args.png:
+            print(f"top view: {args.png}")
+    return 0
+
+
 def _print_summary(layout, path) -> None:
+    from lsd3d_usd.layout.lanes import lane_graph
     (x0, y0), (x1, y1) = layout.bounds()
     counts = ", ".join(f"{v} {k}" for k, v in layout.counts().items() if v)
-    print(f"{path}: {counts or 'no features'}; bounds ({x0:.1f}, {y0:.1f})-({x1:.1f}, {y1:.1f}) m")
+    graph = lane_graph(layout)
+    print(f"{path}: {counts or 'no features'}; bounds ({x0:.1f}, {y0:.1f})-({x1:.1f}, {y1:.1f}) m; "
+          f"lane graph: {len(graph)} drivable lanes, {sum(len(r.successors) for r in graph)} "
+          "successor links (`layout lanes` lists them)")

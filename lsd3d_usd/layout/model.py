@@ -38,6 +38,10 @@ DEFAULT_CHUNK_SIZE = 100.0        # m, the paper's chunk size
 
 LANE_TYPES = ("driving", "bike", "bus", "parking", "shoulder", "sidewalk",
               "border", "median", "restricted", "entry", "exit", "other")
+# The lane types a car drives along: general traffic, bus lanes, motorway entry and exit
+# ramps. Not bike lanes, parking lanes (cars stand there), shoulders or anything else. The
+# one definition of "drivable": traffic, ego routes, GGDS cameras and surfel density use it.
+DRIVABLE_TYPES = ("driving", "bus", "entry", "exit")
 LANE_DIRECTIONS = ("forward", "backward", "both")
 ROAD_LINE_KINDS = ("solid", "broken")
 ROAD_LINE_COLORS = ("white", "yellow")
@@ -465,6 +469,12 @@ class Layout:
 
     def predecessors_of(self, lane_id: str) -> list[LaneCenter]:
         return [self.lane_by_id(p) for p in self.lane_by_id(lane_id).predecessors]
+
+    def drivable_lanes(self) -> list[LaneCenter]:
+        """The lanes a car drives along: a DRIVABLE_TYPES type, a speed limit above 0 and a
+        centre line of positive length, in layout order."""
+        return [ln for ln in self.lanes if ln.lane_type in DRIVABLE_TYPES
+                and ln.speed_limit_mps > 0 and ln.length() > 1e-6]
 
     # -- geometry
     def bounds(self) -> Box:

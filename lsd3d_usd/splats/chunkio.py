@@ -35,10 +35,6 @@ from lsd3d_usd.splats.field import SurfelField
 
 SEED_CHUNK_ATTR = "lsd3d:seedChunk"
 SEED_FACE_ATTR = "lsd3d:seedFace"
-SURFEL_API_SCHEMAS = (    # explicit, so readers without our plugin still see a 2DGS field
-    "ParticleFieldPositionAttributeAPI", "ParticleFieldOrientationAttributeAPI",
-    "ParticleFieldScaleAttributeAPI", "ParticleFieldOpacityAttributeAPI",
-    "ParticleFieldSphericalHarmonicsAttributeAPI", "ParticleFieldKernelGaussianSurfletAPI")
 
 
 def chunk_keys(positions: np.ndarray, chunk_size: float) -> np.ndarray:
@@ -104,8 +100,7 @@ def write_chunk(folder, key, field: SurfelField, provenance: dict | None = None,
     from lsd3d_usd.splats.usdio import write_surfels
     name = chunk_prim_name(*key)
     stage = _stage()
-    prim = write_surfels(stage, f"/{name}", field)
-    prim.SetMetadata("apiSchemas", Sdf.TokenListOp.Create(prependedItems=list(SURFEL_API_SCHEMAS)))
+    prim = write_surfels(stage, f"/{name}", field)   # + the official APIs and type fallback
     if seed_faces is not None:
         chunks, faces = (np.ascontiguousarray(a, np.int32) for a in seed_faces)
         if chunks.shape != (field.n, 2) or faces.shape != (field.n,):
@@ -140,6 +135,8 @@ def _root(chunks: Iterable, folder_rel: str, *, define: bool):
     layer = Sdf.Layer.CreateAnonymous(".usdc")
     spec_kind = Sdf.SpecifierDef if define else Sdf.SpecifierOver
     if define:
+        from lsd3d_usd.scene import author_fallback_prim_types
+        author_fallback_prim_types(layer)   # its chunk prims are ours, typed by this layer
         layer.defaultPrim = WORLD.strip("/")
         layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.z)
         layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)

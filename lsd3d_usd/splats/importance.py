@@ -6,15 +6,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-DRIVABLE = ("driving", "bus", "bike", "parking")
-
 
 def lane_samples(layout, spacing: float = 2.0) -> np.ndarray:
     """Points every `spacing` metres along the drivable lane centrelines (M,2)."""
     pts = []
-    for ln in layout.lanes:
-        if ln.lane_type not in DRIVABLE or len(ln.points) < 2:
-            continue
+    for ln in layout.drivable_lanes():
         p = ln.points[:, :2]
         seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
         s = np.concatenate([[0.0], np.cumsum(seg)])

@@ -10,6 +10,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt
 
 import lsd3d_usd
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import author_fallback_prim_types
 from lsd3d_usd.splats.field import SurfelField, flatten_3d_gaussians, sh_coeff_count, sh_degree_for
 
 SH_DEGREE_ATTR = "radiance:sphericalHarmonicsDegree"
@@ -86,8 +87,14 @@ def write_surfels(stage: Usd.Stage, path: str, field: SurfelField, *, over: bool
     if unknown:
         raise ValueError(f"unknown surfel attributes {sorted(unknown)}; known: {FIELD_ATTRS}")
     prim = stage.OverridePrim(path) if over else stage.DefinePrim(path, lsd3d_usd.SURFEL_TYPE)
-    if not over and prim.GetTypeName() != lsd3d_usd.SURFEL_TYPE:
-        raise InputError(f"{path}: exists with type {prim.GetTypeName()!r}, not {lsd3d_usd.SURFEL_TYPE}")
+    if not over:
+        if prim.GetTypeName() != lsd3d_usd.SURFEL_TYPE:
+            raise InputError(f"{path}: exists with type {prim.GetTypeName()!r}, not {lsd3d_usd.SURFEL_TYPE}")
+        # readers without our plugin: the official APIs explicitly, and ParticleField as the
+        # fallback type in the layer (read when it is the root layer of the stage opened)
+        prim.SetMetadata("apiSchemas", Sdf.TokenListOp.Create(
+            prependedItems=list(lsd3d_usd.SURFEL_API_SCHEMAS)))
+        author_fallback_prim_types(stage.GetEditTarget().GetLayer())
     T = Sdf.ValueTypeNames
 
     def put(name, type_name, value, uniform=False):

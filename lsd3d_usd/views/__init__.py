@@ -11,6 +11,7 @@ along a route, video clips, and the `render` command.
     rig          `render --rig`: every camera of a rig at every frame, MP4 per camera
     video        MP4 writing
     deferred     deferred rendering: frames through the scene's image prior (render/eval --deferred)
+    scene_cameras  the scene's cameras layer (GGDS views and overviews under /World/Cameras)
     commands     the `render` CLI
 
 Layering: above actors and ggds, below pipeline; render/ is only the rasteriser.

@@ -122,7 +122,8 @@ def _render(args) -> int:
                   f"{d.get('s_per_frame', 0):.2f} s/frame")
         return 0
     if not args.camera:
-        raise InputError("render: give --camera PRIM_PATH (or --rig with --route/--trajectory)")
+        raise InputError("render: give --camera PRIM_PATH, or --rig (driving --route, --trajectory "
+                         "or by default the longest drivable route)")
     from lsd3d_usd.views.preview import render_preview
     from lsd3d_usd.views.stage_data import camera_prim
     if args.deferred:   # a wrong camera fails before the prior is loaded
@@ -174,7 +175,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "--trajectory: every camera's frames under OUT/<camera>/, an MP4 per camera, a "
                    "third-person Overview, and OUT/rig.usda (the scene + the animated rig)")
     g.add_argument("--route", help="comma-separated lane ids the ego drives, each a successor of the one "
-                   "before (IDM speed on an empty road unless --speed)")
+                   "before (IDM speed on an empty road unless --speed); `lsd3d-usd layout lanes SCENE` "
+                   "lists them. Default (without --trajectory): the longest drivable successor path, "
+                   "printed so it can be reused")
     g.add_argument("--trajectory", help="poses.json: a list of {t, x, y, z, yaw (degrees)} or "
                    "{t, matrix (4x4 world-from-ego)}; see docs/actors.md")
     g.add_argument("--fps", type=float, default=10.0, help="rig frames per second (default 10)")
@@ -187,4 +190,4 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--no-video", action="store_true", help="PNG frames only, no MP4")
     g.add_argument("--no-overview", action="store_true", help="skip the third-person overview camera")
     add_deferred_arguments(p, "every frame")
-    p.set_defaults(func=_render)
+    p.set_defaults(func=_render, compiles_kernels=True)

@@ -30,6 +30,7 @@ class RigResult:
     deferred_frames: dict | None = None    # camera name -> list of *_deferred.png paths (deferral only)
     deferred_videos: dict | None = None    # camera name -> *_deferred.mp4 path
     deferred: dict | None = None           # the deferral's provenance (views.deferred.Deferrer.describe)
+    route: list | None = None   # lane ids driven (given or default), None for a trajectory
 
 
 def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajectory=None,
@@ -39,7 +40,7 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
                stream_radius: float = DEFAULT_STREAM_RADIUS, log=print,
                deferrer=None) -> RigResult:
     """Render every rig camera (and the overview) at every frame; PNGs under OUT/<camera>/,
-    an MP4 per camera when the encoder is available. ``stream_radius`` > 0: only the chunks
+    and an MP4 per camera unless ``video`` is False. ``stream_radius`` > 0: only the chunks
     within that distance of the cameras are loaded (memory independent of the route's
     length); 0 loads the whole scene. With ``deferrer`` (a views.deferred.Deferrer of this
     scene) every frame is also deferred through the scene's prior: *_deferred.png beside each
@@ -51,15 +52,17 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
     from lsd3d_usd.views.frame import render_scene
     from lsd3d_usd.views.images import display_uint8, write_frame
     from lsd3d_usd.views.stage_data import SceneReader
-    from lsd3d_usd.views.video import encoder_available, write_mp4
+    from lsd3d_usd.views.video import ffmpeg_exe, write_mp4
 
     if int(width) < 8:
         raise InputError(f"--resolution: rig frames need a width >= 8, got {width}")
     if not stream_radius >= 0:
         raise InputError(f"--stream-radius {stream_radius}: must be >= 0 (0 loads everything)")
-    stage, paths, track, tcps, notes = build_rig_stage(scene_path, out_dir, rig_name, route, trajectory,
-                                                       fps, seconds, speed, seed,
-                                                       load_all=not stream_radius)
+    if video:
+        ffmpeg_exe()   # checked before minutes of rendering
+    stage, paths, track, tcps, notes, route_ids = build_rig_stage(
+        scene_path, out_dir, rig_name, route, trajectory, fps, seconds, speed, seed,
+        load_all=not stream_radius)
     if not overview:
         paths = [p for p in paths if not p.endswith("/" + OVERVIEW.name)]
     reader = SceneReader(stage, use_env=use_env, stream_radius=stream_radius or None)
@@ -92,14 +95,10 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
     bar.close()
     videos, d_videos = {}, {}
     if video:
-        ok, why = encoder_available()
-        if ok:
-            for name, ims in images.items():
-                videos[name] = write_mp4(out / f"{name}.mp4", ims, fps)
-                if deferrer is not None:
-                    d_videos[name] = write_mp4(deferred_name(videos[name]), d_images[name], fps)
-        else:
-            notes.append(f"no MP4 written: {why}; PNG frames only")
+        for name, ims in images.items():
+            videos[name] = write_mp4(out / f"{name}.mp4", ims, fps)
+            if deferrer is not None:
+                d_videos[name] = write_mp4(deferred_name(videos[name]), d_images[name], fps)
     described = None
     if deferrer is not None:
         described = deferrer.describe()
@@ -109,7 +108,7 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
     for n in notes:
         log(f"note: {n}")
     return RigResult(out / "rig.usda", frames, videos, notes, d_frames,
-                     d_videos if deferrer is not None else None, described)
+                     d_videos if deferrer is not None else None, described, route=route_ids)
 
 
 def record_deferral(rig_file: Path, described: dict) -> Path:

@@ -75,11 +75,24 @@ def rig_layer(rig, track: EgoTrack, tcps: float, ego_asset: str | None = None):
     return layer, paths
 
 
+def default_route(layout, seconds: float, speed: float | None = None) -> tuple[list[str], float]:
+    """(lane ids, length) the rig drives when no route is given: the longest drivable
+    successor path, cut once it covers the clip at ``speed`` (default: the fastest lane
+    limit, which IDM does not exceed). Empty without drivable lanes."""
+    from lsd3d_usd.layout.lanes import longest_route
+    lanes = layout.drivable_lanes()
+    if not lanes:
+        return [], 0.0
+    v = speed if speed is not None else max(ln.speed_limit_mps for ln in lanes)
+    return longest_route(layout, max_length=float(seconds) * float(v))
+
+
 def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajectory=None,
                     fps: float = 10.0, seconds: float = 8.0, speed: float | None = None,
                     seed: int = 0, ego_body: bool = True, load_all: bool = True):
     """Write OUT/rig.usda (sublayering the scene) and return (composed stage, camera paths,
-    track, timeCodesPerSecond, notes)."""
+    track, timeCodesPerSecond, notes, route lane ids or None). Without ``route`` and
+    ``trajectory`` the ego drives :func:`default_route` (said in a note, to be reused)."""
     from pxr import Usd
 
     from lsd3d_usd import scene as S
@@ -87,8 +100,8 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", route=None, t
 
     if rig_name not in RIGS:
         raise InputError(f"--rig {rig_name!r}: known rigs: {', '.join(RIGS)}")
-    if (route is None) == (trajectory is None):
-        raise InputError("--rig needs exactly one of --route LANE_IDS or --trajectory poses.json")
+    if route is not None and trajectory is not None:
+        raise InputError("--rig takes one of --route LANE_IDS or --trajectory poses.json, not both")
     sp = Path(scene_path)
     root_file = (sp / S.ROOT_FILE if sp.is_dir() else sp).absolute()
     scene_stage = S.open_stage(root_file, load=False)
@@ -96,11 +109,22 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", route=None, t
     tcps = float(root_layer.timeCodesPerSecond) if root_layer.HasTimeCodesPerSecond() else 24.0
     times = frame_times(fps, seconds)
     notes = []
-    if route is not None:
+    ids = None
+    if trajectory is None:
         from lsd3d_usd.layout.usdio import layout_from_stage
         if not scene_stage.GetPrimAtPath(S.LAYOUT_PATH):
-            raise InputError(f"{scene_path}: --route needs the scene's layout ({S.LAYOUT_PATH})")
+            raise InputError(f"{scene_path}: {'--route' if route is not None else 'a rig without --trajectory'} "
+                             f"needs the scene's layout ({S.LAYOUT_PATH}); give --trajectory poses.json")
         layout = layout_from_stage(scene_stage, str(scene_path))
+        if route is None:
+            ids, length = default_route(layout, seconds, speed)
+            if not ids:
+                raise InputError(f"{scene_path}: the layout has no drivable lanes to drive the rig "
+                                 "along; give --trajectory poses.json")
+            route = ",".join(ids)
+            notes.append(f"no --route given: driving the longest drivable successor path, cut "
+                         f"where it covers the clip ({length:.0f} m; `lsd3d-usd layout lanes` "
+                         f"lists the lanes); reuse it with --route {route}")
         ids = [r.strip() for r in (route.split(",") if isinstance(route, str) else route) if r.strip()]
         track = track_from_route(layout, ids, times, speed, seed)
     else:
@@ -122,4 +146,4 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", route=None, t
                                                        "route": ",".join(route) if isinstance(route, list)
                                                        else route, "trajectory": trajectory}, seed=seed))
     load = Usd.Stage.LoadAll if load_all else Usd.Stage.LoadNone
-    return Usd.Stage.Open(str(rig_file), load), paths, track, tcps, notes
+    return Usd.Stage.Open(str(rig_file), load), paths, track, tcps, notes, ids

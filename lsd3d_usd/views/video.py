@@ -1,4 +1,5 @@
-"""MP4 clips from rendered frames via imageio-ffmpeg (its wheel ships an ffmpeg binary).
+"""MP4 clips from rendered frames via imageio-ffmpeg, a dependency (its wheels ship an ffmpeg
+binary, so nothing else needs installing).
 
 H.264 / yuv420p needs even sizes: frames are padded by edge replication to a multiple of
 ``block`` (2) rather than rescaled, so pixels stay exact. Written to a temp file, then
@@ -11,15 +12,19 @@ from pathlib import Path
 
 import numpy as np
 
+from lsd3d_usd.errors import Lsd3dError
 
-def encoder_available() -> tuple[bool, str]:
-    """(available, why not)."""
+
+def ffmpeg_exe() -> str:
+    """The bundled ffmpeg binary (or IMAGEIO_FFMPEG_EXE); one clear error when there is none,
+    e.g. on a platform imageio-ffmpeg ships no binary for."""
+    import imageio_ffmpeg
     try:
-        import imageio_ffmpeg
         exe = imageio_ffmpeg.get_ffmpeg_exe()
-    except Exception as e:  # ImportError or no binary for this platform
-        return False, f"imageio-ffmpeg unavailable ({' '.join(str(e).split())[:120]})"
-    return (True, "") if exe and os.path.isfile(exe) else (False, "no ffmpeg binary found")
+    except RuntimeError as e:
+        raise Lsd3dError(f"MP4: imageio-ffmpeg found no ffmpeg binary ({' '.join(str(e).split())[:160]}); "
+                         "set IMAGEIO_FFMPEG_EXE to an ffmpeg, or pass --no-video") from None
+    return exe
 
 
 def _pad(frame: np.ndarray, block: int) -> np.ndarray:
@@ -34,6 +39,7 @@ def write_mp4(path, frames, fps: float, block: int = 2) -> Path:
     """Write uint8 RGB frames (iterable of (H,W,3), all the same size) as an H.264 MP4."""
     import imageio_ffmpeg
 
+    ffmpeg_exe()   # a missing binary is one line before any frame is encoded
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
@@ -65,3 +71,13 @@ def write_mp4(path, frames, fps: float, block: int = 2) -> Path:
         if tmp.exists():
             tmp.unlink()
     return path
+
+
+def read_mp4(path) -> tuple[np.ndarray, float]:
+    """Decode an MP4 back to uint8 RGB frames (n, H, W, 3) and its frame rate."""
+    import imageio_ffmpeg
+    gen = imageio_ffmpeg.read_frames(str(path))
+    meta = gen.__next__()
+    w, h = meta["size"]
+    frames = [np.frombuffer(b, np.uint8).reshape(h, w, 3) for b in gen]
+    return (np.stack(frames) if frames else np.zeros((0, h, w, 3), np.uint8)), float(meta["fps"])
