@@ -80,6 +80,16 @@ class GGDSConfig:
                                    flag="--checkpoint-every", alias="checkpoint_every", lo=1)
     world_init: bool = option(True, help="start surfel colours from the prior evaluated in 3D "
                                          "(when the prior can)")
+    filter_3d: float = option(0.0, help="3D smoothing filter (anti-aliasing, Mip-Splatting): "
+                                         "each disk is convolved with σ = this × the pixel "
+                                         "footprint of the finest training view that sees it "
+                                         "(0 = off)", lo=0.0, hi=10.0)
+    world_init_samples: int = option(8, help="world-space start: points per surfel, each seen "
+                                             "from a training camera that has it in view, to "
+                                             "which its view-dependent SH colour is fitted",
+                                     lo=1, hi=64)
+    world_init_ridge: float = option(0.1, help="world-space start: ridge on the non-DC SH terms "
+                                               "(relative to the DC term's weight)", lo=0.0)
     perceptual: bool = option(True, help="the perceptual loss term", alias="perceptual",
                               negate="--no-perceptual")
     lpips: Path | None = option(None, help="use LPIPS as the perceptual term: a local "

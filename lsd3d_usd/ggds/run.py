@@ -109,6 +109,8 @@ class GGDSRun:
                 self.term_state[term.name] = term.setup(config, prior)
         self.render_needs = {n for term, _ in self.terms for n in term.needs}
         self.views = views
+        # Per-surfel σ of the 3D smoothing filter (ggds/antialias.py), or None when off.
+        self.filter3d = self._filter_sigma(field.positions, np.arange(field.n))
         self._view_cache: dict[int, ViewData] = {}
         self.rng = np.random.default_rng(config.seed)
         self.step_index = 0
@@ -136,11 +138,28 @@ class GGDSRun:
             self._view_cache[i] = ViewData(v, gb, bg)
         return self._view_cache[i]
 
+    # ------------------------------------------------------------ anti-aliasing
+    def _filter_sigma(self, positions: np.ndarray, rows: np.ndarray) -> torch.Tensor | None:
+        from lsd3d_usd.ggds.antialias import filter_sigma
+        k = self.cfg.filter_3d
+        if not k > 0:
+            return None
+        return torch.from_numpy(filter_sigma(positions[rows], [v.camera for v in self.views], k))
+
+    def activated(self, params: dict) -> dict:
+        """The renderer's values of ``params``: constrained (params.activated) and, with the
+        3D smoothing filter on, each disk convolved with its frequency limit."""
+        a = P.activated(params)
+        if self.filter3d is not None:
+            from lsd3d_usd.ggds.antialias import smooth
+            a["scales"], a["opacities"] = smooth(a["scales"], a["opacities"], self.filter3d)
+        return a
+
     # ------------------------------------------------------------ rendering
     def render(self, camera, params=None, *, background=None, **settings) -> RasterResult:
         """Rasterise the (activated) parameters for ``camera``; ``settings`` are RasterSettings
         fields (near/far come from the camera)."""
-        a = P.activated(self.params if params is None else params)
+        a = self.activated(self.params if params is None else params)
         return rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
                          camera.viewmat, camera.K, camera.width, camera.height,
                          settings=RasterSettings.for_camera(camera, **settings), background=background)
@@ -178,7 +197,7 @@ class GGDSRun:
         self.optimizer.lrs = lrs
         self.optimizer.step(rows)
         info = self.strategy.step_post_backward(self.params, self.optimizer, k + 1, lrs["means"], rows)
-        if info["relocated"] and self.face_index is not None:
+        if info["relocated"]:
             self._track_relocation()
         self.step_index += 1
         t_end = time.perf_counter()
@@ -194,58 +213,35 @@ class GGDSRun:
         return rec
 
     def _track_relocation(self):
-        # A relocated surfel sits on its source's disk: it inherits the source's seed face.
+        # A relocated surfel sits on its source's disk: it inherits the source's seed face
+        # and, seen by the same views, its frequency limit.
         dead, src = self.strategy.last_relocation
-        self.face_index[dead.numpy()] = self.face_index[src.numpy()]
+        if self.face_index is not None:
+            self.face_index[dead.numpy()] = self.face_index[src.numpy()]
+        if self.filter3d is not None:
+            self.filter3d[dead] = self.filter3d[src]
 
     @torch.no_grad()
-    def world_init(self, offsets_sigma: float = 0.7, batch: int = 400_000) -> bool:
-        """Set every surfel's DC colour to the prior's colour averaged over its disk (centre and
-        four points at ±offsets_sigma·σ along its axes), seen from the nearest training camera,
-        when the prior can be evaluated in world space (Prior.shade_at; the procedural prior
-        can, a diffusion prior cannot). Image-space GGDS steps refine from there. Returns
-        whether it ran."""
-        sem = self.init_field.semantic_ids
-        if sem is None:
+    def world_init(self) -> bool:
+        """Fit every surfel's SH colour to the prior evaluated in world space at points over
+        its disk, seen from training cameras that have it in view (ggds/worldfit.py), when the
+        prior can be evaluated in 3D (Prior.shade_at; the procedural prior can, a diffusion
+        prior cannot). Image-space GGDS steps refine from there. Returns whether it ran."""
+        from lsd3d_usd.ggds.worldfit import fit_sh
+        from lsd3d_usd.render.sh import sh_degree_of
+        c = self.cfg
+        sh = fit_sh(self.prior, self.env, self.field(), [v.camera for v in self.views],
+                    degree=sh_degree_of(self.params["sh"].shape[1]), shadow=self.shadow,
+                    samples=c.world_init_samples, ridge=c.world_init_ridge, seed=c.seed)
+        if sh is None:
             return False
-        from lsd3d_usd.splats.field import SH_C0, quat_to_matrix
-        f = self.field()
-        R = quat_to_matrix(f.orientations)
-        s = f.scales.astype(np.float64) * offsets_sigma
-        offs = np.stack([np.zeros((f.n, 3)), R[..., 0] * s[:, :1], -R[..., 0] * s[:, :1],
-                         R[..., 1] * s[:, 1:], -R[..., 1] * s[:, 1:]], axis=1)  # (N,5,3)
-        pts = f.positions.astype(np.float64)[:, None, :] + offs
-        nrm = np.repeat(R[:, None, :, 2], 5, axis=1)
-        ids = np.repeat(sem[:, None], 5, axis=1)
-        flat_p, flat_n, flat_i = pts.reshape(-1, 3), nrm.reshape(-1, 3), ids.reshape(-1)
-        vis = None
-        if self.shadow is not None:
-            vis = self.shadow.visibility(flat_p + 0.05 * flat_n)
-        view = flat_p - self._nearest_eye(flat_p)
-        cols = np.empty((len(flat_p), 3), np.float32)
-        for a in range(0, len(flat_p), batch):
-            b = slice(a, a + batch)
-            c = self.prior.shade_at(flat_p[b], flat_n[b], flat_i[b], self.env, view_dirs=view[b],
-                                    sun_visibility=None if vis is None else vis[b])
-            if c is None:
-                return False
-            cols[b] = c.numpy()
-        rgb = cols.reshape(f.n, 5, 3).mean(axis=1)
-        self.params["sh"][:, 0, :] = torch.from_numpy((rgb - 0.5) / SH_C0)
+        self.params["sh"][:] = torch.from_numpy(sh)
         return True
-
-    def _nearest_eye(self, points: np.ndarray) -> np.ndarray:
-        """Centre of the nearest training camera per point (or a point 10 m above)."""
-        if not self.views:
-            return points + np.array([0.0, 0.0, 10.0])
-        from scipy.spatial import cKDTree
-        eyes = np.array([v.camera.center for v in self.views])
-        _, k = cKDTree(eyes).query(points, k=1)
-        return eyes[k]
 
     # ------------------------------------------------------------ results
     def field(self) -> SurfelField:
-        return P.to_field(self.params, self.init_field)
+        """The surfels as the renderer sees them (the 3D filter baked in)."""
+        return P.to_field(self.params, self.init_field, activate=self.activated)
 
     def checkpoint(self, optimizer: bool = True) -> tuple[dict, dict]:
         """(tensors, meta): everything a resume needs, as flat named tensors (safetensors) and
@@ -260,6 +256,8 @@ class GGDSRun:
         tensors["strategy.rng"] = self.strategy._gen.get_state()
         if self.face_index is not None:
             tensors["face_index"] = torch.from_numpy(np.ascontiguousarray(self.face_index))
+        if self.filter3d is not None:
+            tensors["filter3d"] = self.filter3d.contiguous()
         meta = {"step": self.step_index, "rng": self.rng.bit_generator.state,
                 "history": list(self.history), "seconds": self.seconds,
                 "config": to_dict(self.cfg), "optimizer": bool(optimizer)}
@@ -286,6 +284,8 @@ class GGDSRun:
         self.seconds = float(meta.get("seconds", 0.0))
         if "face_index" in tensors:
             self.face_index = tensors["face_index"].numpy().astype(np.int64).copy()
+        if self.filter3d is not None and "filter3d" in tensors:
+            self.filter3d = tensors["filter3d"].clone()
 
     @torch.no_grad()
     def evaluate(self, views: list[View], t_eval: float = 1.0) -> dict:

@@ -1,0 +1,109 @@
+"""World-space start of the surfel colours, view-dependent: for a prior that can be evaluated
+in 3D (Prior.shade_at; the procedural prior can), each surfel's spherical harmonics are fitted
+by least squares to the prior's radiance at points spread over its disk, each seen from a
+training camera that has the surfel in view.
+
+Why view-dependent: the street is seen at grazing angles, where Fresnel makes asphalt and
+paving reflect several times their head-on radiance (the procedural prior's broad sun lobe and
+sky reflection; real road sheen alike). A colour taken from one direction (the nearest camera,
+usually right above and steep) rendered the road of lane views at about half the target's
+radiance: the largest single error of GGDS's start. Fitting the SH to the directions the views
+actually take captures most of it in the degree-1 terms.
+
+Per surfel i, samples k = 1..K at disk points q_k (a Vogel spiral out to ``offsets_sigma`` σ,
+so the DC term is also the disk's mean, not its centre's value) seen from cameras e_k drawn
+from those that have it in view (ggds/sampling.pick_views): colours c_k, basis rows
+B_k = Y(d_k), d_k = unit(p_i - e_k) (the renderer's SH direction: camera centre to the surfel's
+centre). Solve (BᵀB + λ diag(0, 1, …, 1)) x = Bᵀ(c - 0.5) per colour channel: ridge on the
+non-DC terms only, so one view gives the plain mean colour and directions no view took are not
+extrapolated wildly.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from lsd3d_usd.ggds.sampling import CameraSet, pick_views
+from lsd3d_usd.render.sh import C0, sh_basis
+
+GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
+
+
+def disk_pattern(k: int, radius: float) -> np.ndarray:
+    """(k,2) points of a Vogel spiral filling the disk of ``radius`` (in σ units) evenly; the
+    first is the centre's neighbourhood (r = radius·sqrt(0.5/k))."""
+    j = np.arange(k, dtype=np.float64)
+    r = radius * np.sqrt((j + 0.5) / k)
+    a = j * GOLDEN_ANGLE
+    return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
+
+
+def solve_sh(basis: np.ndarray, colours: np.ndarray, ridge: float) -> np.ndarray:
+    """Per-row ridge least squares: basis (N,K,S), colours (N,K,3) → coefficients (N,S,3)
+    minimising Σ_k |0.5 + B_k x - c_k|² + ridge·K·C0²·|x_{1:}|² (the ridge scaled like BᵀB's
+    DC entry, so it means the same for any K)."""
+    B = np.asarray(basis, np.float64)
+    c = np.asarray(colours, np.float64) - 0.5
+    N, K, S = B.shape
+    A = np.einsum("nks,nkt->nst", B, B)
+    reg = np.full(S, ridge * K * C0 * C0)
+    reg[0] = 0.0
+    A += np.diag(reg)[None] + 1e-12 * np.eye(S)[None]
+    b = np.einsum("nks,nkc->nsc", B, c)
+    return np.linalg.solve(A, b)
+
+
+@torch.no_grad()
+def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int = 8,
+           ridge: float = 0.1, offsets_sigma: float = 0.7, seed: int = 0,
+           batch: int = 100_000) -> np.ndarray | None:
+    """(N,(degree+1)²,3) SH coefficients of ``field``'s surfels fitted to ``prior`` (module
+    doc), or None when the prior cannot be evaluated in world space or the field has no
+    semantic ids. ``cameras``: the training cameras; a surfel none of them sees is shaded as
+    seen from the nearest camera centre (or from 10 m above when there are no cameras)."""
+    from lsd3d_usd.splats.field import quat_to_matrix
+    sem = field.semantic_ids
+    if sem is None:
+        return None
+    S = (degree + 1) ** 2
+    out = np.zeros((field.n, S, 3), np.float32)
+    if field.n == 0:
+        return out
+    cams = CameraSet.of(list(cameras))
+    rng = np.random.default_rng(seed)
+    pattern = disk_pattern(samples, offsets_sigma)
+    tree = None
+    if len(cams):
+        from scipy.spatial import cKDTree
+        tree = cKDTree(cams.centres)
+    for a in range(0, field.n, batch):
+        sl = slice(a, min(a + batch, field.n))
+        p = field.positions[sl].astype(np.float64)
+        n = len(p)
+        R = quat_to_matrix(field.orientations[sl])
+        s = field.scales[sl].astype(np.float64)
+        pts = (p[:, None, :] + R[:, None, :, 0] * (s[:, None, :1] * pattern[None, :, :1])
+               + R[:, None, :, 1] * (s[:, None, 1:] * pattern[None, :, 1:]))   # (n,K,3)
+        idx = pick_views(p, cams, samples, rng)
+        if tree is not None:
+            _, near = tree.query(p, k=1)
+            eyes = cams.centres[np.where(idx >= 0, idx, near[:, None])]      # (n,K,3)
+        else:
+            eyes = np.broadcast_to(p[:, None, :] + [0.0, 0.0, 10.0], (n, samples, 3))
+        nrm = np.repeat(R[:, None, :, 2], samples, axis=1)
+        vis = None
+        if shadow is not None:
+            vis = shadow.visibility((pts + 0.05 * nrm).reshape(-1, 3))
+        col = prior.shade_at(pts.reshape(-1, 3), nrm.reshape(-1, 3),
+                             np.repeat(sem[sl][:, None], samples, axis=1).reshape(-1), env,
+                             view_dirs=(pts - eyes).reshape(-1, 3), sun_visibility=vis)
+        if col is None:
+            return None
+        col = col.numpy().reshape(n, samples, 3)
+        d = p[:, None, :] - eyes
+        d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
+        basis = sh_basis(torch.from_numpy(d.reshape(-1, 3)), degree).numpy().reshape(n, samples, S)
+        out[sl] = solve_sh(basis, col, ridge).astype(np.float32)
+    return out

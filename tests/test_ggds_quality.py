@@ -1,0 +1,210 @@
+"""Fit-quality machinery of GGDS (issue 19): what the training views see of each surfel
+(sampling.py), the 3D smoothing filter (antialias.py) and the view-dependent world-space start
+(worldfit.py), each against a plain float64 computation, on degenerate inputs, and inside a
+run (baked into the written field, restored by a resume)."""
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from lsd3d_usd.ggds import params as P
+from lsd3d_usd.ggds.antialias import filter_sigma, smooth
+from lsd3d_usd.ggds.sampling import footprint, pick_views
+from lsd3d_usd.ggds.worldfit import disk_pattern, fit_sh, solve_sh
+from lsd3d_usd.render.camera import Camera, look_at
+from lsd3d_usd.render.sh import sh_basis
+from lsd3d_usd.splats.field import SurfelField
+
+
+def cams():
+    """Three cameras looking at the origin region from different distances and sides."""
+    out = []
+    for eye, w in (((0, -10, 2), 64), ((0, -3, 1.5), 64), ((12, 0, 3), 32)):
+        out.append(Camera.from_fov(w, w * 3 // 4, 60.0, pose=look_at(np.array(eye, float),
+                                                                      np.zeros(3)), near=0.1,
+                                   far=100.0))
+    return out
+
+
+# ------------------------------------------------------------------ sampling
+def test_footprint_matches_per_camera_projection():
+    rng = np.random.default_rng(0)
+    pts = rng.uniform(-6, 6, (300, 3))
+    pts[:5] = [0, 40, 0]            # behind the first two cameras, beside the third
+    cs = cams()
+    got = footprint(pts, cs)
+    want = np.full(len(pts), np.inf)
+    for c in cs:
+        uv, z = c.project(pts)
+        inside = (z >= c.near) & (z <= c.far) & (uv[:, 0] >= 0) & (uv[:, 0] <= c.width) \
+            & (uv[:, 1] >= 0) & (uv[:, 1] <= c.height)
+        want = np.minimum(want, np.where(inside, z / min(c.fx, c.fy), np.inf))
+    np.testing.assert_allclose(got, want, rtol=1e-12)
+    assert np.isinf(got).any() and np.isfinite(got).any()
+    assert footprint(np.zeros((0, 3)), cs).shape == (0,)
+    assert np.isinf(footprint(pts[:3], [])).all()
+    # a margin only ever adds views
+    assert np.all(footprint(pts, cs, margin=20) <= got)
+
+
+def test_pick_views_only_visible_cameras_weighted_by_pixel_density():
+    cs = cams()
+    rng = np.random.default_rng(1)
+    p = np.array([[0.0, 0.0, 0.0], [0.0, 40.0, 0.0], [0.0, -200.0, 0.0]])
+    idx = pick_views(p, cs, 4, rng)
+    assert idx.shape == (3, 4)
+    _, ok = zip(*(c.project(p[:1]) for c in cs))
+    seen0 = {i for i, c in enumerate(cs) if 0 <= c.project(p[:1])[0][0, 0] <= c.width}
+    assert set(idx[0]) <= seen0 and len(set(idx[0])) == len(seen0)
+    assert (idx[2] == -1).all()          # behind every camera
+    # Frequencies of the first pick follow (f/z)^2 over the cameras that see the point.
+    first = np.array([pick_views(p[:1], cs, 1, rng)[0, 0] for _ in range(3000)])
+    w = np.zeros(len(cs))
+    for i in seen0:
+        _, z = cs[i].project(p[:1])
+        w[i] = cs[i].fx * cs[i].fy / z[0] ** 2
+    freq = np.bincount(first, minlength=len(cs)) / len(first)
+    np.testing.assert_allclose(freq, w / w.sum(), atol=0.03)
+
+
+# ------------------------------------------------------------------ 3D smoothing filter
+def _disk(su, sv, o, x, y):
+    return o * np.exp(-0.5 * (x ** 2 / su ** 2 + y ** 2 / sv ** 2))
+
+
+def test_smooth_equals_numerical_convolution_in_float64():
+    su, sv, o, sig = 0.05, 0.02, 0.7, 0.03
+    h = 0.004
+    g = np.arange(-0.4, 0.4 + h / 2, h)
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    disk = _disk(su, sv, o, X, Y)
+    k = np.exp(-0.5 * (X ** 2 + Y ** 2) / sig ** 2)
+    k /= k.sum()
+    from scipy.signal import fftconvolve
+    conv = fftconvolve(disk, k, mode="same")
+    s2, o2 = smooth(torch.tensor([[su, sv]], dtype=torch.float64),
+                    torch.tensor([o], dtype=torch.float64), torch.tensor([sig], dtype=torch.float64))
+    analytic = _disk(float(s2[0, 0]), float(s2[0, 1]), float(o2[0]), X, Y)
+    assert np.abs(conv - analytic).max() < 1e-5
+    # the integral (what the disk contributes to a pixel much larger than it) is kept
+    assert abs(float(o2[0] * s2[0, 0] * s2[0, 1]) - o * su * sv) < 1e-15
+
+
+def test_smooth_degenerate_inputs_and_gradients():
+    s = torch.tensor([[0.1, 0.2], [0.0, 0.0], [1e-9, 1e-9]], dtype=torch.float64)
+    o = torch.tensor([0.5, 0.9, 0.9], dtype=torch.float64)
+    s0, o0 = smooth(s, o, torch.zeros(3, dtype=torch.float64))
+    assert torch.equal(s0[:1], s[:1]) and torch.equal(o0[:1], o[:1])
+    assert o0[1] == 0.9                 # zero scale, zero filter: left alone
+    s1, o1 = smooth(s, o, torch.full((3,), 0.05, dtype=torch.float64))
+    assert torch.allclose(s1[1], torch.tensor([0.05, 0.05], dtype=torch.float64))
+    assert o1[1] == 0.0                 # a point of zero area contributes nothing once filtered
+    assert torch.isfinite(s1).all() and torch.isfinite(o1).all()
+    assert smooth(s, o, None) == (s, o)
+    ls = torch.log(torch.tensor([[0.1, 0.2], [0.01, 0.03]], dtype=torch.float64)).requires_grad_()
+    op = torch.tensor([0.5, 0.8], dtype=torch.float64, requires_grad=True)
+    sig = torch.tensor([0.02, 0.05], dtype=torch.float64)
+    assert torch.autograd.gradcheck(lambda a, b: smooth(a.exp(), b, sig), (ls, op))
+
+
+def test_filter_sigma_from_the_finest_view():
+    cs = cams()
+    pts = np.array([[0.0, 0.0, 0.0], [0.0, 300.0, 0.0]])
+    sig = filter_sigma(pts, cs, 0.5, margin_frac=0.0)
+    t = footprint(pts[:1], cs)[0]
+    assert sig[0] == pytest.approx(0.5 * t, rel=1e-6)
+    assert sig[1] == sig[0]             # unseen: the largest seen value
+    assert (filter_sigma(pts, cs, 0.5, margin_frac=0.0, fallback="zero")[1]) == 0.0
+    assert (filter_sigma(pts, cs, 0.0) == 0).all() and filter_sigma(pts, [], 1.0).sum() == 0
+
+
+# ------------------------------------------------------------------ view-dependent start
+def test_solve_sh_recovers_a_function_in_its_span_and_ridge_limits():
+    rng = np.random.default_rng(2)
+    for deg in (1, 2):
+        S = (deg + 1) ** 2
+        d = rng.normal(size=(5, 3 * S, 3))
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        B = sh_basis(torch.from_numpy(d.reshape(-1, 3)), deg).numpy().reshape(5, 3 * S, S)
+        x = rng.normal(size=(5, S, 3)) * 0.2
+        c = 0.5 + np.einsum("nks,nsc->nkc", B, x)
+        np.testing.assert_allclose(solve_sh(B, c, 0.0), x, atol=1e-8)
+        # against a plain float64 least-squares solve with the ridge written out as rows
+        lam = 0.3
+        got = solve_sh(B, c, lam)
+        K = B.shape[1]
+        reg = np.sqrt(lam * K) * 0.28209479177387814 * np.eye(S)[1:]
+        for i in range(5):
+            A = np.vstack([B[i], reg])
+            b = np.vstack([c[i] - 0.5, np.zeros((S - 1, 3))])
+            np.testing.assert_allclose(got[i], np.linalg.lstsq(A, b, rcond=None)[0], atol=1e-9)
+    # One direction only, with a ridge: the DC term reproduces the colour seen, the rest is 0.
+    B1 = sh_basis(torch.tensor([[0.0, 0.6, -0.8]]), 1).numpy()[None]
+    x1 = solve_sh(np.repeat(B1, 4, 1), np.full((1, 4, 3), 0.3), 0.1)
+    np.testing.assert_allclose(0.5 + 0.28209479177387814 * x1[0, 0], 0.3, atol=1e-9)
+    np.testing.assert_allclose(x1[0, 1:], 0.0, atol=1e-9)
+
+
+class ViewDependentPrior:
+    """shade_at: grey 0.3 + 0.4 × the view direction's z (linear in d: SH degree 1 exact)."""
+
+    def shade_at(self, points, normals, semantic, env, view_dirs=None, sun_visibility=None):
+        d = torch.as_tensor(view_dirs, dtype=torch.float64)
+        d = d / d.norm(dim=1, keepdim=True)
+        return (0.3 + 0.4 * d[:, 2:3]).expand(-1, 3).float()
+
+
+def test_fit_sh_recovers_view_dependent_colour():
+    rng = np.random.default_rng(3)
+    n = 50
+    field = SurfelField(rng.uniform(-1, 1, (n, 3)).astype(np.float32),
+                        np.tile([0, 0, 0, 1.0], (n, 1)).astype(np.float32),
+                        np.full((n, 2), 1e-4, np.float32), np.full(n, 0.8, np.float32),
+                        np.zeros((n, 4, 3), np.float32), semantic_ids=np.zeros(n, np.int32))
+    cs = cams()
+    sh = fit_sh(ViewDependentPrior(), None, field, cs, degree=1, samples=6, ridge=0.0)
+    for c in cs:
+        d = field.positions.astype(np.float64) - c.center
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        _, seen = c.project(field.positions)
+        col = 0.5 + np.einsum("ns,nsc->nc", sh_basis(torch.from_numpy(d), 1).numpy(), sh)
+        # every surfel every camera sees gets its colour from that direction
+        uv, z = c.project(field.positions)
+        vis = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= c.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= c.height)
+        np.testing.assert_allclose(col[vis, 0], 0.3 + 0.4 * d[vis, 2], atol=2e-3)
+    assert fit_sh(ViewDependentPrior(), None, SurfelField.concat([field]).subset(np.arange(0)),
+                  cs, degree=1).shape == (0, 4, 3)
+    no_sem = SurfelField(field.positions, field.orientations, field.scales, field.opacities, field.sh)
+    assert fit_sh(ViewDependentPrior(), None, no_sem, cs, degree=1) is None
+
+
+def test_disk_pattern_fills_the_disk():
+    p = disk_pattern(16, 0.7)
+    r = np.linalg.norm(p, axis=1)
+    assert r.max() <= 0.7 + 1e-12 and abs(p.mean(0)).max() < 0.1
+
+
+# ------------------------------------------------------------------ inside a run
+def test_run_bakes_the_filter_into_its_field_and_resumes_it():
+    from test_ggds_run import make_run
+    from dataclasses import replace
+    run = make_run(steps=12)
+    run.cfg = replace(run.cfg, filter_3d=0.5)
+    run.filter3d = run._filter_sigma(run.init_field.positions, np.arange(run.init_field.n))
+    assert run.filter3d is not None and (run.filter3d > 0).all()
+    for _ in range(6):
+        run.step()
+    f = run.field()
+    raw = P.activated(run.params)
+    s, o = smooth(raw["scales"].detach(), raw["opacities"].detach(), run.filter3d)
+    np.testing.assert_allclose(f.scales, s.numpy(), rtol=1e-6)
+    np.testing.assert_allclose(f.opacities, o.numpy(), rtol=1e-6)
+    assert np.all(f.scales >= run.filter3d.numpy()[:, None] * (1 - 1e-6))
+    tensors, meta = run.checkpoint()
+    from safetensors.torch import load, save
+    tensors, meta = load(save(tensors)), json.loads(json.dumps(meta))
+    with torch.no_grad():
+        run.filter3d.mul_(3.0)
+    run.restore(tensors, meta)
+    np.testing.assert_allclose(run.field().scales, f.scales)
