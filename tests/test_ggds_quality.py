@@ -139,6 +139,25 @@ def test_solve_sh_recovers_a_function_in_its_span_and_ridge_limits():
             A = np.vstack([B[i], reg])
             b = np.vstack([c[i] - 0.5, np.zeros((S - 1, 3))])
             np.testing.assert_allclose(got[i], np.linalg.lstsq(A, b, rcond=None)[0], atol=1e-9)
+    # Ridge in the surfel's frame: with no zonal ridge and a huge azimuthal one, a colour that
+    # depends on the angle to the normal only is recovered exactly, the azimuthal part dropped.
+    n = np.array([[0.0, 0.6, 0.8]])
+    d = rng.normal(size=(40, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    B = sh_basis(torch.from_numpy(d), 2).numpy()[None]
+    cos = d @ n[0]
+    zonal = 0.4 + 0.2 * cos + 0.1 * (1.5 * cos ** 2 - 0.5)
+    t = np.cross(n[0], [1.0, 0, 0])
+    azim = 0.05 * (d @ t)
+    got = solve_sh(B, np.repeat(zonal[None, :, None], 3, 2), 0.0, normals=n, ridge_tangent=1e9)
+    np.testing.assert_allclose(0.5 + np.einsum("nks,nsc->nkc", B, got)[0, :, 0], zonal, atol=1e-6)
+    got = solve_sh(B, np.repeat((zonal + azim)[None, :, None], 3, 2), 0.0, normals=n,
+                   ridge_tangent=1e9)
+    # the fit is a function of the angle to the normal: the same at every azimuth
+    u = np.cross(n[0], t)
+    ring = np.stack([0.6 * n[0] + 0.8 * (np.cos(a) * t + np.sin(a) * u) for a in np.linspace(0, 6, 7)])
+    vals = 0.5 + sh_basis(torch.from_numpy(ring), 2).numpy() @ got[0, :, 0]
+    assert np.ptp(vals) < 1e-6
     # One direction only, with a ridge: the DC term reproduces the colour seen, the rest is 0.
     B1 = sh_basis(torch.tensor([[0.0, 0.6, -0.8]]), 1).numpy()[None]
     x1 = solve_sh(np.repeat(B1, 4, 1), np.full((1, 4, 3), 0.3), 0.1)

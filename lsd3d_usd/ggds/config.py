@@ -84,12 +84,16 @@ class GGDSConfig:
                                          "each disk is convolved with σ = this × the pixel "
                                          "footprint of the finest training view that sees it "
                                          "(0 = off)", lo=0.0, hi=10.0)
-    world_init_samples: int = option(8, help="world-space start: points per surfel, each seen "
+    world_init_samples: int = option(16, help="world-space start: points per surfel, each seen "
                                              "from a training camera that has it in view, to "
                                              "which its view-dependent SH colour is fitted",
                                      lo=1, hi=64)
-    world_init_ridge: float = option(0.1, help="world-space start: ridge on the non-DC SH terms "
-                                               "(relative to the DC term's weight)", lo=0.0)
+    world_init_ridge: float = option(0.003, help="world-space start: ridge on the SH terms that "
+                                                 "depend on the angle to the surfel's normal "
+                                                 "(relative to the DC term's weight)", lo=0.0)
+    world_init_ridge_tangent: float = option(1.0, help="world-space start: ridge on the SH "
+                                                       "terms that depend on the azimuth around "
+                                                       "the normal", lo=0.0)
     perceptual: bool = option(True, help="the perceptual loss term", alias="perceptual",
                               negate="--no-perceptual")
     lpips: Path | None = option(None, help="use LPIPS as the perceptual term: a local "

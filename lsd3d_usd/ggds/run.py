@@ -232,7 +232,8 @@ class GGDSRun:
         c = self.cfg
         sh = fit_sh(self.prior, self.env, self.field(), [v.camera for v in self.views],
                     degree=sh_degree_of(self.params["sh"].shape[1]), shadow=self.shadow,
-                    samples=c.world_init_samples, ridge=c.world_init_ridge, seed=c.seed)
+                    samples=c.world_init_samples, ridge=c.world_init_ridge,
+                    ridge_tangent=c.world_init_ridge_tangent, seed=c.seed)
         if sh is None:
             return False
         self.params["sh"][:] = torch.from_numpy(sh)
