@@ -227,3 +227,78 @@ def test_run_bakes_the_filter_into_its_field_and_resumes_it():
         run.filter3d.mul_(3.0)
     run.restore(tensors, meta)
     np.testing.assert_allclose(run.field().scales, f.scales)
+
+
+# ------------------------------------------------------------------ error-driven densification
+def test_densify_moves_redundant_surfels_to_high_residual_within_the_budget():
+    from lsd3d_usd.ggds.adam import SelectiveAdam
+    from lsd3d_usd.ggds.strategy import MCMCStrategy
+    n = 200
+    rng = np.random.default_rng(4)
+    pos = rng.normal(size=(n, 3)) * [10, 10, 0]
+    scales = np.full((n, 2), 0.1)
+    scales[:40] = 0.005                       # 40 tiny ones: redundant under a 0.05 m filter
+    field = SurfelField(pos, np.tile([0, 0, 0, 1.0], (n, 1)), scales, np.full(n, 0.7),
+                        rng.normal(size=(n, 4, 3)) * 0.1)
+    params = P.to_params(field)
+    opt = SelectiveAdam(params, {k: 0.01 for k in P.KEYS})
+    strat = MCMCStrategy(relocate_every=10, noise_scale=0.0, densify_frac=0.1,
+                         redundant_coef=0.25)
+    resid = torch.full((n,), 0.01)
+    resid[150:155] = 1.0                      # five surfels with a large residual
+    strat.observe(torch.arange(n), resid, n)
+    sigma = torch.full((n,), 0.05)
+    coef = lambda: smooth(params["scales"].exp(), torch.ones(n), sigma)[1]  # noqa: E731
+    info = strat.step_post_backward(params, opt, 10, 1e-3, torch.arange(n), filter_coef=coef)
+    assert info["densified"] == 20            # densify_frac × n, all from the tiny ones
+    donors, src = strat.last_relocation
+    assert set(donors.tolist()) <= set(range(40))
+    assert params["means"].shape[0] == n      # the budget: the count never changes
+    # nearly all targets are the high-residual ones (residual 100x larger, same opacity)
+    assert ((src >= 150) & (src < 155)).float().mean() > 0.8
+    assert (src >= 40).all()                  # a redundant surfel is never a target
+    # a split target and its copies share its area and sit on its plane
+    s = params["scales"].exp().prod(1)
+    for t in torch.unique(src):
+        group = torch.cat([t[None], donors[src == t]])
+        was = float(field.scales[int(t)].prod())
+        assert abs(float(s[group].sum()) - was) < 1e-6
+        np.testing.assert_allclose(params["means"][group][:, 2].numpy(), pos[int(t), 2], atol=1e-6)
+    # without residuals or without a filter nothing is densified
+    fresh = MCMCStrategy(relocate_every=10, noise_scale=0.0, densify_frac=0.1)
+    assert fresh.step_post_backward(params, opt, 10, 1e-3, torch.arange(n),
+                                    filter_coef=coef)["densified"] == 0
+    strat2 = MCMCStrategy(relocate_every=10, noise_scale=0.0, densify_frac=0.1)
+    strat2.observe(torch.arange(n), resid, n)
+    assert strat2.step_post_backward(params, opt, 10, 1e-3, torch.arange(n))["densified"] == 0
+
+
+def test_run_with_densification_resumes_exactly():
+    from test_ggds_run import make_run
+    from dataclasses import replace
+
+    def build():
+        run = make_run(steps=12)
+        run.cfg = replace(run.cfg, filter_3d=2.0, strategy=replace(run.cfg.strategy,
+                                                                   densify_frac=0.05))
+        run.strategy.densify_frac = 0.05
+        run.filter3d = run._filter_sigma(run.init_field.positions, np.arange(run.init_field.n))
+        return run
+    a = build()
+    for _ in range(12):
+        a.step()
+    assert sum(h["densified"] for h in a.history) > 0
+    b = build()
+    for _ in range(6):
+        b.step()
+    tensors, meta = b.checkpoint()
+    from safetensors.torch import load, save
+    tensors, meta = load(save(tensors)), json.loads(json.dumps(meta))
+    c = build()
+    c.restore(tensors, meta)
+    for _ in range(6):
+        c.step()
+    for k in P.KEYS:
+        torch.testing.assert_close(c.params[k], a.params[k], rtol=1e-5, atol=1e-6)
+    torch.testing.assert_close(c.filter3d, a.filter3d)
+    np.testing.assert_array_equal(c.face_index, a.face_index)

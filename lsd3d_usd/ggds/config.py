@@ -50,6 +50,15 @@ class StrategyConfig:
                                  lo=0.0, hi=1.0)
     max_relocate_frac: float = option(0.05, help="at most this fraction relocated at once",
                                       lo=0.0, hi=1.0)
+    densify_frac: float = option(0.0, help="error-driven densification: at each relocation "
+                                           "move up to this fraction of the surfels, the most "
+                                           "redundant ones (see redundant_coef), onto surfels "
+                                           "with high residual and split those (needs "
+                                           "filter_3d > 0; 0 = off)", lo=0.0, hi=1.0)
+    redundant_coef: float = option(0.25, help="a surfel is redundant when the 3D smoothing "
+                                              "filter keeps less than this fraction of its "
+                                              "opacity (it is much smaller than the finest "
+                                              "training pixel)", lo=0.0, hi=1.0)
 
 
 @dataclass

@@ -96,7 +96,9 @@ class GGDSRun:
         self.strategy = MCMCStrategy(noise_scale=st.noise_scale, gate_sharpness=st.gate_sharpness,
                                      gate_threshold=st.gate_threshold,
                                      relocate_every=st.relocate_every, dead_opacity=st.dead_opacity,
-                                     max_relocate_frac=st.max_relocate_frac, seed=config.seed)
+                                     max_relocate_frac=st.max_relocate_frac,
+                                     densify_frac=st.densify_frac,
+                                     redundant_coef=st.redundant_coef, seed=config.seed)
         self.prior, self.env = prior, env
         self.vertices, self.faces, self.face_ids = proxy
         self.face_index = None if face_index is None else np.asarray(face_index, np.int64).copy()
@@ -145,6 +147,31 @@ class GGDSRun:
         if not k > 0:
             return None
         return torch.from_numpy(filter_sigma(positions[rows], [v.camera for v in self.views], k))
+
+    @torch.no_grad()
+    def _filter_coef(self) -> torch.Tensor | None:
+        """(N,) fraction of each surfel's opacity the 3D filter keeps (None without it)."""
+        if self.filter3d is None:
+            return None
+        from lsd3d_usd.ggds.antialias import smooth
+        s = self.params["scales"].exp()
+        return smooth(s, torch.ones(len(s)), self.filter3d)[1]
+
+    @torch.no_grad()
+    def _observe_residual(self, x: torch.Tensor, x_hat: torch.Tensor, cam, rows: torch.Tensor):
+        """Feed the strategy the residual |x − x̂| (3×3 box mean) at the projected centres of
+        the surfels this view showed (error-driven densification, ggds/strategy.py)."""
+        from lsd3d_usd.ggds.filters import box_filter
+        r = box_filter((x - x_hat).abs().mean(-1), 1)
+        p = self.params["means"][rows].double().numpy()
+        uv, z = cam.project(p)
+        i, j = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+        ok = (z > cam.near) & (i >= 0) & (j >= 0) & (i < cam.width) & (j < cam.height)
+        vals = torch.full((len(p),), float("nan"))
+        ii = torch.from_numpy(i[ok].astype(np.int64))
+        jj = torch.from_numpy(j[ok].astype(np.int64))
+        vals[torch.from_numpy(ok)] = r[jj, ii]
+        self.strategy.observe(rows, vals, self.params["means"].shape[0])
 
     def activated(self, params: dict) -> dict:
         """The renderer's values of ``params``: constrained (params.activated) and, with the
@@ -196,7 +223,10 @@ class GGDSRun:
         lrs = self._lrs(k)
         self.optimizer.lrs = lrs
         self.optimizer.step(rows)
-        info = self.strategy.step_post_backward(self.params, self.optimizer, k + 1, lrs["means"], rows)
+        if self.strategy.densify_frac > 0:
+            self._observe_residual(x.detach(), x_hat, cam, rows)
+        info = self.strategy.step_post_backward(self.params, self.optimizer, k + 1, lrs["means"],
+                                                rows, filter_coef=self._filter_coef)
         if info["relocated"]:
             self._track_relocation()
         self.step_index += 1
@@ -254,7 +284,7 @@ class GGDSRun:
             tensors.update({f"adam.m.{k}": v.contiguous() for k, v in st["m"].items()})
             tensors.update({f"adam.v.{k}": v.contiguous() for k, v in st["v"].items()})
             tensors["adam.t"] = st["t"].contiguous()
-        tensors["strategy.rng"] = self.strategy._gen.get_state()
+        tensors.update(self.strategy.state_tensors())
         if self.face_index is not None:
             tensors["face_index"] = torch.from_numpy(np.ascontiguousarray(self.face_index))
         if self.filter3d is not None:
@@ -280,7 +310,7 @@ class GGDSRun:
                 "v": {k: tensors[f"adam.v.{k}"] for k in self.params}, "t": tensors["adam.t"]})
         self.step_index = int(meta["step"])
         self.rng.bit_generator.state = meta["rng"]
-        self.strategy._gen.set_state(tensors["strategy.rng"])
+        self.strategy.load_state_tensors(tensors)
         self.history = list(meta["history"])
         self.seconds = float(meta.get("seconds", 0.0))
         if "face_index" in tensors:
