@@ -165,6 +165,50 @@ def test_solve_sh_recovers_a_function_in_its_span_and_ridge_limits():
     np.testing.assert_allclose(x1[0, 1:], 0.0, atol=1e-9)
 
 
+def test_pooled_solve_matches_one_big_least_squares():
+    from lsd3d_usd.ggds.worldfit import cell_ids, ridge_matrix, solve_sh_pooled
+    rng = np.random.default_rng(6)
+    N, K, S = 7, 5, 4
+    d = rng.normal(size=(N, K, 3))
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    B = sh_basis(torch.from_numpy(d.reshape(-1, 3)), 1).numpy().reshape(N, K, S)
+    c = rng.uniform(0, 1, (N, K, 3))
+    groups = np.array([0, 0, 0, 1, 1, 2, 2])
+    nrm = rng.normal(size=(N, 3))
+    got = solve_sh_pooled(B, c, groups, nrm, 0.05, 2.0)
+    # Reference: unknowns [x0_0..x0_6, y_0 (3), y_1 (3), y_2 (3)], one row per sample plus
+    # ridge rows sqrt(cnt K C0² Λ_g) on each group's y.
+    G = 3
+    rows, rhs = [], []
+    for i in range(N):
+        for k in range(K):
+            r = np.zeros(N + G * (S - 1))
+            r[i] = B[i, k, 0]
+            r[N + groups[i] * (S - 1): N + (groups[i] + 1) * (S - 1)] = B[i, k, 1:]
+            rows.append(r)
+            rhs.append(c[i, k] - 0.5)
+    for g in range(G):
+        m = groups == g
+        lam = ridge_matrix(nrm[m].sum(0)[None], 1, 0.05, 2.0)[0, 1:, 1:] * m.sum() * K * 0.28209479177387814 ** 2
+        w, v = np.linalg.eigh(lam)
+        L = (v * np.sqrt(np.maximum(w, 0))).T
+        for r_ in L:
+            r = np.zeros(N + G * (S - 1))
+            r[N + g * (S - 1): N + (g + 1) * (S - 1)] = r_
+            rows.append(r)
+            rhs.append(np.zeros(3))
+    sol = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)[0]
+    np.testing.assert_allclose(got[:, 0], sol[:N], atol=1e-8)
+    for i in range(N):
+        g = groups[i]
+        np.testing.assert_allclose(got[i, 1:], sol[N + g * (S - 1): N + (g + 1) * (S - 1)], atol=1e-8)
+    # groups: same cell, class and normal axis/sign
+    pos = np.array([[0.1, 0.1, 0], [0.9, 0.2, 0], [1.1, 0.1, 0], [0.2, 0.2, 0], [0.3, 0.1, 0]])
+    nr = np.array([[0, 0, 1.0], [0, 0, 1], [0, 0, 1], [0, 0, -1], [0, 0, 1]])
+    ids = cell_ids(pos, nr, np.array([1, 1, 1, 1, 2]), 1.0)
+    assert ids[0] == ids[1] and len(set(ids.tolist())) == 4
+
+
 class ViewDependentPrior:
     """shade_at: grey 0.3 + 0.4 × the view direction's z (linear in d: SH degree 1 exact)."""
 
@@ -182,7 +226,17 @@ def test_fit_sh_recovers_view_dependent_colour():
                         np.full((n, 2), 1e-4, np.float32), np.full(n, 0.8, np.float32),
                         np.zeros((n, 4, 3), np.float32), semantic_ids=np.zeros(n, np.int32))
     cs = cams()
-    sh = fit_sh(ViewDependentPrior(), None, field, cs, degree=1, samples=6, ridge=0.0)
+    for sh in (fit_sh(ViewDependentPrior(), None, field, cs, degree=1, samples=6, ridge=0.0),
+               fit_sh(ViewDependentPrior(), None, field, cs, degree=1, samples=3, ridge=0.0,
+                      ridge_tangent=0.0, cell=1.0)):
+        _check_colour_per_camera(field, sh, cs)
+    assert fit_sh(ViewDependentPrior(), None, SurfelField.concat([field]).subset(np.arange(0)),
+                  cs, degree=1).shape == (0, 4, 3)
+    no_sem = SurfelField(field.positions, field.orientations, field.scales, field.opacities, field.sh)
+    assert fit_sh(ViewDependentPrior(), None, no_sem, cs, degree=1) is None
+
+
+def _check_colour_per_camera(field, sh, cs):
     for c in cs:
         d = field.positions.astype(np.float64) - c.center
         d /= np.linalg.norm(d, axis=1, keepdims=True)
@@ -192,10 +246,6 @@ def test_fit_sh_recovers_view_dependent_colour():
         uv, z = c.project(field.positions)
         vis = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= c.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= c.height)
         np.testing.assert_allclose(col[vis, 0], 0.3 + 0.4 * d[vis, 2], atol=2e-3)
-    assert fit_sh(ViewDependentPrior(), None, SurfelField.concat([field]).subset(np.arange(0)),
-                  cs, degree=1).shape == (0, 4, 3)
-    no_sem = SurfelField(field.positions, field.orientations, field.scales, field.opacities, field.sh)
-    assert fit_sh(ViewDependentPrior(), None, no_sem, cs, degree=1) is None
 
 
 def test_disk_pattern_fills_the_disk():

@@ -90,15 +90,62 @@ def solve_sh(basis: np.ndarray, colours: np.ndarray, ridge: float, *, normals=No
     return np.linalg.solve(A, b)
 
 
+def cell_ids(positions: np.ndarray, normals: np.ndarray, classes: np.ndarray,
+             cell: float) -> np.ndarray:
+    """(N,) dense ids of the groups that share view-dependent colour: same ``cell``-metre
+    grid cell, same semantic class, same dominant normal axis and sign."""
+    g = np.floor(np.asarray(positions, np.float64) / cell).astype(np.int64)
+    n = np.asarray(normals, np.float64)
+    ax = np.argmax(np.abs(n), axis=1)
+    sign = np.take_along_axis(n, ax[:, None], 1)[:, 0] >= 0
+    key = np.stack([g[:, 0], g[:, 1], g[:, 2], np.asarray(classes, np.int64), ax, sign], 1)
+    return np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)
+
+
+def solve_sh_pooled(basis: np.ndarray, colours: np.ndarray, groups: np.ndarray,
+                    normals: np.ndarray, ridge: float, ridge_tangent: float) -> np.ndarray:
+    """Least squares with a DC term per surfel and the higher SH terms shared by each group:
+    minimise Σ_i Σ_k |0.5 + C0 x0_i + Bv_ik·y_g(i) − c_ik|² + ridges on y. Per surfel the DC
+    term is eliminated exactly (samples centred on the surfel's own mean), so y_g is fitted
+    to how colour changes with direction inside each surfel, pooled over the group, and then
+    x0_i = (mean_k c_ik − 0.5 − mean_k Bv_ik·y_g)/C0. Ridges as solve_sh, in the frame of the
+    group's mean normal."""
+    B = np.asarray(basis, np.float64)
+    c = np.asarray(colours, np.float64)
+    N, K, S = B.shape
+    degree = int(round(np.sqrt(S))) - 1
+    Bv = B[:, :, 1:]
+    Bc = Bv - Bv.mean(axis=1, keepdims=True)
+    cc = c - c.mean(axis=1, keepdims=True)
+    G = int(groups.max()) + 1 if N else 0
+    A = np.zeros((G, S - 1, S - 1))
+    b = np.zeros((G, S - 1, 3))
+    np.add.at(A, groups, np.einsum("nks,nkt->nst", Bc, Bc))
+    np.add.at(b, groups, np.einsum("nks,nkc->nsc", Bc, cc))
+    cnt = np.bincount(groups, minlength=G).astype(np.float64)
+    nsum = np.zeros((G, 3))
+    np.add.at(nsum, groups, np.asarray(normals, np.float64))
+    R = ridge_matrix(nsum + np.where(np.linalg.norm(nsum, axis=1, keepdims=True) > 0, 0.0,
+                                     [0.0, 0.0, 1.0]), degree, ridge, ridge_tangent)
+    A += (cnt * K * C0 * C0)[:, None, None] * R[:, 1:, 1:] + 1e-12 * np.eye(S - 1)[None]
+    y = np.linalg.solve(A, b)                                           # (G,S-1,3)
+    out = np.empty((N, S, 3))
+    out[:, 1:] = y[groups]
+    out[:, 0] = (c.mean(axis=1) - 0.5 - np.einsum("ns,nsc->nc", Bv.mean(axis=1), y[groups])) / C0
+    return out
+
+
 @torch.no_grad()
 def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int = 16,
            ridge: float = 0.003, ridge_tangent: float | None = 1.0, offsets_sigma: float = 0.7,
-           seed: int = 0,
-           batch: int = 100_000) -> np.ndarray | None:
+           cell: float = 0.0, seed: int = 0, batch: int = 100_000) -> np.ndarray | None:
     """(N,(degree+1)²,3) SH coefficients of ``field``'s surfels fitted to ``prior`` (module
     doc), or None when the prior cannot be evaluated in world space or the field has no
     semantic ids. ``cameras``: the training cameras; a surfel none of them sees is shaded as
-    seen from the nearest camera centre (or from 10 m above when there are no cameras)."""
+    seen from the nearest camera centre (or from 10 m above when there are no cameras).
+    ``cell`` > 0: the view-dependent terms are shared by the surfels of one ``cell``-metre
+    grid cell, class and normal direction (solve_sh_pooled), so few samples per surfel
+    suffice; 0: each surfel fits its own (solve_sh)."""
     from lsd3d_usd.splats.field import quat_to_matrix
     sem = field.semantic_ids
     if sem is None:
@@ -114,6 +161,9 @@ def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int
     if len(cams):
         from scipy.spatial import cKDTree
         tree = cKDTree(cams.centres)
+    if cell > 0:
+        allB = np.empty((field.n, samples, S), np.float32)
+        allC = np.empty((field.n, samples, 3), np.float32)
     for a in range(0, field.n, batch):
         sl = slice(a, min(a + batch, field.n))
         p = field.positions[sl].astype(np.float64)
@@ -141,6 +191,14 @@ def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int
         d = p[:, None, :] - eyes
         d /= np.maximum(np.linalg.norm(d, axis=-1, keepdims=True), 1e-12)
         basis = sh_basis(torch.from_numpy(d.reshape(-1, 3)), degree).numpy().reshape(n, samples, S)
-        out[sl] = solve_sh(basis, col, ridge, normals=R[:, :, 2],
-                           ridge_tangent=ridge_tangent).astype(np.float32)
+        if cell > 0:
+            allB[sl], allC[sl] = basis, col
+        else:
+            out[sl] = solve_sh(basis, col, ridge, normals=R[:, :, 2],
+                               ridge_tangent=ridge_tangent).astype(np.float32)
+    if cell > 0:
+        nrm = field.normals()
+        groups = cell_ids(field.positions, nrm, sem, cell)
+        out[:] = solve_sh_pooled(allB, allC, groups, nrm, ridge,
+                                 1.0 if ridge_tangent is None else ridge_tangent)
     return out
