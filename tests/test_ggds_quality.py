@@ -379,3 +379,44 @@ def test_displaced_views_cover_eval_novel_positions_in_the_given_proportion():
     from lsd3d_usd.errors import InputError
     with pytest.raises(InputError, match="novel_style"):
         sample_views(lay, 3, 32, 24, novel_style="nope")
+
+
+def _plane_view(cam):
+    """Depth of the plane z = 0 seen by cam and a target whose colour is 0.3 + 0.4·(ray z)."""
+    from lsd3d_usd.render.camera import pixel_rays
+    o, d = pixel_rays(cam)
+    t = -o[..., 2] / np.where(np.abs(d[..., 2]) > 1e-9, d[..., 2], np.nan)
+    fwd = cam.pose[:3, 2]
+    depth = np.where(t > 0, t * (d @ fwd), np.inf)
+    target = np.repeat((0.3 + 0.4 * d[..., 2])[..., None], 3, axis=2)
+    return depth, target
+
+
+def test_view_fit_recovers_direction_dependent_targets_and_skips_occluded():
+    from lsd3d_usd.ggds.worldfit import ViewFit
+    rng = np.random.default_rng(7)
+    n = 60
+    pos = np.c_[rng.uniform(-1.5, 1.5, (n, 2)), np.zeros(n)]
+    nrm = np.tile([0.0, 0.0, 1.0], (n, 1))
+    scales = np.full((n, 2), 1e-3)
+    cs = [Camera.from_fov(400, 300, 60.0, pose=look_at(np.array(e, float), np.zeros(3)),
+                          near=0.1, far=100.0)
+          for e in ((0, -6, 2), (0, -3, 1.5), (5, 0, 3), (-4, 3, 2.5))]
+    fit = ViewFit(n + 1, 1)
+    allpos = np.vstack([pos, [[0.0, 0.0, 0.5]]])       # the last one floats above the plane
+    for c in cs:
+        depth, target = _plane_view(c)
+        fit.add_view(allpos, np.vstack([scales, scales[:1]]), np.vstack([nrm, nrm[:1]]), c,
+                     target, depth, max_radius=0)
+    sh, seen = fit.solve(np.vstack([nrm, nrm[:1]]), 0.0, 0.0)
+    assert not seen[-1] and fit.count[-1] == 0          # never on the visible surface
+    assert seen[:-1].all()
+    for c in cs:
+        d = pos - c.center
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        col = 0.5 + np.einsum("ns,nsc->nc", sh_basis(torch.from_numpy(d), 1).numpy(), sh[:-1])
+        uv, _ = c.project(pos)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < c.width) & (uv[:, 1] >= 0) & (uv[:, 1] < c.height)
+        # where the camera saw it, the fit gives its colour (pixel-centre quantisation of the
+        # direction: about 1e-3 at 400 px)
+        np.testing.assert_allclose(col[inside, 0], 0.3 + 0.4 * d[inside, 2], atol=5e-3)

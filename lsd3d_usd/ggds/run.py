@@ -253,19 +253,40 @@ class GGDSRun:
 
     @torch.no_grad()
     def world_init(self) -> bool:
-        """Fit every surfel's SH colour to the prior evaluated in world space at points over
-        its disk, seen from training cameras that have it in view (ggds/worldfit.py), when the
-        prior can be evaluated in 3D (Prior.shade_at; the procedural prior can, a diffusion
-        prior cannot). Image-space GGDS steps refine from there. Returns whether it ran."""
-        from lsd3d_usd.ggds.worldfit import fit_sh
+        """Start every surfel's SH colour from the prior, when the prior is world-consistent
+        (Prior.shade_at; the procedural prior is, a diffusion prior is not): a per-surfel
+        least-squares fit to the t = 1 targets of the training views that see it
+        (worldfit.ViewFit; each view's target is computed once and cached, as the steps
+        would), and for surfels no training view sees, to the prior evaluated in 3D over its
+        disk from the nearest cameras (worldfit.fit_sh). GGDS steps refine from there.
+        Returns whether it ran."""
+        from lsd3d_usd.ggds.worldfit import ViewFit, fit_sh
         from lsd3d_usd.render.sh import sh_degree_of
         c = self.cfg
-        sh = fit_sh(self.prior, self.env, self.field(), [v.camera for v in self.views],
-                    degree=sh_degree_of(self.params["sh"].shape[1]), shadow=self.shadow,
-                    samples=c.world_init_samples, ridge=c.world_init_ridge,
-                    ridge_tangent=c.world_init_ridge_tangent, seed=c.seed)
-        if sh is None:
+        f = self.field()
+        if f.semantic_ids is None or f.n == 0:
             return False
+        probe = self.prior.shade_at(f.positions[:1].astype(np.float64), f.normals()[:1],
+                                    f.semantic_ids[:1], self.env)
+        if probe is None:
+            return False
+        degree = sh_degree_of(self.params["sh"].shape[1])
+        normals = f.normals()
+        fit = ViewFit(f.n, degree)
+        for i in range(len(self.views)):
+            vd = self.view_data(i)
+            cam = vd.view.camera
+            target = self.prior.target(torch.zeros(cam.height, cam.width, 3), vd.gbuffer,
+                                       self.env, 1.0, n_steps=c.n_denoise, seed=c.seed)
+            fit.add_view(f.positions, f.scales, normals, cam, target, vd.gbuffer.depth.numpy())
+        sh, seen = fit.solve(normals, c.world_init_ridge, c.world_init_ridge_tangent)
+        if not seen.all():
+            rest = np.flatnonzero(~seen)
+            sub = fit_sh(self.prior, self.env, f.subset(rest), [v.camera for v in self.views],
+                         degree=degree, shadow=self.shadow, samples=c.world_init_samples,
+                         ridge=c.world_init_ridge, ridge_tangent=c.world_init_ridge_tangent,
+                         seed=c.seed)
+            sh[rest] = sub
         self.params["sh"][:] = torch.from_numpy(sh)
         return True
 

@@ -202,3 +202,77 @@ def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int
         out[:] = solve_sh_pooled(allB, allC, groups, nrm, ridge,
                                  1.0 if ridge_tangent is None else ridge_tangent)
     return out
+
+
+class ViewFit:
+    """The per-surfel SH least squares accumulated from the training views' targets.
+
+    For each view (``add_view``): every surfel whose centre projects inside the image onto the
+    visible proxy surface (its depth within ``rel_tol`` of the view's proxy depth there, so
+    occluded surfels get nothing) takes one sample: the target's colour at its centre —
+    box-filtered over about its projected disk, so the DC term is the disk's mean — along the
+    direction camera → centre, weighted by the pixels the disk covers there
+    (π s_u s_v |cos θ| f² / z², what the training loss weighs it by; at least ``min_weight``).
+    ``solve`` then fits each surfel's SH to its samples (ridges as solve_sh, in units of the
+    surfel's total weight). Surfels no view sees are reported, not guessed."""
+
+    def __init__(self, n: int, degree: int):
+        S = (degree + 1) ** 2
+        self.degree = degree
+        self.A = np.zeros((n, S, S))
+        self.b = np.zeros((n, S, 3))
+        self.count = np.zeros(n, np.int64)
+
+    def add_view(self, positions: np.ndarray, scales: np.ndarray, normals: np.ndarray, camera,
+                 target, depth, *, rel_tol: float = 0.02, abs_tol: float = 0.02,
+                 max_radius: int = 4, min_weight: float = 0.05) -> int:
+        """Add one view's samples; returns how many surfels it saw."""
+        from lsd3d_usd.ggds.filters import box_filter
+        tgt = torch.as_tensor(target, dtype=torch.float32)
+        dep = np.asarray(depth, np.float64)
+        H, W = dep.shape
+        uv, z = camera.project(positions)
+        i, j = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+        ok = (z > camera.near) & (i >= 0) & (j >= 0) & (i < W) & (j < H)
+        idx = np.flatnonzero(ok)
+        ii, jj = i[idx].astype(np.int64), j[idx].astype(np.int64)
+        zd = dep[jj, ii]
+        vis = np.isfinite(zd) & (np.abs(z[idx] - zd) <= rel_tol * zd + abs_tol)
+        idx, ii, jj = idx[vis], ii[vis], jj[vis]
+        if len(idx) == 0:
+            return 0
+        p = np.asarray(positions, np.float64)[idx]
+        d = p - camera.center
+        dist = np.linalg.norm(d, axis=1)
+        d /= np.maximum(dist, 1e-12)[:, None]
+        zz = z[idx]
+        f = float(np.sqrt(camera.fx * camera.fy))
+        s = np.asarray(scales, np.float64)[idx]
+        cos = np.abs((np.asarray(normals, np.float64)[idx] * d).sum(1))
+        sigma_px = np.sqrt(s[:, 0] * s[:, 1]) * f / zz
+        weight = np.maximum(np.pi * s[:, 0] * s[:, 1] * cos * f * f / (zz * zz), min_weight)
+        radius = np.clip(np.round(0.7 * sigma_px), 0, max_radius).astype(np.int64)
+        col = np.empty((len(idx), 3))
+        for r in np.unique(radius):
+            m = radius == r
+            level = box_filter(tgt, int(r)).numpy()
+            col[m] = level[jj[m], ii[m]]
+        B = sh_basis(torch.from_numpy(d), self.degree).numpy()
+        wB = B * weight[:, None]
+        self.A[idx] += np.einsum("ns,nt->nst", wB, B)
+        self.b[idx] += np.einsum("ns,nc->nsc", wB, col - 0.5)
+        self.count[idx] += 1
+        return int(len(idx))
+
+    def solve(self, normals: np.ndarray, ridge: float, ridge_tangent: float):
+        """(sh (N,S,3) float32, seen (N,) bool); rows not seen are zero."""
+        n, S = self.A.shape[:2]
+        out = np.zeros((n, S, 3), np.float32)
+        seen = self.count > 0
+        if seen.any():
+            A = self.A[seen]
+            reg = ridge_matrix(np.asarray(normals)[seen], self.degree, ridge, ridge_tangent)
+            # in units of the surfel's total weight (A00 = C0² Σw), as solve_sh's K·C0²
+            A = A + A[:, 0, 0, None, None] * reg + 1e-12 * np.eye(S)[None]
+            out[seen] = np.linalg.solve(A, self.b[seen]).astype(np.float32)
+        return out, seen
