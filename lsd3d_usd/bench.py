@@ -44,18 +44,24 @@ register_benchmark(
 # ------------------------------------------------------------------- ggds ---
 def _ggds_args(p: argparse.ArgumentParser):
     p.add_argument("--json", metavar="OUT.json", help="write results as JSON (keys s_per_step, "
-                   "psnr_novel, depth_rel_err, normal_err_deg, off_surface_frac, timing, quality)")
+                   "psnr_heldout, psnr_heldout_2x, fd_novel_over_content, psnr_novel, "
+                   "depth_rel_err, normal_err_deg, off_surface_frac, timing, quality)")
     p.add_argument("--quick", action="store_true", help="small subset (a couple of minutes)")
     p.add_argument("--layout", help="layout for the timing chunk and the quality run (default: "
                                     "timing on samples/layouts/generated_seed7_200x200.usda, "
                                     "quality on hand_crossing.usda, the README sample, and on it)")
     p.add_argument("--steps", type=int, help="GGDS steps of the quality run (default: generate's, 250)")
+    p.add_argument("--strip", metavar="OUT.png", help="before/after image strip at 1x and 2x "
+                   "(default: next to --json, OUT_before_after.png)")
+    p.add_argument("--no-fd", action="store_true", help="skip the eval Fréchet distances "
+                   "(fd_novel_over_content)")
 
 
 def _ggds_run(args) -> int:
     from lsd3d_usd.benchmarks.ggds import main
 
-    main(json_path=args.json, quick=args.quick, layout=args.layout, steps=args.steps)
+    main(json_path=args.json, quick=args.quick, layout=args.layout, steps=args.steps,
+         fd=not args.no_fd, strip=args.strip)
     return 0
 
 

@@ -23,7 +23,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.hashing import content_hash
 from lsd3d_usd.views.scene_cameras import write_scene_cameras
 
-SURFELS_VERSION = "surfels-v5"   # v5: density from the drivable lanes only (model.DRIVABLE_TYPES)
+SURFELS_VERSION = "surfels-v6"   # v6: density weights on faces split to 2 m² (ggds.initial); v5: drivable lanes only
 
 
 @dataclass

@@ -1,16 +1,34 @@
 """`bench ggds` quality run: the issue's JSON keys, finite and in range, from a real (tiny)
-generate on the README sample."""
+generate on the README sample, and the before/after strip."""
 import math
+
+import pytest
 
 from lsd3d_usd.benchmarks.ggds import SAMPLES, quality
 
 
 def test_quality_run_reports_the_issue_keys(tmp_path):
+    strip = tmp_path / "strip.png"
     res = quality(SAMPLES / "hand_crossing.usda", steps=2, surfels=2000, resolution=(64, 36),
-                  out=tmp_path / "scene", log=lambda *a: None)
+                  out=tmp_path / "scene", fd=False, strip=strip, log=lambda *a: None)
     assert res["steps"] == 2 and res["surfels"] == 2000
-    for key in ("s_per_step", "psnr_novel", "depth_rel_err", "normal_err_deg", "off_surface_frac"):
+    for key in ("s_per_step", "psnr_novel", "psnr_heldout", "psnr_heldout_2x", "depth_rel_err",
+                "normal_err_deg", "off_surface_frac"):
         assert math.isfinite(res[key]), key
     assert 5.0 < res["psnr_novel"] < 60.0
+    # the scene read back from USD renders what the run evaluated
+    assert abs(res["psnr_heldout"] - res["psnr_novel"]) < 0.05
+    assert 5.0 < res["psnr_heldout_2x"] < 60.0
     assert 0.0 <= res["off_surface_frac"] <= 1.0 and res["normal_err_deg"] >= 0.0
     assert (tmp_path / "scene" / "scene.usda").is_file()
+    from PIL import Image
+    assert Image.open(strip).size[0] > 100
+
+
+@pytest.mark.slow
+def test_quality_run_reports_fd_over_content(tmp_path):
+    res = quality(SAMPLES / "hand_crossing.usda", steps=2, surfels=2000, resolution=(64, 36),
+                  out=tmp_path / "scene", fd=True, log=lambda *a: None)
+    ratios = res["fd_novel_over_content_per_bin"]
+    assert set(ratios) == {"0.5", "1", "2", "4", "8"}
+    assert res["fd_novel_over_content"] == max(ratios.values()) > 0

@@ -75,7 +75,13 @@ def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions
 
 
 def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt="sunny afternoon in Madrid",
-            out=None, log=print) -> dict:
+            out=None, fd=True, strip=None, log=print) -> dict:
+    """A `generate` with its defaults (or the given steps / surfels / resolution) on
+    ``layout_path``, then: held-out PSNR against the prior at 1× and at 2× the training
+    resolution, depth / normal / off-surface figures, and with ``fd`` the `eval` Fréchet
+    distances (seen vs novel per distance bin, over the content-change baseline). ``strip``:
+    a PNG path for the before/after image strip (initial surfels, after GGDS, prior target;
+    at 1× and 2×)."""
     from lsd3d_usd.config import generate_config
     from lsd3d_usd.pipeline import RunOptions, generate
     with tempfile.TemporaryDirectory() as tmp:
@@ -90,15 +96,123 @@ def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt
         g = summary["ggds"]
         res = {k: g[k] for k in ("s_per_step", "psnr_novel", "depth_rel_err", "normal_err_deg",
                                  "off_surface_frac", "steps", "surfels")}
+        res["generate_s"] = round(time.perf_counter() - t0, 1)
+        t = time.perf_counter()
+        res.update(_heldout(target, cfg, strip))
+        res["heldout_s"] = round(time.perf_counter() - t, 1)
+        if fd:
+            t = time.perf_counter()
+            res.update(_fd(target))
+            res["eval_s"] = round(time.perf_counter() - t, 1)
         res["total_s"] = round(time.perf_counter() - t0, 1)
     log(f"quality after {res['steps']} steps ({res['surfels']:,} surfels): held-out PSNR "
-        f"{res['psnr_novel']:.2f} dB, depth err {100 * res['depth_rel_err']:.2f} %, normal err "
-        f"{res['normal_err_deg']:.2f} deg, off-surface {100 * res['off_surface_frac']:.3f} %, "
-        f"{res['s_per_step']:.2f} s/step")
+        f"{res['psnr_heldout']:.2f} dB (2x: {res['psnr_heldout_2x']:.2f} dB), depth err "
+        f"{100 * res['depth_rel_err']:.2f} %, normal err {res['normal_err_deg']:.2f} deg, "
+        f"off-surface {100 * res['off_surface_frac']:.3f} %, {res['s_per_step']:.2f} s/step"
+        + (f", fd novel/content max {res['fd_novel_over_content']:.2f}" if fd else ""))
     return res
 
 
-def main(json_path=None, quick=False, layout=None, steps=None, log=print) -> dict:
+def _heldout(scene_dir: Path, cfg, strip) -> dict:
+    """Held-out PSNR of the scene as written (composed stage) at 1× and 2×, the views GGDS
+    held out (pipeline: seed + 7919, half off the lanes), and the image strip."""
+    import glob
+
+    from pxr import Usd
+
+    from lsd3d_usd import scene as S
+    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.ggds.conditioning import shadow_map
+    from lsd3d_usd import configtree as ct
+    from lsd3d_usd.ggds.envbridge import env_params, scene_light
+    from lsd3d_usd.ggds.heldout import heldout_psnr, render_and_target, scaled
+    from lsd3d_usd.ggds.priors import make_prior
+    from lsd3d_usd.pipeline import read_layout_for
+    from lsd3d_usd.proxy.usdio import proxy_arrays
+    from lsd3d_usd.splats import chunkio
+    from lsd3d_usd.splats.field import SurfelField
+    from lsd3d_usd.views.stage_data import scene_surfels
+    sc = S.Scene.open(scene_dir)
+    layout, _ = read_layout_for(cfg)
+    proxy = proxy_arrays(sc.layer_path("proxy"))
+    exr = sorted(glob.glob(str(sc.textures_dir / "env_*.exr")))[0]
+    light = scene_light(env_params(ct.to_dict(cfg.env), cfg.seed), exr)
+    g = cfg.ggds
+    w, h = g.resolution
+    views = sample_views(layout, g.held_out, w, h, seed=cfg.seed + 7919, novel_frac=0.5,
+                         fov_deg=g.fov_deg)
+    prior = make_prior(cfg.prior, seed=cfg.seed)
+    shadow = shadow_map(proxy[0], proxy[1], light.sun_direction)
+    after = scene_surfels(Usd.Stage.Open(str(sc.root_layer_path)))
+    kw = dict(background_fn=light.background, shadow=shadow, n_denoise=g.n_denoise)
+    p1 = heldout_psnr(after, views, prior, light.prior_env, proxy, **kw)
+    p2 = heldout_psnr(after, scaled(views, 2.0), prior, light.prior_env, proxy, **kw)
+    out = {"psnr_heldout": float(np.mean(p1)), "psnr_heldout_2x": float(np.mean(p2)),
+           "psnr_heldout_lane": _mean_kind(p1, views, "lane"),
+           "psnr_heldout_offlane": _mean_kind(p1, views, "novel")}
+    if strip:
+        root = sc.layer_path("surfels")
+        before = SurfelField.concat([chunkio.read_chunk(root, k)
+                                     for k in sorted(chunkio.read_chunk_map(root))])
+        rows = []
+        for v in views[:2]:
+            for f, vv in ((1.0, v), (2.0, scaled([v], 2.0)[0])):
+                x0, _ = render_and_target(before, vv, prior, light.prior_env, proxy, **kw)
+                x1, tgt = render_and_target(after, vv, prior, light.prior_env, proxy, **kw)
+                rows.append((f"{vv.camera.width}x{vv.camera.height}", x0, x1, tgt))
+        write_strip(Path(strip), rows)
+        out["strip"] = str(strip)
+    return out
+
+
+def _mean_kind(psnrs, views, kind) -> float | None:
+    vals = [p for p, v in zip(psnrs, views) if v.kind == kind]
+    return float(np.mean(vals)) if vals else None
+
+
+def write_strip(path: Path, rows) -> None:
+    """rows of (label, initial, after GGDS, target) images (H,W,3) linear → one PNG."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from lsd3d_usd.ggds.effnet import linear_to_srgb
+    fig, ax = plt.subplots(len(rows), 3, figsize=(13.5, 2.6 * len(rows)), squeeze=False)
+    for i, (label, *imgs) in enumerate(rows):
+        for j, (img, title) in enumerate(zip(imgs, ("initial surfels", "after GGDS",
+                                                     "prior target"))):
+            ax[i, j].imshow(linear_to_srgb(img.clamp(0, 1)).numpy(), interpolation="none")
+            ax[i, j].set_xticks([]); ax[i, j].set_yticks([])
+            if i == 0:
+                ax[i, j].set_title(title)
+        ax[i, 0].set_ylabel(label)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _fd(scene_dir: Path) -> dict:
+    """`eval` with its defaults: Fréchet distance seen vs novel per bin over the content-change
+    baseline (seen vs fresh on-lane views); ≤ 1 at every bin means moving the camera off the
+    training views changes the images less than a change of place does."""
+    from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
+    with tempfile.TemporaryDirectory() as tmp:
+        r = evaluate(EvalOptions(scene=scene_dir, out_dir=Path(tmp), progress=False,
+                                 log=lambda *a: None))
+    fd = r["fd_effnet_lite0"]
+    content = fd["seen_vs_heldout_lane"]["value"]
+    per_bin = {b: v["value"] for b, v in fd["seen_vs_novel"]["per_bin"].items()}
+    ratio = {b: v / content for b, v in per_bin.items()}
+    return {"fd_novel_over_content": max(ratio.values()),
+            "fd_novel_over_content_per_bin": {b: round(v, 3) for b, v in ratio.items()},
+            "fd_novel_per_bin": {b: round(v, 2) for b, v in per_bin.items()},
+            "fd_content": round(content, 2),
+            "eval_geometry_seen": r["geometry"]["seen"]["all"]}
+
+
+def main(json_path=None, quick=False, layout=None, steps=None, fd=True, strip=None,
+         log=print) -> dict:
     """Timing on a 100 m chunk of `layout` (default the generated 200 m sample); quality with
     `generate`'s defaults on `layout`, or by default on the README sample (hand_crossing, whose
     figures are the top-level keys) and the generated 200 m sample."""
@@ -106,20 +220,25 @@ def main(json_path=None, quick=False, layout=None, steps=None, log=print) -> dic
     counts = (50_000,) if quick else (100_000, 500_000)
     res = ((320, 180),) if quick else ((480, 270), (960, 540))
     timing = time_steps(timing_layout, counts=counts, resolutions=res, steps=3 if quick else 5, log=log)
+    if strip is None and json_path:
+        strip = str(Path(json_path).with_suffix("")) + "_before_after.png"
     if quick:
         runs = [quality(SAMPLES / "hand_crossing.usda", steps=steps or 10, surfels=20_000,
-                        resolution=(320, 180), log=log)]
+                        resolution=(320, 180), fd=fd, strip=strip, log=log)]
     else:
         quality_layouts = [Path(layout)] if layout else [SAMPLES / "hand_crossing.usda",
                                                          SAMPLES / "generated_seed7_200x200.usda"]
         runs = []
-        for lay in quality_layouts:
+        for i, lay in enumerate(quality_layouts):
             log(f"quality run on {lay.name} ...")
-            runs.append(dict(quality(lay, steps=steps, log=log), layout=lay.name))
+            runs.append(dict(quality(lay, steps=steps, fd=fd, strip=strip if i == 0 else None,
+                                     log=log), layout=lay.name))
     q = runs[0]
     head = next((r for r in timing if r["n"] == 500_000 and (r["width"], r["height"]) == (480, 270)),
                 timing[-1])
     result = {"s_per_step": head["s_per_step"], "psnr_novel": q["psnr_novel"],
+              "psnr_heldout": q["psnr_heldout"], "psnr_heldout_2x": q["psnr_heldout_2x"],
+              "fd_novel_over_content": q.get("fd_novel_over_content"),
               "depth_rel_err": q["depth_rel_err"], "normal_err_deg": q["normal_err_deg"],
               "off_surface_frac": q["off_surface_frac"], "timing": timing, "quality": q,
               "quality_runs": runs}

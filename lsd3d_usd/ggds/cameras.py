@@ -1,6 +1,17 @@
 """Training and held-out cameras for GGDS: along the layout's lanes at driving height with
-lateral and heading jitter, plus novel positions off the lanes (sidewalks, lane changes,
-higher mounts) so the optimised scene is supervised beyond the driven lines."""
+lateral and heading jitter, plus novel positions off the lanes so the optimised scene is
+supervised beyond the driven lines.
+
+Off-lane views ("novel"), two styles:
+  "displaced": a lane view moved by d metres (d log-uniform in [0.5, novel_max_m]) in a
+      uniformly random horizontal direction of its own frame, with a vertical part uniform in
+      [-min(0.25 d, 0.5), 0.25 d] and its heading turned by up to ±min(7.5°·d, 45°); positions
+      inside a building footprint are redrawn. These are the positions `eval` calls novel
+      (eval/views.novel_views draws its distance bins 0.5-8 m the same way), so the surfaces
+      such views see get supervised.
+  "lane_offset": beside a lane, 0.5-5 m beyond its edge, free heading (±60°, turned round
+      15 % of the time), eye height 1.2-3 m (the earlier sampler).
+"""
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -9,6 +20,11 @@ import numpy as np
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import Camera, look_at
+
+NOVEL_STYLES = ("displaced", "lane_offset")
+MAX_DROP_M = 0.5           # displaced views never sink more than this below the lane view
+HEADING_DEG_PER_M = 7.5    # displaced views turn by up to this per metre moved ...
+MAX_HEADING_DEG = 45.0     # ... and at most this
 
 
 @dataclass
@@ -69,17 +85,56 @@ def _inside_arcs(lanes, region, step: float = 0.5):
     return out
 
 
+def _building_paths(layout):
+    from matplotlib.path import Path as MPath
+    out = []
+    for b in getattr(layout, "buildings", None) or []:
+        fp = np.asarray(b.footprint, np.float64)[:, :2]
+        out.append((MPath(fp), fp.min(axis=0), fp.max(axis=0)))
+    return out
+
+
+def _inside(p, paths) -> bool:
+    return any(np.all(p[:2] >= lo) and np.all(p[:2] <= hi) and path.contains_point(p[:2])
+               for path, lo, hi in paths)
+
+
+def displace(rng: np.random.Generator, eye: np.ndarray, fwd2: np.ndarray, d: float, paths=(),
+             tries: int = 50) -> tuple[np.ndarray, float]:
+    """(new eye, yaw change in radians) of a view at ``eye`` looking along the horizontal unit
+    vector ``fwd2`` moved by exactly ``d`` metres as module doc "displaced" says."""
+    left = np.array([-fwd2[1], fwd2[0]])
+    for _ in range(tries):
+        dz = rng.uniform(-min(0.25 * d, MAX_DROP_M), 0.25 * d)
+        horiz = np.sqrt(max(d * d - dz * dz, 0.0))
+        phi = rng.uniform(0.0, 2.0 * np.pi)
+        xy = horiz * (np.cos(phi) * fwd2 + np.sin(phi) * left)
+        new = eye + np.array([xy[0], xy[1], dz])
+        if not _inside(new, paths):
+            break
+    max_yaw = np.radians(min(HEADING_DEG_PER_M * d, MAX_HEADING_DEG))
+    return new, float(rng.uniform(-max_yaw, max_yaw))
+
+
 def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_deg: float = 70.0,
                  eye_height: float = 1.6, lateral_jitter: float = 0.5, heading_jitter_deg: float = 8.0,
                  pitch_deg: float = -4.0, novel_frac: float = 0.25, region=None, clip: bool = False,
-                 kind_lane: str = "lane", kind_novel: str = "novel", far: float = 400.0) -> list[View]:
-    """`n` views: (1-novel_frac) along lanes (driving direction, small jitter) and novel_frac
-    off the lanes (larger offsets, free headings, eye heights 1.2-3 m). Deterministic per seed.
-    region (x0, y0, x1, y1): only lanes that pass through it; with ``clip`` the views' lane
-    points themselves lie inside it (chunk-wise GGDS: views of the chunk being optimised)."""
+                 kind_lane: str = "lane", kind_novel: str = "novel", far: float = 400.0,
+                 novel_style: str = "lane_offset", novel_max_m: float = 8.0) -> list[View]:
+    """`n` views: round(n·novel_frac) off the lanes (module doc, ``novel_style``), the rest
+    along lanes (driving direction, small lateral and heading jitter). Deterministic per
+    seed. A "displaced" view's offset_m is its distance from the lane view it was moved
+    from. region (x0, y0, x1, y1): only lanes that pass through it; with ``clip`` the views'
+    lane points themselves lie inside it (chunk-wise GGDS: views of the chunk being
+    optimised)."""
     if n <= 0:
         return []
+    if novel_style not in NOVEL_STYLES:
+        raise InputError(f"novel_style {novel_style!r}: choose one of {', '.join(NOVEL_STYLES)}")
+    if not novel_max_m >= 0.5:
+        raise InputError(f"novel_max_m must be >= 0.5 m, got {novel_max_m}")
     rng = np.random.default_rng(seed)
+    paths = _building_paths(layout) if novel_style == "displaced" else ()
     lanes = _lanes(layout, region)
     if clip and region is not None:
         arcs = _inside_arcs(lanes, region)
@@ -107,7 +162,7 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
         t2 = np.array([t[0], t[1]]) / max(np.hypot(t[0], t[1]), 1e-12)
         left = np.array([-t2[1], t2[0]])
         width_here = float(np.median(lane.widths)) if len(lane.widths) else 3.5
-        if novel:
+        if novel and novel_style == "lane_offset":
             offset = rng.choice([-1.0, 1.0]) * rng.uniform(0.5 * width_here, 0.5 * width_here + 5.0)
             yaw = np.radians(rng.uniform(-60.0, 60.0)) + (np.pi if rng.uniform() < 0.15 else 0.0)
             h = rng.uniform(1.2, 3.0)
@@ -118,6 +173,12 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
         c, s = np.cos(yaw), np.sin(yaw)
         fwd2 = np.array([c * t2[0] - s * t2[1], s * t2[0] + c * t2[1]])
         eye = np.array([p[0] + offset * left[0], p[1] + offset * left[1], p[2] + h])
+        if novel and novel_style == "displaced":
+            d = float(np.exp(rng.uniform(np.log(0.5), np.log(novel_max_m))))
+            eye, dyaw = displace(rng, eye, fwd2, d, paths)
+            c, s = np.cos(dyaw), np.sin(dyaw)
+            fwd2 = np.array([c * fwd2[0] - s * fwd2[1], s * fwd2[0] + c * fwd2[1]])
+            offset = d
         pitch = np.radians(pitch_deg)
         target = eye + np.array([fwd2[0] * np.cos(pitch), fwd2[1] * np.cos(pitch), np.sin(pitch)])
         cam = Camera.from_fov(width, height, fov_deg, pose=look_at(eye, target), near=0.1, far=far)

@@ -50,6 +50,15 @@ class StrategyConfig:
                                  lo=0.0, hi=1.0)
     max_relocate_frac: float = option(0.05, help="at most this fraction relocated at once",
                                       lo=0.0, hi=1.0)
+    densify_frac: float = option(0.0, help="error-driven densification: at each relocation "
+                                           "move up to this fraction of the surfels, the most "
+                                           "redundant ones (see redundant_coef), onto surfels "
+                                           "with high residual and split those (needs "
+                                           "filter_3d > 0; 0 = off)", lo=0.0, hi=1.0)
+    redundant_coef: float = option(0.25, help="a surfel is redundant when the 3D smoothing "
+                                              "filter keeps less than this fraction of its "
+                                              "opacity (it is much smaller than the finest "
+                                              "training pixel)", lo=0.0, hi=1.0)
 
 
 REGION_MODES = ("auto", "scene", "chunk")
@@ -107,6 +116,20 @@ class GGDSConfig:
                                    flag="--checkpoint-every", alias="checkpoint_every", lo=1)
     world_init: bool = option(True, help="start surfel colours from the prior evaluated in 3D "
                                          "(when the prior can)")
+    filter_3d: float = option(0.0, help="3D smoothing filter (anti-aliasing, Mip-Splatting): "
+                                         "each disk is convolved with σ = this × the pixel "
+                                         "footprint of the finest training view that sees it "
+                                         "(0 = off)", lo=0.0, hi=10.0)
+    world_init_samples: int = option(16, help="world-space start: points per surfel, each seen "
+                                             "from a training camera that has it in view, to "
+                                             "which its view-dependent SH colour is fitted",
+                                     lo=1, hi=64)
+    world_init_ridge: float = option(0.003, help="world-space start: ridge on the SH terms that "
+                                                 "depend on the angle to the surfel's normal "
+                                                 "(relative to the DC term's weight)", lo=0.0)
+    world_init_ridge_tangent: float = option(1.0, help="world-space start: ridge on the SH "
+                                                       "terms that depend on the azimuth around "
+                                                       "the normal", lo=0.0)
     perceptual: bool = option(True, help="the perceptual loss term", alias="perceptual",
                               negate="--no-perceptual")
     lpips: Path | None = option(None, help="use LPIPS as the perceptual term: a local "

@@ -19,6 +19,18 @@ import numpy as np
 
 from lsd3d_usd.splats.field import SurfelField
 
+# Faces are split to at most this area (m²) before the density weights are evaluated, so the
+# density follows the distance to the lanes within large proxy faces (terrain, road).
+WEIGHT_FACE_AREA = 2.0
+
+
+def _weighted_mesh(vertices, faces, layout):
+    """(V', F', parent, weights) of the mesh split to WEIGHT_FACE_AREA with its density weights."""
+    from lsd3d_usd.splats.importance import face_weights
+    from lsd3d_usd.splats.init import split_faces
+    V, F, parent = split_faces(vertices, faces, WEIGHT_FACE_AREA)
+    return V, F, parent, face_weights(V, F, layout)
+
 
 def _chunk_seed(seed: int, key) -> int:
     return int(np.random.SeedSequence([int(seed), int(key[0]) & 0xFFFFFFFF,
@@ -26,10 +38,11 @@ def _chunk_seed(seed: int, key) -> int:
 
 
 def _weighted_area(V: np.ndarray, F: np.ndarray, layout) -> tuple[np.ndarray, np.ndarray]:
-    from lsd3d_usd.splats.importance import face_weights
-    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]),
+    """(area, density weight) per face of the mesh split to WEIGHT_FACE_AREA."""
+    Vs, Fs, _, w = _weighted_mesh(V, F, layout)
+    area = 0.5 * np.linalg.norm(np.cross(Vs[Fs[:, 1]] - Vs[Fs[:, 0]], Vs[Fs[:, 2]] - Vs[Fs[:, 0]]),
                                 axis=1)
-    return area, face_weights(V, F, layout)
+    return area, w
 
 
 def colour_by_light(field: SurfelField, light, shadow) -> None:
@@ -160,11 +173,12 @@ def write_initial_surfels(proxy_path, layout, light, out_root, *, count: int | N
         V, F, ids = cache.get(key)
         n = counts[key]
         if n > 0:
-            _, weights = _weighted_area(V, F, layout)
-            field, face = mesh_to_surfels(V, F, ids, count=n, seed=_chunk_seed(seed, key),
-                                          sh_degree=sh_degree, semantic_classes=CLASSES,
-                                          return_face_index=True, face_weights=weights,
-                                          max_count=max_count)
+            Vs, Fs, parent, weights = _weighted_mesh(V, F, layout)
+            field, face = mesh_to_surfels(Vs, Fs, np.asarray(ids)[parent], count=n,
+                                          seed=_chunk_seed(seed, key), sh_degree=sh_degree,
+                                          semantic_classes=CLASSES, return_face_index=True,
+                                          face_weights=weights, max_count=max_count)
+            face = parent[face]
             NV, NF = cache.neighbourhood(key)
             colour_by_light(field, light, shadow_map(NV, NF, light.sun_direction))
             for target, idx in _owners(field.positions, key, chunk_size).items():

@@ -30,10 +30,11 @@ def activated(params: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
             "sh": params["sh"]}
 
 
-def to_field(params: dict[str, torch.Tensor], like: SurfelField) -> SurfelField:
-    """Back to a SurfelField, keeping `like`'s semantic ids and class table."""
+def to_field(params: dict[str, torch.Tensor], like: SurfelField, activate=activated) -> SurfelField:
+    """Back to a SurfelField, keeping `like`'s semantic ids and class table; ``activate`` maps
+    the raw tensors to the renderer's values (default: activated)."""
     with torch.no_grad():
-        a = activated(params)
+        a = activate(params)
         op = a["opacities"].numpy().astype(np.float32)
         return SurfelField(a["means"].numpy().copy(), a["quats"].numpy().copy(),
                            np.maximum(a["scales"].numpy(), 1e-12), np.clip(op, 0.0, 1.0),

@@ -121,7 +121,9 @@ class GGDSRun:
         self.strategy = MCMCStrategy(noise_scale=st.noise_scale, gate_sharpness=st.gate_sharpness,
                                      gate_threshold=st.gate_threshold,
                                      relocate_every=st.relocate_every, dead_opacity=st.dead_opacity,
-                                     max_relocate_frac=st.max_relocate_frac, seed=config.seed)
+                                     max_relocate_frac=st.max_relocate_frac,
+                                     densify_frac=st.densify_frac,
+                                     redundant_coef=st.redundant_coef, seed=config.seed)
         self.prior, self.env = prior, env
         self.vertices, self.faces, self.face_ids = proxy
         self.face_index = None if face_index is None else np.asarray(face_index, np.int64).copy()
@@ -134,6 +136,8 @@ class GGDSRun:
                 self.term_state[term.name] = term.setup(config, prior)
         self.render_needs = {n for term, _ in self.terms for n in term.needs}
         self.views = views
+        # Per-surfel σ of the 3D smoothing filter (ggds/antialias.py), or None when off.
+        self.filter3d = self._filter_sigma(field.positions, np.arange(field.n))
         self._view_cache: dict[int, ViewData] = {}
         self.rng = np.random.default_rng(config.seed)
         self.step_index = 0
@@ -161,11 +165,53 @@ class GGDSRun:
             self._view_cache[i] = ViewData(v, gb, bg, focus_mask(gb, self.focus))
         return self._view_cache[i]
 
+    # ------------------------------------------------------------ anti-aliasing
+    def _filter_sigma(self, positions: np.ndarray, rows: np.ndarray) -> torch.Tensor | None:
+        from lsd3d_usd.ggds.antialias import filter_sigma
+        k = self.cfg.filter_3d
+        if not k > 0:
+            return None
+        return torch.from_numpy(filter_sigma(positions[rows], [v.camera for v in self.views], k))
+
+    @torch.no_grad()
+    def _filter_coef(self) -> torch.Tensor | None:
+        """(N,) fraction of each surfel's opacity the 3D filter keeps (None without it)."""
+        if self.filter3d is None:
+            return None
+        from lsd3d_usd.ggds.antialias import smooth
+        s = self.params["scales"].exp()
+        return smooth(s, torch.ones(len(s)), self.filter3d)[1]
+
+    @torch.no_grad()
+    def _observe_residual(self, x: torch.Tensor, x_hat: torch.Tensor, cam, rows: torch.Tensor):
+        """Feed the strategy the residual |x − x̂| (3×3 box mean) at the projected centres of
+        the surfels this view showed (error-driven densification, ggds/strategy.py)."""
+        from lsd3d_usd.ggds.filters import box_filter
+        r = box_filter((x - x_hat).abs().mean(-1), 1)
+        p = self.params["means"][rows].double().numpy()
+        uv, z = cam.project(p)
+        i, j = np.floor(uv[:, 0]), np.floor(uv[:, 1])
+        ok = (z > cam.near) & (i >= 0) & (j >= 0) & (i < cam.width) & (j < cam.height)
+        vals = torch.full((len(p),), float("nan"))
+        ii = torch.from_numpy(i[ok].astype(np.int64))
+        jj = torch.from_numpy(j[ok].astype(np.int64))
+        vals[torch.from_numpy(ok)] = r[jj, ii]
+        self.strategy.observe(rows, vals, self.params["means"].shape[0])
+
+    def activated(self, params: dict) -> dict:
+        """The renderer's values of ``params``: constrained (params.activated) and, with the
+        3D smoothing filter on, each disk convolved with its frequency limit."""
+        a = P.activated(params)
+        if self.filter3d is not None:
+            from lsd3d_usd.ggds.antialias import smooth
+            a["scales"], a["opacities"] = smooth(a["scales"], a["opacities"], self.filter3d)
+        return a
+
     # ------------------------------------------------------------ rendering
     def render(self, camera, params=None, *, background=None, **settings) -> RasterResult:
         """Rasterise the (activated) parameters for ``camera``; ``settings`` are RasterSettings
         fields (near/far come from the camera)."""
-        a = P.activated(self.params if params is None else params)
+        a = self.activated(self.params if params is None else params)
         if self.context is not None:   # trainable rows first: visible_index < n are ours
             a = {k: torch.cat([a[k], self.context[k]]) for k in a}
         return rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
@@ -208,8 +254,11 @@ class GGDSRun:
         lrs = self._lrs(k)
         self.optimizer.lrs = lrs
         self.optimizer.step(rows)
-        info = self.strategy.step_post_backward(self.params, self.optimizer, k + 1, lrs["means"], rows)
-        if info["relocated"] and self.face_index is not None:
+        if self.strategy.densify_frac > 0:
+            self._observe_residual(x.detach(), x_hat, cam, rows)
+        info = self.strategy.step_post_backward(self.params, self.optimizer, k + 1, lrs["means"],
+                                                rows, filter_coef=self._filter_coef)
+        if info["relocated"]:
             self._track_relocation()
         self.step_index += 1
         t_end = time.perf_counter()
@@ -225,58 +274,57 @@ class GGDSRun:
         return rec
 
     def _track_relocation(self):
-        # A relocated surfel sits on its source's disk: it inherits the source's seed face.
+        # A relocated surfel sits on its source's disk: it inherits the source's seed face
+        # and, seen by the same views, its frequency limit.
         dead, src = self.strategy.last_relocation
-        self.face_index[dead.numpy()] = self.face_index[src.numpy()]
+        if self.face_index is not None:
+            self.face_index[dead.numpy()] = self.face_index[src.numpy()]
+        if self.filter3d is not None:
+            self.filter3d[dead] = self.filter3d[src]
 
     @torch.no_grad()
-    def world_init(self, offsets_sigma: float = 0.7, batch: int = 400_000) -> bool:
-        """Set every surfel's DC colour to the prior's colour averaged over its disk (centre and
-        four points at ±offsets_sigma·σ along its axes), seen from the nearest training camera,
-        when the prior can be evaluated in world space (Prior.shade_at; the procedural prior
-        can, a diffusion prior cannot). Image-space GGDS steps refine from there. Returns
-        whether it ran."""
-        sem = self.init_field.semantic_ids
-        if sem is None:
-            return False
-        from lsd3d_usd.splats.field import SH_C0, quat_to_matrix
+    def world_init(self) -> bool:
+        """Start every surfel's SH colour from the prior, when the prior is world-consistent
+        (Prior.shade_at; the procedural prior is, a diffusion prior is not): a per-surfel
+        least-squares fit to the t = 1 targets of the training views that see it
+        (worldfit.ViewFit; each view's target is computed once and cached, as the steps
+        would), and for surfels no training view sees, to the prior evaluated in 3D over its
+        disk from the nearest cameras (worldfit.fit_sh). GGDS steps refine from there.
+        Returns whether it ran."""
+        from lsd3d_usd.ggds.worldfit import ViewFit, fit_sh
+        from lsd3d_usd.render.sh import sh_degree_of
+        c = self.cfg
         f = self.field()
-        R = quat_to_matrix(f.orientations)
-        s = f.scales.astype(np.float64) * offsets_sigma
-        offs = np.stack([np.zeros((f.n, 3)), R[..., 0] * s[:, :1], -R[..., 0] * s[:, :1],
-                         R[..., 1] * s[:, 1:], -R[..., 1] * s[:, 1:]], axis=1)  # (N,5,3)
-        pts = f.positions.astype(np.float64)[:, None, :] + offs
-        nrm = np.repeat(R[:, None, :, 2], 5, axis=1)
-        ids = np.repeat(sem[:, None], 5, axis=1)
-        flat_p, flat_n, flat_i = pts.reshape(-1, 3), nrm.reshape(-1, 3), ids.reshape(-1)
-        vis = None
-        if self.shadow is not None:
-            vis = self.shadow.visibility(flat_p + 0.05 * flat_n)
-        view = flat_p - self._nearest_eye(flat_p)
-        cols = np.empty((len(flat_p), 3), np.float32)
-        for a in range(0, len(flat_p), batch):
-            b = slice(a, a + batch)
-            c = self.prior.shade_at(flat_p[b], flat_n[b], flat_i[b], self.env, view_dirs=view[b],
-                                    sun_visibility=None if vis is None else vis[b])
-            if c is None:
-                return False
-            cols[b] = c.numpy()
-        rgb = cols.reshape(f.n, 5, 3).mean(axis=1)
-        self.params["sh"][:, 0, :] = torch.from_numpy((rgb - 0.5) / SH_C0)
+        if f.semantic_ids is None or f.n == 0:
+            return False
+        probe = self.prior.shade_at(f.positions[:1].astype(np.float64), f.normals()[:1],
+                                    f.semantic_ids[:1], self.env)
+        if probe is None:
+            return False
+        degree = sh_degree_of(self.params["sh"].shape[1])
+        normals = f.normals()
+        fit = ViewFit(f.n, degree)
+        for i in range(len(self.views)):
+            vd = self.view_data(i)
+            cam = vd.view.camera
+            target = self.prior.target(torch.zeros(cam.height, cam.width, 3), vd.gbuffer,
+                                       self.env, 1.0, n_steps=c.n_denoise, seed=c.seed)
+            fit.add_view(f.positions, f.scales, normals, cam, target, vd.gbuffer.depth.numpy())
+        sh, seen = fit.solve(normals, c.world_init_ridge, c.world_init_ridge_tangent)
+        if not seen.all():
+            rest = np.flatnonzero(~seen)
+            sub = fit_sh(self.prior, self.env, f.subset(rest), [v.camera for v in self.views],
+                         degree=degree, shadow=self.shadow, samples=c.world_init_samples,
+                         ridge=c.world_init_ridge, ridge_tangent=c.world_init_ridge_tangent,
+                         seed=c.seed)
+            sh[rest] = sub
+        self.params["sh"][:] = torch.from_numpy(sh)
         return True
-
-    def _nearest_eye(self, points: np.ndarray) -> np.ndarray:
-        """Centre of the nearest training camera per point (or a point 10 m above)."""
-        if not self.views:
-            return points + np.array([0.0, 0.0, 10.0])
-        from scipy.spatial import cKDTree
-        eyes = np.array([v.camera.center for v in self.views])
-        _, k = cKDTree(eyes).query(points, k=1)
-        return eyes[k]
 
     # ------------------------------------------------------------ results
     def field(self) -> SurfelField:
-        return P.to_field(self.params, self.init_field)
+        """The surfels as the renderer sees them (the 3D filter baked in)."""
+        return P.to_field(self.params, self.init_field, activate=self.activated)
 
     def checkpoint(self, optimizer: bool = True) -> tuple[dict, dict]:
         """(tensors, meta): everything a resume needs, as flat named tensors (safetensors) and
@@ -288,9 +336,11 @@ class GGDSRun:
             tensors.update({f"adam.m.{k}": v.contiguous() for k, v in st["m"].items()})
             tensors.update({f"adam.v.{k}": v.contiguous() for k, v in st["v"].items()})
             tensors["adam.t"] = st["t"].contiguous()
-        tensors["strategy.rng"] = self.strategy._gen.get_state()
+        tensors.update(self.strategy.state_tensors())
         if self.face_index is not None:
             tensors["face_index"] = torch.from_numpy(np.ascontiguousarray(self.face_index))
+        if self.filter3d is not None:
+            tensors["filter3d"] = self.filter3d.contiguous()
         meta = {"step": self.step_index, "rng": self.rng.bit_generator.state,
                 "history": list(self.history), "seconds": self.seconds,
                 "config": to_dict(self.cfg), "optimizer": bool(optimizer)}
@@ -312,11 +362,13 @@ class GGDSRun:
                 "v": {k: tensors[f"adam.v.{k}"] for k in self.params}, "t": tensors["adam.t"]})
         self.step_index = int(meta["step"])
         self.rng.bit_generator.state = meta["rng"]
-        self.strategy._gen.set_state(tensors["strategy.rng"])
+        self.strategy.load_state_tensors(tensors)
         self.history = list(meta["history"])
         self.seconds = float(meta.get("seconds", 0.0))
         if "face_index" in tensors:
             self.face_index = tensors["face_index"].numpy().astype(np.int64).copy()
+        if self.filter3d is not None and "filter3d" in tensors:
+            self.filter3d = tensors["filter3d"].clone()
 
     @torch.no_grad()
     def evaluate(self, views: list[View], t_eval: float = 1.0) -> dict:

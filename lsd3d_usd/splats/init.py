@@ -213,6 +213,45 @@ def mesh_to_surfels(vertices, faces, face_semantic_ids=None, *, count: int = 2_0
     return (field, fidx) if return_face_index else field
 
 
+def split_faces(vertices, faces, max_area: float, max_faces: int = 20_000_000):
+    """Bisect every triangle larger than ``max_area`` at the midpoint of its longest edge until
+    none is (winding kept; T-junctions are harmless for sampling), so per-face quantities —
+    surfel density weights — can vary across what were large faces (a 2000 m² terrain
+    triangle reaching from the kerb to 60 m away). Returns (vertices (V',3) float64, faces
+    (F',3) int64, parent (F',) index of the input face each output face lies in).
+    Degenerate faces are kept as they are."""
+    if not max_area > 0:
+        raise InputError(f"split_faces: max_area must be > 0, got {max_area}")
+    V, F, _ = _check_mesh(vertices, faces, None)
+    parent = np.arange(len(F))
+    verts = [V]
+    nv = len(V)
+    allv = V
+    while True:
+        p0, p1, p2 = (allv[F[:, i]] for i in range(3))
+        area = 0.5 * np.linalg.norm(np.cross(p1 - p0, p2 - p0), axis=1)
+        big = area > max_area
+        if not big.any():
+            break
+        if len(F) + int(big.sum()) > max_faces:
+            raise InputError(f"split_faces: more than {max_faces} faces at max_area {max_area}")
+        f = F[big]
+        e = np.stack([np.linalg.norm(allv[f[:, (k + 1) % 3]] - allv[f[:, k]], axis=1)
+                      for k in range(3)], axis=1)
+        k = np.argmax(e, axis=1)
+        r = np.arange(len(f))
+        a, b, c = f[r, k], f[r, (k + 1) % 3], f[r, (k + 2) % 3]
+        mid = 0.5 * (allv[a] + allv[b])
+        m = nv + np.arange(len(f))
+        nv += len(f)
+        verts.append(mid)
+        allv = np.concatenate(verts)
+        verts = [allv]
+        F = np.concatenate([F[~big], np.stack([a, m, c], 1), np.stack([m, b, c], 1)])
+        parent = np.concatenate([parent[~big], parent[big], parent[big]])
+    return allv, F, parent
+
+
 def transform_surfels(field, M: np.ndarray):
     """Apply a 4x4 (column-vector) world transform to a SurfelField: positions, disk axes
     and scales (the scaled axes are re-orthonormalised around the transformed normal)."""

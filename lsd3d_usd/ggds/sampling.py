@@ -1,0 +1,111 @@
+"""What the training views see of each surfel: which cameras have it in view, from how far,
+and so how finely the views sample it (the pixel footprint, metres per pixel).
+
+The footprint of the finest view is the sampling rate the 3D smoothing filter
+(ggds/antialias.py) is built from (as Mip-Splatting's: a primitive cannot hold detail finer
+than the finest view that trained it); the views that see a surfel are the directions its
+view-dependent colour is fitted for (ggds/worldfit.py).
+
+Visibility here is the frustum test only (centre in front of the camera between near and
+far, projected inside the image grown by ``margin`` pixels): occlusion is ignored. That is
+cheap (no rendering) and errs on the safe side for both uses: an occluded view can only make
+a surfel's footprint finer than needed, and only adds a direction to its colour fit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class CameraSet:
+    """Cameras as stacked float64 arrays (M cameras)."""
+    R: np.ndarray        # (M,3,3) world -> camera rotation (OpenCV axes)
+    t: np.ndarray        # (M,3)
+    centres: np.ndarray  # (M,3)
+    fx: np.ndarray       # (M,)
+    fy: np.ndarray
+    cx: np.ndarray
+    cy: np.ndarray
+    width: np.ndarray
+    height: np.ndarray
+    near: np.ndarray
+    far: np.ndarray
+
+    @classmethod
+    def of(cls, cameras) -> "CameraSet":
+        vm = np.stack([c.viewmat for c in cameras]) if cameras else np.zeros((0, 4, 4))
+        a = lambda name: np.array([float(getattr(c, name)) for c in cameras], np.float64)  # noqa: E731
+        return cls(vm[:, :3, :3], vm[:, :3, 3], np.stack([c.center for c in cameras])
+                   if cameras else np.zeros((0, 3)), a("fx"), a("fy"), a("cx"), a("cy"),
+                   a("width"), a("height"), a("near"), a("far"))
+
+    def __len__(self) -> int:
+        return len(self.fx)
+
+
+def project(points: np.ndarray, cams: CameraSet, margin: float = 0.0):
+    """(depth (n,M), inside (n,M) bool) of points (n,3) in every camera: camera z, and whether
+    the point lies in front between near and far and projects inside the image grown by
+    ``margin`` pixels on every side."""
+    p = np.asarray(points, np.float64)
+    pc = np.einsum("mij,nj->nmi", cams.R, p) + cams.t[None]
+    z = pc[..., 2]
+    ok = (z >= cams.near) & (z <= cams.far)
+    zs = np.where(ok, z, 1.0)
+    u = cams.fx * pc[..., 0] / zs + cams.cx
+    v = cams.fy * pc[..., 1] / zs + cams.cy
+    ok &= (u >= -margin) & (u <= cams.width + margin) & (v >= -margin) & (v <= cams.height + margin)
+    return z, ok
+
+
+def footprint(points: np.ndarray, cameras, *, margin: float = 0.0,
+              chunk: int = 65536) -> np.ndarray:
+    """(n,) metres per pixel of the finest camera that has each point in view:
+    min over those cameras of depth / focal length (inf where no camera sees the point)."""
+    cams = cameras if isinstance(cameras, CameraSet) else CameraSet.of(list(cameras))
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    out = np.full(len(p), np.inf)
+    if len(cams) == 0:
+        return out
+    f = np.minimum(cams.fx, cams.fy)   # the larger pixel footprint of the two axes
+    for a in range(0, len(p), chunk):
+        z, ok = project(p[a:a + chunk], cams, margin)
+        out[a:a + chunk] = np.where(ok, z / f, np.inf).min(axis=1)
+    return out
+
+
+def pick_views(points: np.ndarray, cameras, k: int, rng: np.random.Generator, *,
+               margin: float = 0.0, chunk: int = 32768) -> np.ndarray:
+    """(n,k) indices of cameras that have each point in view, drawn without replacement with
+    probability proportional to the point's pixel density in them, (f/z)² (how many pixels a
+    patch there covers: what the training loss weighs it by); when fewer than k see it, the
+    ones that do repeat; -1 where none does."""
+    cams = cameras if isinstance(cameras, CameraSet) else CameraSet.of(list(cameras))
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    out = np.full((len(p), k), -1, np.int64)
+    if len(cams) == 0 or k <= 0:
+        return out
+    f2 = cams.fx * cams.fy
+    for a in range(0, len(p), chunk):
+        z, ok = project(p[a:a + chunk], cams, margin)
+        w = np.where(ok, f2 / np.where(ok, z, 1.0) ** 2, 0.0)
+        # Weighted sampling without replacement: the k largest of u^(1/w) (Efraimidis-Spirakis),
+        # in log form: log(u)/w, -inf where w = 0.
+        with np.errstate(divide="ignore"):
+            key = np.log(rng.random(w.shape)) / np.where(w > 0, w, 1.0)
+        key[w <= 0] = -np.inf
+        kk = min(k, len(cams))
+        top = np.argpartition(-key, kk - 1, axis=1)[:, :kk]
+        top_key = np.take_along_axis(key, top, 1)
+        order = np.argsort(-top_key, axis=1)
+        top, top_key = np.take_along_axis(top, order, 1), np.take_along_axis(top_key, order, 1)
+        valid = np.isfinite(top_key)
+        nvalid = valid.sum(1)
+        # Fill the slots beyond the visible count by cycling through the visible ones.
+        slot = np.arange(k)[None, :] % np.maximum(nvalid, 1)[:, None]
+        full = np.take_along_axis(top, np.minimum(slot, kk - 1), 1)
+        full[nvalid == 0] = -1
+        out[a:a + chunk] = full
+    return out
