@@ -25,8 +25,26 @@ import sys
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
 from concurrent.futures import wait as futures_wait
 from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
 
 OK, ERROR, LOST, SUSPECT = "ok", "error", "lost", "suspect"
+
+
+@contextmanager
+def task_log(path, label: str):
+    """A worker task's log: appends to ``path`` (folders made), a header line with the time,
+    pid and ``label``; yields log(*args), which writes a line and flushes (the driver and
+    `tail -f` see it at once)."""
+    import time
+    from pathlib import Path
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    with open(p, "a", encoding="utf-8") as fh:
+        def log(*a):
+            fh.write(" ".join(str(x) for x in a) + "\n")
+            fh.flush()
+        log(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} pid {os.getpid()} {label}")
+        yield log
 
 
 def describe(exc: BaseException) -> str:
@@ -91,7 +109,18 @@ class LocalExecutor:
             if self._pool is None:
                 self._pool = self._new_pool(self.workers)
             pool = self._pool
-        self._futures[pool.submit(_call, payload)] = (key, pool)
+        try:
+            fut = pool.submit(_call, payload)
+        except BrokenProcessPool:
+            # A worker died after the last poll: the shared pool is retired here (its tasks
+            # are reported by the next poll) and this task goes to a fresh one.
+            if pool is not self._pool:
+                raise
+            self._pool = self._new_pool(self.workers)
+            self._retired.append(pool)
+            pool = self._pool
+            fut = pool.submit(_call, payload)
+        self._futures[fut] = (key, pool)
 
     def poll(self, timeout: float) -> list[tuple]:
         """Outcomes of the tasks that finished within ``timeout`` s: [(key, status, value)]."""

@@ -203,14 +203,15 @@ def clean_stale_temp_files(folder: Path) -> list[Path]:
         if not m or not f.is_file():
             continue
         pid = int(m.group(1))
-        if pid == os.getpid() or _alive(pid):
+        if pid == os.getpid() or process_alive(pid):
             continue
         f.unlink(missing_ok=True)
         removed.append(f)
     return removed
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process ``pid`` exists on this machine (signal 0; another user's counts)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:

@@ -194,3 +194,33 @@ def test_ctrl_c_on_the_cli_stops_cleanly(tmp_path):
     assert not (tmp_path / "out" / ".batch.lock").exists()
     ps = subprocess.run(["ps", "-o", "pid=", "--ppid", str(proc.pid)], capture_output=True, text=True)
     assert ps.stdout.strip() == ""
+
+
+def test_submit_after_a_worker_died_unnoticed_goes_to_a_fresh_pool():
+    """A worker that dies between two polls breaks the shared pool; the next submit must not
+    raise BrokenProcessPool out of the driver: the task runs on a new pool, and the dead
+    pool's task is reported by poll as a suspect crash (retried by the callers)."""
+    import time
+
+    from lsd3d_usd.execution import OK, SUSPECT
+    ex = LocalExecutor(1)
+    try:
+        target = {"target": "lsd3d_usd.hashing:content_hash"}
+        ex.submit("warm", target)
+        assert [k for k, status, _ in ex.poll(120)] == ["warm"]
+        pool = ex._pool
+        ex.submit("victim", {**target, "n": 1})
+        for proc in list(pool._processes.values()):
+            proc.kill()
+        deadline = time.monotonic() + 60
+        while not pool._broken and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert pool._broken
+        ex.submit("after", {**target, "n": 2})      # raised BrokenProcessPool before
+        seen = {}
+        deadline = time.monotonic() + 120
+        while len(seen) < 2 and time.monotonic() < deadline:
+            seen.update({k: s for k, s, _ in ex.poll(5)})
+        assert seen == {"victim": SUSPECT, "after": OK}
+    finally:
+        ex.close(cancel=True)

@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import process_alive
 
 STATE_VERSION = 1
 
@@ -53,16 +54,6 @@ class BatchState:
                                                  default=str).encode())
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
-
-
 class BatchLock:
     """One driver per batch output folder (a second one would race on the state file)."""
 
@@ -79,7 +70,7 @@ class BatchLock:
                     pid = int(self.path.read_text().strip() or 0)
                 except (OSError, ValueError):
                     pid = 0
-                if pid and _alive(pid) and pid != os.getpid():
+                if pid and process_alive(pid) and pid != os.getpid():
                     raise InputError(f"{self.path}: another batch (pid {pid}) is running on this "
                                      "output folder") from None
                 self.path.unlink(missing_ok=True)  # stale: its driver is gone

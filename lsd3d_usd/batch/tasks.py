@@ -217,13 +217,8 @@ def run_task(payload: dict) -> dict:
     failure with the error as the exception's message."""
     import lsd3d_usd  # noqa: F401  registers the schema before any stage is opened
     t0 = time.perf_counter()
-    log_path = Path(payload["log"])
-    log_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(log_path, "a", encoding="utf-8") as fh:
-        def log(*a):
-            fh.write(" ".join(str(x) for x in a) + "\n")
-            fh.flush()
-        log(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} pid {os.getpid()} {payload['id']}")
+    from lsd3d_usd.execution import task_log
+    with task_log(payload["log"], payload["id"]) as log:
         try:
             _inject_crash(payload)
             run = _run_chunk if payload["kind"] == "chunk" else _run_scene

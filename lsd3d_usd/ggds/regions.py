@@ -20,10 +20,8 @@ finished regions untouched. The driver holds no surfel arrays.
 """
 from __future__ import annotations
 
-import os
 import time
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import numpy as np
 
@@ -254,13 +252,8 @@ def skip_region(sc: S.Scene, run: str, region: Region, reason: str) -> dict:
 def run_region_task(payload: dict) -> dict:
     """Executor entry point (a worker process): run one region, log to the job's log file."""
     import lsd3d_usd  # noqa: F401  registers the schema before any stage is opened
-    log_path = Path(payload["log"])
-    log_path.parent.mkdir(parents=True, exist_ok=True)
-    with open(log_path, "a", encoding="utf-8") as fh:
-        def log(*a):
-            fh.write(" ".join(str(x) for x in a) + "\n")
-            fh.flush()
-        log(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} pid {os.getpid()} {payload['region']}")
+    from lsd3d_usd.execution import task_log
+    with task_log(payload["log"], payload["region"]) as log:
         summary = run_region(payload, log=log, refresh=False)
         summary["peak_rss_mb"] = peak_rss_mb()
         log(f"done: {summary}")

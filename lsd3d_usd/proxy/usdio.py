@@ -330,26 +330,6 @@ def read_proxy(path: str | Path, chunks=None) -> dict[tuple[int, int], dict[str,
     return out
 
 
-def proxy_arrays(proxy_layer_path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All proxy meshes of a proxy layer as one mesh: vertices (V,3), faces (F,3) int64 and
-    the semantic class id per face (semantics.CLASS_ID, -1 for unknown classes); chunks and
-    classes in sorted order. InputError when the proxy has no geometry."""
-    from lsd3d_usd.semantics import CLASS_ID
-    vs, fs, ids, base = [], [], [], 0
-    for _key, meshes in sorted(read_proxy(proxy_layer_path).items()):
-        for name in sorted(meshes):
-            cm = meshes[name]
-            if cm.n_faces == 0:
-                continue
-            vs.append(cm.vertices)
-            fs.append(cm.faces.astype(np.int64) + base)
-            ids.append(np.full(cm.n_faces, CLASS_ID.get(cm.cls, -1), np.int32))
-            base += len(cm.vertices)
-    if not fs:
-        raise InputError(f"{proxy_layer_path}: the proxy has no geometry")
-    return np.concatenate(vs), np.concatenate(fs), np.concatenate(ids)
-
-
 def class_mesh_from_prim(prim) -> ClassMesh:
     from pxr import UsdGeom, UsdSemantics
 
