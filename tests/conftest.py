@@ -1,8 +1,16 @@
 import os
+import signal
 import sys
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads (see lsd3d_usd/__init__)
+
+# A shell without job control starts background jobs with SIGINT ignored, and children inherit
+# that: the tests that stop a child with SIGINT (Ctrl-C) would wait forever. Caught signals
+# are reset to their default on exec, so catching it here gives every child Python's
+# KeyboardInterrupt again.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
