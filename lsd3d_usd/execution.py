@@ -47,6 +47,15 @@ def task_log(path, label: str):
         yield log
 
 
+def probe(payload: dict) -> dict:
+    """A task that reports where it ran: the worker's host, pid and peak memory (checks a pool
+    or a cluster before sending it real work)."""
+    import resource
+    import socket
+    return {"host": socket.gethostname(), "pid": os.getpid(),
+            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+
+
 def describe(exc: BaseException) -> str:
     msg = " ".join(str(exc).split())
     return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
@@ -84,8 +93,9 @@ class LocalExecutor:
 
     name = "local"
 
-    def __init__(self, workers: int | None = None):
+    def __init__(self, workers: int | None = None, tasks_per_worker: int | None = None):
         self.workers = max(1, int(workers or os.cpu_count() or 1))
+        self.tasks_per_worker = tasks_per_worker   # None: workers live as long as the pool
         self.threads = max(1, (os.cpu_count() or 1) // self.workers)
         self._ctx = mp.get_context("spawn")
         self._pool: ProcessPoolExecutor | None = None
@@ -99,7 +109,8 @@ class LocalExecutor:
 
     def _new_pool(self, n: int) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(max_workers=n, mp_context=self._ctx, initializer=_init_worker,
-                                   initargs=(self.threads,))
+                                   initargs=(self.threads,),
+                                   max_tasks_per_child=self.tasks_per_worker)
 
     def submit(self, key, payload: dict, isolated: bool = False) -> None:
         if isolated:
@@ -185,7 +196,7 @@ class RayExecutor:
     name = "ray"
 
     def __init__(self, address: str | None = None, workers: int | None = None,
-                 num_cpus: int | None = None):
+                 num_cpus: int | None = None, tasks_per_worker: int | None = None):
         try:
             import ray
         except ImportError:
@@ -210,7 +221,10 @@ class RayExecutor:
                                  f"{describe(e)}") from None
         cpus = int(ray.cluster_resources().get("CPU", 1))
         self.workers = max(1, int(workers or cpus))
-        self._remote = ray.remote(_call).options(num_cpus=1, max_retries=0, retry_exceptions=False)
+        opts = dict(num_cpus=1, max_retries=0, retry_exceptions=False)
+        if tasks_per_worker:
+            opts["max_calls"] = int(tasks_per_worker)
+        self._remote = ray.remote(_call).options(**opts)
         self._refs: dict = {}
 
     @property
@@ -273,12 +287,16 @@ def _check_reachable(address: str, timeout: float = 5.0) -> None:
                          f"({e.strerror or e})") from None
 
 
-def make_executor(kind: str, workers: int | None = None, address: str | None = None):
+def make_executor(kind: str, workers: int | None = None, address: str | None = None,
+                  tasks_per_worker: int | None = None):
+    """``tasks_per_worker``: a worker process is replaced after this many tasks (None: never).
+    1 gives every task the memory of a fresh process: an allocator keeps the arenas a large
+    task grew, so a long-lived worker's footprint is the largest of all its tasks and more."""
     from lsd3d_usd.errors import InputError
     if kind == "local":
         if address:
             raise InputError("--address is for --executor ray")
-        return LocalExecutor(workers)
+        return LocalExecutor(workers, tasks_per_worker)
     if kind == "ray":
-        return RayExecutor(address, workers)
+        return RayExecutor(address, workers, tasks_per_worker=tasks_per_worker)
     raise InputError(f"--executor {kind!r}: choose local or ray")

@@ -224,3 +224,21 @@ def test_submit_after_a_worker_died_unnoticed_goes_to_a_fresh_pool():
         assert seen == {"victim": SUSPECT, "after": OK}
     finally:
         ex.close(cancel=True)
+
+
+def test_tasks_per_worker_one_gives_every_task_a_fresh_process():
+    """Chunk-wise GGDS runs each region in a fresh worker (tasks_per_worker=1), so a region's
+    peak memory is its own; without the limit one worker serves every task."""
+    from lsd3d_usd.execution import OK
+    for limit, fresh in ((1, True), (None, False)):
+        ex = LocalExecutor(1, tasks_per_worker=limit)
+        try:
+            pids = []
+            for k in range(3):
+                ex.submit(k, {"target": "lsd3d_usd.execution:probe"})
+                [(key, status, value)] = ex.poll(120)
+                assert (key, status) == (k, OK)
+                pids.append(value["pid"])
+            assert (len(set(pids)) == 3) is fresh and (len(set(pids)) == 1) is (not fresh)
+        finally:
+            ex.close()

@@ -298,7 +298,9 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
     bar = None
     if not in_process:
         from lsd3d_usd.execution import make_executor
-        pool = make_executor(executor, workers, address)
+        # A fresh process per region: its peak memory is its own, not the largest region's
+        # that the same worker ran before (freed arenas are not returned to the system).
+        pool = make_executor(executor, workers, address, tasks_per_worker=1)
         if progress:
             from tqdm import tqdm
             bar = tqdm(total=n_regions, desc="GGDS chunks", unit="chunk")
@@ -347,7 +349,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
                                             "metrics")},
                 **{kk: summaries.get(k, {}).get(kk) for kk in ("wall_s", "cpu_s", "context",
-                                                               "views")}}
+                                                               "views", "peak_rss_mb")}}
             for k, v in regions_done.items()}
     from lsd3d_usd.ggds.store import write_json
     write_json(sc.run_files(run).dir / "summary.json", summary)
