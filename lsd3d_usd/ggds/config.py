@@ -99,6 +99,11 @@ class GGDSConfig:
                         flag="--views", alias="views", lo=1, hi=100_000)
     novel_frac: float = option(0.25, help="fraction of training views placed off the lanes",
                                lo=0.0, hi=1.0)
+    novel_style: str = option("lane_offset", help="off-lane training views: 'lane_offset' "
+                                                  "(0.5-5 m beyond the lane edge, free heading, "
+                                                  "1.2-3 m high) or 'displaced' (a lane view "
+                                                  "moved 0.5-8 m as eval's novel views are)",
+                              choices=("lane_offset", "displaced"))
     fov_deg: float = option(70.0, help="horizontal field of view of the training views (deg)",
                             lo=1.0, hi=170.0)
     held_out: int = option(8, help="held-out views evaluated at the end of a run", lo=0,

@@ -99,7 +99,8 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
         m = g.regions.view_margin_m
         around = (bounds[0] - m, bounds[1] - m, bounds[2] + m, bounds[3] + m)
     views = sample_views(layout, n_views, w, h, seed=rseed, novel_frac=g.novel_frac,
-                         fov_deg=g.fov_deg, region=around, clip=not whole)
+                         fov_deg=g.fov_deg, region=around, clip=not whole,
+                         novel_style=g.novel_style)
     held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
                         fov_deg=g.fov_deg, region=bounds, clip=not whole)
     return views, held
