@@ -50,10 +50,10 @@ def task_log(path, label: str):
 def probe(payload: dict) -> dict:
     """A task that reports where it ran: the worker's host, pid and peak memory (checks a pool
     or a cluster before sending it real work)."""
-    import resource
     import socket
-    return {"host": socket.gethostname(), "pid": os.getpid(),
-            "peak_rss_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)}
+
+    from lsd3d_usd.memtune import peak_rss_mb
+    return {"host": socket.gethostname(), "pid": os.getpid(), "peak_rss_mb": peak_rss_mb()}
 
 
 def describe(exc: BaseException) -> str:

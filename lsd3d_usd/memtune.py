@@ -1,4 +1,5 @@
-"""Process-wide glibc malloc tuning for the renderer's large per-frame buffers.
+"""Process-wide glibc malloc tuning for the renderer's large per-frame buffers, handing freed
+memory back, and this process's peak memory.
 
 glibc serves allocations above its mmap threshold (at most 32 MB by its own adjustment) with
 fresh mmap()s and unmaps them on free, so every frame's 16-100 MB arrays (projected surfels,
@@ -36,3 +37,35 @@ def reuse_large_buffers() -> bool:
         return False
     _done = ok
     return ok
+
+
+def _libc():
+    try:
+        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
+        libc.malloc_trim  # noqa: B018 - raises AttributeError off glibc
+        return libc
+    except (OSError, AttributeError):
+        return None
+
+
+def release_free_memory() -> bool:
+    """Return the heap's free memory to the system (glibc malloc_trim): a step that built
+    large temporary arrays (surfel initialisation) would otherwise keep up to the trim
+    threshold above (1 GiB) resident for the rest of the process."""
+    libc = _libc()
+    return bool(libc is not None and libc.malloc_trim(0))
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory (MB): VmHWM of /proc/self/status, which starts
+    afresh at exec. getrusage's ru_maxrss does not: Linux carries it across exec, so a worker
+    spawned by a 2 GB driver reported 2 GB before doing anything. ru_maxrss elsewhere."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return round(int(line.split()[1]) / 1024.0, 1)
+    except OSError:
+        pass
+    import resource
+    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)

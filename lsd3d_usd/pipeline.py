@@ -275,6 +275,7 @@ def _env_step(sc: S.Scene, p: Plan):
 def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
     """The initial surfels, chunk by chunk (ggds.initial), unless they are up to date."""
     from lsd3d_usd.ggds.initial import write_initial_surfels
+    from lsd3d_usd.memtune import release_free_memory
     from lsd3d_usd.splats import chunkio
     path = sc.layer_path("surfels")
     chunks = chunkio.read_chunk_map(path) if path.is_file() else {}
@@ -292,6 +293,7 @@ def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
         max_count=c.max_count, sh_degree=c.sh_degree, seed=p.cfg.seed,
         inputs_hash=p.surfels_hash, progress=run.progress,
         provenance=S.provenance("surfels", ct.to_dict(c), seed=p.cfg.seed))
+    release_free_memory()   # the chunks' temporaries; GGDS workers run beside this process
     sc.add_layer("surfels")
     return {"reused": False, **info, "init_s": round(time.perf_counter() - t0, 2)}
 
@@ -388,6 +390,6 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
                     f"{100 * g['off_surface_frac']:.2f} %")
     timings["total_s"] = time.perf_counter() - t0
     summary["timings"] = {k: round(v, 2) for k, v in timings.items()}
-    from lsd3d_usd.ggds.regions import peak_rss_mb
+    from lsd3d_usd.memtune import peak_rss_mb
     summary["peak_rss_mb"] = peak_rss_mb()
     return summary

@@ -35,3 +35,29 @@ def test_large_buffers_are_reused_without_page_faults(monkeypatch):
     _faults_of_touching(nbytes)  # first use may fault
     pages = nbytes // 4096
     assert _faults_of_touching(nbytes) < pages // 10
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc and glibc only")
+def test_peak_memory_of_a_spawned_process_is_its_own_and_freed_memory_goes_back():
+    """A process started by a large one reports its own peak (VmHWM), not the parent's
+    (getrusage's ru_maxrss survives exec); release_free_memory hands freed heap back."""
+    import subprocess
+
+    from lsd3d_usd.memtune import peak_rss_mb, release_free_memory
+    code = ("import resource; from lsd3d_usd.memtune import peak_rss_mb; "
+            "print(peak_rss_mb(), resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)")
+    big = np.ones(600 * 2 ** 20 // 8)          # 600 MB resident in this process
+    assert peak_rss_mb() >= 600
+    own, inherited = map(float, subprocess.run([sys.executable, "-c", code], capture_output=True,
+                                               text=True, check=True).stdout.split())
+    del big
+    assert own < 400 and inherited >= 600      # the old measure reported this process's peak
+
+    def rss_mb():
+        with open("/proc/self/status") as fh:
+            return next(int(ln.split()[1]) for ln in fh if ln.startswith("VmRSS:")) / 1024
+    reuse_large_buffers()                       # keeps up to 1 GiB of freed heap resident
+    _touch(300 * 2 ** 20)                       # 300 MB from malloc, freed on return
+    before = rss_mb()
+    assert release_free_memory()
+    assert rss_mb() < before - 200

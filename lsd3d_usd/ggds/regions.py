@@ -29,6 +29,7 @@ from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.config import RegionConfig
+from lsd3d_usd.memtune import peak_rss_mb
 
 TASK_TARGET = "lsd3d_usd.ggds.regions:run_region_task"
 
@@ -266,12 +267,6 @@ def _cpu_seconds() -> float:
     import resource
     r = resource.getrusage(resource.RUSAGE_SELF)
     return r.ru_utime + r.ru_stime
-
-
-def peak_rss_mb() -> float:
-    """This process's peak resident memory so far (MB)."""
-    import resource
-    return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)
 
 
 # ---------------------------------------------------------------------------- the driver
