@@ -82,6 +82,10 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
             before = [_render(run, v) for v in inputs.held_out[:BEFORE_AFTER_VIEWS]]
         if config.world_init and run.world_init():
             log("ggds: surfel colours initialised from the world-space prior")
+            # its least-squares temporaries (hundreds of MB) would otherwise stay resident
+            # as free heap beside the steps' own buffers (memtune keeps up to 1 GiB)
+            from lsd3d_usd.memtune import release_free_memory
+            release_free_memory()
     target = config.steps if stop_at is None else min(int(stop_at), config.steps)
     interrupted = False
     bar = None
