@@ -183,3 +183,47 @@ def test_views_follow_lanes_and_need_lanes():
     from lsd3d_usd.errors import InputError
     with pytest.raises(InputError, match="no drivable lanes"):
         sample_views(Layout(), 3, 64, 48)
+
+
+def test_packed_view_gbuffer_unpacks_to_the_full_gbuffer():
+    """GGDS keeps training views packed (depth, face, position, sun) and derives the rest per
+    visit: the unpacked G-buffer equals one built straight from the mesh rasteriser."""
+    from lsd3d_usd.ggds.conditioning import shadow_map, view_gbuffer
+    from lsd3d_usd.render.camera import Camera, look_at
+    from lsd3d_usd.render.gbuffer import render_gbuffer
+    V, F, ids = street()
+    cam = Camera.from_fov(96, 54, 70, pose=look_at(np.array([3.0, -2.0, 1.6]),
+                                                   np.array([30.0, 4.0, 2.0]), (0, 0, 1)))
+    shadow = shadow_map(V, F, np.array([0.2, 0.6, 0.5]), resolution=256)  # behind the wall
+    gb = view_gbuffer(cam, V, F, ids, shadow)
+    ref = render_gbuffer(V, F, cam, ids)
+    dirs = np.zeros((cam.height, cam.width, 3))
+    for j in range(cam.height):          # plain reference: pinhole ray, rotated, normalised
+        for i in range(cam.width):
+            d = cam.pose[:3, :3] @ [(i + 0.5 - cam.cx) / cam.fx, (j + 0.5 - cam.cy) / cam.fy, 1.0]
+            dirs[j, i] = d / np.linalg.norm(d)
+    assert ref.mask.any() and (~ref.mask).any()
+    np.testing.assert_array_equal(gb.depth.numpy(), ref.depth)
+    np.testing.assert_array_equal(gb.normal.numpy(), ref.normal)
+    np.testing.assert_array_equal(gb.semantic.numpy(), ref.semantic)
+    np.testing.assert_array_equal(gb.world_pos.numpy(), np.nan_to_num(ref.position).astype(np.float32))
+    np.testing.assert_allclose(gb.view_dirs.numpy(), dirs, atol=1e-6)
+    vis = shadow.visibility(np.where(ref.mask[..., None], ref.position, np.nan))
+    np.testing.assert_array_equal(gb.sun_visibility.numpy(), np.where(ref.mask, vis, 1.0))
+    assert 0 < gb.sun_visibility[torch.from_numpy(ref.mask)].mean() < 1   # shadow and sun both
+
+
+def test_training_view_gbuffers_are_keyed_so_the_prior_renders_each_view_once():
+    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    run = make_run(steps=2)
+    prior = ProceduralPrior()
+    calls = []
+    render = prior.render
+    prior.render = lambda gb, env: calls.append(gb.key) or render(gb, env)
+    a, b = run.view_data(0).gbuffer, run.view_data(0).gbuffer
+    assert a is not b and a.key == b.key and run.view_data(1).gbuffer.key != a.key
+    p1, p2 = prior.cached_render(a, run.env), prior.cached_render(b, run.env)
+    assert p1 is p2 and calls == [a.key]
+    other = make_run(steps=2).view_data(0).gbuffer     # another run's view 0: its own key
+    prior.cached_render(other, run.env)
+    assert len(calls) == 2

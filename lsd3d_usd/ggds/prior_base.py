@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Optional
+from typing import Callable, Hashable, Optional
 
 import torch
 
@@ -35,6 +35,9 @@ class GBuffer:
     camera_position: (3,) world position of the camera centre.
     sun_visibility: optional (H, W) in [0, 1], 1 = lit by the sun (ray cast against the
                   proxy by the caller); None means everything is lit.
+    key:          optional hashable identity of the view: equal keys promise equal contents,
+                  so a prior may cache what it derives from the G-buffer under it (GGDS
+                  rebuilds a training view's G-buffer every time it visits the view).
     """
     depth: torch.Tensor
     normal: torch.Tensor
@@ -43,6 +46,7 @@ class GBuffer:
     view_dirs: torch.Tensor
     camera_position: torch.Tensor
     sun_visibility: Optional[torch.Tensor] = None
+    key: Optional[Hashable] = None
 
     @property
     def shape(self) -> tuple[int, int]:

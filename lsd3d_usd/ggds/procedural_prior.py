@@ -194,15 +194,16 @@ class ProceduralPrior(Prior):
         return (1 - w) * kept + w * P
 
     def cached_render(self, gbuffer: GBuffer, env: PriorEnv) -> torch.Tensor:
-        """render(), remembered per (G-buffer, env) object: P depends only on the view, and GGDS
-        keeps one G-buffer object per training view, so each view's P is computed once."""
+        """render(), remembered per view: P depends only on the view. The view is the
+        G-buffer's ``key`` when it has one (GGDS's training views), else the G-buffer object."""
         cache = self.__dict__.setdefault("_render_cache", {})
-        key = (id(gbuffer), id(env))
+        keyed = gbuffer.key is not None
+        key = (("key", gbuffer.key) if keyed else ("id", id(gbuffer)), id(env))
         hit = cache.get(key)
-        if hit is not None and hit[0] is gbuffer and hit[1] is env:
+        if hit is not None and (keyed or hit[0] is gbuffer) and hit[1] is env:
             return hit[2]
         P = self.render(gbuffer, env)
         if len(cache) >= 256:  # bounded: drop the oldest entry
             cache.pop(next(iter(cache)))
-        cache[key] = (gbuffer, env, P)
+        cache[key] = (None if keyed else gbuffer, env, P)
         return P

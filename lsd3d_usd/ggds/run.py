@@ -11,6 +11,7 @@ is ggds/runner.py.
 """
 from __future__ import annotations
 
+import itertools
 import math
 import time
 from dataclasses import dataclass
@@ -22,7 +23,8 @@ from lsd3d_usd.configtree import to_dict
 from lsd3d_usd.ggds import losses, params as P
 from lsd3d_usd.ggds.adam import SelectiveAdam, lr_at
 from lsd3d_usd.ggds.cameras import View
-from lsd3d_usd.ggds.conditioning import ShadowMap, view_gbuffer
+from lsd3d_usd.ggds.conditioning import (PackedGBuffer, ShadowMap, face_normals,
+                                         pack_view_gbuffer, view_gbuffer)
 from lsd3d_usd.ggds.config import GGDSConfig
 from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv
 from lsd3d_usd.ggds.strategy import MCMCStrategy
@@ -30,6 +32,9 @@ from lsd3d_usd.ggds.terms import StepContext, active_terms
 from lsd3d_usd.render.raster_types import RasterResult, RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.splats.field import SurfelField
+
+
+_RUN_KEYS = itertools.count()   # G-buffer keys unique across the runs of a process
 
 
 @dataclass
@@ -138,7 +143,11 @@ class GGDSRun:
         self.views = views
         # Per-surfel σ of the 3D smoothing filter (ggds/antialias.py), or None when off.
         self.filter3d = self._filter_sigma(field.positions, np.arange(field.n))
-        self._view_cache: dict[int, ViewData] = {}
+        # Per training view, what a step needs and cannot cheaply derive again: the packed
+        # G-buffer and the background (33 B/px; the unpacked ViewData is 65).
+        self._view_cache: dict[int, tuple[PackedGBuffer, torch.Tensor | None]] = {}
+        self._face_normals = face_normals(self.vertices, self.faces)
+        self._key = next(_RUN_KEYS)
         self.rng = np.random.default_rng(config.seed)
         self.step_index = 0
         self.history: list[dict] = []
@@ -158,12 +167,15 @@ class GGDSRun:
         return c.t_min_start + (c.t_min_end - c.t_min_start) * f
 
     def view_data(self, i: int) -> ViewData:
+        """Training view ``i`` with its G-buffer (keyed by run and view, so a prior can cache
+        per view), background and focus mask."""
         if i not in self._view_cache:
-            v = self.views[i]
-            gb = view_gbuffer(v.camera, self.vertices, self.faces, self.face_ids, self.shadow)
-            bg = self.background_fn(v.camera) if self.background_fn else None
-            self._view_cache[i] = ViewData(v, gb, bg, focus_mask(gb, self.focus))
-        return self._view_cache[i]
+            cam = self.views[i].camera
+            self._view_cache[i] = (pack_view_gbuffer(cam, self.vertices, self.faces, self.shadow),
+                                   self.background_fn(cam) if self.background_fn else None)
+        packed, bg = self._view_cache[i]
+        gb = packed.unpack(self._face_normals, self.face_ids, key=(self._key, i))
+        return ViewData(self.views[i], gb, bg, focus_mask(gb, self.focus))
 
     # ------------------------------------------------------------ anti-aliasing
     def _filter_sigma(self, positions: np.ndarray, rows: np.ndarray) -> torch.Tensor | None:

@@ -138,14 +138,15 @@ def solve_sh_pooled(basis: np.ndarray, colours: np.ndarray, groups: np.ndarray,
 @torch.no_grad()
 def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int = 16,
            ridge: float = 0.003, ridge_tangent: float | None = 1.0, offsets_sigma: float = 0.7,
-           cell: float = 0.0, seed: int = 0, batch: int = 25_000) -> np.ndarray | None:
+           cell: float = 0.0, seed: int = 0, batch_points: int = 100_000) -> np.ndarray | None:
     """(N,(degree+1)²,3) SH coefficients of ``field``'s surfels fitted to ``prior`` (module
     doc), or None when the prior cannot be evaluated in world space or the field has no
     semantic ids. ``cameras``: the training cameras; a surfel none of them sees is shaded as
     seen from the nearest camera centre (or from 10 m above when there are no cameras).
     ``cell`` > 0: the view-dependent terms are shared by the surfels of one ``cell``-metre
     grid cell, class and normal direction (solve_sh_pooled), so few samples per surfel
-    suffice; 0: each surfel fits its own (solve_sh)."""
+    suffice; 0: each surfel fits its own (solve_sh). ``batch_points``: sample points shaded
+    at once (the prior's shading temporaries are about 1 kB per point)."""
     from lsd3d_usd.splats.field import quat_to_matrix
     sem = field.semantic_ids
     if sem is None:
@@ -164,6 +165,7 @@ def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int
     if cell > 0:
         allB = np.empty((field.n, samples, S), np.float32)
         allC = np.empty((field.n, samples, 3), np.float32)
+    batch = max(1, batch_points // samples)
     for a in range(0, field.n, batch):
         sl = slice(a, min(a + batch, field.n))
         p = field.positions[sl].astype(np.float64)

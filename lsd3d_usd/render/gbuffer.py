@@ -160,8 +160,10 @@ def _raster(tri, bbox, offs, items, far, W, H, band_rows, zbuf, fid):
                         fid[j, i] = f
 
 
-def render_gbuffer(vertices, faces, camera: Camera, face_semantic_ids=None) -> GBuffer:
-    """Rasterise a triangle mesh (vertices (V,3) world, faces (F,3) int) for ``camera``."""
+def render_depth(vertices, faces, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
+    """(zbuf (H,W) float64 camera z, inf where empty; face (H,W) int64, -1 where empty): the
+    rasteriser alone, without render_gbuffer's per-pixel normals and positions (a 2048²
+    shadow map needs only the depth, and the rest would be ~400 MB of temporaries)."""
     V = np.asarray(vertices, dtype=np.float64)
     Fc = np.ascontiguousarray(np.asarray(faces), dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3:
@@ -186,7 +188,16 @@ def render_gbuffer(vertices, faces, camera: Camera, face_semantic_ids=None) -> G
         n_bands = (H + BAND_ROWS - 1) // BAND_ROWS
         offs, items = _bin(bbox, n_bands, BAND_ROWS)
         _raster(tri, bbox, offs, items, camera.far, W, H, BAND_ROWS, zbuf, fid)
+    return zbuf, fid
 
+
+def render_gbuffer(vertices, faces, camera: Camera, face_semantic_ids=None) -> GBuffer:
+    """Rasterise a triangle mesh (vertices (V,3) world, faces (F,3) int) for ``camera``."""
+    V = np.asarray(vertices, dtype=np.float64)
+    Fc = np.ascontiguousarray(np.asarray(faces), dtype=np.int64)
+    zbuf, fid = render_depth(V, Fc, camera)
+    W, H = camera.width, camera.height
+    nF = len(Fc)
     hit = fid >= 0
     f = fid[hit]
     p0, p1, p2 = V[Fc[f, 0]], V[Fc[f, 1]], V[Fc[f, 2]]
