@@ -147,6 +147,8 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
            # the same chunk in every configuration (the generator seeds chunk by chunk)
            "psnr_chunk_0_0": ((per.get("chunk_0_0") or {}).get("metrics") or {}).get("psnr_novel"),
            "seam_psnr_drop_db": seams.get("psnr_drop_db") if seams else None,
+           "seam_psnr_drop_class_matched_db": (seams.get("psnr_drop_class_matched_db")
+                                               if seams else None),
            "border_coverage": seams.get("border_coverage") if seams else None,
            "seams": seams, "steps": steps, "workers": workers}
     log(f"{name:>14s}: {row['chunks']:3d} chunks {row['surfels']:>9,} surfels "
@@ -154,7 +156,8 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
         f"{row['total_s']:7.1f} s, peak {row['peak_rss_mb']:7.0f} MB (driver "
         f"{row['driver_rss_mb'] or 0:.0f}), held-out {row['psnr_heldout'] or float('nan'):.2f} dB, "
         f"seam views: border {_get(seams, 'border', 'psnr_db')} / interior "
-        f"{_get(seams, 'interior', 'psnr_db')} dB, border coverage {row['border_coverage']}")
+        f"{_get(seams, 'interior', 'psnr_db')} dB (class-matched drop "
+        f"{row['seam_psnr_drop_class_matched_db']}), border coverage {row['border_coverage']}")
     return row
 
 
@@ -267,6 +270,7 @@ def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_
             "peak_rss_ratio": round(big["peak_rss_mb"] / one["peak_rss_mb"], 3),
             "max_peak_rss_mb": max(r["peak_rss_mb"] for r in rows),
             "seam_psnr_drop_db": big["seam_psnr_drop_db"],
+            "seam_psnr_drop_class_matched_db": big["seam_psnr_drop_class_matched_db"],
             "seam_psnr_drop_scene_region_db": base["seam_psnr_drop_db"],
             "border_coverage": big["border_coverage"]}
         if full:

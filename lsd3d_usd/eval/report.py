@@ -173,7 +173,11 @@ def _seams_html(result) -> str:
                      "–" if v["depth_rel_err"] is None else f"{100 * v['depth_rel_err']:.2f} %",
                      "–" if v["normal_err_deg"] is None else f"{v['normal_err_deg']:.2f}°",
                      f"{s['pixels'][k]:,}"])
-    drop = "" if s["psnr_drop_db"] is None else f"<p>PSNR drop at the borders: {s['psnr_drop_db']:.2f} dB</p>"
+    drop = "" if s["psnr_drop_db"] is None else f"<p>PSNR drop at the borders: {s['psnr_drop_db']:.2f} dB"
+    if drop and s.get("psnr_drop_class_matched_db") is not None:
+        drop += (f"; class-matched (interiors weighted to the border band's semantic mix): "
+                 f"{s['psnr_drop_class_matched_db']:.2f} dB")
+    drop += "</p>" if drop else ""
     return _table(["pixels", "PSNR vs prior (dB)", "coverage", "depth err", "normal err",
                    "pixels"], rows) + drop
 

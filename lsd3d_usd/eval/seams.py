@@ -7,6 +7,12 @@ GGDS's held-out evaluation), coverage (proxy pixels the surfels cover, alpha > 0
 render's agreement with the proxy (median relative depth error, median normal angle), so a
 seam shows as a PSNR drop, a coverage gap or a geometry jump at the borders. Arrays in,
 numbers out; the caller renders.
+
+Border bands and interiors hold different things (a band may be mostly facades where the
+interiors are mostly road), and the classes differ in how well GGDS fits them by several dB.
+So the drop is also given class-matched: the interiors' error per semantic class, weighted by
+the border band's class mix (classes absent from the interiors left out), against the border
+band's own error. That compares like with like; a seam shows in both.
 """
 from __future__ import annotations
 
@@ -52,6 +58,7 @@ class SeamStats:
         self.covered = {"border": 0, "interior": 0}
         self.depth = {"border": [], "interior": []}
         self.angle = {"border": [], "interior": []}
+        self.by_class = {"border": {}, "interior": {}}   # class id -> [squared error, pixels]
 
     def add(self, rgb, target, alpha, depth, normal, gbuf) -> None:
         """One view: render rgb (H,W,3) display range, prior target (H,W,3), alpha (H,W),
@@ -63,7 +70,15 @@ class SeamStats:
         ok = alpha > ALPHA_MIN
         n = normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
         cos = np.abs((n * gbuf.normal).sum(-1))
+        sem = np.asarray(gbuf.semantic)
         for k, m in parts.items():
+            classes, inv = np.unique(sem[m], return_inverse=True)
+            sq_c = np.bincount(inv, weights=err[m], minlength=len(classes))
+            n_c = np.bincount(inv, minlength=len(classes))
+            for c, e, n_px in zip(classes.tolist(), sq_c.tolist(), n_c.tolist()):
+                acc = self.by_class[k].setdefault(int(c), [0.0, 0])
+                acc[0] += e
+                acc[1] += n_px
             self.sq[k] += float(err[m].sum())
             self.n[k] += int(m.sum())
             self.proxy[k] += int(m.sum())
@@ -75,10 +90,7 @@ class SeamStats:
 
     def result(self) -> dict:
         def psnr(k):
-            if not self.n[k]:
-                return None
-            mse = self.sq[k] / self.n[k]
-            return round(99.0 if mse <= 1e-10 else -10.0 * math.log10(mse), 3)
+            return _psnr(self.sq[k], self.n[k])
 
         def med(vals):
             return round(float(np.median(np.concatenate(vals))), 5) if vals else None
@@ -89,5 +101,39 @@ class SeamStats:
                       "depth_rel_err": med(self.depth[k]), "normal_err_deg": med(self.angle[k])}
         b, i = out["border"]["psnr_db"], out["interior"]["psnr_db"]
         out["psnr_drop_db"] = round(i - b, 3) if b is not None and i is not None else None
+        out["classes"] = self._class_table()
+        out["psnr_drop_class_matched_db"] = self._class_matched_drop()
         out["border_coverage"] = out["border"]["coverage"]
         return out
+
+    def _class_table(self) -> dict:
+        """Per semantic class name: pixels and PSNR in the border band and the interiors."""
+        from lsd3d_usd.semantics import CLASSES
+        table = {}
+        for c in sorted(set(self.by_class["border"]) | set(self.by_class["interior"])):
+            name = CLASSES[c] if 0 <= c < len(CLASSES) else "unlabelled"
+            row = {}
+            for k in ("border", "interior"):
+                e, n = self.by_class[k].get(c, (0.0, 0))
+                row[k] = {"pixels": n, "psnr_db": _psnr(e, n)}
+            table[name] = row
+        return table
+
+    def _class_matched_drop(self) -> float | None:
+        """Interior PSNR at the border band's class mix minus the border band's PSNR, over
+        the classes both hold."""
+        b, i = self.by_class["border"], self.by_class["interior"]
+        common = [c for c in b if c in i and i[c][1] > 0]
+        nb = sum(b[c][1] for c in common)
+        if not nb:
+            return None
+        mse_b = sum(b[c][0] for c in common) / nb
+        mse_i = sum(b[c][1] / nb * i[c][0] / i[c][1] for c in common)
+        return round(_psnr(mse_i, 1) - _psnr(mse_b, 1), 3)
+
+
+def _psnr(sq: float, n: int) -> float | None:
+    if not n:
+        return None
+    mse = sq / n
+    return round(99.0 if mse <= 1e-10 else -10.0 * math.log10(mse), 3)

@@ -88,7 +88,8 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     ``views_per_chunk`` per chunk standing on lanes inside the region or up to
     ``view_margin_m`` outside it (so border surfels are seen from both sides), held-out views
     inside it (InputError when it holds no lane). The scene's cameras layer
-    (views.scene_cameras) authors the same views."""
+    (views.scene_cameras) authors the same views; run_region then trains a chunk region on
+    those that see any of its surfels (cameras.views_seeing)."""
     from lsd3d_usd.ggds.cameras import sample_views
     rseed = region_seed(seed, region)
     w, h = g.resolution
@@ -214,6 +215,12 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
             raise
         log(f"ggds: {region.name}: no drivable lane inside: its initial surfels are kept")
         return skip_region(sc, job["run"], region, "no drivable lane inside")
+    if not whole:
+        from lsd3d_usd.ggds.cameras import views_seeing
+        views = views_seeing(views, field.positions)
+        if not views:
+            log(f"ggds: {region.name}: no training view sees its surfels: they are kept")
+            return skip_region(sc, job["run"], region, "no training view sees its surfels")
     params = env_params(job["env"], seed)
     ew, eh = job["env"]["resolution"]
     light = scene_light(params, write_env(params, sc.textures_dir, int(ew), int(eh)))

@@ -2,9 +2,11 @@
 views and a few overviews as UsdGeom.Camera prims under /World/Cameras, so usdview, `render
 --camera` and any USD tool can look through them::
 
-    /World/Cameras/Train/Train_<k>        the views GGDS trains on (ggds.regions.region_views),
-                                          region by region in region-name order, as the run
-                                          records them (ggds/<run>/[<region>/]views.json)
+    /World/Cameras/Train/Train_<k>        the views GGDS samples for training
+                                          (ggds.regions.region_views), region by region in
+                                          region-name order; a chunk region trains on those
+                                          that see its surfels, as the run records them
+                                          (ggds/<run>/[<region>/]views.json)
     /World/Cameras/HeldOut/HeldOut_<k>    the held-out views its metrics are measured from
     /World/Cameras/Overview/Top           straight down over the layout, north up
     /World/Cameras/Overview/<SouthWest|SouthEast|NorthEast|NorthWest>
