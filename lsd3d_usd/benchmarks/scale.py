@@ -106,7 +106,7 @@ def _seams(scene: Path, views: int, size=(240, 135), seed: int = 0) -> dict | No
 
 
 def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int, seed: int,
-               views_per_chunk: int, mode: str = "chunk", seams_views: int = 16, log=print) -> dict:
+               views_per_chunk: int, mode: str = "chunk", seams_views: int = 48, log=print) -> dict:
     extent = _extent(shape, chunks)
     name = f"{shape}{chunks}" + ("" if mode == "chunk" else f"_{mode}")
     lay = _layout(work / f"{name}.usda", extent, seed)
