@@ -227,3 +227,11 @@ def test_training_view_gbuffers_are_keyed_so_the_prior_renders_each_view_once():
     other = make_run(steps=2).view_data(0).gbuffer     # another run's view 0: its own key
     prior.cached_render(other, run.env)
     assert len(calls) == 2
+
+
+def test_view_gbuffer_of_an_empty_proxy_is_all_empty():
+    from lsd3d_usd.ggds.conditioning import view_gbuffer
+    from lsd3d_usd.render.camera import Camera
+    gb = view_gbuffer(Camera.from_fov(16, 9, 60), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
+                      np.zeros(0, np.int32))
+    assert not gb.valid.any() and (gb.semantic == -1).all() and (gb.normal == 0).all()
