@@ -316,12 +316,13 @@ class GGDSRun:
         degree = sh_degree_of(self.params["sh"].shape[1])
         normals = f.normals()
         fit = ViewFit(f.n, degree)
+        positions = f.positions.astype(np.float64)   # widened once, not per view
         for i in range(len(self.views)):
             vd = self.view_data(i)
             cam = vd.view.camera
             target = self.prior.target(torch.zeros(cam.height, cam.width, 3), vd.gbuffer,
                                        self.env, 1.0, n_steps=c.n_denoise, seed=c.seed)
-            fit.add_view(f.positions, f.scales, normals, cam, target, vd.gbuffer.depth.numpy())
+            fit.add_view(positions, f.scales, normals, cam, target, vd.gbuffer.depth.numpy())
         sh, seen = fit.solve(normals, c.world_init_ridge, c.world_init_ridge_tangent)
         if not seen.all():
             rest = np.flatnonzero(~seen)

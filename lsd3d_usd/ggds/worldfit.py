@@ -243,14 +243,15 @@ class ViewFit:
         idx, ii, jj = idx[vis], ii[vis], jj[vis]
         if len(idx) == 0:
             return 0
-        p = np.asarray(positions, np.float64)[idx]
+        # index first, then widen: the same values, without converting every surfel per view
+        p = np.asarray(positions)[idx].astype(np.float64)
         d = p - camera.center
         dist = np.linalg.norm(d, axis=1)
         d /= np.maximum(dist, 1e-12)[:, None]
         zz = z[idx]
         f = float(np.sqrt(camera.fx * camera.fy))
-        s = np.asarray(scales, np.float64)[idx]
-        cos = np.abs((np.asarray(normals, np.float64)[idx] * d).sum(1))
+        s = np.asarray(scales)[idx].astype(np.float64)
+        cos = np.abs((np.asarray(normals)[idx].astype(np.float64) * d).sum(1))
         sigma_px = np.sqrt(s[:, 0] * s[:, 1]) * f / zz
         weight = np.maximum(np.pi * s[:, 0] * s[:, 1] * cos * f * f / (zz * zz), min_weight)
         radius = np.clip(np.round(0.7 * sigma_px), 0, max_radius).astype(np.int64)
