@@ -167,7 +167,8 @@ def test_cameras_layer_holds_every_regions_training_views(chunked):
 
 
 def test_views_seeing_keeps_the_views_a_region_is_in():
-    from lsd3d_usd.ggds.cameras import View, views_seeing
+    from lsd3d_usd.ggds.cameras import View
+    from lsd3d_usd.ggds.sampling import views_seeing
     from lsd3d_usd.render.camera import Camera, look_at
     pts = np.random.default_rng(0).uniform([0, 0, 0], [10, 10, 2], (50_000, 3))
 

@@ -52,9 +52,6 @@ class SeamStats:
 
     def __init__(self, chunk_size: float, keys, band_m: float = BAND_M):
         self.size, self.keys, self.band = float(chunk_size), set(map(tuple, keys)), band_m
-        self.sq = {"border": 0.0, "interior": 0.0}
-        self.n = {"border": 0, "interior": 0}
-        self.proxy = {"border": 0, "interior": 0}
         self.covered = {"border": 0, "interior": 0}
         self.depth = {"border": [], "interior": []}
         self.angle = {"border": [], "interior": []}
@@ -79,25 +76,30 @@ class SeamStats:
                 acc = self.by_class[k].setdefault(int(c), [0.0, 0])
                 acc[0] += e
                 acc[1] += n_px
-            self.sq[k] += float(err[m].sum())
-            self.n[k] += int(m.sum())
-            self.proxy[k] += int(m.sum())
             self.covered[k] += int((m & ok).sum())
             g = m & ok & (depth > 0)
             if g.any():
                 self.depth[k].append(np.abs(depth[g] - gbuf.depth[g]) / gbuf.depth[g])
                 self.angle[k].append(np.degrees(np.arccos(np.clip(cos[g], 0.0, 1.0))))
 
+    def _total(self, k: str) -> tuple[float, int]:
+        """(squared error, pixels) of part ``k`` over all classes."""
+        acc = self.by_class[k].values()
+        return sum(e for e, _ in acc), sum(n for _, n in acc)
+
     def result(self) -> dict:
+        totals = {k: self._total(k) for k in ("border", "interior")}
+
         def psnr(k):
-            return _psnr(self.sq[k], self.n[k])
+            return _psnr(*totals[k])
 
         def med(vals):
             return round(float(np.median(np.concatenate(vals))), 5) if vals else None
-        out = {"band_m": self.band, "pixels": dict(self.n)}
+        out = {"band_m": self.band, "pixels": {k: n for k, (_, n) in totals.items()}}
         for k in ("border", "interior"):
             out[k] = {"psnr_db": psnr(k),
-                      "coverage": round(self.covered[k] / self.proxy[k], 5) if self.proxy[k] else None,
+                      "coverage": (round(self.covered[k] / totals[k][1], 5) if totals[k][1]
+                                   else None),
                       "depth_rel_err": med(self.depth[k]), "normal_err_deg": med(self.angle[k])}
         b, i = out["border"]["psnr_db"], out["interior"]["psnr_db"]
         out["psnr_drop_db"] = round(i - b, 3) if b is not None and i is not None else None

@@ -186,22 +186,3 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
     return views
 
 
-
-def views_seeing(views: list, positions: np.ndarray, sample: int = 20_000) -> list:
-    """The views in whose image at least one of ``positions`` (N,3) projects, in front of
-    the camera (occlusion ignored); up to ``sample`` evenly spaced points are tested. A
-    region's views that see none of its surfels would give them no gradient: a step there,
-    its G-buffer and its prior target are wasted (a region of a few hundred surfels on a
-    building overhanging a chunk border spent 24 of its 40 s on 128 such targets)."""
-    p = np.asarray(positions, np.float64).reshape(-1, 3)
-    if len(p) > sample:
-        p = p[np.linspace(0, len(p) - 1, sample).astype(np.int64)]
-    kept = []
-    for v in views:
-        cam = v.camera
-        uv, z = cam.project(p)
-        inside = ((z > cam.near) & (uv[:, 0] >= 0) & (uv[:, 0] < cam.width)
-                  & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height))
-        if inside.any():
-            kept.append(v)
-    return kept

@@ -12,7 +12,7 @@ import torch
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.prior_base import GBuffer
 from lsd3d_usd.render.camera import Camera, look_at, pixel_directions
-from lsd3d_usd.render.gbuffer import render_depth, render_gbuffer
+from lsd3d_usd.render.gbuffer import face_normals, pixel_positions, render_depth
 
 
 @dataclass
@@ -61,17 +61,28 @@ def shadow_map(vertices: np.ndarray, faces: np.ndarray, sun_dir: np.ndarray,
 def view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray | None,
                  shadow: ShadowMap | None = None) -> GBuffer:
     return pack_view_gbuffer(camera, vertices, faces, shadow).unpack(
-        face_normals(vertices, faces), face_ids)
+        FaceTable.of(vertices, faces, face_ids))
 
 
-def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,3) float32 unit normals (p1 - p0) x (p2 - p0), as render_gbuffer writes them."""
-    V = np.asarray(vertices, np.float64)
-    F = np.asarray(faces, np.int64)
-    p0, p1, p2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    n = np.cross(p1 - p0, p2 - p0)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    return n.astype(np.float32)
+@dataclass
+class FaceTable:
+    """What a pixel's proxy face gives it: unit normal and class, as lookup tables built
+    once per proxy (row F is the empty pixel's: normal 0, class -1)."""
+    normals: torch.Tensor          # (F+1,3) float32
+    classes: torch.Tensor          # (F+1,) int64
+
+    @classmethod
+    def of(cls, vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray | None) -> "FaceTable":
+        n = face_normals(vertices, faces)
+        if face_ids is None:
+            ids = np.full(len(n), -1, np.int64)
+        elif np.shape(face_ids) != (len(n),):
+            raise InputError(f"gbuffer: face_ids must have shape ({len(n)},), got "
+                             f"{np.shape(face_ids)}")
+        else:
+            ids = np.asarray(face_ids).astype(np.int64)
+        return cls(torch.from_numpy(np.concatenate([n, np.zeros((1, 3), np.float32)])),
+                   torch.from_numpy(np.append(ids, -1)))
 
 
 @dataclass
@@ -86,25 +97,13 @@ class PackedGBuffer:
     world_pos: torch.Tensor        # (H,W,3) float32, 0 where empty
     sun: torch.Tensor | None       # (H,W) bool lit by the sun (1 where empty), None: all lit
 
-    def unpack(self, normals: np.ndarray, face_ids: np.ndarray | None,
-               key: Hashable | None = None) -> GBuffer:
-        """normals: face_normals() of the proxy; face_ids: (F,) class ids or None."""
-        hit = self.face >= 0
-        f = torch.where(hit, self.face, torch.zeros_like(self.face)).long()
-        table = torch.from_numpy(np.asarray(normals, np.float32).reshape(-1, 3))
-        if not len(table):          # no proxy faces: nothing is hit
-            table = torch.zeros(1, 3)
-        normal = torch.where(hit[..., None], table[f], 0.0)
-        if face_ids is None:
-            sem = torch.full(self.face.shape, -1, dtype=torch.int64)
-        else:
-            if np.shape(face_ids) != (len(normals),):
-                raise InputError(f"gbuffer: face_ids must have shape ({len(normals)},), got "
-                                 f"{np.shape(face_ids)}")
-            ids = torch.from_numpy(np.asarray(face_ids).astype(np.int64))
-            sem = torch.where(hit, ids[f], -1) if len(ids) else torch.full(self.face.shape, -1)
+    def unpack(self, faces: FaceTable, key: Hashable | None = None) -> GBuffer:
+        """``faces``: the proxy's FaceTable; ``key``: GBuffer.key."""
+        empty = len(faces.classes) - 1
+        f = torch.where(self.face >= 0, self.face, empty).long()
         return GBuffer(
-            depth=self.depth, normal=normal, semantic=sem, world_pos=self.world_pos,
+            depth=self.depth, normal=faces.normals[f], semantic=faces.classes[f],
+            world_pos=self.world_pos,
             view_dirs=torch.from_numpy(pixel_directions(self.camera).astype(np.float32)),
             camera_position=torch.from_numpy(self.camera.center.astype(np.float32)),
             sun_visibility=None if self.sun is None else self.sun.float(), key=key)
@@ -112,13 +111,14 @@ class PackedGBuffer:
 
 def pack_view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray,
                       shadow: ShadowMap | None = None) -> PackedGBuffer:
-    gb = render_gbuffer(vertices, faces, camera)
-    pos = gb.position
+    zbuf, fid = render_depth(vertices, faces, camera)
+    hit = fid >= 0
+    pos = pixel_positions(camera, zbuf, fid)
     sun = None
     if shadow is not None:
-        vis = shadow.visibility(np.where(gb.mask[..., None], pos, np.nan))
-        sun = torch.from_numpy(np.where(gb.mask, vis, 1.0) > 0.5)
+        vis = shadow.visibility(pos)            # nan where empty: lit there
+        sun = torch.from_numpy(np.where(hit, vis, 1.0) > 0.5)
     return PackedGBuffer(
-        camera, depth=torch.from_numpy(gb.depth.astype(np.float32)),
-        face=torch.from_numpy(gb.face_index.astype(np.int32)),
+        camera, depth=torch.from_numpy(zbuf.astype(np.float32)),
+        face=torch.from_numpy(fid.astype(np.int32)),
         world_pos=torch.from_numpy(np.nan_to_num(pos, nan=0.0).astype(np.float32)), sun=sun)

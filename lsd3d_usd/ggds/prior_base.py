@@ -177,7 +177,7 @@ class Prior:
         """Target image x_hat (H, W, 3) for rendered image x (H, W, 3) at noise level t.
 
         Deterministic for a given seed; x is treated as detached (no gradient flows)."""
-        raise NotImplementedError
+        raise NotImplementedError  # abstract: every prior defines it
 
     def describe(self) -> dict:
         """Parameters for layer provenance."""

@@ -89,7 +89,7 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     ``view_margin_m`` outside it (so border surfels are seen from both sides), held-out views
     inside it (InputError when it holds no lane). The scene's cameras layer
     (views.scene_cameras) authors the same views; run_region then trains a chunk region on
-    those that see any of its surfels (cameras.views_seeing)."""
+    those that see any of its surfels (sampling.views_seeing)."""
     from lsd3d_usd.ggds.cameras import sample_views
     rseed = region_seed(seed, region)
     w, h = g.resolution
@@ -216,7 +216,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
         log(f"ggds: {region.name}: no drivable lane inside: its initial surfels are kept")
         return skip_region(sc, job["run"], region, "no drivable lane inside")
     if not whole:
-        from lsd3d_usd.ggds.cameras import views_seeing
+        from lsd3d_usd.ggds.sampling import views_seeing
         views = views_seeing(views, field.positions)
         if not views:
             log(f"ggds: {region.name}: no training view sees its surfels: they are kept")

@@ -23,7 +23,7 @@ from lsd3d_usd.configtree import to_dict
 from lsd3d_usd.ggds import losses, params as P
 from lsd3d_usd.ggds.adam import SelectiveAdam, lr_at
 from lsd3d_usd.ggds.cameras import View
-from lsd3d_usd.ggds.conditioning import (PackedGBuffer, ShadowMap, face_normals,
+from lsd3d_usd.ggds.conditioning import (FaceTable, PackedGBuffer, ShadowMap,
                                          pack_view_gbuffer, view_gbuffer)
 from lsd3d_usd.ggds.config import GGDSConfig
 from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv
@@ -146,7 +146,7 @@ class GGDSRun:
         # Per training view, what a step needs and cannot cheaply derive again: the packed
         # G-buffer and the background (33 B/px; the unpacked ViewData is 65).
         self._view_cache: dict[int, tuple[PackedGBuffer, torch.Tensor | None]] = {}
-        self._face_normals = face_normals(self.vertices, self.faces)
+        self._faces = FaceTable.of(self.vertices, self.faces, self.face_ids)
         self._key = next(_RUN_KEYS)
         self.rng = np.random.default_rng(config.seed)
         self.step_index = 0
@@ -174,7 +174,7 @@ class GGDSRun:
             self._view_cache[i] = (pack_view_gbuffer(cam, self.vertices, self.faces, self.shadow),
                                    self.background_fn(cam) if self.background_fn else None)
         packed, bg = self._view_cache[i]
-        gb = packed.unpack(self._face_normals, self.face_ids, key=(self._key, i))
+        gb = packed.unpack(self._faces, key=(self._key, i))
         return ViewData(self.views[i], gb, bg, focus_mask(gb, self.focus))
 
     # ------------------------------------------------------------ anti-aliasing

@@ -109,3 +109,18 @@ def pick_views(points: np.ndarray, cameras, k: int, rng: np.random.Generator, *,
         full[nvalid == 0] = -1
         out[a:a + chunk] = full
     return out
+
+
+def views_seeing(views: list, positions: np.ndarray, sample: int = 20_000) -> list:
+    """The views (ggds.cameras.View) that have at least one of ``positions`` (N,3) in view
+    (``project``'s frustum test); up to ``sample`` evenly spaced points are tested. A region's
+    views that see none of its surfels would give them no gradient: a step there, its
+    G-buffer and its prior target are wasted (a region of a few hundred surfels on a building
+    overhanging a chunk border spent 24 of its 40 s on 128 such targets)."""
+    p = np.asarray(positions, np.float64).reshape(-1, 3)
+    if len(p) > sample:
+        p = p[np.linspace(0, len(p) - 1, sample).astype(np.int64)]
+    if not views or not len(p):
+        return []
+    _, ok = project(p, CameraSet.of([v.camera for v in views]))
+    return [v for v, seen in zip(views, ok.any(axis=0)) if seen]

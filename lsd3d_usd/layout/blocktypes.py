@@ -101,7 +101,7 @@ class Block:
     @classmethod
     def claims(cls, rng: np.random.Generator, sections: list[B.Section], sp: dict) -> bool:
         """Whether this type takes a node whose roads have ``sections`` (may draw from rng)."""
-        raise NotImplementedError
+        raise NotImplementedError  # abstract: each block type defines it
 
     @classmethod
     def parameter_space(cls, sections: list[B.Section], sp: dict, glob: dict) -> dict:
@@ -128,7 +128,7 @@ class Block:
 
     def build(self) -> BlockGeometry | None:
         """The block's own geometry (None: nothing at the node)."""
-        raise NotImplementedError
+        raise NotImplementedError  # abstract: each block type defines it
 
     def approach_features(self, e: R.Edge, at_a: bool) -> list:
         """Markings on the road ``e`` where it enters this block (crosswalks, stop lines)."""

@@ -106,7 +106,7 @@ class _Feature:
 
     def coords(self) -> np.ndarray:
         """All coordinates of the feature as (N, 3), for bounds and chunking."""
-        raise NotImplementedError
+        raise NotImplementedError  # abstract: each feature type defines it
 
     def bbox(self) -> Box:
         c = self.coords()

@@ -200,21 +200,35 @@ def render_gbuffer(vertices, faces, camera: Camera, face_semantic_ids=None) -> G
     nF = len(Fc)
     hit = fid >= 0
     f = fid[hit]
-    p0, p1, p2 = V[Fc[f, 0]], V[Fc[f, 1]], V[Fc[f, 2]]
-    n = np.cross(p1 - p0, p2 - p0)
-    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     normal = np.zeros((H, W, 3), np.float32)
-    normal[hit] = n
+    normal[hit] = face_normals(V, Fc[f])
     sem = np.full((H, W), -1, np.int32)
     if face_semantic_ids is not None:
         ids = np.asarray(face_semantic_ids)
         if ids.shape != (nF,):
             raise InputError(f"gbuffer: face_semantic_ids must have shape ({nF},), got {ids.shape}")
         sem[hit] = ids[f]
-    # World position from the pixel ray and the depth (exact for the planar face).
+    return GBuffer(zbuf.astype(np.float32), normal, sem, pixel_positions(camera, zbuf, fid),
+                   fid.astype(np.int32))
+
+
+def face_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,3) float32 unit normals (p1 - p0) x (p2 - p0) of faces (F,3) (0 for degenerate ones)."""
+    V = np.asarray(vertices, np.float64)
+    F = np.asarray(faces, np.int64).reshape(-1, 3)
+    p0, p1, p2 = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
+    n = np.cross(p1 - p0, p2 - p0)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return n.astype(np.float32)
+
+
+def pixel_positions(camera: Camera, zbuf: np.ndarray, fid: np.ndarray) -> np.ndarray:
+    """(H,W,3) float64 world positions of render_depth's pixels (nan where empty): the pixel
+    ray at the depth, exact for the planar face."""
+    hit = fid >= 0
     jj, ii = np.nonzero(hit)
     z = zbuf[hit]
     d_cam = np.stack([(ii + 0.5 - camera.cx) / camera.fx * z, (jj + 0.5 - camera.cy) / camera.fy * z, z], 1)
-    pos = np.full((H, W, 3), np.nan)
+    pos = np.full(zbuf.shape + (3,), np.nan)
     pos[hit] = d_cam @ camera.pose[:3, :3].T + camera.center
-    return GBuffer(zbuf.astype(np.float32), normal, sem, pos, fid.astype(np.int32))
+    return pos

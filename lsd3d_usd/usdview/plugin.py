@@ -27,10 +27,10 @@ except ImportError:  # stand-in for import and tests only (see module doc)
         """Stand-in for pxr.Usdviewq.plugin.PluginContainer (usdview not installed)."""
 
         def registerPlugins(self, plugRegistry, usdviewApi):
-            raise NotImplementedError
+            raise NotImplementedError  # abstract: usdview's base class, stood in for
 
         def configureView(self, plugRegistry, plugUIBuilder):
-            raise NotImplementedError
+            raise NotImplementedError  # abstract: usdview's base class, stood in for
 
 MENU = "LSD3D"
 PREFIX = "Lsd3dPluginContainer."
