@@ -48,6 +48,23 @@ def test_footprint_matches_per_camera_projection():
     assert np.all(footprint(pts, cs, margin=20) <= got)
 
 
+def test_project_matches_each_camera_with_margin_and_bad_points():
+    from lsd3d_usd.ggds.sampling import CameraSet, project
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-8, 8, (500, 3))
+    pts[0] = np.nan                     # a non-finite point is in no view
+    cs = cams()
+    z, ok = project(pts, CameraSet.of(cs), margin=7.5)
+    assert z.shape == ok.shape == (len(pts), len(cs))
+    for m, c in enumerate(cs):
+        uv, zc = c.project(pts)
+        want = (zc >= c.near) & (zc <= c.far) & (uv[:, 0] >= -7.5) & (uv[:, 0] <= c.width + 7.5) \
+            & (uv[:, 1] >= -7.5) & (uv[:, 1] <= c.height + 7.5)
+        np.testing.assert_array_equal(ok[:, m], want)
+        np.testing.assert_allclose(z[1:, m], zc[1:], rtol=1e-12)
+    assert not ok[0].any() and ok.any() and not ok.all()
+
+
 def test_pick_views_only_visible_cameras_weighted_by_pixel_density():
     cs = cams()
     rng = np.random.default_rng(1)

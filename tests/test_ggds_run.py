@@ -229,6 +229,22 @@ def test_training_view_gbuffers_are_keyed_so_the_prior_renders_each_view_once():
     assert len(calls) == 2
 
 
+def test_release_views_drops_the_runs_caches_and_only_them():
+    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    prior = ProceduralPrior()
+    run, other = make_run(steps=2), make_run(steps=2)
+    run.prior = other.prior = prior
+    for r in (run, other):
+        for i in (0, 1):
+            prior.cached_render(r.view_data(i).gbuffer, r.env)
+    assert len(prior._render_cache) == 4 and len(run._view_cache) == 2
+    before = run.view_data(1).gbuffer
+    run.release_views()
+    assert not run._view_cache and len(prior._render_cache) == 2   # the other run's stay
+    after = run.view_data(1).gbuffer                                # rebuilt on demand
+    assert after.key == before.key and torch.equal(after.depth, before.depth)
+
+
 def test_view_gbuffer_of_an_empty_proxy_is_all_empty():
     from lsd3d_usd.ggds.conditioning import view_gbuffer
     from lsd3d_usd.render.camera import Camera

@@ -4,7 +4,9 @@ Bilinear, seamless across the longitude wrap (columns wrap modulo W) and at the 
 (above the top row centre the value blends toward the top row's mean, the one value the
 pole can have; likewise at the bottom).
 Differentiable with respect to the image. Uses the convention of `mapping`
-(DomeLight_1, poleAxis Z; top row = zenith; image centre = -Y).
+(DomeLight_1, poleAxis Z; top row = zenith; image centre = -Y). Without gradients (the
+G-buffer backgrounds and the prior's sky, ~460 lookups of a 480x270 view per GGDS region) a
+numba kernel does the same in one pass (float64 inside), ~8x faster than the torch ops.
 """
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import math
 
 import numpy as np
 import torch
+from numba import njit, prange
 
 
 def directions_to_pixel(directions: torch.Tensor, width: int, height: int):
@@ -29,6 +32,14 @@ def env_lookup(image: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         raise ValueError(f"env_lookup: image must be (H, W, C) with H >= 2, got {tuple(image.shape)}")
     H, W, C = image.shape
     batch = directions.shape[:-1]
+    if not (torch.is_grad_enabled() and (image.requires_grad or directions.requires_grad)) \
+            and image.device.type == "cpu" and directions.device.type == "cpu" \
+            and image.dtype in (torch.float32, torch.float64):
+        img = np.ascontiguousarray(image.numpy())
+        out = np.empty((int(np.prod(batch, dtype=np.int64)), C), img.dtype)
+        _lookup(img, np.ascontiguousarray(directions.detach().reshape(-1, 3).numpy(), img.dtype),
+                img[0].mean(0, dtype=np.float64), img[H - 1].mean(0, dtype=np.float64), out)
+        return torch.from_numpy(out).reshape(*batch, C)
     d = directions.reshape(-1, 3).to(image.dtype if image.is_floating_point() else torch.float32)
     px, py = directions_to_pixel(d, W, H)
     x = px - 0.5
@@ -50,6 +61,33 @@ def env_lookup(image: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
     wb = ((y - (H - 1)) / 0.5).clamp(0.0, 1.0).unsqueeze(-1)
     out = out * (1 - wt - wb) + image[0].mean(0) * wt + image[H - 1].mean(0) * wb
     return out.reshape(*batch, C)
+
+
+@njit(parallel=True, cache=True)
+def _lookup(image, dirs, top, bottom, out):
+    """env_lookup's sampling, point by point (same formulas, float64)."""
+    H, W, C = image.shape
+    for n in prange(dirs.shape[0]):
+        x, y, z = float(dirs[n, 0]), float(dirs[n, 1]), float(dirs[n, 2])
+        norm = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+        x, y, z = x / norm, y / norm, z / norm
+        u = 0.5 - math.atan2(x, -y) / (2 * math.pi)
+        v = 0.5 - math.asin(min(max(z, -1.0), 1.0)) / math.pi
+        px = u * W - 0.5
+        py = v * H - 0.5
+        x0f = math.floor(px)
+        fx = px - x0f
+        x0 = int(x0f) % W
+        x1 = (x0 + 1) % W
+        y0 = min(max(math.floor(py), 0.0), H - 2.0)
+        fy = min(max(py - y0, 0.0), 1.0)
+        r0 = int(y0)
+        wt = min(max(-py / 0.5, 0.0), 1.0)
+        wb = min(max((py - (H - 1)) / 0.5, 0.0), 1.0)
+        for c in range(C):
+            val = ((image[r0, x0, c] * (1 - fx) + image[r0, x1, c] * fx) * (1 - fy)
+                   + (image[r0 + 1, x0, c] * (1 - fx) + image[r0 + 1, x1, c] * fx) * fy)
+            out[n, c] = val * (1 - wt - wb) + top[c] * wt + bottom[c] * wb
 
 
 class EnvMap:

@@ -179,6 +179,10 @@ class Prior:
         Deterministic for a given seed; x is treated as detached (no gradient flows)."""
         raise NotImplementedError  # abstract: every prior defines it
 
+    def forget(self, keys) -> None:
+        """Optional: drop what was cached under these GBuffer keys (GGDS calls it when a
+        run's training views are done with)."""
+
     def describe(self) -> dict:
         """Parameters for layer provenance."""
         return {"prior": self.name}

@@ -207,3 +207,9 @@ class ProceduralPrior(Prior):
             cache.pop(next(iter(cache)))
         cache[key] = (None if keyed else gbuffer, env, P)
         return P
+
+    def forget(self, keys) -> None:
+        cache = self.__dict__.get("_render_cache", {})
+        gone = {("key", k) for k in keys}
+        for key in [k for k in cache if k[0] in gone]:
+            del cache[key]

@@ -120,6 +120,10 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
         _save(store, run, prior, inputs)
         log(f"ggds: stopped at step {run.step_index} of {config.steps}; continue with --resume")
         return summary
+    # the per-view caches (~6 MB a view) are done with: not held through evaluation and writing
+    run.release_views()
+    from lsd3d_usd.memtune import release_free_memory
+    release_free_memory()
     t = time.perf_counter()
     metrics = run.evaluate(inputs.held_out) if inputs.held_out else {}
     _save(store, run, prior, inputs, metrics=metrics, final=True, keep_checkpoint=keep_checkpoint)

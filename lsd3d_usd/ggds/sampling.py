@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit, prange
 
 
 @dataclass
@@ -49,15 +50,29 @@ def project(points: np.ndarray, cams: CameraSet, margin: float = 0.0):
     """(depth (n,M), inside (n,M) bool) of points (n,3) in every camera: camera z, and whether
     the point lies in front between near and far and projects inside the image grown by
     ``margin`` pixels on every side."""
-    p = np.asarray(points, np.float64)
-    pc = np.einsum("mij,nj->nmi", cams.R, p) + cams.t[None]
-    z = pc[..., 2]
-    ok = (z >= cams.near) & (z <= cams.far)
-    zs = np.where(ok, z, 1.0)
-    u = cams.fx * pc[..., 0] / zs + cams.cx
-    v = cams.fy * pc[..., 1] / zs + cams.cy
-    ok &= (u >= -margin) & (u <= cams.width + margin) & (v >= -margin) & (v <= cams.height + margin)
+    p = np.ascontiguousarray(points, np.float64).reshape(-1, 3)
+    z = np.empty((len(p), len(cams)))
+    ok = np.empty((len(p), len(cams)), np.bool_)
+    _project(p, np.ascontiguousarray(cams.R), np.ascontiguousarray(cams.t), cams.fx, cams.fy,
+             cams.cx, cams.cy, cams.width, cams.height, cams.near, cams.far, float(margin), z, ok)
     return z, ok
+
+
+@njit(parallel=True, cache=True)
+def _project(p, R, t, fx, fy, cx, cy, width, height, near, far, margin, z, ok):
+    # one pass per point over the cameras (numpy's einsum and masks: ~8x slower)
+    for n in prange(p.shape[0]):
+        x0, x1, x2 = p[n, 0], p[n, 1], p[n, 2]
+        for m in range(R.shape[0]):
+            zc = R[m, 2, 0] * x0 + R[m, 2, 1] * x1 + R[m, 2, 2] * x2 + t[m, 2]
+            z[n, m] = zc
+            if not (zc >= near[m] and zc <= far[m]):
+                ok[n, m] = False
+                continue
+            u = fx[m] * (R[m, 0, 0] * x0 + R[m, 0, 1] * x1 + R[m, 0, 2] * x2 + t[m, 0]) / zc + cx[m]
+            v = fy[m] * (R[m, 1, 0] * x0 + R[m, 1, 1] * x1 + R[m, 1, 2] * x2 + t[m, 1]) / zc + cy[m]
+            ok[n, m] = (u >= -margin and u <= width[m] + margin and v >= -margin
+                        and v <= height[m] + margin)
 
 
 def footprint(points: np.ndarray, cameras, *, margin: float = 0.0,

@@ -228,44 +228,25 @@ class ViewFit:
     def add_view(self, positions: np.ndarray, scales: np.ndarray, normals: np.ndarray, camera,
                  target, depth, *, rel_tol: float = 0.02, abs_tol: float = 0.02,
                  max_radius: int = 4, min_weight: float = 0.05) -> int:
-        """Add one view's samples; returns how many surfels it saw."""
-        from lsd3d_usd.ggds.filters import box_filter
-        tgt = torch.as_tensor(target, dtype=torch.float32)
-        dep = np.asarray(depth, np.float64)
-        H, W = dep.shape
-        uv, z = camera.project(positions)
-        i, j = np.floor(uv[:, 0]), np.floor(uv[:, 1])
-        ok = (z > camera.near) & (i >= 0) & (j >= 0) & (i < W) & (j < H)
-        idx = np.flatnonzero(ok)
-        ii, jj = i[idx].astype(np.int64), j[idx].astype(np.int64)
-        zd = dep[jj, ii]
-        vis = np.isfinite(zd) & (np.abs(z[idx] - zd) <= rel_tol * zd + abs_tol)
-        idx, ii, jj = idx[vis], ii[vis], jj[vis]
-        if len(idx) == 0:
-            return 0
-        # index first, then widen: the same values, without converting every surfel per view
-        p = np.asarray(positions)[idx].astype(np.float64)
-        d = p - camera.center
-        dist = np.linalg.norm(d, axis=1)
-        d /= np.maximum(dist, 1e-12)[:, None]
-        zz = z[idx]
-        f = float(np.sqrt(camera.fx * camera.fy))
-        s = np.asarray(scales)[idx].astype(np.float64)
-        cos = np.abs((np.asarray(normals)[idx].astype(np.float64) * d).sum(1))
-        sigma_px = np.sqrt(s[:, 0] * s[:, 1]) * f / zz
-        weight = np.maximum(np.pi * s[:, 0] * s[:, 1] * cos * f * f / (zz * zz), min_weight)
-        radius = np.clip(np.round(0.7 * sigma_px), 0, max_radius).astype(np.int64)
-        col = np.empty((len(idx), 3))
-        for r in np.unique(radius):
-            m = radius == r
-            level = box_filter(tgt, int(r)).numpy()
-            col[m] = level[jj[m], ii[m]]
-        B = sh_basis(torch.from_numpy(d), self.degree).numpy()
-        wB = B * weight[:, None]
-        self.A[idx] += np.einsum("ns,nt->nst", wB, B)
-        self.b[idx] += np.einsum("ns,nc->nsc", wB, col - 0.5)
-        self.count[idx] += 1
-        return int(len(idx))
+        """Add one view's samples; returns how many surfels it saw. ``target`` (H,W,3) and
+        ``depth`` (H,W: camera z, inf where empty) are the view's; positions may be float32
+        (widened per surfel)."""
+        from lsd3d_usd.ggds.worldfit_kernels import accumulate_view, summed_area
+        tgt = target.numpy() if isinstance(target, torch.Tensor) else np.asarray(target)
+        dep = np.asarray(depth)
+        if dep.shape != tgt.shape[:2] or tgt.ndim != 3 or tgt.shape[2] != 3:
+            raise ValueError(f"ViewFit.add_view: target {tgt.shape} and depth {dep.shape} "
+                             "must be (H,W,3) and (H,W)")
+        if (camera.height, camera.width) != dep.shape:
+            raise ValueError(f"ViewFit.add_view: depth {dep.shape} is not the camera's "
+                             f"{camera.height}x{camera.width}")
+        return accumulate_view(
+            np.asarray(positions), np.asarray(scales), np.asarray(normals),
+            np.ascontiguousarray(camera.viewmat, np.float64),
+            np.ascontiguousarray(camera.center, np.float64), float(camera.fx), float(camera.fy),
+            float(camera.cx), float(camera.cy), float(camera.near), dep, summed_area(tgt),
+            float(rel_tol), float(abs_tol), int(max_radius), float(min_weight), self.degree,
+            self.A, self.b, self.count)
 
     def solve(self, normals: np.ndarray, ridge: float, ridge_tangent: float,
               block: int = 65536):
