@@ -180,3 +180,26 @@ def test_views_seeing_keeps_the_views_a_region_is_in():
     beyond = view([30, -30, 2], [60, -60, 1])
     assert views_seeing([towards, away, beyond], pts) == [towards]
     assert views_seeing([towards], np.array([[-20.0, 5.0, 2.0]])) == []   # at the eye: z = 0
+
+
+def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
+    from lsd3d_usd.ggds.config import GGDSConfig
+    from lsd3d_usd.ggds.regions import region_fit_views
+    from lsd3d_usd.layout.usdio import read_layout
+    from dataclasses import replace
+    layout = read_layout(LAYOUT)
+    g = GGDSConfig(resolution=(48, 32))
+    g = replace(g, regions=replace(g.regions, views_per_chunk=40, fit_view_frac=1.0))
+    region = Region(((0, 0),), "chunk_0_0")
+    views = region_fit_views(layout, g, 0, region)
+    assert 0 < len(views) <= 40
+    for v in views:
+        x, y = v.camera.center[:2]
+        inner = -20 <= x <= 120 and -20 <= y <= 120
+        reach = 50 + 8.5     # lane points inside the fit margin; novel views stand up to 8 m off
+        assert not inner and -reach <= x <= 100 + reach and -reach <= y <= 100 + reach
+    assert [v.camera.center.tolist() for v in region_fit_views(layout, g, 0, region)] == \
+        [v.camera.center.tolist() for v in views]                       # deterministic
+    assert region_fit_views(layout, g, 0, Region(((0, 0),), "")) == []  # whole scene: none
+    off = replace(g, regions=replace(g.regions, fit_margin_m=20.0))
+    assert region_fit_views(layout, off, 0, region) == []

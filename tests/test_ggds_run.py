@@ -251,3 +251,60 @@ def test_view_gbuffer_of_an_empty_proxy_is_all_empty():
     gb = view_gbuffer(Camera.from_fov(16, 9, 60), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
                       np.zeros(0, np.int32))
     assert not gb.valid.any() and (gb.semantic == -1).all() and (gb.normal == 0).all()
+
+
+def test_fit_views_join_the_colour_start_and_leave_nothing_behind():
+    """World-space start with training views A and fit-only views B gives the colours of a
+    run that trains on A + B (the same least squares); the fit views' targets are not kept."""
+    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    base = make_run(steps=2)
+    views = base.views
+    a, b = views[:3], views[3:]
+    prior = ProceduralPrior()
+
+    def run_with(train, fit):
+        r = GGDSRun(base.init_field, (base.vertices, base.faces, base.face_ids), train, prior,
+                    PriorEnv(), base.cfg, fit_views=fit)
+        assert r.world_init()
+        return r
+    split, joint, alone = run_with(a, b), run_with(a + b, []), run_with(a, [])
+    np.testing.assert_allclose(split.params["sh"].detach().numpy(), joint.params["sh"].detach().numpy(),
+                               rtol=1e-5, atol=1e-6)
+    assert not np.allclose(split.params["sh"].detach().numpy(), alone.params["sh"].detach().numpy())
+    keys = {k[0][1] for k in prior._render_cache}
+    assert not any(len(k) == 3 and k[1] == "fit" for k in keys)
+    assert len(split._view_cache) == len(a)
+
+
+def test_context_cull_renders_the_same_image_as_all_context_surfels():
+    """render() passes the rasteriser only the context surfels whose bounding sphere reaches
+    the view; the image (and the trainable rows' gradients) are those of all of them."""
+    from lsd3d_usd.ggds.sampling import spheres_in_view
+    base = make_run(steps=2)
+    V, F, ids = street()
+    ctx = mesh_to_surfels(V, F, ids, count=6000, seed=3, sh_degree=1, color=(0.3, 0.6, 0.2))
+    rng = np.random.default_rng(0)
+    ctx.positions = (ctx.positions + rng.uniform(-40, 40, (ctx.n, 3)) * [1, 1, 0.1]
+                     ).astype(np.float32)
+    ctx.scales = (ctx.scales * rng.uniform(0.5, 30.0, (ctx.n, 1))).astype(np.float32)  # some large
+    run = GGDSRun(base.init_field, (V, F, ids), base.views, ClassColourTestPrior(), PriorEnv(),
+                  base.cfg, context=ctx)
+    checked = 0
+    for v in base.views:
+        cam = v.camera
+        kept = spheres_in_view(run.context["means"].numpy(), run._context_radii, cam)
+        checked += int((~kept).sum() > 0 and kept.sum() > 0)
+        got = run.render(cam)
+        a = run.activated(run.params)
+        a = {k: torch.cat([a[k], run.context[k]]) for k in a}
+        from lsd3d_usd.render.rasterize import rasterize
+        from lsd3d_usd.render.raster_types import RasterSettings
+        want = rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
+                         cam.viewmat, cam.K, cam.width, cam.height,
+                         settings=RasterSettings.for_camera(cam))
+        torch.testing.assert_close(got.rgb, want.rgb, rtol=0, atol=1e-6)
+        torch.testing.assert_close(got.alpha, want.alpha, rtol=0, atol=1e-6)
+        n = run.params["means"].shape[0]
+        assert torch.equal(got.visible_index[got.visible_index < n],
+                           want.visible_index[want.visible_index < n])
+    assert checked >= 3          # views that dropped some context surfels and kept others

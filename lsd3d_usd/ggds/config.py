@@ -86,6 +86,12 @@ class RegionConfig:
                                              "it or up to this far outside, so surfels at its "
                                              "border are seen from both sides (metres)",
                                   lo=0.0, hi=1000.0)
+    fit_margin_m: float = option(50.0, help="the world-space colour start of a chunk region "
+                                            "also fits to views standing up to this far "
+                                            "outside it, as the whole-scene fit would (0 = "
+                                            "training views only; metres)", lo=0.0, hi=1000.0)
+    fit_view_frac: float = option(0.5, help="... that many views per chunk, as a fraction of "
+                                            "views_per_chunk", lo=0.0, hi=10.0)
 
 
 @dataclass

@@ -108,6 +108,34 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     return views, held
 
 
+def region_fit_views(layout, g, seed: int, region: Region) -> list:
+    """Extra views for a chunk region's world-space colour start (never trained on):
+    ``fit_view_frac × views_per_chunk`` per chunk on lanes up to ``fit_margin_m`` outside the
+    region, those standing beyond the training views' margin. A surfel near a border is seen
+    by the whole-scene fit from both sides and from afar; the region's training views reach
+    only ``view_margin_m`` across, so without these its colour would be fitted from one
+    side."""
+    from lsd3d_usd.ggds.cameras import sample_views
+    r = g.regions
+    n = int(round(r.fit_view_frac * r.views_per_chunk * len(region.keys)))
+    if not region.name or n <= 0 or r.fit_margin_m <= r.view_margin_m:
+        return []
+    x0, y0, x1, y1 = region.bounds(float(layout.chunk_size))
+    m, inner = r.fit_margin_m, r.view_margin_m
+    w, h = g.resolution
+    try:
+        views = sample_views(layout, n, w, h, seed=region_seed(seed, region) + 104729,
+                             novel_frac=g.novel_frac, fov_deg=g.fov_deg,
+                             region=(x0 - m, y0 - m, x1 + m, y1 + m), clip=True,
+                             novel_style=g.novel_style)
+    except InputError:
+        return []
+    def outside(v):
+        c = v.camera.center
+        return not (x0 - inner <= c[0] <= x1 + inner and y0 - inner <= c[1] <= y1 + inner)
+    return [v for v in views if outside(v)]
+
+
 # ---------------------------------------------------------------------------- inputs
 def _proxy_neighbourhood(proxy_path, keys):
     """Proxy arrays of ``keys`` (those that exist) concatenated, and each chunk's face offset."""
@@ -221,6 +249,10 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
         if not views:
             log(f"ggds: {region.name}: no training view sees its surfels: they are kept")
             return skip_region(sc, job["run"], region, "no training view sees its surfels")
+        fit_views = views_seeing(region_fit_views(layout, g, seed, region),
+                                 field.positions)
+    else:
+        fit_views = []
     params = env_params(job["env"], seed)
     ew, eh = job["env"]["resolution"]
     light = scene_light(params, write_env(params, sc.textures_dir, int(ew), int(eh)))
@@ -232,7 +264,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                                 bounds[3] + band)
     inputs = GGDSInputs(field, proxy, views, held, light.prior_env, light.background,
                         shadow_map(proxy[0], proxy[1], light.sun_direction), face,
-                        context=context, focus=focus)
+                        context=context, focus=focus, fit_views=fit_views)
     store = RegionRunStore(sc, job["run"], region.name, owners, refresh=refresh,
                            checkpoint_meta={"keys": [list(k) for k in region.keys]})
     resume = store.has_checkpoint()
@@ -244,6 +276,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
     summary.update(region=region.name, keys=[list(k) for k in region.keys],
                    context=int(context.n) if context is not None else 0,
                    wall_s=round(time.perf_counter() - t0, 2), views=len(views),
+                   fit_views=len(fit_views),
                    cpu_s=round(_cpu_seconds() - c0, 2))
     return summary
 

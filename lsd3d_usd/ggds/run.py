@@ -39,6 +39,7 @@ _RUN_KEYS = itertools.count()   # G-buffer keys unique across the runs of a proc
 # render leaves ~100 MB of temporaries between the long-lived per-view caches, and the
 # fragments added up to ~0.9 GB of the README sample's peak (2.71 -> 2.36 GB, no slower)
 TRIM_EVERY_VIEWS = 16
+CONTEXT_SIGMAS = 3.5
 
 
 @dataclass
@@ -108,8 +109,9 @@ class GGDSRun:
                  views: list[View], prior: Prior, env: PriorEnv, config: GGDSConfig, *,
                  background_fn=None, shadow: ShadowMap | None = None,
                  face_index: np.ndarray | None = None, terms=None, term_state: dict | None = None,
-                 context: SurfelField | None = None, focus=None):
+                 context: SurfelField | None = None, focus=None, fit_views=()):
         self.cfg = config
+        self.fit_views = list(fit_views)
         self.init_field = field
         self.focus = focus
         self.context = None
@@ -118,6 +120,9 @@ class GGDSRun:
             self.context = {k: torch.from_numpy(np.ascontiguousarray(v, np.float32)) for k, v in
                             (("means", c.positions), ("quats", c.orientations),
                              ("scales", c.scales), ("opacities", c.opacities), ("sh", c.sh))}
+            # world radius beyond which a disk's alpha stays under the rasteriser's alpha_min
+            # (opacity <= 1: sqrt(2 ln 255) = 3.33 sigma): the frustum cull of render()
+            self._context_radii = CONTEXT_SIGMAS * c.scales.max(axis=1).astype(np.float64)
         self.params = P.to_params(field)
         for p in self.params.values():
             p.requires_grad_(True)
@@ -235,7 +240,12 @@ class GGDSRun:
         fields (near/far come from the camera)."""
         a = self.activated(self.params if params is None else params)
         if self.context is not None:   # trainable rows first: visible_index < n are ours
-            a = {k: torch.cat([a[k], self.context[k]]) for k in a}
+            # only the neighbours' surfels that can reach this view: the same image, without
+            # per-surfel buffers and gradient rows for the rest (~1.5x a chunk's surfels)
+            from lsd3d_usd.ggds.sampling import spheres_in_view
+            keep = torch.from_numpy(np.flatnonzero(spheres_in_view(
+                self.context["means"].numpy(), self._context_radii, camera)))
+            a = {k: torch.cat([a[k], self.context[k].index_select(0, keep)]) for k in a}
         return rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
                          camera.viewmat, camera.K, camera.width, camera.height,
                          settings=RasterSettings.for_camera(camera, **settings), background=background)
@@ -308,9 +318,9 @@ class GGDSRun:
     def world_init(self) -> bool:
         """Start every surfel's SH colour from the prior, when the prior is world-consistent
         (Prior.shade_at; the procedural prior is, a diffusion prior is not): a per-surfel
-        least-squares fit to the t = 1 targets of the training views that see it
-        (worldfit.ViewFit; each view's target is computed once and cached, as the steps
-        would), and for surfels no training view sees, to the prior evaluated in 3D over its
+        least-squares fit to the t = 1 targets of the training views (and ``fit_views``) that
+        see it (worldfit.ViewFit; each training view's target is computed once and cached, as
+        the steps would), and for surfels none sees, to the prior evaluated in 3D over its
         disk from the nearest cameras (worldfit.fit_sh). GGDS steps refine from there.
         Returns whether it ran."""
         from lsd3d_usd.ggds.worldfit import ViewFit, fit_sh
@@ -327,18 +337,28 @@ class GGDSRun:
         normals = f.normals()
         fit = ViewFit(f.n, degree)
         from lsd3d_usd.memtune import release_free_memory
-        for i in range(len(self.views)):
+        n_train = len(self.views)
+        for i in range(n_train + len(self.fit_views)):
             if i and i % TRIM_EVERY_VIEWS == 0:
                 release_free_memory()
-            vd = self.view_data(i)
-            cam = vd.view.camera
-            target = self.prior.target(torch.zeros(cam.height, cam.width, 3), vd.gbuffer,
+            if i < n_train:   # a training view: its G-buffer and target stay cached for the steps
+                gb = self.view_data(i).gbuffer
+                cam = self.views[i].camera
+            else:             # a fit-only view: used once
+                cam = self.fit_views[i - n_train].camera
+                key = (self._key, "fit", i)
+                gb = pack_view_gbuffer(cam, self.vertices, self.faces, self.shadow).unpack(
+                    self._faces, key=key)
+            target = self.prior.target(torch.zeros(cam.height, cam.width, 3), gb,
                                        self.env, 1.0, n_steps=c.n_denoise, seed=c.seed)
-            fit.add_view(f.positions, f.scales, normals, cam, target, vd.gbuffer.depth.numpy())
+            fit.add_view(f.positions, f.scales, normals, cam, target, gb.depth.numpy())
+            if i >= n_train:
+                self.prior.forget([key])
         sh, seen = fit.solve(normals, c.world_init_ridge, c.world_init_ridge_tangent)
         if not seen.all():
             rest = np.flatnonzero(~seen)
-            sub = fit_sh(self.prior, self.env, f.subset(rest), [v.camera for v in self.views],
+            sub = fit_sh(self.prior, self.env, f.subset(rest),
+                         [v.camera for v in self.views + self.fit_views],
                          degree=degree, shadow=self.shadow, samples=c.world_init_samples,
                          ridge=c.world_init_ridge, ridge_tangent=c.world_init_ridge_tangent,
                          seed=c.seed)

@@ -36,6 +36,7 @@ class GGDSInputs:
     face_index: np.ndarray | None = None    # seed proxy face of every surfel
     context: SurfelField | None = None      # frozen neighbour surfels rendered with them
     focus: tuple | None = None              # (x0, y0, x1, y1) the loaded surfels cover
+    fit_views: list = ()                    # more views for the world-space colour start only
 
 
 def _log_nothing(*a):
@@ -70,7 +71,7 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     run = GGDSRun(inputs.field, inputs.proxy, inputs.views, prior, inputs.env, config,
                   background_fn=inputs.background, shadow=inputs.shadow,
                   face_index=inputs.face_index, term_state=term_state,
-                  context=inputs.context, focus=inputs.focus)
+                  context=inputs.context, focus=inputs.focus, fit_views=inputs.fit_views)
     store.write_views(inputs.views)
     before = []
     if resume:

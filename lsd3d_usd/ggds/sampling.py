@@ -15,6 +15,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 from numba import njit, prange
 
@@ -73,6 +75,39 @@ def _project(p, R, t, fx, fy, cx, cy, width, height, near, far, margin, z, ok):
             v = fy[m] * (R[m, 1, 0] * x0 + R[m, 1, 1] * x1 + R[m, 1, 2] * x2 + t[m, 1]) / zc + cy[m]
             ok[n, m] = (u >= -margin and u <= width[m] + margin and v >= -margin
                         and v <= height[m] + margin)
+
+
+def spheres_in_view(centres: np.ndarray, radii: np.ndarray, camera,
+                    margin_px: float = 4.0) -> np.ndarray:
+    """(n,) bool: the spheres (centres (n,3), radii (n,)) that reach into ``camera``'s view
+    frustum (between near and far, image grown by ``margin_px`` on every side): a
+    conservative test, so a surfel whose disk lies within its sphere and is left out can add
+    nothing to the image."""
+    c = np.ascontiguousarray(centres, np.float64).reshape(-1, 3)
+    ok = np.empty(len(c), np.bool_)
+    _spheres_in_view(c, np.ascontiguousarray(radii, np.float64), np.ascontiguousarray(
+        camera.viewmat, np.float64), float(camera.fx), float(camera.fy), float(camera.cx),
+        float(camera.cy), float(camera.width), float(camera.height), float(camera.near),
+        float(camera.far), float(margin_px), ok)
+    return ok
+
+
+@njit(parallel=True, cache=True)
+def _spheres_in_view(c, r, V, fx, fy, cx, cy, width, height, near, far, m, ok):
+    # the four side planes of the grown image pass through the camera centre; their
+    # inward normals in camera coordinates, normalised
+    nl = np.array([fx, 0.0, cx + m]) / math.hypot(fx, cx + m)            # u >= -m
+    nr = np.array([-fx, 0.0, width + m - cx]) / math.hypot(fx, width + m - cx)
+    nt = np.array([0.0, fy, cy + m]) / math.hypot(fy, cy + m)            # v >= -m
+    nb = np.array([0.0, -fy, height + m - cy]) / math.hypot(fy, height + m - cy)
+    for i in prange(c.shape[0]):
+        x = V[0, 0] * c[i, 0] + V[0, 1] * c[i, 1] + V[0, 2] * c[i, 2] + V[0, 3]
+        y = V[1, 0] * c[i, 0] + V[1, 1] * c[i, 1] + V[1, 2] * c[i, 2] + V[1, 3]
+        z = V[2, 0] * c[i, 0] + V[2, 1] * c[i, 1] + V[2, 2] * c[i, 2] + V[2, 3]
+        ri = r[i]
+        ok[i] = (z >= near - ri and z <= far + ri
+                 and nl[0] * x + nl[2] * z >= -ri and nr[0] * x + nr[2] * z >= -ri
+                 and nt[1] * y + nt[2] * z >= -ri and nb[1] * y + nb[2] * z >= -ri)
 
 
 def footprint(points: np.ndarray, cameras, *, margin: float = 0.0,

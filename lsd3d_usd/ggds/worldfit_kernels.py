@@ -14,10 +14,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from lsd3d_usd.shmath import C0, C1, C2, C3
-
-_C2 = np.array(C2)
-_C3 = np.array(C3)
+from lsd3d_usd.render.kernels_prep import sh_basis_into
 
 
 def summed_area(image: np.ndarray) -> np.ndarray:
@@ -28,32 +25,6 @@ def summed_area(image: np.ndarray) -> np.ndarray:
     T = np.zeros((H + 1, W + 1, C))
     np.cumsum(np.cumsum(img, axis=0), axis=1, out=T[1:, 1:])
     return T
-
-
-@njit(inline="always")
-def _basis(x, y, z, degree, c2, c3, out):
-    """Real SH of degree ≤ 3 at the unit direction (x,y,z) into out (the order of
-    render/sh.sh_basis)."""
-    out[0] = C0
-    if degree >= 1:
-        out[1] = -C1 * y
-        out[2] = C1 * z
-        out[3] = -C1 * x
-    if degree >= 2:
-        xx, yy, zz = x * x, y * y, z * z
-        out[4] = c2[0] * x * y
-        out[5] = c2[1] * y * z
-        out[6] = c2[2] * (2 * zz - xx - yy)
-        out[7] = c2[3] * x * z
-        out[8] = c2[4] * (xx - yy)
-        if degree >= 3:
-            out[9] = c3[0] * y * (3 * xx - yy)
-            out[10] = c3[1] * x * y * z
-            out[11] = c3[2] * y * (4 * zz - xx - yy)
-            out[12] = c3[3] * z * (2 * zz - 3 * xx - 3 * yy)
-            out[13] = c3[4] * x * (4 * zz - xx - yy)
-            out[14] = c3[5] * z * (xx - yy)
-            out[15] = c3[6] * x * (xx - 3 * yy)
 
 
 @njit(inline="always")
@@ -88,7 +59,7 @@ def _add_sample(n, positions, scales, normals, viewmat, centre, fx, fy, cx, cy, 
     j0, j1 = max(j - r, 0), min(j + r + 1, H)
     i0, i1 = max(i - r, 0), min(i + r + 1, W)
     area = float((j1 - j0) * (i1 - i0))
-    _basis(dx, dy, dz, degree, _C2, _C3, basis)
+    sh_basis_into(dx, dy, dz, degree, basis)
     S = (degree + 1) * (degree + 1)
     for c in range(3):
         col = (table[j1, i1, c] - table[j0, i1, c] - table[j1, i0, c] + table[j0, i0, c]) / area

@@ -21,7 +21,9 @@ _C3 = np.array(C3)
 
 
 @njit(inline="always")
-def _sh_basis(x, y, z, deg, out):
+def sh_basis_into(x, y, z, deg, out):
+    """Real SH of degree <= 3 at the unit direction (x, y, z) into out[:(deg+1)²] (the order of
+    render/sh.sh_basis)."""
     out[0] = C0
     if deg >= 1:
         out[1] = -C1 * y
@@ -222,7 +224,7 @@ def _project_one(i, means, quats, scales, opac, sh, deg, Rv, C, K, width, height
     # colour from SH along the world direction camera -> surfel
     mn = math.sqrt(mx * mx + my * my + mz * mz)
     mn = max(mn, 1e-30)
-    _sh_basis(mx / mn, my / mn, mz / mn, deg, Y)
+    sh_basis_into(mx / mn, my / mn, mz / mn, deg, Y)
     for c in range(3):
         acc = 0.5
         for k in range(nk):
@@ -461,7 +463,7 @@ def _project_backward_one(j, idx, rows, surf_off, surf_pairs, means, quats, scal
         # colour = max(0, 0.5 + sum Y(dir) c), dir = m/|m|
         mn = max(math.sqrt(mx * mx + my * my + mz * mz), 1e-30)
         dx, dy, dz = mx / mn, my / mn, mz / mn
-        _sh_basis(dx, dy, dz, deg, Y)
+        sh_basis_into(dx, dy, dz, deg, Y)
         gcol[:] = 0
         for c in range(3):
             acc = 0.5
@@ -473,7 +475,7 @@ def _project_backward_one(j, idx, rows, surf_off, surf_pairs, means, quats, scal
                     g_sh[i, k, c] = Y[k] * gcol[c]
         if deg > 0 and (gcol[0] != 0 or gcol[1] != 0 or gcol[2] != 0):
             for ax in range(3):  # complex step: dY/d(dir_ax) = Im Y(dir + i h e_ax) / h
-                _sh_basis(dx + (1j * h if ax == 0 else 0j), dy + (1j * h if ax == 1 else 0j),
+                sh_basis_into(dx + (1j * h if ax == 0 else 0j), dy + (1j * h if ax == 1 else 0j),
                           dz + (1j * h if ax == 2 else 0j), deg, Yc)
                 acc = 0.0
                 for k in range(1, nk):
