@@ -90,8 +90,10 @@ class RegionConfig:
                                             "also fits to views standing up to this far "
                                             "outside it, as the whole-scene fit would (0 = "
                                             "training views only; metres)", lo=0.0, hi=1000.0)
-    fit_view_frac: float = option(0.5, help="... that many views per chunk, as a fraction of "
-                                            "views_per_chunk", lo=0.0, hi=10.0)
+    fit_view_frac: float = option(0.5, help="views sampled per chunk for that fit, as a "
+                                            "fraction of views_per_chunk; those beyond "
+                                            "view_margin_m that see the region's surfels are "
+                                            "used", lo=0.0, hi=10.0)
 
 
 @dataclass

@@ -109,9 +109,9 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
 
 
 def region_fit_views(layout, g, seed: int, region: Region) -> list:
-    """Extra views for a chunk region's world-space colour start (never trained on):
-    ``fit_view_frac × views_per_chunk`` per chunk on lanes up to ``fit_margin_m`` outside the
-    region, those standing beyond the training views' margin. A surfel near a border is seen
+    """Extra views for a chunk region's world-space colour start (never trained on): of
+    ``fit_view_frac × views_per_chunk`` per chunk sampled on lanes up to ``fit_margin_m``
+    outside the region, those standing beyond the training views' margin. A surfel near a border is seen
     by the whole-scene fit from both sides and from afar; the region's training views reach
     only ``view_margin_m`` across, so without these its colour would be fitted from one
     side."""
@@ -385,7 +385,8 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
                                             "metrics")},
                 **{kk: summaries.get(k, {}).get(kk) for kk in ("wall_s", "cpu_s", "context",
-                                                               "views", "peak_rss_mb")}}
+                                                               "views", "fit_views",
+                                                               "peak_rss_mb")}}
             for k, v in regions_done.items()}
     from lsd3d_usd.ggds.store import write_json
     write_json(sc.run_files(run).dir / "summary.json", summary)

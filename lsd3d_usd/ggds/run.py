@@ -116,7 +116,8 @@ class GGDSRun:
         self.focus = focus
         self.context = None
         if context is not None and context.n:
-            c = context.with_sh_degree(field.sh_degree)
+            c = context if context.sh_degree == field.sh_degree else \
+                context.with_sh_degree(field.sh_degree)   # no copy when the degrees agree
             self.context = {k: torch.from_numpy(np.ascontiguousarray(v, np.float32)) for k, v in
                             (("means", c.positions), ("quats", c.orientations),
                              ("scales", c.scales), ("opacities", c.opacities), ("sh", c.sh))}
