@@ -200,6 +200,8 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
         assert not inner and -reach <= x <= 100 + reach and -reach <= y <= 100 + reach
     assert [v.camera.center.tolist() for v in region_fit_views(layout, g, 0, region)] == \
         [v.camera.center.tolist() for v in views]                       # deterministic
-    assert region_fit_views(layout, g, 0, Region(((0, 0),), "")) == []  # whole scene: none
+    whole = Region(((0, 0),), "")          # a whole-scene region: ggds.world_init_views
+    assert region_fit_views(layout, replace(g, world_init_views=0), 0, whole) == []
+    assert len(region_fit_views(layout, replace(g, world_init_views=0.5), 0, whole)) == 64
     off = replace(g, regions=replace(g.regions, fit_margin_m=20.0))
     assert region_fit_views(layout, off, 0, region) == []

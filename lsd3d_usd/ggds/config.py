@@ -133,6 +133,11 @@ class GGDSConfig:
                                          "each disk is convolved with σ = this × the pixel "
                                          "footprint of the finest training view that sees it "
                                          "(0 = off)", lo=0.0, hi=10.0)
+    world_init_views: float = option(1.0, help="world-space start of a whole-scene region: "
+                                               "its colour fit also uses this many views per "
+                                               "training view, sampled like them (never "
+                                               "trained on; chunk regions use "
+                                               "ggds.regions.fit_*)", lo=0.0, hi=100.0)
     world_init_samples: int = option(16, help="world-space start: points per surfel, each seen "
                                              "from a training camera that has it in view, to "
                                              "which its view-dependent SH colour is fitted",

@@ -109,20 +109,28 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
 
 
 def region_fit_views(layout, g, seed: int, region: Region) -> list:
-    """Extra views for a chunk region's world-space colour start (never trained on): of
-    ``fit_view_frac × views_per_chunk`` per chunk sampled on lanes up to ``fit_margin_m``
-    outside the region, those standing beyond the training views' margin. A surfel near a border is seen
-    by the whole-scene fit from both sides and from afar; the region's training views reach
-    only ``view_margin_m`` across, so without these its colour would be fitted from one
-    side."""
+    """Extra views for a region's world-space colour start (never trained on). A chunk
+    region: of ``fit_view_frac × views_per_chunk`` per chunk sampled on lanes up to
+    ``fit_margin_m`` outside it, those standing beyond the training views' margin (a surfel
+    near a border is seen by a whole-scene fit from both sides and from afar; the region's
+    training views reach only ``view_margin_m`` across, so without these its colour would be
+    fitted from one side). A whole-scene region: ``world_init_views`` × its training views,
+    sampled like them (more directions per surfel for the fit)."""
     from lsd3d_usd.ggds.cameras import sample_views
     r = g.regions
+    w, h = g.resolution
+    if not region.name:
+        n = int(round(g.world_init_views * g.views))
+        if n <= 0:
+            return []
+        return sample_views(layout, n, w, h,
+                            seed=region_seed(seed, region) + 104729, novel_frac=g.novel_frac,
+                            fov_deg=g.fov_deg, novel_style=g.novel_style)
     n = int(round(r.fit_view_frac * r.views_per_chunk * len(region.keys)))
-    if not region.name or n <= 0 or r.fit_margin_m <= r.view_margin_m:
+    if n <= 0 or r.fit_margin_m <= r.view_margin_m:
         return []
     x0, y0, x1, y1 = region.bounds(float(layout.chunk_size))
     m, inner = r.fit_margin_m, r.view_margin_m
-    w, h = g.resolution
     try:
         views = sample_views(layout, n, w, h, seed=region_seed(seed, region) + 104729,
                              novel_frac=g.novel_frac, fov_deg=g.fov_deg,
@@ -252,7 +260,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
         fit_views = views_seeing(region_fit_views(layout, g, seed, region),
                                  field.positions)
     else:
-        fit_views = []
+        fit_views = region_fit_views(layout, g, seed, region)
     params = env_params(job["env"], seed)
     ew, eh = job["env"]["resolution"]
     light = scene_light(params, write_env(params, sc.textures_dir, int(ew), int(eh)))
