@@ -92,3 +92,11 @@ def test_kernel_path_equals_the_differentiable_path(dtype):
     torch.testing.assert_close(fast[5:], slow[5:], rtol=tol, atol=tol)
     torch.testing.assert_close(fast[:4], slow[:4], rtol=tol, atol=tol)
     assert torch.isnan(fast[4]).all() and torch.isnan(slow[4]).all()
+
+
+def test_no_grad_lookup_of_an_image_that_requires_grad():
+    img = torch.rand(8, 16, 3, requires_grad=True)
+    d = torch.randn(10, 3)
+    with torch.no_grad():
+        out = env_lookup(img, d)
+    torch.testing.assert_close(out, env_lookup(img, d).detach(), rtol=1e-4, atol=1e-4)

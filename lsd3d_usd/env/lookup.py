@@ -6,7 +6,7 @@ pole can have; likewise at the bottom).
 Differentiable with respect to the image. Uses the convention of `mapping`
 (DomeLight_1, poleAxis Z; top row = zenith; image centre = -Y). Without gradients (the
 G-buffer backgrounds and the prior's sky, ~460 lookups of a 480x270 view per GGDS region) a
-numba kernel does the same in one pass (float64 inside), ~8x faster than the torch ops.
+numba kernel does the same in one pass (float64 inside), 2-3x faster than the torch ops.
 """
 from __future__ import annotations
 
@@ -35,7 +35,7 @@ def env_lookup(image: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
     if not (torch.is_grad_enabled() and (image.requires_grad or directions.requires_grad)) \
             and image.device.type == "cpu" and directions.device.type == "cpu" \
             and image.dtype in (torch.float32, torch.float64):
-        img = np.ascontiguousarray(image.numpy())
+        img = np.ascontiguousarray(image.detach().numpy())
         out = np.empty((int(np.prod(batch, dtype=np.int64)), C), img.dtype)
         _lookup(img, np.ascontiguousarray(directions.detach().reshape(-1, 3).numpy(), img.dtype),
                 img[0].mean(0, dtype=np.float64), img[H - 1].mean(0, dtype=np.float64), out)

@@ -138,10 +138,8 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
                              novel_style=g.novel_style)
     except InputError:
         return []
-    def outside(v):
-        c = v.camera.center
-        return not (x0 - inner <= c[0] <= x1 + inner and y0 - inner <= c[1] <= y1 + inner)
-    return [v for v in views if outside(v)]
+    return [v for v in views if not (x0 - inner <= v.camera.center[0] <= x1 + inner
+                                     and y0 - inner <= v.camera.center[1] <= y1 + inner)]
 
 
 # ---------------------------------------------------------------------------- inputs

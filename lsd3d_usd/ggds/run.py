@@ -181,11 +181,14 @@ class GGDSRun:
         per view), background and focus mask."""
         if i not in self._view_cache:
             cam = self.views[i].camera
-            self._view_cache[i] = (pack_view_gbuffer(cam, self.vertices, self.faces, self.shadow),
+            self._view_cache[i] = (self._pack(cam),
                                    self.background_fn(cam) if self.background_fn else None)
         packed, bg = self._view_cache[i]
         gb = packed.unpack(self._faces, key=(self._key, i))
         return ViewData(self.views[i], gb, bg, focus_mask(gb, self.focus))
+
+    def _pack(self, camera) -> PackedGBuffer:
+        return pack_view_gbuffer(camera, self.vertices, self.faces, self.shadow)
 
     def release_views(self) -> None:
         """Drop what the steps kept per training view (packed G-buffers, backgrounds, the
@@ -342,19 +345,17 @@ class GGDSRun:
         for i in range(n_train + len(self.fit_views)):
             if i and i % TRIM_EVERY_VIEWS == 0:
                 release_free_memory()
-            if i < n_train:   # a training view: its G-buffer and target stay cached for the steps
-                gb = self.view_data(i).gbuffer
-                cam = self.views[i].camera
-            else:             # a fit-only view: used once
+            fit_only = i >= n_train   # used once; a training view's G-buffer and target
+            if fit_only:              # stay cached for the steps
                 cam = self.fit_views[i - n_train].camera
-                key = (self._key, "fit", i)
-                gb = pack_view_gbuffer(cam, self.vertices, self.faces, self.shadow).unpack(
-                    self._faces, key=key)
+                gb = self._pack(cam).unpack(self._faces, key=(self._key, "fit", i))
+            else:
+                cam, gb = self.views[i].camera, self.view_data(i).gbuffer
             target = self.prior.target(torch.zeros(cam.height, cam.width, 3), gb,
                                        self.env, 1.0, n_steps=c.n_denoise, seed=c.seed)
             fit.add_view(f.positions, f.scales, normals, cam, target, gb.depth.numpy())
-            if i >= n_train:
-                self.prior.forget([key])
+            if fit_only:
+                self.prior.forget([gb.key])
         sh, seen = fit.solve(normals, c.world_init_ridge, c.world_init_ridge_tangent)
         if not seen.all():
             rest = np.flatnonzero(~seen)

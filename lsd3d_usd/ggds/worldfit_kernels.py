@@ -6,7 +6,7 @@ weighted SH sample to the surfel's normal equations.
 Each surfel owns its rows of the accumulators, so the loop runs in parallel without atomics.
 Against the numpy version it replaces (kept in tests/test_worldfit_kernel.py as the float64
 reference, which it matches to 1e-9), one view of the README sample's 0.9 M surfels takes
-about 10 ms instead of ~150 ms (docs/ggds.md)."""
+about 13 ms instead of ~150 ms (docs/ggds.md)."""
 from __future__ import annotations
 
 import math
