@@ -221,7 +221,10 @@ def test_submit_after_a_worker_died_unnoticed_goes_to_a_fresh_pool():
         deadline = time.monotonic() + 120
         while len(seen) < 2 and time.monotonic() < deadline:
             seen.update({k: s for k, s, _ in ex.poll(5)})
-        assert seen == {"victim": SUSPECT, "after": OK}
+        assert seen["after"] == OK
+        # the victim is reported as a suspect crash, unless it finished in the milliseconds
+        # before its worker was killed (a fast task: seen once in a fresh-clone CI run)
+        assert seen["victim"] in (SUSPECT, OK) and set(seen) == {"victim", "after"}
     finally:
         ex.close(cancel=True)
 
