@@ -76,7 +76,8 @@ register_benchmark(
 def _scale_args(p: argparse.ArgumentParser):
     p.add_argument("--json", metavar="OUT.json", help="write results as JSON (per configuration: "
                    "chunks, surfels, surfels_per_m2, per_chunk_s, total_s, peak_rss_mb, "
-                   "driver_rss_mb, seam_psnr_drop_db, border_coverage)")
+                   "driver_rss_mb, seam_psnr_drop_db, seam_psnr_drop_matched_db and its "
+                   "ci95, border_coverage)")
     p.add_argument("--png", metavar="OUT.png", help="time and memory against chunks (default: "
                                                     "next to --json)")
     p.add_argument("--full", action="store_true",
@@ -87,6 +88,9 @@ def _scale_args(p: argparse.ArgumentParser):
     p.add_argument("--views-per-chunk", type=int, default=24, help="training views per chunk "
                                                                    "(default 24)")
     p.add_argument("--seed", type=int, default=11, help="seed of the generated layouts (default 11)")
+    p.add_argument("--seam-views", type=int, default=48,
+                   help="views of the seam measure per configuration (default 48; its 95 %% "
+                        "interval narrows with more)")
     p.add_argument("--work", help="keep the generated scenes in this folder (default: a temporary "
                                   "one, removed)")
 
@@ -95,7 +99,8 @@ def _scale_run(args) -> int:
     from lsd3d_usd.benchmarks.scale import main
 
     main(json_path=args.json, full=args.full, steps=args.steps, workers=args.workers,
-         seed=args.seed, views_per_chunk=args.views_per_chunk, work=args.work, png_path=args.png)
+         seed=args.seed, views_per_chunk=args.views_per_chunk, work=args.work, png_path=args.png,
+         seam_views=args.seam_views)
     return 0
 
 

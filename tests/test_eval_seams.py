@@ -17,11 +17,23 @@ def test_border_distance_only_between_chunks_that_hold_surfels():
     np.testing.assert_allclose(d, [3.0, 4.0, 50.0, 50.0, np.inf])
 
 
-def _view(xs, classes, rng):
+def test_a_border_runs_only_where_both_chunks_hold_surfels_along_it():
+    # chunk (0,1) holds only a building overhanging y = 100 at x in [40, 45]
+    keys = {(0, 0), (0, 1)}
+    bounds = {(0, 0): (0.0, 0.0, 100.0, 100.0), (0, 1): (40.0, 100.0, 45.0, 101.0)}
+    pts = np.array([[42.0, 98, 0], [48.0, 97, 0], [51.0, 97, 0], [80.0, 99, 0], [42.0, 100.5, 0]])
+    np.testing.assert_allclose(border_distance(pts, 100.0, keys), [2, 3, 3, 1, 0.5])
+    np.testing.assert_allclose(border_distance(pts, 100.0, keys, bounds, reach=5.0),
+                               [2, 3, np.inf, np.inf, 0.5])
+    assert np.isinf(border_distance(pts, 100.0, set())).all()
+
+
+def _view(xs, classes, rng, depth=None):
     """A one-row 'view' whose pixels lie on the ground at x = xs with the given classes."""
     n = len(xs)
     pos = np.stack([xs, np.full(n, 50.0), np.zeros(n)], 1)[None]
-    return GBuffer(depth=np.full((1, n), 10.0, np.float32),
+    depth = np.full(n, 10.0) if depth is None else depth
+    return GBuffer(depth=np.asarray(depth, np.float32)[None],
                    normal=np.tile(np.array([0, 0, 1], np.float32), (1, n, 1)),
                    semantic=np.asarray(classes, np.int32)[None], position=pos,
                    face_index=np.zeros((1, n), np.int32))
@@ -65,3 +77,52 @@ def test_no_border_pixels_gives_no_drop():
     assert r["border"]["psnr_db"] is None and r["psnr_drop_db"] is None
     assert r["psnr_drop_class_matched_db"] is None
     assert r["interior"]["psnr_db"] == pytest.approx(30.0, abs=1e-3)
+
+
+def test_distance_alone_is_no_seam_once_matched():
+    rng = np.random.default_rng(2)
+    # one class; the border band is seen from far away, the interiors near, and error grows
+    # with distance: the class-matched drop shows it, the class-and-depth-matched does not
+    xs = np.concatenate([rng.uniform(95, 105, 400), rng.uniform(10, 90, 1600)])
+    far = np.abs(xs - 100) <= 5
+    depth = np.where(far, np.where(rng.random(len(xs)) < 0.8, 60.0, 8.0),
+                     np.where(rng.random(len(xs)) < 0.2, 60.0, 8.0))
+    gb = _view(xs, np.ones(len(xs), int), rng, depth)
+    by_depth = {8.0: 1e-4, 60.0: 1e-2}
+    st = SeamStats(100.0, KEYS)
+    n = len(xs)
+    target = np.full((1, n, 3), 0.5)
+    e = np.sqrt([by_depth[float(d)] for d in depth])
+    st.add(target + e[None, :, None], target, np.ones((1, n)), depth[None], gb.normal, gb)
+    r = st.result()
+    assert r["psnr_drop_class_matched_db"] > 3
+    assert abs(r["psnr_drop_matched_db"]) < 1e-6 and r["matched_border_frac"] == 1.0
+
+    seam = SeamStats(100.0, KEYS)                      # the same, with the border 2x worse
+    e2 = e * np.where(far, math.sqrt(2.0), 1.0)
+    seam.add(target + e2[None, :, None], target, np.ones((1, n)), depth[None], gb.normal, gb)
+    assert seam.result()["psnr_drop_matched_db"] == pytest.approx(10 * math.log10(2), abs=1e-3)
+
+
+def _seam_views(factors, rng):
+    """One view per factor: its border band's error is ``factor`` × the interiors'."""
+    st = SeamStats(100.0, KEYS)
+    for f in factors:
+        xs = np.concatenate([rng.uniform(95, 105, 100), rng.uniform(10, 90, 300)])
+        gb = _view(xs, np.ones(len(xs), int), rng)
+        _add(st, gb, lambda x, c: 1e-3 * (f if abs(x - 100) <= 5 else 1.0))
+    return st.result()
+
+
+def test_the_interval_over_views_is_tight_for_a_steady_seam_and_wide_for_one_bad_view():
+    rng = np.random.default_rng(3)
+    steady = _seam_views([2.0] * 20, rng)
+    lo, hi = steady["psnr_drop_matched_ci95_db"]
+    assert lo <= steady["psnr_drop_matched_db"] <= hi
+    assert lo == pytest.approx(10 * math.log10(2), abs=0.05) and hi - lo < 0.1
+
+    one_view = _seam_views([1.0] * 19 + [20.0], rng)
+    lo, hi = one_view["psnr_drop_matched_ci95_db"]
+    assert one_view["psnr_drop_matched_db"] > 2.5     # the point figure alone looks like a seam
+    assert lo < 1.0 < 4 < hi                          # the interval says it rests on one view
+    assert _seam_views([2.0], rng)["psnr_drop_matched_ci95_db"] is None

@@ -205,3 +205,29 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     assert len(region_fit_views(layout, replace(g, world_init_views=0.5), 0, whole)) == 64
     off = replace(g, regions=replace(g.regions, fit_margin_m=20.0))
     assert region_fit_views(layout, off, 0, region) == []
+
+
+def test_eval_measures_seams_of_a_chunked_scene(chunked):
+    from lsd3d_usd.eval.evaluate import render_view
+    from lsd3d_usd.eval.report import _seams_html
+    from lsd3d_usd.eval.seams_eval import measure_seams
+    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.layout.usdio import read_layout
+    from lsd3d_usd.proxy.usdio import proxy_arrays
+    from lsd3d_usd.views.stage_data import SceneReader
+    out, _ = chunked
+    sc = S.Scene.open(out)
+    layout = read_layout(sc.layer_path("layout"))
+    cams = [v.camera for v in sample_views(layout, 6, 64, 40, seed=5)]
+    reader = SceneReader(sc.open_stage(), actors=False)
+    frames = [render_view(reader.surfels(), reader.env(), c) for c in cams]
+    res, why = measure_seams(sc, sc.runs()[0].name, layout, proxy_arrays(sc.layer_path("proxy")),
+                             cams, frames)
+    assert why is None
+    assert res["pixels"]["border"] > 0 and res["pixels"]["interior"] > 0   # the crossing's borders
+    assert res["border_coverage"] > 0.5
+    lo, hi = res["psnr_drop_matched_ci95_db"]
+    assert lo <= hi and 0 < res["matched_border_frac"] <= 1
+    assert "class and distance matched" in _seams_html({"seams": res})
+    none, why = measure_seams(sc, None, layout, proxy_arrays(sc.layer_path("proxy")), cams, frames)
+    assert none is None and "no GGDS run" in why

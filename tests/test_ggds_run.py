@@ -126,6 +126,29 @@ def test_selective_adam_matches_torch_adam_on_full_rows():
     torch.testing.assert_close(p["w"].detach(), q.detach())
 
 
+def test_selective_adam_in_row_blocks_equals_one_block(monkeypatch):
+    from lsd3d_usd.ggds import adam
+    torch.manual_seed(1)
+    init = {"sh": torch.randn(50, 4, 3), "o": torch.randn(50)}
+    scales = {"sh": torch.tensor([1.0, 0.5, 0.5, 0.5])[:, None]}
+    runs = []
+    for block in (1 << 17, 7):
+        monkeypatch.setattr(adam, "ROW_BLOCK", block)
+        p = {k: v.clone().requires_grad_(True) for k, v in init.items()}
+        opt = SelectiveAdam(p, {"sh": 0.05, "o": 0.1}, lr_scales=scales, eps_by_key={"o": 1e-8})
+        gen = torch.Generator().manual_seed(2)
+        for _ in range(4):
+            for v in p.values():
+                v.grad = torch.randn(v.shape, generator=gen)
+            opt.step(torch.randperm(50, generator=gen)[:37])
+        runs.append((p, opt))
+    (a, oa), (b, ob) = runs
+    for k in init:
+        torch.testing.assert_close(a[k], b[k], rtol=0, atol=0)
+        torch.testing.assert_close(oa.m[k], ob.m[k], rtol=0, atol=0)
+    assert torch.equal(oa.t, ob.t)
+
+
 def test_relocation_moves_dead_surfels_and_conserves_opacity():
     field = SurfelField(np.random.default_rng(0).normal(size=(100, 3)), np.tile([0, 0, 0, 1.0], (100, 1)),
                         np.full((100, 2), 0.1), np.r_[np.full(10, 1e-4), np.full(90, 0.6)],
@@ -183,6 +206,27 @@ def test_views_follow_lanes_and_need_lanes():
     from lsd3d_usd.errors import InputError
     with pytest.raises(InputError, match="no drivable lanes"):
         sample_views(Layout(), 3, 64, 48)
+
+
+def test_stratified_views_leave_no_stretch_of_lane_without_a_view():
+    two = Layout(lanes=[LaneCenter(id="a", points=[[0, 0, 0], [300, 0, 0]]),
+                        LaneCenter(id="b", points=[[0, 50, 0], [100, 50, 0]])])
+
+    def largest_gap(views):
+        x = np.sort([v.camera.center[0] for v in views if v.lane_id == "a"])
+        return np.diff(np.r_[0.0, x, 300.0]).max(), len(x)
+    for seed in range(5):
+        strat = sample_views(two, 40, 32, 24, seed=seed, novel_frac=0.0, stratified=True)
+        gap, n_a = largest_gap(strat)
+        assert n_a == 30                  # lanes get views in proportion to their length
+        assert gap <= 2 * 400 / 40 + 1    # one view in each 10 m of the 400 m of lane
+        clipped = sample_views(two, 20, 32, 24, seed=seed, novel_frac=0.25, stratified=True,
+                               region=(0, -10, 100, 60), clip=True)
+        assert all(-1 <= v.camera.center[0] <= 101 for v in clipped if v.kind == "lane")
+        assert [v.kind for v in clipped].count("novel") == 5
+    # independent draws leave gaps several times as wide: what the strata are for
+    gaps = [largest_gap(sample_views(two, 40, 32, 24, seed=s, novel_frac=0.0))[0] for s in range(5)]
+    assert max(gaps) > 25
 
 
 def test_packed_view_gbuffer_unpacks_to_the_full_gbuffer():

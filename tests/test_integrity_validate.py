@@ -111,6 +111,17 @@ def test_kernel_bounds_surflet_ignores_third_axis():
     np.testing.assert_allclose(b3, [[-3, -6, -15], [3, 6, 15]])
 
 
+def test_kernel_bounds_in_blocks_equal_one_pass(field_factory):
+    from lsd3d_usd.splats.field import kernel_bounds
+    f = field_factory(1000)
+    whole = kernel_bounds(f.positions, f.orientations, f.scales, block=10_000)
+    np.testing.assert_array_equal(kernel_bounds(f.positions, f.orientations, f.scales, block=7),
+                                  whole)
+    rows = f.rows(100, 400)       # views of the field's arrays, not copies
+    assert np.shares_memory(rows.sh, f.sh) and rows.n == 300
+    np.testing.assert_array_equal(rows.positions, f.subset(np.arange(100, 400)).positions)
+
+
 def test_export_3dgs_extent_validates(tmp_path, field_factory):
     usdio.write_surfel_file(str(tmp_path / "s.usdc"), field_factory(300))
     assert main(["splats", "export-3dgs", str(tmp_path / "s.usdc"), "-o", str(tmp_path / "g.usdc"),

@@ -149,6 +149,10 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
            "seam_psnr_drop_db": seams.get("psnr_drop_db") if seams else None,
            "seam_psnr_drop_class_matched_db": (seams.get("psnr_drop_class_matched_db")
                                                if seams else None),
+           # class and distance matched, with its 95 % interval over the seam views
+           "seam_psnr_drop_matched_db": seams.get("psnr_drop_matched_db") if seams else None,
+           "seam_psnr_drop_matched_ci95_db": (seams.get("psnr_drop_matched_ci95_db")
+                                              if seams else None),
            "border_coverage": seams.get("border_coverage") if seams else None,
            "seams": seams, "steps": steps, "workers": workers}
     log(f"{name:>14s}: {row['chunks']:3d} chunks {row['surfels']:>9,} surfels "
@@ -157,7 +161,9 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
         f"{row['driver_rss_mb'] or 0:.0f}), held-out {row['psnr_heldout'] or float('nan'):.2f} dB, "
         f"seam views: border {_get(seams, 'border', 'psnr_db')} / interior "
         f"{_get(seams, 'interior', 'psnr_db')} dB (class-matched drop "
-        f"{row['seam_psnr_drop_class_matched_db']}), border coverage {row['border_coverage']}")
+        f"{row['seam_psnr_drop_class_matched_db']}, class and distance matched "
+        f"{row['seam_psnr_drop_matched_db']} in {row['seam_psnr_drop_matched_ci95_db']}), "
+        f"border coverage {row['border_coverage']}")
     return row
 
 
@@ -245,17 +251,18 @@ def plot(rows: list, path) -> None:
 
 
 def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_chunk=24,
-         work=None, png_path=None, log=print) -> dict:
+         work=None, png_path=None, seam_views=48, log=print) -> dict:
     workers = workers or os.cpu_count() or 1
     with tempfile.TemporaryDirectory(prefix="lsd3d-bench-scale-") as tmp:
         wdir = Path(work) if work else Path(tmp)
         wdir.mkdir(parents=True, exist_ok=True)
         rows = [run_config(shape, n, wdir, steps=steps, workers=workers, seed=seed,
-                           views_per_chunk=views_per_chunk, log=log)
+                           views_per_chunk=views_per_chunk, seams_views=seam_views, log=log)
                 for shape, n in CONFIGS + (FULL_CONFIGS if full else [])]
         # the same 4-chunk grid as one region: the seam measure's content baseline
         base = run_config("grid", 4, wdir, steps=steps, workers=workers, seed=seed,
-                          views_per_chunk=views_per_chunk, mode="scene", log=log)
+                          views_per_chunk=views_per_chunk, mode="scene",
+                          seams_views=seam_views, log=log)
         result = {"configs": rows, "scene_region_grid4": base}
         one = min(rows, key=lambda r: r["chunks"])
         big = max(rows, key=lambda r: r["chunks"])
@@ -271,6 +278,8 @@ def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_
             "max_peak_rss_mb": max(r["peak_rss_mb"] for r in rows),
             "seam_psnr_drop_db": big["seam_psnr_drop_db"],
             "seam_psnr_drop_class_matched_db": big["seam_psnr_drop_class_matched_db"],
+            "seam_psnr_drop_matched_db": big["seam_psnr_drop_matched_db"],
+            "seam_psnr_drop_matched_ci95_db": big["seam_psnr_drop_matched_ci95_db"],
             "seam_psnr_drop_scene_region_db": base["seam_psnr_drop_db"],
             "border_coverage": big["border_coverage"]}
         if full:

@@ -177,6 +177,10 @@ def _seams_html(result) -> str:
     if drop and s.get("psnr_drop_class_matched_db") is not None:
         drop += (f"; class-matched (interiors weighted to the border band's semantic mix): "
                  f"{s['psnr_drop_class_matched_db']:.2f} dB")
+    if drop and s.get("psnr_drop_matched_db") is not None:
+        ci = s.get("psnr_drop_matched_ci95_db")
+        drop += (f"; class and distance matched: {s['psnr_drop_matched_db']:.2f} dB"
+                 + (f" (95 % interval over the views {ci[0]:.2f} to {ci[1]:.2f} dB)" if ci else ""))
     drop += "</p>" if drop else ""
     return _table(["pixels", "PSNR vs prior (dB)", "coverage", "depth err", "normal err",
                    "pixels"], rows) + drop

@@ -18,7 +18,8 @@ def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[
     from lsd3d_usd.ggds.store import read_plan
     from lsd3d_usd.render.gbuffer import render_gbuffer
     from lsd3d_usd.splats.chunkio import read_chunk_map
-    keys = set(read_chunk_map(sc.layer_path("surfels")))
+    chunks = read_chunk_map(sc.layer_path("surfels"))
+    keys = set(chunks)
     if len(keys) < 2:
         return None, "the scene's surfels are not stored in two or more chunks"
     if run is None:
@@ -39,7 +40,9 @@ def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[
     prior = make_prior(prior_cfg, seed=seed)
     V, F, C = proxy
     shadow = shadow_map(V, F, light.sun_direction)
-    stats = SeamStats(float(layout.chunk_size), keys)
+    bounds = {k: (b[0], b[1], b[3], b[4]) for k, v in chunks.items()
+              if len(b := v.get("bounds") or []) == 6}
+    stats = SeamStats(float(layout.chunk_size), keys, bounds=bounds)
     for j, (cam, fr) in enumerate(zip(cameras, frames)):
         gb = view_gbuffer(cam, V, F, C, shadow)
         x = torch.from_numpy(np.ascontiguousarray(fr["rgb"], np.float32))

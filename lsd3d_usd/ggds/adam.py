@@ -7,6 +7,7 @@ import math
 
 import torch
 
+ROW_BLOCK = 1 << 17
 
 class SelectiveAdam:
     def __init__(self, params: dict[str, torch.Tensor], lrs: dict[str, float],
@@ -30,23 +31,25 @@ class SelectiveAdam:
         if rows.numel() == 0:
             return
         self.t[rows] += 1
-        t = self.t[rows].to(torch.float64)
-        c1 = (1 - self.b1 ** t).to(torch.float32)
-        c2 = (1 - self.b2 ** t).to(torch.float32)
-        for k, p in self.params.items():
-            if p.grad is None or self.lrs.get(k, 0.0) == 0.0:
-                continue
-            g = p.grad[rows]
-            m = self.m[k][rows].mul_(self.b1).add_(g, alpha=1 - self.b1)
-            v = self.v[k][rows].mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
-            self.m[k][rows], self.v[k][rows] = m, v
-            shape = (-1,) + (1,) * (p.dim() - 1)
-            mhat = m / c1.view(shape)
-            vhat = v / c2.view(shape)
-            update = self.lrs[k] * mhat / (vhat.sqrt() + self.eps_by_key.get(k, self.eps))
-            if k in self.lr_scales:
-                update = update * self.lr_scales[k]
-            p[rows] -= update
+        # Rows in blocks, updates in place: a step's temporaries stay a few blocks of rows
+        # (a region's view touches up to ~1 M surfels of 48 SH floats: 0.2 GB per temporary).
+        for r in rows.split(ROW_BLOCK):
+            t = self.t[r].to(torch.float64)
+            c1 = (1 - self.b1 ** t).to(torch.float32)
+            c2 = (1 - self.b2 ** t).to(torch.float32)
+            for k, p in self.params.items():
+                if p.grad is None or self.lrs.get(k, 0.0) == 0.0:
+                    continue
+                g = p.grad[r]
+                m = self.m[k][r].mul_(self.b1).add_(g, alpha=1 - self.b1)
+                v = self.v[k][r].mul_(self.b2).addcmul_(g, g, value=1 - self.b2)
+                self.m[k][r], self.v[k][r] = m, v
+                shape = (-1,) + (1,) * (p.dim() - 1)
+                denom = v.div_(c2.view(shape)).sqrt_().add_(self.eps_by_key.get(k, self.eps))
+                update = m.div_(c1.view(shape)).div_(denom).mul_(self.lrs[k])
+                if k in self.lr_scales:
+                    update.mul_(self.lr_scales[k])
+                p.index_put_((r,), p[r].sub_(update))
 
     @torch.no_grad()
     def reset_rows(self, rows: torch.Tensor) -> None:

@@ -85,6 +85,18 @@ def _inside_arcs(lanes, region, step: float = 0.5):
     return out
 
 
+def _strata(rng: np.random.Generator, n: int, lengths: np.ndarray) -> list[tuple[int, float]]:
+    """n (lane index, fraction along it) points, one in each of n equal parts of the lanes'
+    concatenated length, in random order."""
+    if n <= 0:
+        return []
+    cum = np.concatenate([[0.0], np.cumsum(lengths)])
+    u = (rng.permutation(n) + rng.uniform(size=n)) / n * cum[-1]
+    li = np.clip(np.searchsorted(cum, u, side="right") - 1, 0, len(lengths) - 1)
+    f = np.clip((u - cum[li]) / np.maximum(lengths[li], 1e-12), 0.0, 1.0 - 1e-9)
+    return [(int(a), float(b)) for a, b in zip(li, f)]
+
+
 def _building_paths(layout):
     from matplotlib.path import Path as MPath
     out = []
@@ -120,13 +132,16 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
                  eye_height: float = 1.6, lateral_jitter: float = 0.5, heading_jitter_deg: float = 8.0,
                  pitch_deg: float = -4.0, novel_frac: float = 0.25, region=None, clip: bool = False,
                  kind_lane: str = "lane", kind_novel: str = "novel", far: float = 400.0,
-                 novel_style: str = "lane_offset", novel_max_m: float = 8.0) -> list[View]:
+                 novel_style: str = "lane_offset", novel_max_m: float = 8.0,
+                 stratified: bool = False) -> list[View]:
     """`n` views: round(n·novel_frac) off the lanes (module doc, ``novel_style``), the rest
     along lanes (driving direction, small lateral and heading jitter). Deterministic per
     seed. A "displaced" view's offset_m is its distance from the lane view it was moved
     from. region (x0, y0, x1, y1): only lanes that pass through it; with ``clip`` the views'
     lane points themselves lie inside it (chunk-wise GGDS: views of the chunk being
-    optimised)."""
+    optimised). Lane points are drawn independently, or with ``stratified`` one in each of
+    n equal parts of the lanes' total length (lane and off-lane views each): no stretch of
+    lane is left without views by chance."""
     if n <= 0:
         return []
     if novel_style not in NOVEL_STYLES:
@@ -148,15 +163,19 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
     prob = lengths / lengths.sum()
     views = []
     n_novel = int(round(n * novel_frac))
+    strata = (_strata(rng, n - n_novel, lengths) + _strata(rng, n_novel, lengths)
+              if stratified else None)
     for i in range(n):
         novel = i >= n - n_novel
-        li = int(rng.choice(len(lanes), p=prob))
+        li = int(rng.choice(len(lanes), p=prob)) if strata is None else strata[i][0]
         lane = lanes[li]
         if arcs is None:
-            p, t = _point_on(lane.points, rng.uniform(0, lane.length()))
+            s0 = rng.uniform(0, lane.length()) if strata is None else strata[i][1] * lane.length()
+            p, t = _point_on(lane.points, s0)
         else:   # a sampled inside point, jittered within its half-metre step
-            s0 = arcs[li][int(rng.integers(len(arcs[li])))]
-            p, t = _point_on(lane.points, s0 + rng.uniform(0.0, 0.5))
+            k = (int(rng.integers(len(arcs[li]))) if strata is None
+                 else min(int(strata[i][1] * len(arcs[li])), len(arcs[li]) - 1))
+            p, t = _point_on(lane.points, arcs[li][k] + rng.uniform(0.0, 0.5))
         if lane.direction == "backward":
             t = -t
         t2 = np.array([t[0], t[1]]) / max(np.hypot(t[0], t[1]), 1e-12)

@@ -102,7 +102,7 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
         around = (bounds[0] - m, bounds[1] - m, bounds[2] + m, bounds[3] + m)
     views = sample_views(layout, n_views, w, h, seed=rseed, novel_frac=g.novel_frac,
                          fov_deg=g.fov_deg, region=around, clip=not whole,
-                         novel_style=g.novel_style)
+                         novel_style=g.novel_style, stratified=g.stratified_views)
     held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
                         fov_deg=g.fov_deg, region=bounds, clip=not whole)
     return views, held
@@ -125,7 +125,8 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
             return []
         return sample_views(layout, n, w, h,
                             seed=region_seed(seed, region) + 104729, novel_frac=g.novel_frac,
-                            fov_deg=g.fov_deg, novel_style=g.novel_style)
+                            fov_deg=g.fov_deg, novel_style=g.novel_style,
+                            stratified=g.stratified_views)
     n = int(round(r.fit_view_frac * r.views_per_chunk * len(region.keys)))
     if n <= 0 or r.fit_margin_m <= r.view_margin_m:
         return []
@@ -135,7 +136,7 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
         views = sample_views(layout, n, w, h, seed=region_seed(seed, region) + 104729,
                              novel_frac=g.novel_frac, fov_deg=g.fov_deg,
                              region=(x0 - m, y0 - m, x1 + m, y1 + m), clip=True,
-                             novel_style=g.novel_style)
+                             novel_style=g.novel_style, stratified=g.stratified_views)
     except InputError:
         return []
     return [v for v in views if not (x0 - inner <= v.camera.center[0] <= x1 + inner

@@ -454,7 +454,13 @@ class GGDSRun:
         known = self.face_index >= 0
         if not known.any():
             return float("nan")
-        pos = self.params["means"].detach().numpy().astype(np.float64)[known]
-        tri = self.vertices[self.faces[self.face_index[known]]].astype(np.float64)
-        d = point_triangle_distance(pos, tri[:, 0], tri[:, 1], tri[:, 2])
-        return float((d > threshold).mean())
+        rows = np.flatnonzero(known)
+        means = self.params["means"].detach().numpy()
+        off = 0
+        for a in range(0, len(rows), 1 << 16):   # float64 temporaries of a block of rows
+            r = rows[a:a + (1 << 16)]
+            tri = self.vertices[self.faces[self.face_index[r]]].astype(np.float64)
+            d = point_triangle_distance(means[r].astype(np.float64), tri[:, 0], tri[:, 1],
+                                        tri[:, 2])
+            off += int((d > threshold).sum())
+        return off / len(rows)

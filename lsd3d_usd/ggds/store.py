@@ -224,7 +224,7 @@ class RegionRunStore:
         from lsd3d_usd.splats import chunkio
         folder = run_chunk_folder(self.scene, self.run)
         for key, a, b in self.owners:
-            chunkio.write_run_chunk(folder, key, field.subset(np.arange(a, b)), RUN_ATTRIBUTES)
+            chunkio.write_run_chunk(folder, key, field.rows(a, b), RUN_ATTRIBUTES)
         write_json(self.dir / "progress.json",
                     {**provenance, "keys": [list(k) for k, _, _ in self.owners],
                      "surfels": int(field.n)})

@@ -88,7 +88,7 @@ def matrix_to_quat(m: np.ndarray) -> np.ndarray:
 
 
 def kernel_bounds(positions: np.ndarray, orientations: np.ndarray, scales: np.ndarray,
-                  surflet: bool = True) -> np.ndarray:
+                  surflet: bool = True, block: int = 1 << 16) -> np.ndarray:
     """(2,3) float64 bounds of every particle's kernel support (KERNEL_SIGMAS sigma): the
     one bounds function of validate, inspect and the writers' extents.
 
@@ -96,17 +96,23 @@ def kernel_bounds(positions: np.ndarray, orientations: np.ndarray, scales: np.nd
     local XY plane) ignores a third scale; a 3D Gaussian (``surflet=False``) uses all three
     axes. Exact for ellipses and ellipsoids. Zero particles: zeros.
     """
-    p = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
-    if len(p) == 0:
+    positions = np.asarray(positions).reshape(-1, 3)
+    n = len(positions)
+    if n == 0:
         return np.zeros((2, 3))
-    s = np.asarray(scales, dtype=np.float64).reshape(len(p), -1)
-    s3 = np.zeros((len(p), 3))
-    k = 2 if surflet else min(3, s.shape[1])
-    s3[:, :k] = s[:, :k]
-    rot = quat_to_matrix(orientations)
-    axes = rot * (KERNEL_SIGMAS * s3[:, None, :])     # columns: the kernel's scaled axes
-    half = np.sqrt((axes ** 2).sum(axis=2))          # per world axis half-extent
-    return np.stack([(p - half).min(0), (p + half).max(0)])
+    scales = np.asarray(scales).reshape(n, -1)
+    orientations = np.asarray(orientations).reshape(n, 4)
+    k = 2 if surflet else min(3, scales.shape[1])
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for a in range(0, n, block):   # float64 temporaries of a block, not of the whole field
+        p = positions[a:a + block].astype(np.float64)
+        s3 = np.zeros((len(p), 3))
+        s3[:, :k] = scales[a:a + block, :k]
+        rot = quat_to_matrix(orientations[a:a + block])
+        axes = rot * (KERNEL_SIGMAS * s3[:, None, :])     # columns: the kernel's scaled axes
+        half = np.sqrt((axes ** 2).sum(axis=2))          # per world axis half-extent
+        lo, hi = np.minimum(lo, (p - half).min(0)), np.maximum(hi, (p + half).max(0))
+    return np.stack([lo, hi])
 
 
 def flatten_3d_gaussians(quats: np.ndarray, scales3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -183,6 +189,12 @@ class SurfelField:
         m = min(k, self.sh.shape[1])
         sh[:, :m] = self.sh[:, :m]
         return replace(self, sh=sh)
+
+    def rows(self, a: int, b: int) -> "SurfelField":
+        """Rows a..b as views of this field's arrays (no copy)."""
+        sem = None if self.semantic_ids is None else self.semantic_ids[a:b]
+        return SurfelField(self.positions[a:b], self.orientations[a:b], self.scales[a:b],
+                           self.opacities[a:b], self.sh[a:b], sem, self.semantic_classes)
 
     def subset(self, index) -> "SurfelField":
         sem = None if self.semantic_ids is None else self.semantic_ids[index]
