@@ -277,7 +277,8 @@ def test_run_bakes_the_filter_into_its_field_and_resumes_it():
     from dataclasses import replace
     run = make_run(steps=12)
     run.cfg = replace(run.cfg, filter_3d=0.5)
-    run.filter3d = run._filter_sigma(run.init_field.positions, np.arange(run.init_field.n))
+    means = run.params["means"].detach().numpy()    # the initial surfels
+    run.filter3d = run._filter_sigma(means, np.arange(len(means)))
     assert run.filter3d is not None and (run.filter3d > 0).all()
     for _ in range(6):
         run.step()
@@ -349,7 +350,8 @@ def test_run_with_densification_resumes_exactly():
         run.cfg = replace(run.cfg, filter_3d=2.0, strategy=replace(run.cfg.strategy,
                                                                    densify_frac=0.05))
         run.strategy.densify_frac = 0.05
-        run.filter3d = run._filter_sigma(run.init_field.positions, np.arange(run.init_field.n))
+        means = run.params["means"].detach().numpy()    # the initial surfels
+        run.filter3d = run._filter_sigma(means, np.arange(len(means)))
         return run
     a = build()
     for _ in range(12):

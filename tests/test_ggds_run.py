@@ -307,7 +307,7 @@ def test_fit_views_join_the_colour_start_and_leave_nothing_behind():
     prior = ProceduralPrior()
 
     def run_with(train, fit):
-        r = GGDSRun(base.init_field, (base.vertices, base.faces, base.face_ids), train, prior,
+        r = GGDSRun(base.field(), (base.vertices, base.faces, base.face_ids), train, prior,
                     PriorEnv(), base.cfg, fit_views=fit)
         assert r.world_init()
         return r
@@ -331,7 +331,7 @@ def test_context_cull_renders_the_same_image_as_all_context_surfels():
     ctx.positions = (ctx.positions + rng.uniform(-40, 40, (ctx.n, 3)) * [1, 1, 0.1]
                      ).astype(np.float32)
     ctx.scales = (ctx.scales * rng.uniform(0.5, 30.0, (ctx.n, 1))).astype(np.float32)  # some large
-    run = GGDSRun(base.init_field, (V, F, ids), base.views, ClassColourTestPrior(), PriorEnv(),
+    run = GGDSRun(base.field(), (V, F, ids), base.views, ClassColourTestPrior(), PriorEnv(),
                   base.cfg, context=ctx)
     checked = 0
     for v in base.views:
@@ -340,7 +340,8 @@ def test_context_cull_renders_the_same_image_as_all_context_surfels():
         checked += int((~kept).sum() > 0 and kept.sum() > 0)
         got = run.render(cam)
         a = run.activated(run.params)
-        a = {k: torch.cat([a[k], run.context[k]]) for k in a}
+        n_own = a["means"].shape[0]
+        a = {k: torch.cat([a[k].detach(), run.context[k].to(a[k].dtype)]) for k in a}
         from lsd3d_usd.render.rasterize import rasterize
         from lsd3d_usd.render.raster_types import RasterSettings
         want = rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
@@ -348,6 +349,12 @@ def test_context_cull_renders_the_same_image_as_all_context_surfels():
                          settings=RasterSettings.for_camera(cam))
         torch.testing.assert_close(got.rgb, want.rgb, rtol=0, atol=1e-6)
         torch.testing.assert_close(got.alpha, want.alpha, rtol=0, atol=1e-6)
+        # the context's colours are kept in half precision: within a display step of float32
+        a["sh"][n_own:] = torch.from_numpy(ctx.sh)
+        full = rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
+                         cam.viewmat, cam.K, cam.width, cam.height,
+                         settings=RasterSettings.for_camera(cam))
+        torch.testing.assert_close(got.rgb, full.rgb, rtol=0, atol=1e-3)
         n = run.params["means"].shape[0]
         assert torch.equal(got.visible_index[got.visible_index < n],
                            want.visible_index[want.visible_index < n])

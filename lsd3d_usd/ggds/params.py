@@ -30,12 +30,13 @@ def activated(params: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
             "sh": params["sh"]}
 
 
-def to_field(params: dict[str, torch.Tensor], like: SurfelField, activate=activated) -> SurfelField:
-    """Back to a SurfelField, keeping `like`'s semantic ids and class table; ``activate`` maps
+def to_field(params: dict[str, torch.Tensor], semantic_ids=None, semantic_classes=(),
+             activate=activated) -> SurfelField:
+    """Back to a SurfelField with the given semantic ids and class table; ``activate`` maps
     the raw tensors to the renderer's values (default: activated)."""
     with torch.no_grad():
         a = activate(params)
         op = a["opacities"].numpy().astype(np.float32)
         return SurfelField(a["means"].numpy().copy(), a["quats"].numpy().copy(),
                            np.maximum(a["scales"].numpy(), 1e-12), np.clip(op, 0.0, 1.0),
-                           a["sh"].numpy().copy(), like.semantic_ids, like.semantic_classes)
+                           a["sh"].numpy().copy(), semantic_ids, semantic_classes)

@@ -272,6 +272,8 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
     inputs = GGDSInputs(field, proxy, views, held, light.prior_env, light.background,
                         shadow_map(proxy[0], proxy[1], light.sun_direction), face,
                         context=context, focus=focus, fit_views=fit_views)
+    n_context = int(context.n) if context is not None else 0
+    del field, context        # run_ggds takes them over (GGDSInputs): not kept alive here
     store = RegionRunStore(sc, job["run"], region.name, owners, refresh=refresh,
                            checkpoint_meta={"keys": [list(k) for k in region.keys]})
     resume = store.has_checkpoint()
@@ -281,7 +283,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                        keep_checkpoint=job.get("keep_checkpoint", False), term_state=term_state,
                        progress=progress, log=log)
     summary.update(region=region.name, keys=[list(k) for k in region.keys],
-                   context=int(context.n) if context is not None else 0,
+                   context=n_context,
                    wall_s=round(time.perf_counter() - t0, 2), views=len(views),
                    fit_views=len(fit_views),
                    cpu_s=round(_cpu_seconds() - c0, 2))

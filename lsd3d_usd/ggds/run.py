@@ -112,7 +112,8 @@ class GGDSRun:
                  context: SurfelField | None = None, focus=None, fit_views=()):
         self.cfg = config
         self.fit_views = list(fit_views)
-        self.init_field = field
+        # what the result keeps of the initial field; the rest lives in the parameters
+        self.semantics = (field.semantic_ids, field.semantic_classes)
         self.focus = focus
         self.context = None
         if context is not None and context.n:
@@ -120,7 +121,10 @@ class GGDSRun:
                 context.with_sh_degree(field.sh_degree)   # no copy when the degrees agree
             self.context = {k: torch.from_numpy(np.ascontiguousarray(v, np.float32)) for k, v in
                             (("means", c.positions), ("quats", c.orientations),
-                             ("scales", c.scales), ("opacities", c.opacities), ("sh", c.sh))}
+                             ("scales", c.scales), ("opacities", c.opacities))}
+            # Frozen colours in half precision (SH of degree 3 are 4/5 of a surfel's bytes;
+            # relative error 5e-4, under a display step): a region's band holds ~1 M of them.
+            self.context["sh"] = torch.from_numpy(c.sh.astype(np.float16))
             # world radius beyond which a disk's alpha stays under the rasteriser's alpha_min
             # (opacity <= 1: sqrt(2 ln 255) = 3.33 sigma): the frustum cull of render()
             self._context_radii = CONTEXT_SIGMAS * c.scales.max(axis=1).astype(np.float64)
@@ -249,7 +253,8 @@ class GGDSRun:
             from lsd3d_usd.ggds.sampling import spheres_in_view
             keep = torch.from_numpy(np.flatnonzero(spheres_in_view(
                 self.context["means"].numpy(), self._context_radii, camera)))
-            a = {k: torch.cat([a[k], self.context[k].index_select(0, keep)]) for k in a}
+            a = {k: torch.cat([a[k], self.context[k].index_select(0, keep).to(a[k].dtype)])
+                 for k in a}
         return rasterize(a["means"], a["quats"], a["scales"], a["opacities"], a["sh"],
                          camera.viewmat, camera.K, camera.width, camera.height,
                          settings=RasterSettings.for_camera(camera, **settings), background=background)
@@ -371,7 +376,7 @@ class GGDSRun:
     # ------------------------------------------------------------ results
     def field(self) -> SurfelField:
         """The surfels as the renderer sees them (the 3D filter baked in)."""
-        return P.to_field(self.params, self.init_field, activate=self.activated)
+        return P.to_field(self.params, *self.semantics, activate=self.activated)
 
     def checkpoint(self, optimizer: bool = True) -> tuple[dict, dict]:
         """(tensors, meta): everything a resume needs, as flat named tensors (safetensors) and
