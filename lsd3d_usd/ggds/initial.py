@@ -103,6 +103,41 @@ class _ProxyCache:
         return np.concatenate(V), np.concatenate(F)
 
 
+class _Stash:
+    """Surfel parts parked in a temporary folder inside ``parent`` (the scene's chunk
+    folder), read back once and deleted."""
+
+    NAMES = ("positions", "orientations", "scales", "opacities", "sh", "semantic_ids")
+
+    def __init__(self, parent):
+        import tempfile
+        from pathlib import Path
+        Path(parent).mkdir(parents=True, exist_ok=True)
+        self._dir = tempfile.TemporaryDirectory(prefix=".pending-", dir=parent)
+        self._n = 0
+        self._classes: dict = {}
+
+    def put(self, field: SurfelField, src: np.ndarray, face: np.ndarray) -> str:
+        import os
+        self._n += 1
+        path = os.path.join(self._dir.name, f"{self._n}.npz")
+        np.savez(path, src=src, face=face, **{k: getattr(field, k) for k in self.NAMES
+                                              if getattr(field, k) is not None})
+        self._classes[path] = field.semantic_classes
+        return path
+
+    def take(self, path: str):
+        import os
+        with np.load(path, allow_pickle=False) as z:
+            a = {k: z[k] for k in z.files}
+        os.unlink(path)
+        field = SurfelField(*(a.get(k) for k in self.NAMES), self._classes.pop(path))
+        return field, a["src"], a["face"]
+
+    def close(self) -> None:
+        self._dir.cleanup()
+
+
 def _counts(keys, cache, layout, count, density, max_count) -> tuple[dict, dict]:
     """Surfels per chunk, and the areas (for provenance)."""
     wareas, total_area = {}, 0.0
@@ -148,7 +183,10 @@ def write_initial_surfels(proxy_path, layout, light, out_root, *, count: int | N
     counts, areas = _counts(keys, cache, layout, count, density, max_count)
     chunk_size = float(layout.chunk_size)
     folder = chunkio.chunks_base(out_root) / inputs_hash[:16]
-    pending: dict = {}           # target chunk -> [(field, seed chunks, seed faces)]
+    # Surfels waiting for a neighbour wait on disk: a grid sweeps a row of chunks (and more)
+    # before the first is complete, and holding them cost ~0.1 GB per chunk in memory.
+    stash = _Stash(chunkio.chunks_base(out_root))
+    pending: dict = {}           # target chunk -> [stashed (field, seed chunks, seed faces)]
     done_sources: set = set()
     infos: dict = {}
     written_total = 0
@@ -160,7 +198,7 @@ def write_initial_surfels(proxy_path, layout, light, out_root, *, count: int | N
 
     def flush(target):
         nonlocal written_total
-        parts = pending.pop(target)
+        parts = [stash.take(k) for k in pending.pop(target)]
         field = SurfelField.concat([p[0] for p in parts])
         chunks = np.concatenate([p[1] for p in parts])
         faces = np.concatenate([p[2] for p in parts])
@@ -169,26 +207,31 @@ def write_initial_surfels(proxy_path, layout, light, out_root, *, count: int | N
         written_total += field.n
 
     from tqdm import tqdm
-    for key in tqdm(keys, desc="surfels", unit="chunk", disable=not progress):
-        V, F, ids = cache.get(key)
-        n = counts[key]
-        if n > 0:
-            Vs, Fs, parent, weights = _weighted_mesh(V, F, layout)
-            field, face = mesh_to_surfels(Vs, Fs, np.asarray(ids)[parent], count=n,
-                                          seed=_chunk_seed(seed, key), sh_degree=sh_degree,
-                                          semantic_classes=CLASSES, return_face_index=True,
-                                          face_weights=weights, max_count=max_count)
-            face = parent[face]
-            NV, NF = cache.neighbourhood(key)
-            colour_by_light(field, light, shadow_map(NV, NF, light.sun_direction))
-            for target, idx in _owners(field.positions, key, chunk_size).items():
-                src = np.tile(np.asarray(key, np.int32), (len(idx), 1))
-                pending.setdefault(target, []).append((field.subset(idx), src, face[idx]))
-        done_sources.add(key)
-        for target in [t for t in pending if complete(t)]:
+    try:
+        for key in tqdm(keys, desc="surfels", unit="chunk", disable=not progress):
+            V, F, ids = cache.get(key)
+            n = counts[key]
+            if n > 0:
+                Vs, Fs, parent, weights = _weighted_mesh(V, F, layout)
+                field, face = mesh_to_surfels(Vs, Fs, np.asarray(ids)[parent], count=n,
+                                              seed=_chunk_seed(seed, key), sh_degree=sh_degree,
+                                              semantic_classes=CLASSES, return_face_index=True,
+                                              face_weights=weights, max_count=max_count)
+                face = parent[face]
+                NV, NF = cache.neighbourhood(key)
+                colour_by_light(field, light, shadow_map(NV, NF, light.sun_direction))
+                for target, idx in _owners(field.positions, key, chunk_size).items():
+                    src = np.tile(np.asarray(key, np.int32), (len(idx), 1))
+                    pending.setdefault(target, []).append(
+                        stash.put(field.subset(idx), src, face[idx]))
+                del field, face
+            done_sources.add(key)
+            for target in [t for t in pending if complete(t)]:
+                flush(target)
+        for target in list(pending):
             flush(target)
-    for target in list(pending):
-        flush(target)
+    finally:
+        stash.close()   # also after an error: nothing parked is left behind
     chunkio.write_root(out_root, folder, infos, {**(provenance or {}), "inputsHash": inputs_hash})
     chunkio.prune_chunk_folders(out_root)
     return {"count": int(written_total), "chunks": len(infos), **areas}
