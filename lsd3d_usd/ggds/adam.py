@@ -32,7 +32,7 @@ class SelectiveAdam:
             return
         self.t[rows] += 1
         # Rows in blocks, updates in place: a step's temporaries stay a few blocks of rows
-        # (a region's view touches up to ~1 M surfels of 48 SH floats: 0.2 GB per temporary).
+        # (a view can touch ~1 M surfels; at SH degree 3, 0.2 GB per whole-row temporary).
         for r in rows.split(ROW_BLOCK):
             t = self.t[r].to(torch.float64)
             c1 = (1 - self.b1 ** t).to(torch.float32)

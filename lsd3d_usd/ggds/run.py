@@ -122,8 +122,9 @@ class GGDSRun:
             self.context = {k: torch.from_numpy(np.ascontiguousarray(v, np.float32)) for k, v in
                             (("means", c.positions), ("quats", c.orientations),
                              ("scales", c.scales), ("opacities", c.opacities))}
-            # Frozen colours in half precision (SH of degree 3 are 4/5 of a surfel's bytes;
-            # relative error 5e-4, under a display step): a region's band holds ~1 M of them.
+            # Frozen colours in half precision (relative error 5e-4, under a display step):
+            # a region's band holds ~1 M surfels; SH are over half their bytes (degree 1) and
+            # 4/5 at degree 3.
             self.context["sh"] = torch.from_numpy(c.sh.astype(np.float16))
             # world radius beyond which a disk's alpha stays under the rasteriser's alpha_min
             # (opacity <= 1: sqrt(2 ln 255) = 3.33 sigma): the frustum cull of render()
