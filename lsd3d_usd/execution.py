@@ -53,7 +53,8 @@ def probe(payload: dict) -> dict:
     import socket
 
     from lsd3d_usd.memtune import peak_rss_mb
-    return {"host": socket.gethostname(), "pid": os.getpid(), "peak_rss_mb": peak_rss_mb()}
+    return {"host": socket.gethostname(), "pid": os.getpid(), "peak_rss_mb": peak_rss_mb(),
+            "threads": int(os.environ.get("OMP_NUM_THREADS", "0") or 0)}
 
 
 def describe(exc: BaseException) -> str:
@@ -107,14 +108,18 @@ class LocalExecutor:
     def capacity(self) -> int:
         return self.workers
 
-    def _new_pool(self, n: int) -> ProcessPoolExecutor:
+    def _new_pool(self, n: int, threads: int | None = None) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(max_workers=n, mp_context=self._ctx, initializer=_init_worker,
-                                   initargs=(self.threads,),
+                                   initargs=(threads or self.threads,),
                                    max_tasks_per_child=self.tasks_per_worker)
 
-    def submit(self, key, payload: dict, isolated: bool = False) -> None:
-        if isolated:
-            pool = self._new_pool(1)
+    def submit(self, key, payload: dict, isolated: bool = False,
+               threads: int | None = None) -> None:
+        """``isolated``: in a fresh single-worker pool (a retry); ``threads``: likewise, with
+        that many threads instead of the pool's share (a task that runs with fewer
+        neighbours than workers can use their cores)."""
+        if isolated or (threads and threads != self.threads):
+            pool = self._new_pool(1, threads)
             self._private.add(pool)
         else:
             if self._pool is None:
@@ -164,7 +169,10 @@ class LocalExecutor:
             self._retired.append(pool)
         for pool in list(self._private):  # finished private pools
             if not any(p is pool for _, p in self._futures.values()):
-                pool.shutdown(wait=False)
+                # wait: shutdown(wait=False) clears the pool's process table while its manager
+                # thread may still be replacing the worker that max_tasks_per_child retired
+                # (a TypeError traceback from that thread); its one task is done anyway
+                pool.shutdown(wait=True)
                 self._private.discard(pool)
                 self._retired.append(pool)
         return out
@@ -231,8 +239,9 @@ class RayExecutor:
     def capacity(self) -> int:
         return self.workers
 
-    def submit(self, key, payload: dict, isolated: bool = False) -> None:
-        self._refs[self._remote.remote(payload)] = key
+    def submit(self, key, payload: dict, isolated: bool = False,
+               threads: int | None = None) -> None:
+        self._refs[self._remote.remote(payload)] = key   # Ray places it on a core it has
 
     def poll(self, timeout: float) -> list[tuple]:
         if not self._refs:

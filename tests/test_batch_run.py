@@ -245,3 +245,20 @@ def test_tasks_per_worker_one_gives_every_task_a_fresh_process():
             assert (len(set(pids)) == 3) is fresh and (len(set(pids)) == 1) is (not fresh)
         finally:
             ex.close()
+
+
+def test_a_task_given_threads_runs_with_them_the_rest_with_the_pools_share():
+    """A GGDS phase of fewer regions than workers hands each region the idle cores: submit
+    with ``threads`` runs the task in a worker started with that many."""
+    from lsd3d_usd.execution import OK
+    ex = LocalExecutor(2, tasks_per_worker=1)
+    try:
+        got = {}
+        for k, threads in (("share", None), ("more", ex.threads * 2)):
+            ex.submit(k, {"target": "lsd3d_usd.execution:probe"}, threads=threads)
+            [(key, status, value)] = ex.poll(120)
+            assert (key, status) == (k, OK)
+            got[k] = value["threads"]
+        assert got == {"share": ex.threads, "more": ex.threads * 2}
+    finally:
+        ex.close()

@@ -411,11 +411,16 @@ def _run_pool(pool, jobs: dict, retries: int, sc, run, bar, log) -> dict:
     waiting = list(jobs)
     running = set()
     out = {}
+    # A phase of fewer regions than workers (a 2×2 grid has one region per phase) gives
+    # each region the idle workers' cores.
+    share = getattr(pool, "threads", None)
+    threads = (max(share, share * pool.capacity // len(jobs))
+               if share and 0 < len(jobs) < pool.capacity else None)
     while waiting or running:
         while waiting and len(running) < pool.capacity:
             name = waiting.pop(0)
             attempts[name] += 1
-            pool.submit(name, jobs[name], isolated=attempts[name] > 1)
+            pool.submit(name, jobs[name], isolated=attempts[name] > 1, threads=threads)
             running.add(name)
         for name, status, value in pool.poll(timeout=0.5):
             running.discard(name)
