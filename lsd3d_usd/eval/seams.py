@@ -77,7 +77,6 @@ class SeamStats:
     def __init__(self, chunk_size: float, keys, band_m: float = BAND_M, bounds=None):
         self.size, self.keys, self.band = float(chunk_size), set(map(tuple, keys)), band_m
         self.bounds = bounds
-        self.by_cell = {"border": {}, "interior": {}}    # (class, depth bin) -> [sq err, pixels]
         self.per_view = []          # per view and part: {(class, depth bin): [sq err, pixels]}
         self.covered = {"border": 0, "interior": 0}
         self.depth = {"border": [], "interior": []}
@@ -101,10 +100,6 @@ class SeamStats:
         for k, m in parts.items():
             _accumulate(self.by_class[k], sem[m], err[m])
             view[k] = _accumulate({}, cell[m], err[m])
-            for c, (e, n_px) in view[k].items():
-                a = self.by_cell[k].setdefault(c, [0.0, 0])
-                a[0] += e
-                a[1] += n_px
             self.covered[k] += int((m & ok).sum())
             g = m & ok & (depth > 0)
             if g.any():
@@ -135,37 +130,40 @@ class SeamStats:
         out["psnr_drop_db"] = round(i - b, 3) if b is not None and i is not None else None
         out["classes"] = self._class_table()
         out["psnr_drop_class_matched_db"] = _matched_drop(self.by_class)[0]
-        out["psnr_drop_matched_db"], out["matched_border_frac"] = _matched_drop(self.by_cell)
-        out["psnr_drop_matched_ci95_db"] = self._bootstrap()
+        drop, ci, frac = self._matched()
+        out["psnr_drop_matched_db"], out["matched_border_frac"] = drop, frac
+        out["psnr_drop_matched_ci95_db"] = ci
         out["border_coverage"] = out["border"]["coverage"]
         return out
 
-    def _bootstrap(self, seed: int = 0) -> list | None:
-        """95 % interval of the matched drop over views resampled with replacement."""
-        if len(self.per_view) < 2 or not self.by_cell["border"]:
-            return None
-        cells = sorted(set(self.by_cell["border"]) | set(self.by_cell["interior"]))
+    def _matched(self, seed: int = 0) -> tuple:
+        """(matched drop, its 95 % interval over views resampled with replacement, the
+        fraction of border pixels whose (class, depth bin) the interiors hold)."""
+        cells = sorted({c for v in self.per_view for k in v for c in v[k]})
+        if not cells:
+            return None, None, None
         col = {c: i for i, c in enumerate(cells)}
         arr = np.zeros((len(self.per_view), 2, 2, len(cells)))   # view, part, (sq, n), cell
         for v, view in enumerate(self.per_view):
             for p, k in enumerate(("border", "interior")):
                 for c, (e, n_px) in view[k].items():
                     arr[v, p, :, col[c]] = e, n_px
-        rng = np.random.default_rng(seed)
-        idx = rng.integers(0, len(self.per_view), (BOOTSTRAP, len(self.per_view)))
-        tot = arr[idx].sum(1)                                     # (B, part, 2, cells)
-        sb, nb, si, ni = tot[:, 0, 0], tot[:, 0, 1], tot[:, 1, 0], tot[:, 1, 1]
-        both = (nb > 0) & (ni > 0)
-        nbc = np.where(both, nb, 0).sum(1)
-        ok = nbc > 0
-        if not ok.any():
-            return None
-        with np.errstate(divide="ignore", invalid="ignore"):
-            mse_b = np.where(both, sb, 0).sum(1) / nbc
-            mse_i = np.where(both, nb * si / np.where(ni > 0, ni, 1), 0).sum(1) / nbc
-            drop = 10 * np.log10(np.maximum(mse_b, 1e-10) / np.maximum(mse_i, 1e-10))
-        lo, hi = np.percentile(drop[ok & np.isfinite(drop)], [2.5, 97.5])
-        return [round(float(lo), 3), round(float(hi), 3)]
+        total = arr.sum(0)
+        if not total[0, 1].sum():
+            return None, None, None
+        drop = _drop_db(total[None])[0]
+        both = (total[0, 1] > 0) & (total[1, 1] > 0)
+        frac = round(float(total[0, 1][both].sum() / total[0, 1].sum()), 4)
+        if not np.isfinite(drop):
+            return None, None, frac
+        ci = None
+        if len(self.per_view) >= 2:
+            rng = np.random.default_rng(seed)
+            idx = rng.integers(0, len(self.per_view), (BOOTSTRAP, len(self.per_view)))
+            d = _drop_db(arr[idx].sum(1))
+            lo, hi = np.percentile(d[np.isfinite(d)], [2.5, 97.5])
+            ci = [round(float(lo), 3), round(float(hi), 3)]
+        return round(float(drop), 3), ci, frac
 
     def _class_table(self) -> dict:
         """Per semantic class name: pixels and PSNR in the border band and the interiors."""
@@ -191,6 +189,18 @@ def _accumulate(acc: dict, labels: np.ndarray, err: np.ndarray) -> dict:
         a[0] += e
         a[1] += n_px
     return acc
+
+
+def _drop_db(tot: np.ndarray) -> np.ndarray:
+    """Matched drops of (B, part, (sq, n), cells) sums: the interiors' error per cell at the
+    border band's mix of cells against the band's, over the cells both hold (nan: none)."""
+    sb, nb, si, ni = tot[:, 0, 0], tot[:, 0, 1], tot[:, 1, 0], tot[:, 1, 1]
+    both = (nb > 0) & (ni > 0)
+    n = np.where(both, nb, 0).sum(1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        mse_b = np.where(both, sb, 0).sum(1) / n
+        mse_i = np.where(both, nb * si / np.where(ni > 0, ni, 1), 0).sum(1) / n
+        return 10 * np.log10(np.maximum(mse_b, 1e-10) / np.maximum(mse_i, 1e-10))
 
 
 def _matched_drop(acc: dict) -> tuple[float | None, float | None]:

@@ -13,7 +13,10 @@ has been seeded.
 """
 from __future__ import annotations
 
+import os
+import tempfile
 from collections import OrderedDict
+from pathlib import Path
 
 import numpy as np
 
@@ -110,15 +113,12 @@ class _Stash:
     NAMES = ("positions", "orientations", "scales", "opacities", "sh", "semantic_ids")
 
     def __init__(self, parent):
-        import tempfile
-        from pathlib import Path
         Path(parent).mkdir(parents=True, exist_ok=True)
         self._dir = tempfile.TemporaryDirectory(prefix=".pending-", dir=parent)
         self._n = 0
         self._classes: dict = {}
 
     def put(self, field: SurfelField, src: np.ndarray, face: np.ndarray) -> str:
-        import os
         self._n += 1
         path = os.path.join(self._dir.name, f"{self._n}.npz")
         np.savez(path, src=src, face=face, **{k: getattr(field, k) for k in self.NAMES
@@ -127,7 +127,6 @@ class _Stash:
         return path
 
     def take(self, path: str):
-        import os
         with np.load(path, allow_pickle=False) as z:
             a = {k: z[k] for k in z.files}
         os.unlink(path)
