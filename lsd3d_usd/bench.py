@@ -91,6 +91,10 @@ def _scale_args(p: argparse.ArgumentParser):
     p.add_argument("--seam-views", type=int, default=48,
                    help="views of the seam measure per configuration (default 48; its 95 %% "
                         "interval narrows with more)")
+    p.add_argument("--same-views", type=int, default=32,
+                   help="views from the same positions in chunk 0_0 rendered in every "
+                        "configuration: its PSNR against the one-chunk scene, paired per view "
+                        "(default 32; 0 = off)")
     p.add_argument("--work", help="keep the generated scenes in this folder (default: a temporary "
                                   "one, removed)")
 
@@ -100,7 +104,7 @@ def _scale_run(args) -> int:
 
     main(json_path=args.json, full=args.full, steps=args.steps, workers=args.workers,
          seed=args.seed, views_per_chunk=args.views_per_chunk, work=args.work, png_path=args.png,
-         seam_views=args.seam_views)
+         seam_views=args.seam_views, same_views=args.same_views)
     return 0
 
 

@@ -84,29 +84,55 @@ def _layout(path: Path, extent, seed: int) -> Path:
     return path
 
 
-def _seams(scene: Path, views: int, size=(240, 135), seed: int = 0) -> dict | None:
-    """The seam measure on held-out-style views over the whole scene."""
+def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
+                   seed: int = 0) -> tuple[dict | None, list | None]:
+    """(the seam measure on held-out-style views over the whole scene, the PSNR of each of
+    ``same_cameras``: views inside chunk 0_0 that every configuration renders alike)."""
     from lsd3d_usd import scene as S
-    from lsd3d_usd.eval.seams_eval import measure_seams
+    from lsd3d_usd.eval.evaluate import render_view
+    from lsd3d_usd.eval.seams_eval import measure_seams, view_psnrs
     from lsd3d_usd.ggds.cameras import sample_views
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
-    from lsd3d_usd.eval.evaluate import render_view
     from lsd3d_usd.views.stage_data import SceneReader
     sc = S.Scene.open(scene)
     layout = read_layout(sc.layer_path("layout"))
+    proxy = proxy_arrays(sc.layer_path("proxy"))
     cams = [v.camera for v in sample_views(layout, views, *size, seed=seed + 4242,
                                            novel_frac=0.25)]
     reader = SceneReader(sc.open_stage(), actors=False)
-    frames = [render_view(reader.surfels(), reader.env(), cam) for cam in cams]
+    surfels, env = reader.surfels(), reader.env()
     runs = sc.runs()
-    res, why = measure_seams(sc, runs[0].name if runs else None, layout,
-                             proxy_arrays(sc.layer_path("proxy")), cams, frames)
-    return res if res is not None else {"unavailable": why}
+    run = runs[0].name if runs else None
+    res, why = measure_seams(sc, run, layout, proxy, cams,
+                             [render_view(surfels, env, cam) for cam in cams])
+    same, _ = view_psnrs(sc, run, proxy, same_cameras,
+                         [render_view(surfels, env, cam) for cam in same_cameras])
+    return (res if res is not None else {"unavailable": why}), same
+
+
+def same_view_cameras(seed: int, views: int, size=(240, 135)) -> list:
+    """Held-out-style cameras on the lanes of chunk 0_0 alone (the one-chunk corridor's
+    layout; the generator makes a chunk's content the same at every extent), so that every
+    configuration's PSNR is measured from the same positions."""
+    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.layout import generator
+    layout = generator.generate(seed, _extent("corridor", 1), "urban")
+    return [v.camera for v in sample_views(layout, views, *size, seed=seed + 777,
+                                           novel_frac=0.25)]
+
+
+def _paired(a: list, b: list, draws: int = 1000) -> tuple[float, list]:
+    """Mean of the per-view differences a − b and its 95 % bootstrap interval over views."""
+    d = np.asarray(a, float) - np.asarray(b, float)
+    rng = np.random.default_rng(0)
+    boots = d[rng.integers(0, len(d), (draws, len(d)))].mean(axis=1)
+    return round(float(d.mean()), 3), [round(float(x), 3) for x in np.percentile(boots, [2.5, 97.5])]
 
 
 def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int, seed: int,
-               views_per_chunk: int, mode: str = "chunk", seams_views: int = 48, log=print) -> dict:
+               views_per_chunk: int, mode: str = "chunk", seams_views: int = 48,
+               same_cameras=(), log=print) -> dict:
     extent = _extent(shape, chunks)
     name = f"{shape}{chunks}" + ("" if mode == "chunk" else f"_{mode}")
     lay = _layout(work / f"{name}.usda", extent, seed)
@@ -129,7 +155,7 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
     full = [r for r in per.values() if r.get("wall_s") and (r.get("surfels") or 0) >= 0.25 * big]
     walls = [r["wall_s"] for r in full] or [g.get("wall_s", 0.0)]
     cpus = [r["cpu_s"] for r in full if r.get("cpu_s")]
-    seams = _seams(out, seams_views, seed=seed)
+    seams, same = _view_measures(out, seams_views, list(same_cameras), seed=seed)
     surf = s["surfels"]
     row = {"config": name, "shape": shape, "chunks": int(surf["chunks"]),
            "extent_m": list(extent), "regions": g.get("regions"), "mode": mode,
@@ -146,6 +172,9 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
            "psnr_heldout": g.get("psnr_novel"),
            # the same chunk in every configuration (the generator seeds chunk by chunk)
            "psnr_chunk_0_0": ((per.get("chunk_0_0") or {}).get("metrics") or {}).get("psnr_novel"),
+           # PSNR from the same positions in chunk 0_0 in every configuration (per view)
+           "psnr_same_views": [round(x, 3) for x in same] if same else None,
+           "psnr_same_views_db": round(float(np.mean(same)), 3) if same else None,
            "seam_psnr_drop_db": seams.get("psnr_drop_db") if seams else None,
            "seam_psnr_drop_class_matched_db": (seams.get("psnr_drop_class_matched_db")
                                                if seams else None),
@@ -159,6 +188,7 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
         f"({row['surfels_per_m2']:.1f}/m² weighted) per chunk {row['per_chunk_s']:7.1f} s, total "
         f"{row['total_s']:7.1f} s, peak {row['peak_rss_mb']:7.0f} MB (driver "
         f"{row['driver_rss_mb'] or 0:.0f}), held-out {row['psnr_heldout'] or float('nan'):.2f} dB, "
+        f"chunk 0_0 same views {row['psnr_same_views_db']} dB, "
         f"seam views: border {_get(seams, 'border', 'psnr_db')} / interior "
         f"{_get(seams, 'interior', 'psnr_db')} dB (class-matched drop "
         f"{row['seam_psnr_drop_class_matched_db']}, class and distance matched "
@@ -251,21 +281,25 @@ def plot(rows: list, path) -> None:
 
 
 def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_chunk=24,
-         work=None, png_path=None, seam_views=48, log=print) -> dict:
+         work=None, png_path=None, seam_views=48, same_views=32, log=print) -> dict:
     workers = workers or os.cpu_count() or 1
+    same = same_view_cameras(seed, same_views) if same_views else []
     with tempfile.TemporaryDirectory(prefix="lsd3d-bench-scale-") as tmp:
         wdir = Path(work) if work else Path(tmp)
         wdir.mkdir(parents=True, exist_ok=True)
         rows = [run_config(shape, n, wdir, steps=steps, workers=workers, seed=seed,
-                           views_per_chunk=views_per_chunk, seams_views=seam_views, log=log)
+                           views_per_chunk=views_per_chunk, seams_views=seam_views,
+                           same_cameras=same, log=log)
                 for shape, n in CONFIGS + (FULL_CONFIGS if full else [])]
         # the same 4-chunk grid as one region: the seam measure's content baseline
         base = run_config("grid", 4, wdir, steps=steps, workers=workers, seed=seed,
                           views_per_chunk=views_per_chunk, mode="scene",
-                          seams_views=seam_views, log=log)
+                          seams_views=seam_views, same_cameras=same, log=log)
         result = {"configs": rows, "scene_region_grid4": base}
         one = min(rows, key=lambda r: r["chunks"])
         big = max(rows, key=lambda r: r["chunks"])
+        paired = (_paired(big["psnr_same_views"], one["psnr_same_views"])
+                  if big["psnr_same_views"] and one["psnr_same_views"] else (None, None))
         result["summary"] = {
             "largest_chunks": big["chunks"],
             "density_ratio": round(big["surfels_per_m2"] / one["surfels_per_m2"], 4),
@@ -274,6 +308,9 @@ def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_
                                     if big["per_chunk_cpu_s"] and one["per_chunk_cpu_s"] else None),
             "psnr_chunk_0_0_delta_db": (round(big["psnr_chunk_0_0"] - one["psnr_chunk_0_0"], 3)
                                         if big["psnr_chunk_0_0"] and one["psnr_chunk_0_0"] else None),
+            # the same views in chunk 0_0, paired per view: largest minus one-chunk scene
+            "psnr_same_views_delta_db": paired[0],
+            "psnr_same_views_delta_ci95_db": paired[1],
             "peak_rss_ratio": round(big["peak_rss_mb"] / one["peak_rss_mb"], 3),
             "max_peak_rss_mb": max(r["peak_rss_mb"] for r in rows),
             "seam_psnr_drop_db": big["seam_psnr_drop_db"],

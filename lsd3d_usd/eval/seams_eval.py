@@ -1,27 +1,21 @@
-"""The seam measure of a scene (eval.seams) with the prior and light its GGDS run used."""
+"""The seam measure of a scene (eval.seams) and PSNR of given views, against the targets of the
+prior and light its GGDS run used."""
 from __future__ import annotations
 
 import numpy as np
 
 
-def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[dict | None, str | None]:
-    """(seam statistics, None) over the given rendered views, or (None, why not)."""
+def run_targets(sc, run: str | None, proxy):
+    """(target(camera, rgb, j) -> (H, W, 3) array at t = 1, None) for the scene's GGDS run
+    ``run``, or (None, why not). ``j`` seeds the prior as held-out view j."""
     import torch
 
     from lsd3d_usd import configtree as ct
     from lsd3d_usd.env.exr import write_env
-    from lsd3d_usd.eval.geometry import surfel_depth
-    from lsd3d_usd.eval.seams import SeamStats
     from lsd3d_usd.ggds.conditioning import shadow_map, view_gbuffer
     from lsd3d_usd.ggds.envbridge import env_params, scene_light
     from lsd3d_usd.ggds.priors import PriorConfig, make_prior
     from lsd3d_usd.ggds.store import read_plan
-    from lsd3d_usd.render.gbuffer import render_gbuffer
-    from lsd3d_usd.splats.chunkio import read_chunk_map
-    chunks = read_chunk_map(sc.layer_path("surfels"))
-    keys = set(chunks)
-    if len(keys) < 2:
-        return None, "the scene's surfels are not stored in two or more chunks"
     if run is None:
         return None, "no GGDS run: the prior and light of its targets are unknown"
     try:
@@ -31,8 +25,8 @@ def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[
     gen = plan["generate"]
     prior_cfg = ct.from_dict(PriorConfig, gen["prior"])
     if prior_cfg.kind != "procedural":
-        return None, f"the run's prior ({prior_cfg.name}) is a GPU path; seams are measured " \
-                     "with the procedural prior's targets only"
+        return None, f"the run's prior ({prior_cfg.name}) is a GPU path; targets are made " \
+                     "with the procedural prior only"
     seed = int(plan.get("seed", 0))
     params = env_params(gen["env"], seed)
     w, h = gen["env"]["resolution"]
@@ -40,14 +34,47 @@ def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[
     prior = make_prior(prior_cfg, seed=seed)
     V, F, C = proxy
     shadow = shadow_map(V, F, light.sun_direction)
+
+    def target(cam, rgb, j: int) -> np.ndarray:
+        gb = view_gbuffer(cam, V, F, C, shadow)
+        x = torch.from_numpy(np.ascontiguousarray(rgb, np.float32))
+        with torch.no_grad():
+            return prior.target(x.clamp(0, None), gb, light.prior_env, 1.0,
+                                seed=10_000 + j).numpy()
+    return target, None
+
+
+def view_psnrs(sc, run: str | None, proxy, cameras, frames) -> tuple[list | None, str | None]:
+    """(PSNR in dB of each rendered view against its target, None), or (None, why not)."""
+    target, why = run_targets(sc, run, proxy)
+    if target is None:
+        return None, why
+    out = []
+    for j, (cam, fr) in enumerate(zip(cameras, frames)):
+        mse = float(np.mean((np.clip(fr["rgb"], 0, 1) - np.clip(target(cam, fr["rgb"], j), 0, 1))
+                            ** 2))
+        out.append(99.0 if mse <= 1e-10 else -10.0 * float(np.log10(mse)))
+    return out, None
+
+
+def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[dict | None, str | None]:
+    """(seam statistics, None) over the given rendered views, or (None, why not)."""
+    from lsd3d_usd.eval.geometry import surfel_depth
+    from lsd3d_usd.eval.seams import SeamStats
+    from lsd3d_usd.render.gbuffer import render_gbuffer
+    from lsd3d_usd.splats.chunkio import read_chunk_map
+    chunks = read_chunk_map(sc.layer_path("surfels"))
+    keys = set(chunks)
+    if len(keys) < 2:
+        return None, "the scene's surfels are not stored in two or more chunks"
+    target, why = run_targets(sc, run, proxy)
+    if target is None:
+        return None, why
+    V, F, C = proxy
     bounds = {k: (b[0], b[1], b[3], b[4]) for k, v in chunks.items()
               if len(b := v.get("bounds") or []) == 6}
     stats = SeamStats(float(layout.chunk_size), keys, bounds=bounds)
     for j, (cam, fr) in enumerate(zip(cameras, frames)):
-        gb = view_gbuffer(cam, V, F, C, shadow)
-        x = torch.from_numpy(np.ascontiguousarray(fr["rgb"], np.float32))
-        with torch.no_grad():
-            tgt = prior.target(x.clamp(0, None), gb, light.prior_env, 1.0, seed=10_000 + j).numpy()
-        stats.add(fr["rgb"], tgt, fr["alpha"], surfel_depth(fr), fr["normal_world"],
-                  render_gbuffer(V, F, cam, C))
+        stats.add(fr["rgb"], target(cam, fr["rgb"], j), fr["alpha"], surfel_depth(fr),
+                  fr["normal_world"], render_gbuffer(V, F, cam, C))
     return stats.result(), None
