@@ -37,7 +37,7 @@ def option(default: Any = MISSING, *, help: str, flag: str | None = None,
            alias: str | None = None, choices: tuple | None = None, lo: float | None = None,
            hi: float | None = None, check: Callable[[Any, str], Any] | None = None,
            keys: Callable[[], dict] | None = None, default_factory: Callable | None = None,
-           metavar: str | None = None, negate: str | None = None):
+           metavar: str | None = None, negate: str | None = None, recorded: Any = MISSING):
     """A configuration leaf.
 
     help: one sentence (the default is appended automatically in --help).
@@ -47,9 +47,13 @@ def option(default: Any = MISSING, *, help: str, flag: str | None = None,
     choices / lo / hi: allowed values (inclusive bounds).
     check: ``check(value, where) -> value`` for anything else (raise InputError).
     keys: for a dict leaf, ``keys() -> {name: default}``, the allowed sub-keys.
+    recorded: what a stored configuration without this leaf meant (one written before the
+        leaf existed, when the code behaved as this value does): from_dict fills it in, so
+        resuming or re-measuring an older run keeps its behaviour.
     """
     meta = {"help": help, "flag": flag, "alias": alias, "choices": choices, "lo": lo, "hi": hi,
-            "check": check, "keys": keys, "metavar": metavar, "negate": negate}
+            "check": check, "keys": keys, "metavar": metavar, "negate": negate,
+            "recorded": recorded}
     if default_factory is not None:
         return dataclasses.field(default_factory=default_factory, metadata={_META: meta})
     return dataclasses.field(default=default, metadata={_META: meta})
@@ -408,6 +412,8 @@ def from_dict(cls, data: dict):
         out = {}
         for f in fields(c):
             if f.name not in d:
+                if _META in f.metadata and f.metadata[_META].get("recorded", MISSING) is not MISSING:
+                    out[f.name] = f.metadata[_META]["recorded"]
                 continue
             t = hints[f.name]
             if is_dataclass(t) and isinstance(t, type) and isinstance(d[f.name], dict):

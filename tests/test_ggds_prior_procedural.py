@@ -190,3 +190,48 @@ def test_view_render_is_cached_per_gbuffer_and_env():
     assert len(calls) == 1 and torch.equal(a, b)        # t = 1: the view's render, once
     prior.target(x, gb, PriorEnv(wetness=0.8), 1.0)      # another env: rendered again
     assert len(calls) == 2
+
+
+def _street_with_fine(w, h, **kw):
+    from dataclasses import replace
+    return replace(street_gbuffer(w, h, **kw), fine=lambda k: street_gbuffer(w * k, h * k, **kw))
+
+
+def test_supersampled_target_converges_to_the_pixel_mean():
+    """S×S samples per pixel approach the pixel's mean (a 12×12 reference) and the error
+    falls with S; S = 1 is the plain pixel-centre render, bit for bit."""
+    env = PriorEnv()
+    kw = dict(eye=(-12.0, -1.8, 1.6), target=(40.0, 0.0, 0.8))    # grazing road, far facades
+    gb = _street_with_fine(W, H, **kw)
+    ref = ProceduralPrior(seed=3).render(gb.fine(12), env).double().reshape(H, 12, W, 12, 3)
+    ref = ref.mean(dim=(1, 3))
+    plain = ProceduralPrior(seed=3)
+    assert torch.equal(plain.render_view(gb, env), plain.render(gb, env))
+    err = {S: float(((ProceduralPrior(seed=3, supersample=S).render_view(gb, env).double()
+                      - ref) ** 2).mean()) for S in (1, 2, 4)}
+    assert err[2] < 0.6 * err[1] and err[4] < 0.6 * err[2], err
+    # without a way to make the G-buffer finer the prior samples pixel centres
+    bare = street_gbuffer(W, H, **kw)
+    assert torch.equal(ProceduralPrior(seed=3, supersample=4).render_view(bare, env),
+                       plain.render(bare, env))
+    with pytest.raises(ValueError, match="supersample"):
+        ProceduralPrior(supersample=0)
+
+
+def test_finer_gbuffer_splits_each_pixel():
+    """view_gbuffer(...).fine(k) is the same view with each pixel split k×k: on a plane the
+    inverse depth is affine in the pixel, so its mean over a block is the coarse pixel's."""
+    import numpy as np
+
+    from lsd3d_usd.ggds.conditioning import view_gbuffer
+    from lsd3d_usd.render.camera import Camera, look_at
+    V = np.array([[-50, -50, 0], [50, -50, 0], [50, 50, 0], [-50, 50, 0]], np.float64)
+    F = np.array([[0, 1, 2], [0, 2, 3]])
+    cam = Camera.from_fov(40, 24, 70.0, pose=look_at((0, -20, 1.6), (0, 20, 0.0)))
+    gb = view_gbuffer(cam, V, F, np.array([0, 0]))
+    fine = gb.fine(3)
+    assert fine.shape == (72, 120)
+    ok = gb.valid & fine.valid.reshape(24, 3, 40, 3).all(3).all(1)
+    inv = (1.0 / fine.depth.double()).reshape(24, 3, 40, 3).mean(dim=(1, 3))
+    assert ok.sum() > 300
+    assert torch.allclose(inv[ok], 1.0 / gb.depth.double()[ok], rtol=1e-5)

@@ -59,9 +59,19 @@ def shadow_map(vertices: np.ndarray, faces: np.ndarray, sun_dir: np.ndarray,
 
 
 def view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray | None,
-                 shadow: ShadowMap | None = None) -> GBuffer:
+                 shadow: ShadowMap | None = None, key: Hashable | None = None) -> GBuffer:
+    """The proxy G-buffer of ``camera``, with ``fine`` making it again at k× the resolution."""
     return pack_view_gbuffer(camera, vertices, faces, shadow).unpack(
-        FaceTable.of(vertices, faces, face_ids))
+        FaceTable.of(vertices, faces, face_ids), key=key,
+        fine=finer(camera, vertices, faces, face_ids, shadow))
+
+
+def finer(camera: Camera, vertices, faces, face_ids, shadow=None):
+    """GBuffer.fine of a view: k -> its G-buffer at k× the resolution."""
+    def make(k: int) -> GBuffer:
+        return view_gbuffer(camera.with_resolution(camera.width * k, camera.height * k),
+                            vertices, faces, face_ids, shadow)
+    return make
 
 
 @dataclass
@@ -97,8 +107,8 @@ class PackedGBuffer:
     world_pos: torch.Tensor        # (H,W,3) float32, 0 where empty
     sun: torch.Tensor | None       # (H,W) bool lit by the sun (1 where empty), None: all lit
 
-    def unpack(self, faces: FaceTable, key: Hashable | None = None) -> GBuffer:
-        """``faces``: the proxy's FaceTable; ``key``: GBuffer.key."""
+    def unpack(self, faces: FaceTable, key: Hashable | None = None, fine=None) -> GBuffer:
+        """``faces``: the proxy's FaceTable; ``key``, ``fine``: GBuffer.key, GBuffer.fine."""
         empty = len(faces.classes) - 1
         f = torch.where(self.face >= 0, self.face, empty).long()
         return GBuffer(
@@ -106,7 +116,7 @@ class PackedGBuffer:
             world_pos=self.world_pos,
             view_dirs=torch.from_numpy(pixel_directions(self.camera).astype(np.float32)),
             camera_position=torch.from_numpy(self.camera.center.astype(np.float32)),
-            sun_visibility=None if self.sun is None else self.sun.float(), key=key)
+            sun_visibility=None if self.sun is None else self.sun.float(), key=key, fine=fine)
 
 
 def pack_view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray,

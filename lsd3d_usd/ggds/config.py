@@ -113,7 +113,8 @@ class GGDSConfig:
                                                   "moved 0.5-8 m as eval's novel views are)",
                               choices=("lane_offset", "displaced"))
     stratified_views: bool = option(True, help="training views placed one per equal part of "
-                                                "the lanes' length (else drawn independently)")
+                                                "the lanes' length (else drawn independently)",
+                                    recorded=False)
     fov_deg: float = option(70.0, help="horizontal field of view of the training views (deg)",
                             lo=1.0, hi=170.0)
     held_out: int = option(8, help="held-out views evaluated at the end of a run", lo=0,

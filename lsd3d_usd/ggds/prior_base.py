@@ -38,6 +38,9 @@ class GBuffer:
     key:          optional hashable identity of the view: equal keys promise equal contents,
                   so a prior may cache what it derives from the G-buffer under it (GGDS
                   rebuilds a training view's G-buffer every time it visits the view).
+    fine:         optional callable k -> the same view's G-buffer at k× the resolution (each
+                  pixel split into k×k), made on demand, for a prior that integrates over
+                  pixels instead of sampling their centres.
     """
     depth: torch.Tensor
     normal: torch.Tensor
@@ -47,6 +50,7 @@ class GBuffer:
     camera_position: torch.Tensor
     sun_visibility: Optional[torch.Tensor] = None
     key: Optional[Hashable] = None
+    fine: Optional[Callable[[int], "GBuffer"]] = None
 
     @property
     def shape(self) -> tuple[int, int]:

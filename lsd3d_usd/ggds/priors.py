@@ -44,6 +44,9 @@ class PriorConfig:
                                      "one)", flag="--device", alias="device", check=_check_device)
     guidance: float = option(7.5, help="classifier-free guidance scale (diffusers prior)",
                              lo=0.0, hi=100.0)
+    supersample: int = option(2, help="procedural prior: each pixel the mean of S×S samples, "
+                                      "as a camera integrates over its pixels (1 = the pixel "
+                                      "centre, which aliases)", lo=1, hi=8, recorded=1)
 
     @property
     def kind(self) -> str:
@@ -79,7 +82,7 @@ def _procedural_check(arg, cfg):
 
 def _procedural_make(arg, cfg, seed):
     from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
-    return ProceduralPrior(seed=seed)
+    return ProceduralPrior(seed=seed, supersample=cfg.supersample)
 
 
 def _diffusers_check(arg, cfg):

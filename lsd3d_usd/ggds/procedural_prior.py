@@ -43,9 +43,13 @@ class ProceduralPrior(Prior):
 
     def __init__(self, seed: int = 0, floor_height: float = 3.2, ground_z: float = 0.0,
                  window_spacing: float = 2.6, t_keep: float = 0.05, t_full: float = 0.6,
-                 gf_radius: int = 8, gf_eps0: float = 1e-4, gf_eps1: float = 4e-3):
+                 gf_radius: int = 8, gf_eps0: float = 1e-4, gf_eps1: float = 4e-3,
+                 supersample: int = 1):
         if not 0 <= t_keep < t_full <= 1:
             raise ValueError(f"need 0 <= t_keep < t_full <= 1, got {t_keep}, {t_full}")
+        if not 1 <= int(supersample) <= 8:
+            raise ValueError(f"supersample must be 1..8 samples per pixel side, got {supersample}")
+        self.supersample = int(supersample)
         self.seed = int(seed)
         self.floor_height = float(floor_height)
         self.ground_z = float(ground_z)
@@ -57,7 +61,7 @@ class ProceduralPrior(Prior):
         return {"prior": self.name, "seed": self.seed, "floor_height": self.floor_height,
                 "ground_z": self.ground_z, "window_spacing": self.window_spacing,
                 "t_keep": self.t_keep, "t_full": self.t_full, "gf_radius": self.gf_radius,
-                "gf_eps0": self.gf_eps0, "gf_eps1": self.gf_eps1}
+                "gf_eps0": self.gf_eps0, "gf_eps1": self.gf_eps1, "supersample": self.supersample}
 
     def settings(self, env: PriorEnv) -> mat.MaterialSettings:
         return mat.MaterialSettings(seed=self.seed, floor_height=self.floor_height, ground_z=self.ground_z,
@@ -174,6 +178,17 @@ class ProceduralPrior(Prior):
         col = torch.where(valid[..., None], col, bg)
         return (col * env.exposure).clamp(0, 1).float()
 
+    def render_view(self, gb: GBuffer, env: PriorEnv) -> torch.Tensor:
+        """render() of a view; with ``supersample`` S > 1 (and a G-buffer that can be made
+        finer) the mean of S×S samples per pixel, as a camera integrates over its pixels:
+        edges, shadow boundaries and texture finer than a pixel (paving joints, lane paint)
+        no longer alias, and the target is what surfels seen from there can reproduce."""
+        S = self.supersample
+        if S <= 1 or gb.fine is None:
+            return self.render(gb, env)
+        H, W = gb.shape
+        return self.render(gb.fine(S), env).reshape(H, S, W, S, 3).mean(dim=(1, 3))
+
     # -- the prior ---------------------------------------------------------------------------
     @torch.no_grad()
     def target(self, x: torch.Tensor, gbuffer: GBuffer, env: PriorEnv, t: float,
@@ -202,7 +217,7 @@ class ProceduralPrior(Prior):
         hit = cache.get(key)
         if hit is not None and (keyed or hit[0] is gbuffer) and hit[1] is env:
             return hit[2]
-        P = self.render(gbuffer, env)
+        P = self.render_view(gbuffer, env)
         if len(cache) >= 256:  # bounded: drop the oldest entry
             cache.pop(next(iter(cache)))
         cache[key] = (None if keyed else gbuffer, env, P)
