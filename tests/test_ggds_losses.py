@@ -99,3 +99,21 @@ def test_disparity_loss_relative_and_absolute():
     d = torch.tensor([[6.0]], requires_grad=True)
     disparity_loss(d, torch.tensor([[5.0]])).backward()
     assert float(d.grad) > 0  # a descent step lowers the depth from 6 m towards 5 m
+
+
+def test_l2_term_is_off_by_default_and_is_the_mean_squared_error():
+    from types import SimpleNamespace
+
+    from lsd3d_usd.ggds.config import GGDSConfig
+    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    from lsd3d_usd.ggds.terms import LOSSES, StepContext, active_terms
+    prior = ProceduralPrior()
+    assert "l2" not in [t.name for t, _ in active_terms(GGDSConfig(), prior)]
+    cfg = GGDSConfig()
+    cfg.weights["l2"] = 10.0
+    assert ("l2", 10.0) in [(t.name, w) for t, w in active_terms(cfg, prior)]
+    x, y = torch.rand(5, 4, 3, dtype=torch.float64), torch.rand(5, 4, 3, dtype=torch.float64)
+    ctx = StepContext(x=x, target=y, render=SimpleNamespace(), gbuffer=None, camera=None, t=1.0,
+                      config=cfg)
+    ref = sum(float(a - b) ** 2 for a, b in zip(x.flatten(), y.flatten())) / x.numel()
+    assert abs(float(LOSSES.get("l2").fn(ctx)) - ref) < 1e-12

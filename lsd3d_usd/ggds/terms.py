@@ -51,6 +51,10 @@ def _l1(ctx: StepContext):
     return losses.l1_loss(ctx.x, ctx.target)
 
 
+def _l2(ctx: StepContext):
+    return ((ctx.x - ctx.target) ** 2).mean()
+
+
 def _perceptual(ctx: StepContext):
     return ctx.state["perceptual"](ctx.x.clamp(0, 1), ctx.target.clamp(0, 1))
 
@@ -97,6 +101,7 @@ def _distortion(ctx: StepContext):
 
 
 L1 = LossTerm("l1", _l1, 1.0, image=True, help="mean |render − target|")
+L2 = LossTerm("l2", _l2, 0.0, image=True, help="mean (render − target)²")
 PERCEPTUAL = LossTerm("perceptual", _perceptual, None, image=True, setup=_perceptual_setup,
                       help="EfficientNet-Lite0 features (or LPIPS with --lpips); default weight "
                            "by prior: 0 for the procedural prior, 0.05 for a diffusion prior")
@@ -111,7 +116,7 @@ DISTORTION = LossTerm("distortion", _distortion, 0.0, needs=("distortion",),
 
 LOSSES = Registry("lsd3d_usd.losses", "loss term", {
     t.name: f"lsd3d_usd.ggds.terms:{n}" for n, t in (
-        ("L1", L1), ("PERCEPTUAL", PERCEPTUAL), ("NORMAL", NORMAL), ("DISPARITY", DISPARITY),
+        ("L1", L1), ("L2", L2), ("PERCEPTUAL", PERCEPTUAL), ("NORMAL", NORMAL), ("DISPARITY", DISPARITY),
         ("NORMAL_CONSISTENCY", NORMAL_CONSISTENCY), ("TV", TV), ("DISTORTION", DISTORTION))})
 
 
