@@ -23,3 +23,8 @@ def test_paired_difference_and_its_interval():
     noisy = base + rng.normal(0, 1.0, base.size)
     mean, (lo, hi) = _paired(list(noisy), list(base))
     assert lo < mean < hi and hi - lo < 1.0   # ±1 dB per view: ≈ ±0.3 dB over 40 views
+
+
+def test_paired_difference_skips_views_missing_on_either_side():
+    mean, (lo, hi) = _paired([20.0, None, 22.0, 25.0], [19.0, 18.0, float("nan"), 24.0])
+    assert mean == 1.0 and lo == hi == 1.0

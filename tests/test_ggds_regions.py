@@ -238,3 +238,10 @@ def test_eval_measures_seams_of_a_chunked_scene(chunked):
     grey = [dict(fr, rgb=np.full_like(fr["rgb"], 0.5)) for fr in frames]
     worse, _ = view_psnrs(sc, sc.runs()[0].name, proxy_arrays(sc.layer_path("proxy")), cams, grey)
     assert np.mean(worse) < np.mean(psnrs) - 3
+    # scored on one region's surface only: nan for views that do not see it
+    away, _ = view_psnrs(sc, sc.runs()[0].name, proxy_arrays(sc.layer_path("proxy")), cams,
+                         frames, region=(1e5, 1e5, 1e5 + 1, 1e5 + 1))
+    assert len(away) == len(cams) and all(np.isnan(away))
+    near, _ = view_psnrs(sc, sc.runs()[0].name, proxy_arrays(sc.layer_path("proxy")), cams,
+                         frames, region=(-1e4, -1e4, 1e4, 1e4))
+    assert all(np.isfinite(near)) and near != psnrs     # the sky is left out

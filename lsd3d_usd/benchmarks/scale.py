@@ -87,7 +87,8 @@ def _layout(path: Path, extent, seed: int) -> Path:
 def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
                    seed: int = 0) -> tuple[dict | None, list | None]:
     """(the seam measure on held-out-style views over the whole scene, the PSNR of each of
-    ``same_cameras``: views inside chunk 0_0 that every configuration renders alike)."""
+    ``same_cameras`` over the pixels showing chunk 0_0: views from the same positions in
+    every configuration, scored on the same surface)."""
     from lsd3d_usd import scene as S
     from lsd3d_usd.eval.evaluate import render_view
     from lsd3d_usd.eval.seams_eval import measure_seams, view_psnrs
@@ -104,10 +105,13 @@ def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
     surfels, env = reader.surfels(), reader.env()
     runs = sc.runs()
     run = runs[0].name if runs else None
+    # rendered as the measure asks (none for a scene of one chunk, which has no seams)
     res, why = measure_seams(sc, run, layout, proxy, cams,
-                             [render_view(surfels, env, cam) for cam in cams])
+                             (render_view(surfels, env, cam) for cam in cams))
+    size = float(layout.chunk_size)
     same, _ = view_psnrs(sc, run, proxy, same_cameras,
-                         [render_view(surfels, env, cam) for cam in same_cameras])
+                         (render_view(surfels, env, cam) for cam in same_cameras),
+                         region=(0.0, 0.0, size, size))
     return (res if res is not None else {"unavailable": why}), same
 
 
@@ -125,6 +129,7 @@ def same_view_cameras(seed: int, views: int, size=(240, 135)) -> list:
 def _paired(a: list, b: list, draws: int = 1000) -> tuple[float, list]:
     """Mean of the per-view differences a − b and its 95 % bootstrap interval over views."""
     d = np.asarray(a, float) - np.asarray(b, float)
+    d = d[np.isfinite(d)]
     rng = np.random.default_rng(0)
     boots = d[rng.integers(0, len(d), (draws, len(d)))].mean(axis=1)
     return round(float(d.mean()), 3), [round(float(x), 3) for x in np.percentile(boots, [2.5, 97.5])]
@@ -173,8 +178,9 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
            # the same chunk in every configuration (the generator seeds chunk by chunk)
            "psnr_chunk_0_0": ((per.get("chunk_0_0") or {}).get("metrics") or {}).get("psnr_novel"),
            # PSNR from the same positions in chunk 0_0 in every configuration (per view)
-           "psnr_same_views": [round(x, 3) for x in same] if same else None,
-           "psnr_same_views_db": round(float(np.mean(same)), 3) if same else None,
+           "psnr_same_views": ([round(x, 3) if np.isfinite(x) else None for x in same]
+                               if same else None),
+           "psnr_same_views_db": round(float(np.nanmean(same)), 3) if same else None,
            "seam_psnr_drop_db": seams.get("psnr_drop_db") if seams else None,
            "seam_psnr_drop_class_matched_db": (seams.get("psnr_drop_class_matched_db")
                                                if seams else None),

@@ -44,21 +44,35 @@ def run_targets(sc, run: str | None, proxy):
     return target, None
 
 
-def view_psnrs(sc, run: str | None, proxy, cameras, frames) -> tuple[list | None, str | None]:
-    """(PSNR in dB of each rendered view against its target, None), or (None, why not)."""
+def view_psnrs(sc, run: str | None, proxy, cameras, frames,
+               region: tuple | None = None) -> tuple[list | None, str | None]:
+    """(PSNR in dB of each rendered view against its target, None), or (None, why not).
+    ``region`` (x0, y0, x1, y1): only the pixels whose proxy surface lies inside it (what
+    views from the same positions share when the scenes around differ; nan for a view
+    without such pixels)."""
+    from lsd3d_usd.render.gbuffer import render_gbuffer
     target, why = run_targets(sc, run, proxy)
     if target is None:
         return None, why
     out = []
     for j, (cam, fr) in enumerate(zip(cameras, frames)):
-        mse = float(np.mean((np.clip(fr["rgb"], 0, 1) - np.clip(target(cam, fr["rgb"], j), 0, 1))
-                            ** 2))
+        err = ((np.clip(fr["rgb"], 0, 1) - np.clip(target(cam, fr["rgb"], j), 0, 1)) ** 2)
+        if region is not None:
+            p = render_gbuffer(proxy[0], proxy[1], cam).position
+            x0, y0, x1, y1 = region
+            keep = (p[..., 0] >= x0) & (p[..., 0] < x1) & (p[..., 1] >= y0) & (p[..., 1] < y1)
+            if not keep.any():      # nan keeps the list aligned with the cameras
+                out.append(float("nan"))
+                continue
+            err = err[keep]
+        mse = float(np.mean(err))
         out.append(99.0 if mse <= 1e-10 else -10.0 * float(np.log10(mse)))
     return out, None
 
 
 def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[dict | None, str | None]:
-    """(seam statistics, None) over the given rendered views, or (None, why not)."""
+    """(seam statistics, None) over the given rendered views, or (None, why not). ``frames``
+    may be any iterable: it is consumed only when there is something to measure."""
     from lsd3d_usd.eval.geometry import surfel_depth
     from lsd3d_usd.eval.seams import SeamStats
     from lsd3d_usd.render.gbuffer import render_gbuffer
