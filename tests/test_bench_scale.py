@@ -15,16 +15,29 @@ def test_same_view_cameras_are_fixed_and_inside_chunk_0_0():
         assert -20 <= x <= 120 and -20 <= y <= 120, (x, y)
 
 
+def _errs(psnrs, n=1000):
+    """(sum of squared errors, values) of views of n values at the given PSNRs."""
+    return [(n * 10 ** (-p / 10), n) for p in psnrs]
+
+
 def test_paired_difference_and_its_interval():
     base = np.linspace(15, 30, 40)   # views differ a lot; their paired difference does not
-    mean, (lo, hi) = _paired(list(base - 0.3), list(base))
-    assert mean == -0.3 and lo == hi == -0.3
+    mean, (lo, hi) = _paired(_errs(base - 0.3), _errs(base))
+    assert abs(mean + 0.3) < 1e-3 and abs(lo + 0.3) < 1e-3 and abs(hi + 0.3) < 1e-3
     rng = np.random.default_rng(1)
     noisy = base + rng.normal(0, 1.0, base.size)
-    mean, (lo, hi) = _paired(list(noisy), list(base))
-    assert lo < mean < hi and hi - lo < 1.0   # ±1 dB per view: ≈ ±0.3 dB over 40 views
+    mean, (lo, hi) = _paired(_errs(noisy), _errs(base))
+    assert lo < mean < hi and hi - lo < 1.5
 
 
-def test_paired_difference_skips_views_missing_on_either_side():
-    mean, (lo, hi) = _paired([20.0, None, 22.0, 25.0], [19.0, 18.0, float("nan"), 24.0])
-    assert mean == 1.0 and lo == hi == 1.0
+def test_views_count_by_their_pixels():
+    """A view with a sliver of the surface weighs as little as its pixels: its PSNR swinging
+    by 10 dB hardly moves the pooled difference."""
+    big = _errs([20.0] * 10, n=10_000)
+    a = big + _errs([10.0], n=10)
+    b = big + _errs([20.0], n=10)
+    mean, _ = _paired(a, b)
+    assert -0.05 < mean < 0
+    from lsd3d_usd.eval.seams_eval import pooled_psnr
+    assert pooled_psnr(big + [(0.0, 0)]) == pooled_psnr(big)   # a view without pixels: nothing
+    assert np.isnan(pooled_psnr([(0.0, 0)]))

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from lsd3d_usd.eval.seams_eval import pooled_psnr
+
 CONFIGS = [("corridor", 1), ("corridor", 4), ("grid", 4)]
 FULL_CONFIGS = [("corridor", 16), ("grid", 16)]
 
@@ -91,7 +93,7 @@ def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
     every configuration, scored on the same surface)."""
     from lsd3d_usd import scene as S
     from lsd3d_usd.eval.evaluate import render_view
-    from lsd3d_usd.eval.seams_eval import measure_seams, view_psnrs
+    from lsd3d_usd.eval.seams_eval import measure_seams, view_errors
     from lsd3d_usd.ggds.cameras import sample_views
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
@@ -109,9 +111,9 @@ def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
     res, why = measure_seams(sc, run, layout, proxy, cams,
                              (render_view(surfels, env, cam) for cam in cams))
     size = float(layout.chunk_size)
-    same, _ = view_psnrs(sc, run, proxy, same_cameras,
-                         (render_view(surfels, env, cam) for cam in same_cameras),
-                         region=(0.0, 0.0, size, size))
+    same, _ = view_errors(sc, run, proxy, same_cameras,
+                          (render_view(surfels, env, cam) for cam in same_cameras),
+                          region=(0.0, 0.0, size, size))
     return (res if res is not None else {"unavailable": why}), same
 
 
@@ -127,12 +129,19 @@ def same_view_cameras(seed: int, views: int, size=(240, 135)) -> list:
 
 
 def _paired(a: list, b: list, draws: int = 1000) -> tuple[float, list]:
-    """Mean of the per-view differences a − b and its 95 % bootstrap interval over views."""
-    d = np.asarray(a, float) - np.asarray(b, float)
-    d = d[np.isfinite(d)]
+    """PSNR of the per-view errors ``a`` (pairs of sum of squared errors, values; pooled
+    over the views, each weighted by its pixels) minus that of ``b`` from the same views, and
+    its 95 % bootstrap interval over the views."""
+    a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
+
+    def diff(idx):
+        return pooled_psnr(a[idx]) - pooled_psnr(b[idx])
     rng = np.random.default_rng(0)
-    boots = d[rng.integers(0, len(d), (draws, len(d)))].mean(axis=1)
-    return round(float(d.mean()), 3), [round(float(x), 3) for x in np.percentile(boots, [2.5, 97.5])]
+    n = len(a)
+    boots = [diff(rng.integers(0, n, n)) for _ in range(draws)]
+    boots = np.asarray([x for x in boots if np.isfinite(x)])
+    return (round(float(diff(np.arange(n))), 3),
+            [round(float(x), 3) for x in np.percentile(boots, [2.5, 97.5])])
 
 
 def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int, seed: int,
@@ -178,9 +187,8 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
            # the same chunk in every configuration (the generator seeds chunk by chunk)
            "psnr_chunk_0_0": ((per.get("chunk_0_0") or {}).get("metrics") or {}).get("psnr_novel"),
            # PSNR from the same positions in chunk 0_0 in every configuration (per view)
-           "psnr_same_views": ([round(x, 3) if np.isfinite(x) else None for x in same]
-                               if same else None),
-           "psnr_same_views_db": round(float(np.nanmean(same)), 3) if same else None,
+           "same_views_errors": [list(e) for e in same] if same else None,
+           "psnr_same_views_db": round(pooled_psnr(same), 3) if same else None,
            "seam_psnr_drop_db": seams.get("psnr_drop_db") if seams else None,
            "seam_psnr_drop_class_matched_db": (seams.get("psnr_drop_class_matched_db")
                                                if seams else None),
@@ -304,8 +312,8 @@ def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_
         result = {"configs": rows, "scene_region_grid4": base}
         one = min(rows, key=lambda r: r["chunks"])
         big = max(rows, key=lambda r: r["chunks"])
-        paired = (_paired(big["psnr_same_views"], one["psnr_same_views"])
-                  if big["psnr_same_views"] and one["psnr_same_views"] else (None, None))
+        paired = (_paired(big["same_views_errors"], one["same_views_errors"])
+                  if big["same_views_errors"] and one["same_views_errors"] else (None, None))
         result["summary"] = {
             "largest_chunks": big["chunks"],
             "density_ratio": round(big["surfels_per_m2"] / one["surfels_per_m2"], 4),

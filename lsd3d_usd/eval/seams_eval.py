@@ -44,12 +44,12 @@ def run_targets(sc, run: str | None, proxy):
     return target, None
 
 
-def view_psnrs(sc, run: str | None, proxy, cameras, frames,
-               region: tuple | None = None) -> tuple[list | None, str | None]:
-    """(PSNR in dB of each rendered view against its target, None), or (None, why not).
-    ``region`` (x0, y0, x1, y1): only the pixels whose proxy surface lies inside it (what
-    views from the same positions share when the scenes around differ; nan for a view
-    without such pixels)."""
+def view_errors(sc, run: str | None, proxy, cameras, frames,
+                region: tuple | None = None) -> tuple[list | None, str | None]:
+    """([(sum of squared errors, values) of each rendered view against its target], None),
+    or (None, why not). ``region`` (x0, y0, x1, y1): only the pixels whose proxy surface lies
+    inside it (what views from the same positions share when the scenes around differ; a
+    view without such pixels gives (0, 0))."""
     from lsd3d_usd.render.gbuffer import render_gbuffer
     target, why = run_targets(sc, run, proxy)
     if target is None:
@@ -61,13 +61,30 @@ def view_psnrs(sc, run: str | None, proxy, cameras, frames,
             p = render_gbuffer(proxy[0], proxy[1], cam).position
             x0, y0, x1, y1 = region
             keep = (p[..., 0] >= x0) & (p[..., 0] < x1) & (p[..., 1] >= y0) & (p[..., 1] < y1)
-            if not keep.any():      # nan keeps the list aligned with the cameras
-                out.append(float("nan"))
-                continue
             err = err[keep]
-        mse = float(np.mean(err))
-        out.append(99.0 if mse <= 1e-10 else -10.0 * float(np.log10(mse)))
+        out.append((float(np.sum(err, dtype=np.float64)), int(err.size)))
     return out, None
+
+
+def pooled_psnr(errors) -> float:
+    """PSNR in dB of (sum of squared errors, values) pairs pooled (views weighted by their
+    pixels); nan when there are no values."""
+    sse = sum(e for e, _ in errors)
+    n = sum(k for _, k in errors)
+    if n == 0:
+        return float("nan")
+    mse = sse / n
+    return 99.0 if mse <= 1e-10 else -10.0 * float(np.log10(mse))
+
+
+def view_psnrs(sc, run: str | None, proxy, cameras, frames,
+               region: tuple | None = None) -> tuple[list | None, str | None]:
+    """(PSNR in dB of each rendered view against its target, None), or (None, why not);
+    ``region`` as view_errors (nan for a view without pixels there)."""
+    errs, why = view_errors(sc, run, proxy, cameras, frames, region=region)
+    if errs is None:
+        return None, why
+    return [pooled_psnr([e]) for e in errs], None
 
 
 def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[dict | None, str | None]:
