@@ -210,7 +210,7 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
 def test_eval_measures_seams_of_a_chunked_scene(chunked):
     from lsd3d_usd.eval.evaluate import render_view
     from lsd3d_usd.eval.report import _seams_html
-    from lsd3d_usd.eval.seams_eval import measure_seams, view_psnrs
+    from lsd3d_usd.eval.seams_eval import measure_seams, pooled_psnr, view_errors
     from lsd3d_usd.ggds.cameras import sample_views
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
@@ -232,6 +232,10 @@ def test_eval_measures_seams_of_a_chunked_scene(chunked):
     none, why = measure_seams(sc, None, layout, proxy_arrays(sc.layer_path("proxy")), cams, frames)
     assert none is None and "no GGDS run" in why
     # PSNR of given views against the same targets: worse for a frame that is off its target
+
+    def view_psnrs(*a, **kw):
+        errs, why = view_errors(*a, **kw)
+        return [pooled_psnr([e]) for e in errs], why
     psnrs, why = view_psnrs(sc, sc.runs()[0].name, proxy_arrays(sc.layer_path("proxy")), cams,
                             frames)
     assert why is None and len(psnrs) == len(cams) and all(5 < p < 99 for p in psnrs)

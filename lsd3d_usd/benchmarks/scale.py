@@ -110,10 +110,10 @@ def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
     # rendered as the measure asks (none for a scene of one chunk, which has no seams)
     res, why = measure_seams(sc, run, layout, proxy, cams,
                              (render_view(surfels, env, cam) for cam in cams))
-    size = float(layout.chunk_size)
+    chunk = float(layout.chunk_size)
     same, _ = view_errors(sc, run, proxy, same_cameras,
                           (render_view(surfels, env, cam) for cam in same_cameras),
-                          region=(0.0, 0.0, size, size))
+                          region=(0.0, 0.0, chunk, chunk))
     return (res if res is not None else {"unavailable": why}), same
 
 

@@ -1,5 +1,5 @@
-"""The seam measure of a scene (eval.seams) and PSNR of given views, against the targets of the
-prior and light its GGDS run used."""
+"""The seam measure of a scene (eval.seams) and the errors of given views, against the targets
+of the prior and light its GGDS run used."""
 from __future__ import annotations
 
 import numpy as np
@@ -12,7 +12,7 @@ def run_targets(sc, run: str | None, proxy):
 
     from lsd3d_usd import configtree as ct
     from lsd3d_usd.env.exr import write_env
-    from lsd3d_usd.ggds.conditioning import shadow_map, view_gbuffer
+    from lsd3d_usd.ggds.conditioning import FaceTable, shadow_map, table_gbuffer
     from lsd3d_usd.ggds.envbridge import env_params, scene_light
     from lsd3d_usd.ggds.priors import PriorConfig, make_prior
     from lsd3d_usd.ggds.store import read_plan
@@ -34,9 +34,10 @@ def run_targets(sc, run: str | None, proxy):
     prior = make_prior(prior_cfg, seed=seed)
     V, F, C = proxy
     shadow = shadow_map(V, F, light.sun_direction)
+    table = FaceTable.of(V, F, C)
 
     def target(cam, rgb, j: int) -> np.ndarray:
-        gb = view_gbuffer(cam, V, F, C, shadow)
+        gb = table_gbuffer(cam, V, F, table, shadow)
         x = torch.from_numpy(np.ascontiguousarray(rgb, np.float32))
         with torch.no_grad():
             return prior.target(x.clamp(0, None), gb, light.prior_env, 1.0,
@@ -75,16 +76,6 @@ def pooled_psnr(errors) -> float:
         return float("nan")
     mse = sse / n
     return 99.0 if mse <= 1e-10 else -10.0 * float(np.log10(mse))
-
-
-def view_psnrs(sc, run: str | None, proxy, cameras, frames,
-               region: tuple | None = None) -> tuple[list | None, str | None]:
-    """(PSNR in dB of each rendered view against its target, None), or (None, why not);
-    ``region`` as view_errors (nan for a view without pixels there)."""
-    errs, why = view_errors(sc, run, proxy, cameras, frames, region=region)
-    if errs is None:
-        return None, why
-    return [pooled_psnr([e]) for e in errs], None
 
 
 def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[dict | None, str | None]:

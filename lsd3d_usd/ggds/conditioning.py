@@ -59,18 +59,25 @@ def shadow_map(vertices: np.ndarray, faces: np.ndarray, sun_dir: np.ndarray,
 
 
 def view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray | None,
-                 shadow: ShadowMap | None = None, key: Hashable | None = None) -> GBuffer:
-    """The proxy G-buffer of ``camera``, with ``fine`` making it again at k× the resolution."""
+                 shadow: ShadowMap | None = None, fine: bool = True) -> GBuffer:
+    """The proxy G-buffer of ``camera``; with ``fine``, GBuffer.fine makes it again at k× the
+    resolution."""
+    return table_gbuffer(camera, vertices, faces, FaceTable.of(vertices, faces, face_ids),
+                         shadow, fine)
+
+
+def table_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray, table: "FaceTable",
+                  shadow: ShadowMap | None = None, fine: bool = True) -> GBuffer:
+    """view_gbuffer with the proxy's FaceTable built once by the caller."""
     return pack_view_gbuffer(camera, vertices, faces, shadow).unpack(
-        FaceTable.of(vertices, faces, face_ids), key=key,
-        fine=finer(camera, vertices, faces, face_ids, shadow))
+        table, fine=finer(camera, vertices, faces, table, shadow) if fine else None)
 
 
-def finer(camera: Camera, vertices, faces, face_ids, shadow=None):
+def finer(camera: Camera, vertices, faces, table: "FaceTable", shadow=None):
     """GBuffer.fine of a view: k -> its G-buffer at k× the resolution."""
     def make(k: int) -> GBuffer:
-        return view_gbuffer(camera.with_resolution(camera.width * k, camera.height * k),
-                            vertices, faces, face_ids, shadow)
+        return table_gbuffer(camera.with_resolution(camera.width * k, camera.height * k),
+                             vertices, faces, table, shadow)
     return make
 
 

@@ -24,7 +24,7 @@ from lsd3d_usd.ggds import losses, params as P
 from lsd3d_usd.ggds.adam import SelectiveAdam, lr_at
 from lsd3d_usd.ggds.cameras import View
 from lsd3d_usd.ggds.conditioning import (FaceTable, PackedGBuffer, ShadowMap,
-                                         finer, pack_view_gbuffer, view_gbuffer)
+                                         finer, pack_view_gbuffer, table_gbuffer)
 from lsd3d_usd.ggds.config import GGDSConfig
 from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv
 from lsd3d_usd.ggds.strategy import MCMCStrategy
@@ -196,7 +196,7 @@ class GGDSRun:
         return pack_view_gbuffer(camera, self.vertices, self.faces, self.shadow)
 
     def _finer(self, camera):
-        return finer(camera, self.vertices, self.faces, self.face_ids, self.shadow)
+        return finer(camera, self.vertices, self.faces, self._faces, self.shadow)
 
     def release_views(self) -> None:
         """Drop what the steps kept per training view (packed G-buffers, backgrounds, the
@@ -436,7 +436,7 @@ class GGDSRun:
         psnrs, rel_errs, ang_errs = [], [], []
         for j, v in enumerate(views):
             cam = v.camera
-            gb = view_gbuffer(cam, self.vertices, self.faces, self.face_ids, self.shadow)
+            gb = table_gbuffer(cam, self.vertices, self.faces, self._faces, self.shadow)
             bg = self.background_fn(cam) if self.background_fn else None
             out = self.render(cam, background=bg, normal_space="world")
             x_hat = self.prior.target(out.rgb.clamp(0, None), gb, self.env, t_eval,

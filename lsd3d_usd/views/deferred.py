@@ -103,15 +103,13 @@ class ScenePrior:
         return None
 
     def gbuffer(self, camera):
-        """The proxy G-buffer of ``camera`` with sun visibility (as GGDS computes it). It
-        cannot be made finer (``fine`` None): deferral runs once per frame of a video, so a
-        supersampling prior samples pixel centres here (4× less work per frame at 2×2), and
-        actors overlaid on it would be missing from a finer one."""
+        """The proxy G-buffer of ``camera`` with sun visibility (as GGDS computes it), without
+        ``fine``: deferral runs once per frame of a video, so a supersampling prior samples
+        pixel centres here (4× less work per frame at 2×2), and actors overlaid on it would
+        be missing from a finer one."""
         from lsd3d_usd.ggds.conditioning import view_gbuffer
         V, F, ids = self.proxy
-        gb = view_gbuffer(camera, V, F, ids, self.shadow)
-        gb.fine = None
-        return gb
+        return view_gbuffer(camera, V, F, ids, self.shadow, fine=False)
 
 
 def scene_root(path) -> Path:
