@@ -95,6 +95,12 @@ def _scale_args(p: argparse.ArgumentParser):
                    help="views from the same positions in chunk 0_0 rendered in every "
                         "configuration: its PSNR against the one-chunk scene, paired per view "
                         "(default 32; 0 = off)")
+    p.add_argument("--repeats", type=int, default=1,
+                   help="run every configuration with this many GGDS seeds (--seed, --seed+1, "
+                        "...; the same layouts): the same-view difference becomes the mean over "
+                        "seeds, its interval over seeds and views (a run's training views are a "
+                        "random draw: ±0.5 dB from one seed to the next at 24 views per chunk; "
+                        "default 1)")
     p.add_argument("--work", help="keep the generated scenes in this folder (default: a temporary "
                                   "one, removed)")
 
@@ -104,7 +110,7 @@ def _scale_run(args) -> int:
 
     main(json_path=args.json, full=args.full, steps=args.steps, workers=args.workers,
          seed=args.seed, views_per_chunk=args.views_per_chunk, work=args.work, png_path=args.png,
-         seam_views=args.seam_views, same_views=args.same_views)
+         seam_views=args.seam_views, same_views=args.same_views, repeats=args.repeats)
     return 0
 
 

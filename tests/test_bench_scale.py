@@ -41,3 +41,16 @@ def test_views_count_by_their_pixels():
     from lsd3d_usd.eval.seams_eval import pooled_psnr
     assert pooled_psnr(big + [(0.0, 0)]) == pooled_psnr(big)   # a view without pixels: nothing
     assert np.isnan(pooled_psnr([(0.0, 0)]))
+
+
+def test_paired_over_seeds():
+    """Several GGDS seeds: the mean of the per-seed differences, an interval that holds the
+    seeds' spread (one seed alone is the per-view interval, draw for draw)."""
+    from lsd3d_usd.benchmarks.scale import _paired_seeds
+    base = np.linspace(15, 30, 40)
+    one = _paired(_errs(base - 0.3), _errs(base))
+    assert _paired_seeds([(_errs(base - 0.3), _errs(base))]) == one
+    pairs = [(_errs(base + d), _errs(base)) for d in (-1.0, 0.0, 1.0, 0.4)]
+    mean, (lo, hi) = _paired_seeds(pairs)
+    assert abs(mean - 0.1) < 1e-3
+    assert lo < -0.5 and hi > 0.5          # the spread between seeds, not 0 width

@@ -141,3 +141,7 @@ def test_stored_configuration_without_a_newer_leaf_keeps_its_old_behaviour():
     old = ct.from_dict(PriorConfig, {"name": "procedural"})
     assert old.supersample == 1 and PriorConfig().supersample == 2
     assert ct.from_dict(PriorConfig, {"name": "procedural", "supersample": 3}).supersample == 3
+    from lsd3d_usd.ggds.config import RegionConfig
+    # chunk regions' colour start fitted to no views inside their margin before fit_inner_frac
+    assert ct.from_dict(RegionConfig, {"mode": "chunk"}).fit_inner_frac == 0.0
+    assert RegionConfig().fit_inner_frac == 1.0

@@ -189,7 +189,8 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     from dataclasses import replace
     layout = read_layout(LAYOUT)
     g = GGDSConfig(resolution=(48, 32))
-    g = replace(g, regions=replace(g.regions, views_per_chunk=40, fit_view_frac=1.0))
+    g = replace(g, regions=replace(g.regions, views_per_chunk=40, fit_view_frac=1.0,
+                                   fit_inner_frac=0.0))
     region = Region(((0, 0),), "chunk_0_0")
     views = region_fit_views(layout, g, 0, region)
     assert 0 < len(views) <= 40
@@ -205,6 +206,16 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     assert len(region_fit_views(layout, replace(g, world_init_views=0.5), 0, whole)) == 64
     off = replace(g, regions=replace(g.regions, fit_margin_m=20.0))
     assert region_fit_views(layout, off, 0, region) == []
+    # fit_inner_frac: as many views again sampled like the training views (inside the
+    # training margin), ahead of the ones beyond it, which stay as they were
+    both = region_fit_views(layout, replace(g, regions=replace(g.regions, fit_inner_frac=1.0)),
+                            0, region)
+    assert len(both) == 40 + len(views)
+    assert [v.camera.center.tolist() for v in both[40:]] == \
+        [v.camera.center.tolist() for v in views]
+    for v in both[:40]:
+        x, y = v.camera.center[:2]
+        assert -20 - 8.5 <= x <= 120 + 8.5 and -20 - 8.5 <= y <= 120 + 8.5
 
 
 def test_eval_measures_seams_of_a_chunked_scene(chunked):

@@ -132,30 +132,47 @@ def _paired(a: list, b: list, draws: int = 1000) -> tuple[float, list]:
     """PSNR of the per-view errors ``a`` (pairs of sum of squared errors, values; pooled
     over the views, each weighted by its pixels) minus that of ``b`` from the same views, and
     its 95 % bootstrap interval over the views."""
-    a, b = np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2)
+    return _paired_seeds([(a, b)], draws)
 
-    def diff(idx):
+
+def _paired_seeds(pairs: list, draws: int = 1000) -> tuple[float, list]:
+    """``_paired`` over several runs: (a, b) per GGDS seed, both from the same views. The
+    mean of the per-seed differences and its 95 % interval from a two-level bootstrap (seeds,
+    then views within each): a run's training views are a random draw too, and with 24 per
+    chunk the same configuration scores ±0.5 dB from one seed to the next."""
+    pairs = [(np.asarray(a, float).reshape(-1, 2), np.asarray(b, float).reshape(-1, 2))
+             for a, b in pairs]
+
+    def diff(a, b, idx):
         return pooled_psnr(a[idx]) - pooled_psnr(b[idx])
     rng = np.random.default_rng(0)
-    n = len(a)
-    boots = [diff(rng.integers(0, n, n)) for _ in range(draws)]
+    boots = []
+    for _ in range(draws):
+        picks = rng.integers(0, len(pairs), len(pairs)) if len(pairs) > 1 else [0]
+        vals = [diff(*pairs[s], rng.integers(0, len(pairs[s][0]), len(pairs[s][0])))
+                for s in picks]
+        boots.append(float(np.mean(vals)))
     boots = np.asarray([x for x in boots if np.isfinite(x)])
-    return (round(float(diff(np.arange(n))), 3),
-            [round(float(x), 3) for x in np.percentile(boots, [2.5, 97.5])])
+    point = float(np.mean([diff(a, b, np.arange(len(a))) for a, b in pairs]))
+    return (round(point, 3), [round(float(x), 3) for x in np.percentile(boots, [2.5, 97.5])])
 
 
 def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int, seed: int,
                views_per_chunk: int, mode: str = "chunk", seams_views: int = 48,
-               same_cameras=(), log=print) -> dict:
+               same_cameras=(), ggds_seed: int | None = None, log=print) -> dict:
+    """One configuration: the layout of ``seed``, `generate` with ``ggds_seed`` (default
+    ``seed``: the training views, surfel start and GGDS's noise), then the measures."""
     extent = _extent(shape, chunks)
-    name = f"{shape}{chunks}" + ("" if mode == "chunk" else f"_{mode}")
+    ggds_seed = seed if ggds_seed is None else int(ggds_seed)
+    name = (f"{shape}{chunks}" + ("" if mode == "chunk" else f"_{mode}")
+            + ("" if ggds_seed == seed else f"_s{ggds_seed}"))
     lay = _layout(work / f"{name}.usda", extent, seed)
     out = work / name
     summary = work / f"{name}.json"
     code, wall, rss = _child(_cli(
         "generate", "--layout", lay, "-o", out, "--steps", steps, "--resolution", "240x135",
         "--env-resolution", "256x128", "--no-actors", "--no-progress", "--regions", mode,
-        "--workers", workers, "--seed", seed, "--json", summary,
+        "--workers", workers, "--seed", ggds_seed, "--json", summary,
         "--set", f"ggds.regions.views_per_chunk={views_per_chunk}", "--set", "ggds.held_out=4",
         "--set", "ggds.checkpoint_every=1000"), work / f"{name}.log")
     if code != 0:
@@ -171,7 +188,7 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
     cpus = [r["cpu_s"] for r in full if r.get("cpu_s")]
     seams, same = _view_measures(out, seams_views, list(same_cameras), seed=seed)
     surf = s["surfels"]
-    row = {"config": name, "shape": shape, "chunks": int(surf["chunks"]),
+    row = {"config": name, "shape": shape, "chunks": int(surf["chunks"]), "ggds_seed": ggds_seed,
            "extent_m": list(extent), "regions": g.get("regions"), "mode": mode,
            "surfels": int(surf["count"]),
            "surfels_per_m2": round(surf["count"] / max(surf["viewWeightedArea_m2"], 1e-9), 3),
@@ -295,25 +312,35 @@ def plot(rows: list, path) -> None:
 
 
 def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_chunk=24,
-         work=None, png_path=None, seam_views=48, same_views=32, log=print) -> dict:
+         work=None, png_path=None, seam_views=48, same_views=32, repeats=1, log=print) -> dict:
     workers = workers or os.cpu_count() or 1
     same = same_view_cameras(seed, same_views) if same_views else []
+    configs = CONFIGS + (FULL_CONFIGS if full else [])
     with tempfile.TemporaryDirectory(prefix="lsd3d-bench-scale-") as tmp:
         wdir = Path(work) if work else Path(tmp)
         wdir.mkdir(parents=True, exist_ok=True)
-        rows = [run_config(shape, n, wdir, steps=steps, workers=workers, seed=seed,
-                           views_per_chunk=views_per_chunk, seams_views=seam_views,
-                           same_cameras=same, log=log)
-                for shape, n in CONFIGS + (FULL_CONFIGS if full else [])]
+
+        def run(shape, n, ggds_seed=None, **kw):
+            return run_config(shape, n, wdir, steps=steps, workers=workers, seed=seed,
+                              views_per_chunk=views_per_chunk, seams_views=seam_views,
+                              same_cameras=same, ggds_seed=ggds_seed, log=log, **kw)
+        rows = [run(shape, n) for shape, n in configs]
         # the same 4-chunk grid as one region: the seam measure's content baseline
-        base = run_config("grid", 4, wdir, steps=steps, workers=workers, seed=seed,
-                          views_per_chunk=views_per_chunk, mode="scene",
-                          seams_views=seam_views, same_cameras=same, log=log)
+        base = run("grid", 4, mode="scene")
         result = {"configs": rows, "scene_region_grid4": base}
         one = min(rows, key=lambda r: r["chunks"])
         big = max(rows, key=lambda r: r["chunks"])
-        paired = (_paired(big["same_views_errors"], one["same_views_errors"])
-                  if big["same_views_errors"] and one["same_views_errors"] else (None, None))
+        # the same layouts again with other GGDS seeds: the spread of a run's training views
+        again = [[run(shape, n, ggds_seed=seed + k) for shape, n in configs]
+                 for k in range(1, max(int(repeats), 1))]
+        if again:
+            result["repeats"] = again
+        ib, io = rows.index(big), rows.index(one)    # the same configurations, other seeds
+        runs = [(big, one)] + [(rr[ib], rr[io]) for rr in again]
+        pairs = [(b["same_views_errors"], o["same_views_errors"]) for b, o in runs
+                 if b["same_views_errors"] and o["same_views_errors"]]
+        paired = _paired_seeds(pairs) if pairs else (None, None)
+        per_seed = [_paired(*p)[0] for p in pairs]
         result["summary"] = {
             "largest_chunks": big["chunks"],
             "density_ratio": round(big["surfels_per_m2"] / one["surfels_per_m2"], 4),
@@ -323,8 +350,11 @@ def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_
             "psnr_chunk_0_0_delta_db": (round(big["psnr_chunk_0_0"] - one["psnr_chunk_0_0"], 3)
                                         if big["psnr_chunk_0_0"] and one["psnr_chunk_0_0"] else None),
             # the same views in chunk 0_0, paired per view: largest minus one-chunk scene
+            # (with --repeats: the mean over GGDS seeds, the interval over seeds and views)
             "psnr_same_views_delta_db": paired[0],
             "psnr_same_views_delta_ci95_db": paired[1],
+            "psnr_same_views_delta_seeds_db": per_seed,
+            "ggds_seeds": [seed + k for k in range(len(pairs))],
             "peak_rss_ratio": round(big["peak_rss_mb"] / one["peak_rss_mb"], 3),
             "max_peak_rss_mb": max(r["peak_rss_mb"] for r in rows),
             "seam_psnr_drop_db": big["seam_psnr_drop_db"],

@@ -94,6 +94,11 @@ class RegionConfig:
                                             "fraction of views_per_chunk; those beyond "
                                             "view_margin_m that see the region's surfels are "
                                             "used", lo=0.0, hi=10.0)
+    fit_inner_frac: float = option(1.0, help="the colour start of a chunk region also fits "
+                                             "to this many views per training view, sampled "
+                                             "like them (never trained on), as "
+                                             "ggds.world_init_views does for a whole-scene "
+                                             "region", lo=0.0, hi=100.0, recorded=0.0)
 
 
 @dataclass

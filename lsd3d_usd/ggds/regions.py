@@ -109,38 +109,40 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
 
 
 def region_fit_views(layout, g, seed: int, region: Region) -> list:
-    """Extra views for a region's world-space colour start (never trained on). A chunk
-    region: of ``fit_view_frac × views_per_chunk`` per chunk sampled on lanes up to
+    """Extra views for a region's world-space colour start (never trained on). A whole-scene
+    region: ``world_init_views`` × its training views, sampled like them (more directions per
+    surfel for the fit). A chunk region: ``fit_inner_frac`` × its training views, sampled like
+    them, and of ``fit_view_frac × views_per_chunk`` per chunk sampled on lanes up to
     ``fit_margin_m`` outside it, those standing beyond the training views' margin (a surfel
     near a border is seen by a whole-scene fit from both sides and from afar; the region's
     training views reach only ``view_margin_m`` across, so without these its colour would be
-    fitted from one side). A whole-scene region: ``world_init_views`` × its training views,
-    sampled like them (more directions per surfel for the fit)."""
+    fitted from one side)."""
     from lsd3d_usd.ggds.cameras import sample_views
     r = g.regions
     w, h = g.resolution
-    if not region.name:
-        n = int(round(g.world_init_views * g.views))
+    rseed = region_seed(seed, region)
+
+    def sample(n, seed_, around=None):
         if n <= 0:
             return []
-        return sample_views(layout, n, w, h,
-                            seed=region_seed(seed, region) + 104729, novel_frac=g.novel_frac,
-                            fov_deg=g.fov_deg, novel_style=g.novel_style,
-                            stratified=g.stratified_views)
-    n = int(round(r.fit_view_frac * r.views_per_chunk * len(region.keys)))
-    if n <= 0 or r.fit_margin_m <= r.view_margin_m:
-        return []
+        try:
+            return sample_views(layout, n, w, h, seed=seed_, novel_frac=g.novel_frac,
+                                fov_deg=g.fov_deg, region=around, clip=around is not None,
+                                novel_style=g.novel_style, stratified=g.stratified_views)
+        except InputError:      # no lane within ``around``
+            return []
+    if not region.name:
+        return sample(int(round(g.world_init_views * g.views)), rseed + 104729)
     x0, y0, x1, y1 = region.bounds(float(layout.chunk_size))
     m, inner = r.fit_margin_m, r.view_margin_m
-    try:
-        views = sample_views(layout, n, w, h, seed=region_seed(seed, region) + 104729,
-                             novel_frac=g.novel_frac, fov_deg=g.fov_deg,
-                             region=(x0 - m, y0 - m, x1 + m, y1 + m), clip=True,
-                             novel_style=g.novel_style, stratified=g.stratified_views)
-    except InputError:
-        return []
-    return [v for v in views if not (x0 - inner <= v.camera.center[0] <= x1 + inner
-                                     and y0 - inner <= v.camera.center[1] <= y1 + inner)]
+    views = sample(int(round(r.fit_inner_frac * r.views_per_chunk * len(region.keys))),
+                   rseed + 15485863, (x0 - inner, y0 - inner, x1 + inner, y1 + inner))
+    if m <= inner:
+        return views
+    outer = sample(int(round(r.fit_view_frac * r.views_per_chunk * len(region.keys))),
+                   rseed + 104729, (x0 - m, y0 - m, x1 + m, y1 + m))
+    return views + [v for v in outer if not (x0 - inner <= v.camera.center[0] <= x1 + inner
+                                             and y0 - inner <= v.camera.center[1] <= y1 + inner)]
 
 
 # ---------------------------------------------------------------------------- inputs
