@@ -89,7 +89,8 @@ class RegionConfig:
     fit_margin_m: float = option(50.0, help="the world-space colour start of a chunk region "
                                             "also fits to views standing up to this far "
                                             "outside it, as the whole-scene fit would (0 = "
-                                            "training views only; metres)", lo=0.0, hi=1000.0)
+                                            "none beyond the training views' margin; "
+                                            "metres)", lo=0.0, hi=1000.0)
     fit_view_frac: float = option(0.5, help="views sampled per chunk for that fit, as a "
                                             "fraction of views_per_chunk; those beyond "
                                             "view_margin_m that see the region's surfels are "
