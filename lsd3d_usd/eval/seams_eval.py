@@ -7,7 +7,8 @@ import numpy as np
 
 def run_targets(sc, run: str | None, proxy):
     """(target(camera, rgb, j) -> (H, W, 3) array at t = 1, None) for the scene's GGDS run
-    ``run``, or (None, why not). ``j`` seeds the prior as held-out view j."""
+    ``run``, or (None, why not). ``j`` seeds the prior as held-out view j; with
+    ``gbuffer=True`` target returns (array, the view's proxy GBuffer it conditioned on)."""
     import torch
 
     from lsd3d_usd import configtree as ct
@@ -36,12 +37,13 @@ def run_targets(sc, run: str | None, proxy):
     shadow = shadow_map(V, F, light.sun_direction)
     table = FaceTable.of(V, F, C)
 
-    def target(cam, rgb, j: int) -> np.ndarray:
+    def target(cam, rgb, j: int, gbuffer: bool = False):
         gb = table_gbuffer(cam, V, F, table, shadow)
         x = torch.from_numpy(np.ascontiguousarray(rgb, np.float32))
         with torch.no_grad():
-            return prior.target(x.clamp(0, None), gb, light.prior_env, 1.0,
-                                seed=10_000 + j).numpy()
+            out = prior.target(x.clamp(0, None), gb, light.prior_env, 1.0,
+                               seed=10_000 + j).numpy()
+        return (out, gb) if gbuffer else out
     return target, None
 
 
@@ -51,17 +53,17 @@ def view_errors(sc, run: str | None, proxy, cameras, frames,
     or (None, why not). ``region`` (x0, y0, x1, y1): only the pixels whose proxy surface lies
     inside it (what views from the same positions share when the scenes around differ; a
     view without such pixels gives (0, 0))."""
-    from lsd3d_usd.render.gbuffer import render_gbuffer
     target, why = run_targets(sc, run, proxy)
     if target is None:
         return None, why
     out = []
     for j, (cam, fr) in enumerate(zip(cameras, frames)):
-        err = ((np.clip(fr["rgb"], 0, 1) - np.clip(target(cam, fr["rgb"], j), 0, 1)) ** 2)
-        if region is not None:
-            p = render_gbuffer(proxy[0], proxy[1], cam).position
-            x0, y0, x1, y1 = region
-            keep = (p[..., 0] >= x0) & (p[..., 0] < x1) & (p[..., 1] >= y0) & (p[..., 1] < y1)
+        x_hat, gb = target(cam, fr["rgb"], j, gbuffer=True)
+        err = (np.clip(fr["rgb"], 0, 1) - np.clip(x_hat, 0, 1)) ** 2
+        if region is not None:   # the target's own G-buffer: no second rasterisation
+            p, x0, y0, x1, y1 = gb.world_pos.numpy(), *region
+            keep = (gb.valid.numpy() & (p[..., 0] >= x0) & (p[..., 0] < x1)
+                    & (p[..., 1] >= y0) & (p[..., 1] < y1))
             err = err[keep]
         out.append((float(np.sum(err, dtype=np.float64)), int(err.size)))
     return out, None

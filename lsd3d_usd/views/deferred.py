@@ -27,6 +27,7 @@ import json
 import math
 import time
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -107,9 +108,15 @@ class ScenePrior:
         ``fine``: deferral runs once per frame of a video, so a supersampling prior samples
         pixel centres here (4× less work per frame at 2×2), and actors overlaid on it would
         be missing from a finer one."""
-        from lsd3d_usd.ggds.conditioning import view_gbuffer
-        V, F, ids = self.proxy
-        return view_gbuffer(camera, V, F, ids, self.shadow, fine=False)
+        from lsd3d_usd.ggds.conditioning import table_gbuffer
+        V, F, _ = self.proxy
+        return table_gbuffer(camera, V, F, self.face_table, self.shadow, fine=False)
+
+    @cached_property
+    def face_table(self):
+        """The proxy's FaceTable, built once for every frame."""
+        from lsd3d_usd.ggds.conditioning import FaceTable
+        return FaceTable.of(*self.proxy)
 
 
 def scene_root(path) -> Path:
