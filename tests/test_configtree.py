@@ -145,3 +145,6 @@ def test_stored_configuration_without_a_newer_leaf_keeps_its_old_behaviour():
     # chunk regions' colour start fitted to no views inside their margin before fit_inner_frac
     assert ct.from_dict(RegionConfig, {"mode": "chunk"}).fit_inner_frac == 0.0
     assert RegionConfig().fit_inner_frac == 1.0
+    # options a stored configuration predates read back as off, whatever the default
+    stored = ct.from_dict(RegionConfig, {"mode": "chunk"})
+    assert stored.fit_context is False and stored.share_views is False

@@ -18,7 +18,8 @@ from lsd3d_usd.ggds.regions import Region, plan_regions, region_context
 from lsd3d_usd.pipeline import RunOptions, generate
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"   # 4 chunks: (-1|0, -1|0)
-CHUNKED = {"regions": {"mode": "chunk", "views_per_chunk": 3}, "held_out": 1}
+CHUNKED = {"regions": {"mode": "chunk", "views_per_chunk": 3, "share_views": True,
+                       "fit_context": True}, "held_out": 1}
 
 
 def gen(out, run=None, **kw):
@@ -72,13 +73,22 @@ def test_chunk_mode_writes_every_chunk_and_a_valid_scene(chunked):
     assert all(r["complete"] and r["stepsDone"] == 3 for r in per.values())
     plan = json.loads((out / "ggds" / run.name / "run.json").read_text())
     assert plan["complete"] and len(plan["phases"]) == 4
+    # the first region's neighbours are all unfinished: the colour start colours its whole
+    # band; the last region's have all finished: their optimised surfels are kept as they are
+    first, last = per[plan["phases"][0][0]], per[plan["phases"][-1][0]]
+    assert first["context"] > 0 and first["context_colour_start"] == first["context"]
+    assert last["context"] > 0 and last["context_colour_start"] == 0
+    # every region trained on some of its neighbours' views too (ggds.regions.share_views)
+    assert all(r["neighbour_views"] > 0 for r in per.values())
 
 
 def test_neighbours_condition_a_region_within_the_band(chunked):
     out, _ = chunked
     sc = S.Scene.open(out)
     region = Region(((0, 0),), "chunk_0_0")
-    ctx = region_context(sc, sc.runs()[0].name, region, set(), band_m=20.0, chunk_size=100.0)
+    ctx, initial = region_context(sc, sc.runs()[0].name, region, set(), band_m=20.0,
+                                  chunk_size=100.0)
+    assert initial.shape == (ctx.n,) and initial.all()
     p = ctx.positions
     tol = 1e-3   # a surfel seeded on a neighbour's edge stays with it (ggds.initial._owners)
     inside = (p[:, 0] > tol) & (p[:, 0] < 100 - tol) & (p[:, 1] > tol) & (p[:, 1] < 100 - tol)
@@ -86,8 +96,13 @@ def test_neighbours_condition_a_region_within_the_band(chunked):
     assert np.all((p[:, 0] >= -20) & (p[:, 1] >= -20) & (p[:, 0] <= 120) & (p[:, 1] <= 120))
     # a finished neighbour conditions with its optimised surfels, not its initial ones
     run = sc.runs()[0].name
-    done = region_context(sc, run, region, {(-1, 0), (0, -1), (-1, -1)}, 20.0, 100.0)
-    assert done.n == ctx.n and not np.array_equal(done.sh, ctx.sh)
+    done, initial = region_context(sc, run, region, {(-1, 0), (0, -1), (-1, -1)}, 20.0, 100.0)
+    assert done.n == ctx.n and not np.array_equal(done.sh, ctx.sh) and not initial.any()
+    # one neighbour finished: only the others' rows are initial
+    part, initial = region_context(sc, run, region, {(-1, 0)}, 20.0, 100.0)
+    assert part.n == ctx.n and 0 < initial.sum() < ctx.n
+    assert not np.array_equal(part.sh[~initial], ctx.sh[~initial])
+    assert np.array_equal(part.sh[initial], ctx.sh[initial])
     assert region_context(sc, run, region, set(), 0.0, 100.0) is None
 
 
@@ -140,8 +155,9 @@ def test_failing_chunk_is_named_and_the_scene_stays_valid(chunked, tmp_path):
 
 def test_cameras_layer_holds_every_regions_training_views(chunked):
     """Chunk mode: /World/Cameras/Train are the views sampled for each region, in
-    region-name order, each naming its region; what a region trained on (views.json) is,
-    in the same order, those of them that see its surfels."""
+    region-name order, each naming its region; what the regions trained on (views.json:
+    those of its own and its neighbours' views that see its surfels) are among them, each
+    listed once by run_views."""
     from lsd3d_usd.ggds.cameras import View
     from lsd3d_usd.ggds.store import run_views
     from lsd3d_usd.render.camera import from_usd
@@ -158,12 +174,10 @@ def test_cameras_layer_holds_every_regions_training_views(chunked):
         regions.append(prim.GetAttribute("lsd3d:camera:region").Get())
     assert regions == sorted(regions) and set(regions) == {"chunk_0_0", "chunk_0_m1", "chunk_m1_0",
                                                           "chunk_m1_m1"}
-    k = 0
-    for v in trained:      # a subsequence of the authored cameras
-        while k < 12 and not np.allclose(poses[k], v.camera.pose, atol=1e-5):
-            k += 1
-        assert k < 12, "a trained view is not among the scene's Train cameras"
-        k += 1
+    for v in trained:
+        assert sum(np.allclose(p, v.camera.pose, atol=1e-5) for p in poses) == 1, \
+            "a trained view is not among the scene's Train cameras"
+    assert len({tuple(np.round(v.camera.pose.ravel(), 6)) for v in trained}) == len(trained)
 
 
 def test_views_seeing_keeps_the_views_a_region_is_in():
@@ -218,6 +232,36 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
         assert -20 - 8.5 <= x <= 120 + 8.5 and -20 - 8.5 <= y <= 120 + 8.5
 
 
+def test_a_region_also_trains_on_its_neighbours_views_near_it():
+    from lsd3d_usd.ggds.config import GGDSConfig
+    from lsd3d_usd.ggds.regions import neighbour_views, region_views
+    from lsd3d_usd.layout.usdio import read_layout
+    from dataclasses import replace
+    layout = read_layout(LAYOUT)
+    g = GGDSConfig(resolution=(48, 32))
+    g = replace(g, regions=replace(g.regions, views_per_chunk=40))
+    keys = {(-1, -1), (-1, 0), (0, -1), (0, 0)}
+    region = Region(((0, 0),), "chunk_0_0")
+
+    def centres(views):
+        return {tuple(np.round(v.camera.center, 9)) for v in views}
+    theirs = set()
+    for k in keys - {(0, 0)}:
+        theirs |= centres(region_views(layout, g, 5, Region((k,), S.chunk_prim_name(*k).lower()))[0])
+    got = neighbour_views(layout, g, 5, region, keys)
+    assert got and centres(got) <= theirs           # the neighbours' own training views ...
+    m = g.regions.view_margin_m                     # ... those standing within the margin
+    assert all(-m <= v.camera.center[0] <= 100 + m and -m <= v.camera.center[1] <= 100 + m
+               for v in got)
+    near = [c for c in theirs if -m <= c[0] <= 100 + m and -m <= c[1] <= 100 + m]
+    assert len(got) == len(near) < len(theirs)
+    assert not centres(got) & centres(region_views(layout, g, 5, region)[0])
+    # a neighbour without surfels has no region and no views
+    assert len(neighbour_views(layout, g, 5, region, keys - {(-1, 0)})) < len(got)
+    wide = replace(g, regions=replace(g.regions, view_margin_m=60.0))
+    assert len(neighbour_views(layout, wide, 5, region, keys)) > len(got)
+
+
 def test_eval_measures_seams_of_a_chunked_scene(chunked):
     from lsd3d_usd.eval.evaluate import render_view
     from lsd3d_usd.eval.report import _seams_html
@@ -260,3 +304,13 @@ def test_eval_measures_seams_of_a_chunked_scene(chunked):
     near, _ = view_psnrs(sc, sc.runs()[0].name, proxy_arrays(sc.layer_path("proxy")), cams,
                          frames, region=(-1e4, -1e4, 1e4, 1e4))
     assert all(np.isfinite(near)) and near != psnrs     # the sky is left out
+
+
+def test_lane_length_inside_a_box():
+    from lsd3d_usd.ggds.cameras import lane_length_inside
+    from lsd3d_usd.layout.model import LaneCenter, Layout
+    layout = Layout(lanes=[LaneCenter(id="l0", points=[[2, -1.5, 0], [38, -1.5, 0]]),
+                           LaneCenter(id="l1", points=[[10, -20, 0], [10, 20, 0]])])
+    assert lane_length_inside(layout, (0, -5, 20, 5)) == pytest.approx(18 + 10, abs=1.0)
+    assert lane_length_inside(layout, (100, 100, 200, 200)) == 0.0
+    assert lane_length_inside(layout, (-100, -100, 100, 100)) == pytest.approx(36 + 40, abs=1.0)

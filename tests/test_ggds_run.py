@@ -320,6 +320,44 @@ def test_fit_views_join_the_colour_start_and_leave_nothing_behind():
     assert len(split._view_cache) == len(a)
 
 
+def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with_it():
+    """context_start rows (a neighbour's initial surfels) get the colours a run training them
+    would start from (per-surfel least squares: the same fit as one run over all surfels);
+    the other context rows keep theirs; a checkpoint carries the fitted colours."""
+    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    base = make_run(steps=2)
+    full = base.field()
+    x = full.positions[:, 0]
+    own, ctx = full.subset(np.flatnonzero(x < 20)), full.subset(np.flatnonzero(x >= 20))
+    start = ctx.positions[:, 0] >= 30          # an unfinished neighbour's rows
+    proxy = (base.vertices, base.faces, base.face_ids)
+    prior = ProceduralPrior()
+
+    def region():
+        return GGDSRun(own, proxy, base.views, prior, PriorEnv(), base.cfg, context=ctx,
+                       context_start=start)
+    run, joint = region(), GGDSRun(full, proxy, base.views, prior, PriorEnv(), base.cfg)
+    assert run.world_init() and joint.world_init()
+    got = run.context["sh"].float().numpy()
+    assert np.array_equal(got[~start], ctx.sh[~start].astype(np.float16).astype(np.float32))
+    changed = np.any(got[start] != ctx.sh[start].astype(np.float16).astype(np.float32), axis=(1, 2))
+    assert changed.mean() > 0.5      # the rows some view sees
+    want = joint.params["sh"].detach().numpy()[x >= 20][start][changed]
+    np.testing.assert_allclose(got[start][changed], want, atol=2e-3 + 1e-3 * np.abs(want).max())
+    # the trainable rows start as they would without the context fit
+    plain = GGDSRun(own, proxy, base.views, prior, PriorEnv(), base.cfg, context=ctx)
+    assert plain.world_init()
+    assert torch.equal(plain.params["sh"], run.params["sh"])
+    assert torch.equal(plain.context["sh"], torch.from_numpy(ctx.sh.astype(np.float16)))
+    tensors, meta = run.checkpoint()
+    again = region()
+    again.restore(tensors, meta)
+    assert torch.equal(again.context["sh"], run.context["sh"])
+    with pytest.raises(ValueError, match="context_start"):
+        GGDSRun(own, proxy, base.views, prior, PriorEnv(), base.cfg, context=ctx,
+                context_start=start[:-1])
+
+
 def test_context_cull_renders_the_same_image_as_all_context_surfels():
     """render() passes the rasteriser only the context surfels whose bounding sphere reaches
     the view; the image (and the trainable rows' gradients) are those of all of them."""

@@ -85,6 +85,14 @@ def _inside_arcs(lanes, region, step: float = 0.5):
     return out
 
 
+def lane_length_inside(layout, box, step: float = 0.5) -> float:
+    """Metres of drivable lane inside ``box`` (x0, y0, x1, y1), to ``step``: what views
+    sampled with ``region=box, clip=True`` spread over (0 when no lane passes through it)."""
+    # every lane, not _lanes' (those with a vertex inside): a lane may cross the box between
+    # two vertices
+    return step * float(sum(len(a) for a in _inside_arcs(layout.drivable_lanes(), box, step)))
+
+
 def _strata(rng: np.random.Generator, n: int, lengths: np.ndarray) -> list[tuple[int, float]]:
     """n (lane index, fraction along it) points, one in each of n equal parts of the lanes'
     concatenated length, in random order."""

@@ -100,6 +100,18 @@ class RegionConfig:
                                              "like them (never trained on), as "
                                              "ggds.world_init_views does for a whole-scene "
                                              "region", lo=0.0, hi=100.0, recorded=0.0)
+    fit_context: bool = option(False, help="the colour start of a chunk region also "
+                                           "colours its unfinished neighbours' frozen band "
+                                           "surfels (initial surfels carry flat class "
+                                           "colours); measured: no change to the composed "
+                                           "scene at the defaults, docs/large_scale.md",
+                               recorded=False)
+    share_views: bool = option(False, help="a chunk region also trains on its neighbours' "
+                                           "training views that stand within view_margin_m "
+                                           "of it (its border surfels are otherwise seen by "
+                                           "about half the views its interior is; pays off "
+                                           "with view_margin_m=40 at few views per chunk, "
+                                           "docs/large_scale.md)", recorded=False)
 
 
 @dataclass

@@ -89,7 +89,8 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     ``view_margin_m`` outside it (so border surfels are seen from both sides), held-out views
     inside it (InputError when it holds no lane). The scene's cameras layer
     (views.scene_cameras) authors the same views; run_region then trains a chunk region on
-    those that see any of its surfels (sampling.views_seeing)."""
+    those that see any of its surfels (sampling.views_seeing), with ``share_views`` also on
+    its neighbours' that stand near it (neighbour_views)."""
     from lsd3d_usd.ggds.cameras import sample_views
     rseed = region_seed(seed, region)
     w, h = g.resolution
@@ -106,6 +107,39 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
                         fov_deg=g.fov_deg, region=bounds, clip=not whole)
     return views, held
+
+
+def neighbour_views(layout, g, seed: int, region: Region, chunks) -> list:
+    """The training views of the chunk regions next to ``region`` (those of ``chunks``, the
+    scene's surfel chunks) that stand inside it or within ``view_margin_m`` of it. Each region
+    samples its views over itself and that margin, so a surfel near a border is seen from
+    beyond it only by views reaching ``view_margin_m`` across, and at half the density of a
+    whole-scene sampling; training a region also on its neighbours' views there gives its
+    border surfels about the views its interior has (docs/large_scale.md, "Seams"). A
+    neighbour whose views stand denser than the region's own (a chunk holding only the end of
+    a lane) is thinned to the region's density, so no neighbour floods it with views."""
+    from lsd3d_usd.ggds.cameras import lane_length_inside
+    size, m = float(layout.chunk_size), g.regions.view_margin_m
+
+    def grown(r):
+        x0, y0, x1, y1 = r.bounds(size)
+        return x0 - m, y0 - m, x1 + m, y1 + m
+    x0, y0, x1, y1 = box = grown(region)
+    own = lane_length_inside(layout, box) / len(region.keys)    # lane metres per own view set
+    out = []
+    for key in sorted(region.neighbourhood() - set(region.keys)):
+        if key not in chunks:
+            continue
+        other = Region((key,), S.chunk_prim_name(*key).lower())
+        try:
+            views, _ = region_views(layout, g, seed, other)
+        except InputError:      # no lane in that chunk: it has no views
+            continue
+        keep = min(1.0, lane_length_inside(layout, grown(other)) / max(own, 1e-9))
+        draw = np.random.default_rng(region_seed(seed, other) + 7_368_787).uniform(size=len(views))
+        out += [v for v, u in zip(views, draw) if u < keep
+                and x0 <= v.camera.center[0] <= x1 and y0 <= v.camera.center[1] <= y1]
+    return out
 
 
 def region_fit_views(layout, g, seed: int, region: Region) -> list:
@@ -194,8 +228,9 @@ def region_surfels(sc: S.Scene, region: Region, offsets: dict):
 
 def region_context(sc: S.Scene, run: str, region: Region, finished: set, band_m: float,
                    chunk_size: float):
-    """Frozen surfels of the neighbours within ``band_m`` of the region: this run's result
-    for finished neighbours, the initial surfels otherwise."""
+    """(frozen surfels of the neighbours within ``band_m`` of the region: this run's result
+    for finished neighbours, the initial surfels otherwise; (n,) bool: which rows are
+    initial), or None when there are none."""
     from lsd3d_usd.ggds.store import run_layer_path
     from lsd3d_usd.splats import chunkio
     from lsd3d_usd.splats.field import SurfelField
@@ -204,7 +239,7 @@ def region_context(sc: S.Scene, run: str, region: Region, finished: set, band_m:
     root = sc.layer_path("surfels")
     have = chunkio.read_chunk_map(root)
     x0, y0, x1, y1 = region.bounds(chunk_size)
-    parts = []
+    parts, initial = [], []
     for key in sorted(region.neighbourhood() - set(region.keys)):
         if key not in have:
             continue
@@ -215,7 +250,10 @@ def region_context(sc: S.Scene, run: str, region: Region, finished: set, band_m:
                 (p[:, 1] >= y0 - band_m) & (p[:, 1] <= y1 + band_m))
         if near.any():
             parts.append(f.subset(np.flatnonzero(near)))
-    return SurfelField.concat(parts, drop_mismatched_semantics=True) if parts else None
+            initial.append(np.full(parts[-1].n, key not in finished))
+    if not parts:
+        return None
+    return SurfelField.concat(parts, drop_mismatched_semantics=True), np.concatenate(initial)
 
 
 # ---------------------------------------------------------------------------- a region task
@@ -254,6 +292,12 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
         return skip_region(sc, job["run"], region, "no drivable lane inside")
     if not whole:
         from lsd3d_usd.ggds.sampling import views_seeing
+        own = len(views)
+        if rcfg.share_views:
+            from lsd3d_usd.splats.chunkio import read_chunk_map
+            views = views + neighbour_views(layout, g, seed, region,
+                                            set(read_chunk_map(sc.layer_path("surfels"))))
+        shared = len(views) - own
         views = views_seeing(views, field.positions)
         if not views:
             log(f"ggds: {region.name}: no training view sees its surfels: they are kept")
@@ -268,13 +312,16 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
     context = None if whole else region_context(sc, job["run"], region,
                                                 {tuple(k) for k in job["finished"]},
                                                 rcfg.band_m, size)
+    context, context_initial = context if context is not None else (None, None)
     band = rcfg.band_m
     focus = None if whole else (bounds[0] - band, bounds[1] - band, bounds[2] + band,
                                 bounds[3] + band)
     inputs = GGDSInputs(field, proxy, views, held, light.prior_env, light.background,
                         shadow_map(proxy[0], proxy[1], light.sun_direction), face,
-                        context=context, focus=focus, fit_views=fit_views)
+                        context=context, focus=focus, fit_views=fit_views,
+                        context_start=context_initial if rcfg.fit_context else None)
     n_context = int(context.n) if context is not None else 0
+    n_start = int(context_initial.sum()) if context is not None and rcfg.fit_context else 0
     del field, context        # run_ggds takes them over (GGDSInputs): not kept alive here
     store = RegionRunStore(sc, job["run"], region.name, owners, refresh=refresh,
                            checkpoint_meta={"keys": [list(k) for k in region.keys]})
@@ -285,8 +332,9 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                        keep_checkpoint=job.get("keep_checkpoint", False), term_state=term_state,
                        progress=progress, log=log)
     summary.update(region=region.name, keys=[list(k) for k in region.keys],
-                   context=n_context,
+                   context=n_context, context_colour_start=n_start,
                    wall_s=round(time.perf_counter() - t0, 2), views=len(views),
+                   neighbour_views=0 if whole else shared,
                    fit_views=len(fit_views),
                    cpu_s=round(_cpu_seconds() - c0, 2))
     return summary
@@ -396,7 +444,9 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
                                             "metrics")},
                 **{kk: summaries.get(k, {}).get(kk) for kk in ("wall_s", "cpu_s", "context",
-                                                               "views", "fit_views",
+                                                               "context_colour_start",
+                                                               "views", "neighbour_views",
+                                                               "fit_views",
                                                                "peak_rss_mb")}}
             for k, v in regions_done.items()}
     from lsd3d_usd.ggds.store import write_json

@@ -103,13 +103,17 @@ class GGDSRun:
     per-term state (e.g. the perceptual network) is built once here by each term's setup.
     ``context``: frozen surfels rendered with the trainable ones (a region's neighbours, for
     chunk-wise GGDS); ``focus`` (x0, y0, x1, y1): where the loaded surfels cover the scene —
-    image terms and held-out PSNR compare only pixels whose proxy surface lies there."""
+    image terms and held-out PSNR compare only pixels whose proxy surface lies there;
+    ``context_start`` (len(context),) bool: context rows whose colours the world-space start
+    fits too (a neighbour's initial surfels: flat class colours that the trainable surfels
+    would otherwise learn to compensate for where they blend with them)."""
 
     def __init__(self, field: SurfelField, proxy: tuple[np.ndarray, np.ndarray, np.ndarray | None],
                  views: list[View], prior: Prior, env: PriorEnv, config: GGDSConfig, *,
                  background_fn=None, shadow: ShadowMap | None = None,
                  face_index: np.ndarray | None = None, terms=None, term_state: dict | None = None,
-                 context: SurfelField | None = None, focus=None, fit_views=()):
+                 context: SurfelField | None = None, focus=None, fit_views=(),
+                 context_start: np.ndarray | None = None):
         self.cfg = config
         self.fit_views = list(fit_views)
         # what the result keeps of the initial field; the rest lives in the parameters
@@ -129,6 +133,13 @@ class GGDSRun:
             # world radius beyond which a disk's alpha stays under the rasteriser's alpha_min
             # (opacity <= 1: sqrt(2 ln 255) = 3.33 sigma): the frustum cull of render()
             self._context_radii = CONTEXT_SIGMAS * c.scales.max(axis=1).astype(np.float64)
+        self._context_fit = np.zeros(0, np.int64)
+        if self.context is not None and context_start is not None:
+            start = np.asarray(context_start, bool)
+            if start.shape != (int(self.context["means"].shape[0]),):
+                raise ValueError(f"context_start has shape {start.shape}, the context holds "
+                                 f"{int(self.context['means'].shape[0])} surfels")
+            self._context_fit = np.flatnonzero(start)
         self.params = P.to_params(field)
         for p in self.params.values():
             p.requires_grad_(True)
@@ -349,6 +360,8 @@ class GGDSRun:
         degree = sh_degree_of(self.params["sh"].shape[1])
         normals = f.normals()
         fit = ViewFit(f.n, degree)
+        ctx = self._context_fit_inputs()
+        ctx_fit = ViewFit(len(ctx[0]), degree) if ctx is not None else None
         from lsd3d_usd.memtune import release_free_memory
         n_train = len(self.views)
         for i in range(n_train + len(self.fit_views)):
@@ -365,6 +378,8 @@ class GGDSRun:
             target = self.prior.target(torch.zeros(cam.height, cam.width, 3), gb,
                                        self.env, 1.0, n_steps=c.n_denoise, seed=c.seed)
             fit.add_view(f.positions, f.scales, normals, cam, target, gb.depth.numpy())
+            if ctx_fit is not None:
+                ctx_fit.add_view(*ctx, cam, target, gb.depth.numpy())
             if fit_only:
                 self.prior.forget([gb.key])
         sh, seen = fit.solve(normals, c.world_init_ridge, c.world_init_ridge_tangent)
@@ -377,7 +392,22 @@ class GGDSRun:
                          seed=c.seed)
             sh[rest] = sub
         self.params["sh"][:] = torch.from_numpy(sh)
+        if ctx_fit is not None:   # unseen context rows keep their colours
+            csh, cseen = ctx_fit.solve(ctx[2], c.world_init_ridge, c.world_init_ridge_tangent)
+            rows = torch.from_numpy(self._context_fit[cseen])
+            self.context["sh"][rows] = torch.from_numpy(csh[cseen]).to(torch.float16)
         return True
+
+    def _context_fit_inputs(self):
+        """(positions, scales, normals) of the context rows the colour start fits, or None."""
+        if not len(self._context_fit):
+            return None
+        from lsd3d_usd.splats.field import quat_to_matrix
+        rows = torch.from_numpy(self._context_fit)
+        q = self.context["quats"].index_select(0, rows).numpy()
+        return (self.context["means"].index_select(0, rows).numpy(),
+                self.context["scales"].index_select(0, rows).numpy(),
+                np.ascontiguousarray(quat_to_matrix(q)[..., 2], np.float32))
 
     # ------------------------------------------------------------ results
     def field(self) -> SurfelField:
@@ -399,6 +429,9 @@ class GGDSRun:
             tensors["face_index"] = torch.from_numpy(np.ascontiguousarray(self.face_index))
         if self.filter3d is not None:
             tensors["filter3d"] = self.filter3d.contiguous()
+        if len(self._context_fit):   # the context colours the start fitted
+            tensors["context.sh"] = self.context["sh"].index_select(
+                0, torch.from_numpy(self._context_fit)).contiguous()
         meta = {"step": self.step_index, "rng": self.rng.bit_generator.state,
                 "history": list(self.history), "seconds": self.seconds,
                 "config": to_dict(self.cfg), "optimizer": bool(optimizer)}
@@ -427,6 +460,12 @@ class GGDSRun:
             self.face_index = tensors["face_index"].numpy().astype(np.int64).copy()
         if self.filter3d is not None and "filter3d" in tensors:
             self.filter3d = tensors["filter3d"].clone()
+        csh = tensors.get("context.sh")
+        if csh is not None and len(self._context_fit):
+            if csh.shape[0] != len(self._context_fit):
+                raise ValueError(f"checkpoint context.sh holds {csh.shape[0]} rows, the "
+                                 f"region's unfinished neighbours {len(self._context_fit)}")
+            self.context["sh"][torch.from_numpy(self._context_fit)] = csh.to(torch.float16)
 
     @torch.no_grad()
     def evaluate(self, views: list[View], t_eval: float = 1.0) -> dict:

@@ -37,6 +37,9 @@ class GGDSInputs:
     context: SurfelField | None = None      # frozen neighbour surfels rendered with them
     focus: tuple | None = None              # (x0, y0, x1, y1) the loaded surfels cover
     fit_views: list = ()                    # more views for the world-space colour start only
+    # (len(context),) bool: context rows whose colours start with the region's (a neighbour's
+    # initial surfels, which still carry class colours); None: the context keeps its colours
+    context_start: np.ndarray | None = None
 
 
 def _log_nothing(*a):
@@ -76,7 +79,8 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     run = GGDSRun(inputs.field, inputs.proxy, inputs.views, prior, inputs.env, config,
                   background_fn=inputs.background, shadow=inputs.shadow,
                   face_index=inputs.face_index, term_state=term_state,
-                  context=inputs.context, focus=inputs.focus, fit_views=inputs.fit_views)
+                  context=inputs.context, focus=inputs.focus, fit_views=inputs.fit_views,
+                  context_start=inputs.context_start)
     inputs.field = inputs.context = None
     store.write_views(inputs.views)
     before = []

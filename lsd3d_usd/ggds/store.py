@@ -136,15 +136,20 @@ def aggregate_metrics(metrics: list[dict], weights: list[float]) -> dict:
 
 
 def run_views(sc: S.Scene, run: str) -> list[dict] | None:
-    """The training views of a run (View.to_json dicts, all regions), or None if the run
-    recorded none (older runs keep them in the layer's provenance: ``trainViews``)."""
+    """The training views of a run (View.to_json dicts, all regions, each once: a chunk
+    region also trains on views of its neighbours), or None if the run recorded none (older
+    runs keep them in the layer's provenance: ``trainViews``)."""
     d = sc.run_files(run).dir
     files = sorted(d.glob("views.json")) + sorted(d.glob("*/views.json"))
     if not files:
         return None
-    out = []
+    out, seen = [], set()
     for f in files:
-        out.extend(_read_json(f, "training views"))
+        for v in _read_json(f, "training views"):
+            key = json.dumps(v, sort_keys=True)
+            if key not in seen:
+                seen.add(key)
+                out.append(v)
     return out
 
 
