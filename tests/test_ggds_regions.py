@@ -18,8 +18,10 @@ from lsd3d_usd.ggds.regions import Region, plan_regions, region_context
 from lsd3d_usd.pipeline import RunOptions, generate
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"   # 4 chunks: (-1|0, -1|0)
-CHUNKED = {"regions": {"mode": "chunk", "views_per_chunk": 3, "share_views": True,
-                       "fit_context": True}, "held_out": 1}
+CHUNKED = {"regions": {"mode": "chunk", "views_per_chunk": 3}, "held_out": 1}
+# ... with both border options on (ggds.regions.fit_context, share_views)
+BORDERS = {"regions": {**CHUNKED["regions"], "fit_context": True, "share_views": True},
+           "held_out": 1}
 
 
 def gen(out, run=None, **kw):
@@ -73,13 +75,9 @@ def test_chunk_mode_writes_every_chunk_and_a_valid_scene(chunked):
     assert all(r["complete"] and r["stepsDone"] == 3 for r in per.values())
     plan = json.loads((out / "ggds" / run.name / "run.json").read_text())
     assert plan["complete"] and len(plan["phases"]) == 4
-    # the first region's neighbours are all unfinished: the colour start colours its whole
-    # band; the last region's have all finished: their optimised surfels are kept as they are
-    first, last = per[plan["phases"][0][0]], per[plan["phases"][-1][0]]
-    assert first["context"] > 0 and first["context_colour_start"] == first["context"]
-    assert last["context"] > 0 and last["context_colour_start"] == 0
-    # every region trained on some of its neighbours' views too (ggds.regions.share_views)
-    assert all(r["neighbour_views"] > 0 for r in per.values())
+    # the border options are off by default
+    assert all(r["context_colour_start"] == 0 and r["neighbour_views"] == 0
+               for r in per.values())
 
 
 def test_neighbours_condition_a_region_within_the_band(chunked):
@@ -118,8 +116,8 @@ def test_interrupted_run_resumes_with_finished_chunks_untouched(tmp_path, monkey
             raise KeyboardInterrupt
         return real(self)
     monkeypatch.setattr(R.GGDSRun, "step", stop_in_third_region)
-    with pytest.raises(KeyboardInterrupt):
-        gen(out, checkpoint_every=1)
+    with pytest.raises(KeyboardInterrupt):   # with the border options: their state resumes
+        gen(out, checkpoint_every=1, ggds=BORDERS)
     monkeypatch.setattr(R.GGDSRun, "step", real)
     sc = S.Scene.open(out)
     run = sc.unfinished_runs()[0]
@@ -131,12 +129,25 @@ def test_interrupted_run_resumes_with_finished_chunks_untouched(tmp_path, monkey
                 for d in (out / "ggds" / run).iterdir() if (d / "progress.json").is_file()}
     finished = [n for n, p in progress.items() if p["complete"]]
     assert len(finished) == 2
-    summary = gen(out, run={"resume": True})
+    summary = gen(out, run={"resume": True}, ggds=BORDERS)
     assert summary["ggds"]["complete"] and summary["ggds"]["regions"] == 4
     for name in finished:
         f = f"{name}.usdc"
         assert (folder / f).stat().st_mtime_ns == done[f]      # finished chunks untouched
     assert S.Scene.open(out).unfinished_runs() == []
+    per = json.loads((out / "ggds" / run / "summary.json").read_text())["per_region"]
+    plan = json.loads((out / "ggds" / run / "run.json").read_text())
+    # (regions run by this invocation report their figures) the third region (interrupted,
+    # resumed from its checkpoint) still has an unfinished neighbour, whose band colours the
+    # start fitted came back with it; the last region's neighbours had all finished
+    third, last = (per[plan["phases"][i][0]] for i in (2, 3))
+    assert 0 < third["context_colour_start"] < third["context"]
+    assert last["context"] > 0 and last["context_colour_start"] == 0
+    # both trained on some of their neighbours' views too (share_views)
+    assert third["neighbour_views"] > 0 and last["neighbour_views"] > 0
+    from lsd3d_usd.ggds.store import run_views
+    views = run_views(S.Scene.open(out), run)
+    assert len({json.dumps(v, sort_keys=True) for v in views}) == len(views) <= 12
 
 
 def test_failing_chunk_is_named_and_the_scene_stays_valid(chunked, tmp_path):
@@ -155,9 +166,8 @@ def test_failing_chunk_is_named_and_the_scene_stays_valid(chunked, tmp_path):
 
 def test_cameras_layer_holds_every_regions_training_views(chunked):
     """Chunk mode: /World/Cameras/Train are the views sampled for each region, in
-    region-name order, each naming its region; what the regions trained on (views.json:
-    those of its own and its neighbours' views that see its surfels) are among them, each
-    listed once by run_views."""
+    region-name order, each naming its region; what a region trained on (views.json) is,
+    in the same order, those of them that see its surfels."""
     from lsd3d_usd.ggds.cameras import View
     from lsd3d_usd.ggds.store import run_views
     from lsd3d_usd.render.camera import from_usd
@@ -174,10 +184,12 @@ def test_cameras_layer_holds_every_regions_training_views(chunked):
         regions.append(prim.GetAttribute("lsd3d:camera:region").Get())
     assert regions == sorted(regions) and set(regions) == {"chunk_0_0", "chunk_0_m1", "chunk_m1_0",
                                                           "chunk_m1_m1"}
-    for v in trained:
-        assert sum(np.allclose(p, v.camera.pose, atol=1e-5) for p in poses) == 1, \
-            "a trained view is not among the scene's Train cameras"
-    assert len({tuple(np.round(v.camera.pose.ravel(), 6)) for v in trained}) == len(trained)
+    k = 0
+    for v in trained:      # a subsequence of the authored cameras
+        while k < 12 and not np.allclose(poses[k], v.camera.pose, atol=1e-5):
+            k += 1
+        assert k < 12, "a trained view is not among the scene's Train cameras"
+        k += 1
 
 
 def test_views_seeing_keeps_the_views_a_region_is_in():
@@ -311,6 +323,12 @@ def test_lane_length_inside_a_box():
     from lsd3d_usd.layout.model import LaneCenter, Layout
     layout = Layout(lanes=[LaneCenter(id="l0", points=[[2, -1.5, 0], [38, -1.5, 0]]),
                            LaneCenter(id="l1", points=[[10, -20, 0], [10, 20, 0]])])
-    assert lane_length_inside(layout, (0, -5, 20, 5)) == pytest.approx(18 + 10, abs=1.0)
+    # the lanes views sampled in the box are drawn from: l1 crosses it between two vertices
+    # outside, so sample_views(region=box, clip=True) never stands on it
+    box = (0, -5, 20, 5)
+    assert lane_length_inside(layout, box) == pytest.approx(18, abs=0.6)
+    from lsd3d_usd.ggds.cameras import sample_views
+    assert {v.lane_id for v in sample_views(layout, 50, 32, 24, seed=1, region=box,
+                                            clip=True)} == {"l0"}
     assert lane_length_inside(layout, (100, 100, 200, 200)) == 0.0
     assert lane_length_inside(layout, (-100, -100, 100, 100)) == pytest.approx(36 + 40, abs=1.0)

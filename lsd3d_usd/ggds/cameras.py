@@ -86,11 +86,14 @@ def _inside_arcs(lanes, region, step: float = 0.5):
 
 
 def lane_length_inside(layout, box, step: float = 0.5) -> float:
-    """Metres of drivable lane inside ``box`` (x0, y0, x1, y1), to ``step``: what views
-    sampled with ``region=box, clip=True`` spread over (0 when no lane passes through it)."""
-    # every lane, not _lanes' (those with a vertex inside): a lane may cross the box between
-    # two vertices
-    return step * float(sum(len(a) for a in _inside_arcs(layout.drivable_lanes(), box, step)))
+    """Metres of drivable lane inside ``box`` (x0, y0, x1, y1), to ``step``, over the lanes
+    sample_views(region=box, clip=True) draws from (_lanes: those with a vertex inside):
+    what such views spread over; 0 when there are none."""
+    try:
+        lanes = _lanes(layout, box)
+    except InputError:
+        return 0.0
+    return step * float(sum(len(a) for a in _inside_arcs(lanes, box, step)))
 
 
 def _strata(rng: np.random.Generator, n: int, lengths: np.ndarray) -> list[tuple[int, float]]:

@@ -110,8 +110,9 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
 
 
 def neighbour_views(layout, g, seed: int, region: Region, chunks) -> list:
-    """The training views of the chunk regions next to ``region`` (those of ``chunks``, the
-    scene's surfel chunks) that stand inside it or within ``view_margin_m`` of it. Each region
+    """The views the chunk regions next to ``region`` (those of ``chunks``, the scene's
+    surfel chunks) sample for training (region_views) that stand inside it or within
+    ``view_margin_m`` of it. Each region
     samples its views over itself and that margin, so a surfel near a border is seen from
     beyond it only by views reaching ``view_margin_m`` across, and at half the density of a
     whole-scene sampling; training a region also on its neighbours' views there gives its
@@ -292,13 +293,13 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
         return skip_region(sc, job["run"], region, "no drivable lane inside")
     if not whole:
         from lsd3d_usd.ggds.sampling import views_seeing
-        own = len(views)
+        own = {id(v) for v in views}
         if rcfg.share_views:
             from lsd3d_usd.splats.chunkio import read_chunk_map
             views = views + neighbour_views(layout, g, seed, region,
                                             set(read_chunk_map(sc.layer_path("surfels"))))
-        shared = len(views) - own
         views = views_seeing(views, field.positions)
+        shared = sum(id(v) not in own for v in views)
         if not views:
             log(f"ggds: {region.name}: no training view sees its surfels: they are kept")
             return skip_region(sc, job["run"], region, "no training view sees its surfels")
@@ -321,7 +322,6 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                         context=context, focus=focus, fit_views=fit_views,
                         context_start=context_initial if rcfg.fit_context else None)
     n_context = int(context.n) if context is not None else 0
-    n_start = int(context_initial.sum()) if context is not None and rcfg.fit_context else 0
     del field, context        # run_ggds takes them over (GGDSInputs): not kept alive here
     store = RegionRunStore(sc, job["run"], region.name, owners, refresh=refresh,
                            checkpoint_meta={"keys": [list(k) for k in region.keys]})
@@ -332,7 +332,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                        keep_checkpoint=job.get("keep_checkpoint", False), term_state=term_state,
                        progress=progress, log=log)
     summary.update(region=region.name, keys=[list(k) for k in region.keys],
-                   context=n_context, context_colour_start=n_start,
+                   context=n_context,
                    wall_s=round(time.perf_counter() - t0, 2), views=len(views),
                    neighbour_views=0 if whole else shared,
                    fit_views=len(fit_views),

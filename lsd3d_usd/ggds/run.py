@@ -140,6 +140,7 @@ class GGDSRun:
                 raise ValueError(f"context_start has shape {start.shape}, the context holds "
                                  f"{int(self.context['means'].shape[0])} surfels")
             self._context_fit = np.flatnonzero(start)
+        self.context_started = 0    # context rows whose colours the start fitted (or restored)
         self.params = P.to_params(field)
         for p in self.params.values():
             p.requires_grad_(True)
@@ -396,6 +397,7 @@ class GGDSRun:
             csh, cseen = ctx_fit.solve(ctx[2], c.world_init_ridge, c.world_init_ridge_tangent)
             rows = torch.from_numpy(self._context_fit[cseen])
             self.context["sh"][rows] = torch.from_numpy(csh[cseen]).to(torch.float16)
+            self.context_started = int(cseen.sum())
         return True
 
     def _context_fit_inputs(self):
@@ -434,7 +436,8 @@ class GGDSRun:
                 0, torch.from_numpy(self._context_fit)).contiguous()
         meta = {"step": self.step_index, "rng": self.rng.bit_generator.state,
                 "history": list(self.history), "seconds": self.seconds,
-                "config": to_dict(self.cfg), "optimizer": bool(optimizer)}
+                "config": to_dict(self.cfg), "optimizer": bool(optimizer),
+                "context_started": self.context_started}
         return tensors, meta
 
     def restore(self, tensors: dict, meta: dict) -> None:
@@ -466,6 +469,7 @@ class GGDSRun:
                 raise ValueError(f"checkpoint context.sh holds {csh.shape[0]} rows, the "
                                  f"region's unfinished neighbours {len(self._context_fit)}")
             self.context["sh"][torch.from_numpy(self._context_fit)] = csh.to(torch.float16)
+            self.context_started = int(meta.get("context_started", len(self._context_fit)))
 
     @torch.no_grad()
     def evaluate(self, views: list[View], t_eval: float = 1.0) -> dict:

@@ -126,7 +126,8 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
         raise KeyboardInterrupt
     summary = {"run": store.name, "steps": run.step_index, "seconds": round(run.seconds, 1),
                "s_per_step": round(run.seconds / max(run.step_index, 1), 3),
-               "surfels": n_surfels, "complete": run.step_index >= config.steps}
+               "surfels": n_surfels, "complete": run.step_index >= config.steps,
+               "context_colour_start": run.context_started}
     if not summary["complete"]:
         _save(store, run, prior, inputs)
         log(f"ggds: stopped at step {run.step_index} of {config.steps}; continue with --resume")
