@@ -112,13 +112,13 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
 def neighbour_views(layout, g, seed: int, region: Region, chunks) -> list:
     """The views the chunk regions next to ``region`` (those of ``chunks``, the scene's
     surfel chunks) sample for training (region_views) that stand inside it or within
-    ``view_margin_m`` of it. Each region
-    samples its views over itself and that margin, so a surfel near a border is seen from
-    beyond it only by views reaching ``view_margin_m`` across, and at half the density of a
-    whole-scene sampling; training a region also on its neighbours' views there gives its
-    border surfels about the views its interior has (docs/large_scale.md, "Seams"). A
-    neighbour whose views stand denser than the region's own (a chunk holding only the end of
-    a lane) is thinned to the region's density, so no neighbour floods it with views."""
+    ``view_margin_m`` of it. Each region samples its views over itself and that margin, so a
+    surfel near a border is seen from beyond it only by views reaching ``view_margin_m``
+    across, and at half the density of a whole-scene sampling; training a region also on its
+    neighbours' views there gives its border surfels about the views its interior has
+    (docs/large_scale.md, "Seams"). A neighbour whose views stand denser than the region's own
+    (a chunk holding only the end of a lane) is thinned to the region's density, so no
+    neighbour floods it with views."""
     from lsd3d_usd.ggds.cameras import lane_length_inside
     size, m = float(layout.chunk_size), g.regions.view_margin_m
 

@@ -404,12 +404,10 @@ class GGDSRun:
         """(positions, scales, normals) of the context rows the colour start fits, or None."""
         if not len(self._context_fit):
             return None
-        from lsd3d_usd.splats.field import quat_to_matrix
+        from lsd3d_usd.splats.field import quat_normals
         rows = torch.from_numpy(self._context_fit)
-        q = self.context["quats"].index_select(0, rows).numpy()
-        return (self.context["means"].index_select(0, rows).numpy(),
-                self.context["scales"].index_select(0, rows).numpy(),
-                np.ascontiguousarray(quat_to_matrix(q)[..., 2], np.float32))
+        return tuple(self.context[k].index_select(0, rows).numpy() for k in ("means", "scales")) \
+            + (quat_normals(self.context["quats"].index_select(0, rows).numpy()),)
 
     # ------------------------------------------------------------ results
     def field(self) -> SurfelField:

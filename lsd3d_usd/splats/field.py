@@ -36,6 +36,11 @@ def rgb_to_sh_dc(rgb: np.ndarray) -> np.ndarray:
     return (np.asarray(rgb, np.float32) - 0.5) / SH_C0
 
 
+def quat_normals(q: np.ndarray) -> np.ndarray:
+    """(N,4) xyzw → (N,3) float32 disk normals (the local z axes in world)."""
+    return np.ascontiguousarray(quat_to_matrix(q)[..., 2], np.float32)
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
     """(N,4) xyzw → (N,3,3) rotation matrices (columns: local x, y, z axes in world)."""
     q = np.asarray(q, dtype=np.float64)
@@ -172,7 +177,7 @@ class SurfelField:
         return cls(np.zeros((0, 3)), np.zeros((0, 4)), np.zeros((0, 2)), np.zeros(0), np.zeros((0, k, 3)))
 
     def normals(self) -> np.ndarray:
-        return quat_to_matrix(self.orientations)[..., 2].astype(np.float32)
+        return quat_normals(self.orientations)
 
     def colors(self) -> np.ndarray:
         """View-independent (DC) colour per surfel."""
