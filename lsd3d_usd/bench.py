@@ -44,7 +44,8 @@ register_benchmark(
 # ------------------------------------------------------------------- ggds ---
 def _ggds_args(p: argparse.ArgumentParser):
     p.add_argument("--json", metavar="OUT.json", help="write results as JSON (keys s_per_step, "
-                   "psnr_heldout, psnr_heldout_2x, fd_novel_over_content, psnr_novel, "
+                   "psnr_heldout, psnr_heldout_2x, fd_novel_over_content, "
+                   "fd_prior_novel_over_content, fd_novel_over_prior, psnr_novel, "
                    "depth_rel_err, normal_err_deg, off_surface_frac, timing, quality)")
     p.add_argument("--quick", action="store_true", help="small subset (a couple of minutes)")
     p.add_argument("--layout", help="layout for the timing chunk and the quality run (default: "
@@ -55,13 +56,16 @@ def _ggds_args(p: argparse.ArgumentParser):
                    "(default: next to --json, OUT_before_after.png)")
     p.add_argument("--no-fd", action="store_true", help="skip the eval Fréchet distances "
                    "(fd_novel_over_content)")
+    p.add_argument("--fd-seeds", type=int, default=None, metavar="N",
+                   help="eval seeds the Fréchet distance ratios are averaged over (other seen "
+                        "views and novel offsets each; default 4, --quick 1)")
 
 
 def _ggds_run(args) -> int:
     from lsd3d_usd.benchmarks.ggds import main
 
     main(json_path=args.json, quick=args.quick, layout=args.layout, steps=args.steps,
-         fd=not args.no_fd, strip=args.strip)
+         fd=not args.no_fd, strip=args.strip, fd_seeds=args.fd_seeds)
     return 0
 
 

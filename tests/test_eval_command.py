@@ -124,6 +124,49 @@ def test_scene_without_ggds_run_uses_sampled_views(tiny_scene, tmp_path):
                                      "reason": "no --reference DIR of images given"}
 
 
+def test_prior_baseline_measures_the_views_not_the_scene(tiny_scene, tmp_path):
+    """The prior's own images of eval's cameras: the same for the GGDS surfels and for the
+    initial ones seen from the same cameras (the run muted, its cameras kept), while the
+    scene's distances differ; each ratio is its FD over its content change."""
+    copy = tmp_path / "scene"
+    shutil.copytree(tiny_scene, copy, ignore=shutil.ignore_patterns("eval"))
+    sc = S.Scene.open(copy)
+    run = sc.runs()[0].name
+    after = evaluate(_opts(copy, out_dir=tmp_path / "a"))
+    sc.mute(run)
+    before = evaluate(_opts(copy, run=run, out_dir=tmp_path / "b"))
+    pa, pb = (r["fd_effnet_lite0"]["prior_baseline"] for r in (after, before))
+    assert pa["prior"] == "procedural" and set(pa["novel_over_content"]) == {"0.5", "4"}
+    for k in ("0.5", "4"):
+        assert pa["seen_vs_novel"]["per_bin"][k]["value"] == pytest.approx(
+            pb["seen_vs_novel"]["per_bin"][k]["value"], rel=1e-6)
+    assert pa["seen_vs_heldout_lane"]["value"] == pytest.approx(pb["seen_vs_heldout_lane"]["value"],
+                                                                rel=1e-6)
+    fa, fb = after["fd_effnet_lite0"], before["fd_effnet_lite0"]
+    assert fa["seen_vs_novel"]["per_bin"]["4"]["value"] != fb["seen_vs_novel"]["per_bin"]["4"]["value"]
+    for res, p in ((after, pa), (before, pb)):
+        f = res["fd_effnet_lite0"]
+        for k in ("0.5", "4"):
+            scene = f["seen_vs_novel"]["per_bin"][k]["value"] / f["seen_vs_heldout_lane"]["value"]
+            prior = p["seen_vs_novel"]["per_bin"][k]["value"] / p["seen_vs_heldout_lane"]["value"]
+            assert p["scene_novel_over_content"][k] == pytest.approx(scene, abs=1e-4)
+            assert p["novel_over_content"][k] == pytest.approx(prior, abs=1e-4)
+            assert p["scene_over_prior"][k] == pytest.approx(scene / prior, rel=1e-3)
+    assert res["timings"]["prior_baseline_s"] > 0
+
+
+def test_prior_baseline_skipped_with_a_reason(tiny_scene, tmp_path, monkeypatch):
+    from lsd3d_usd.eval.prior_baseline import open_baseline
+    assert open_baseline(tiny_scene, False, 3, None) == (None, "turned off (--no-prior-baseline)")
+    assert open_baseline(tiny_scene, None, 0, None)[1] == "no held-out lane views (--heldout 0)"
+    monkeypatch.setattr("lsd3d_usd.views.deferred.recorded_prior_name", lambda p: "diffusers")
+    base, why = open_baseline(tiny_scene, None, 3, None)
+    assert base is None and "'diffusers' is slow on the CPU" in why and "--prior-baseline" in why
+    res = evaluate(_opts(tiny_scene, out_dir=tmp_path / "e", bins=(1.0,), per_bin=1, frames=2))
+    assert "prior_baseline" not in res["fd_effnet_lite0"]
+    assert {"metric": "fd_effnet_lite0.prior_baseline", "reason": why} in res["unavailable"]
+
+
 def test_missing_weights_path():
     st = models.status(None)
     assert [s["metric"] for s in st] == ["fid_inception", "fd_dinov2", "clip_score", "fvd"]
@@ -140,6 +183,7 @@ def test_missing_weights_path():
     ("bad_run", "no GGDS run 'nope'"),
     ("bins", "--bins"),
     ("weights", "no such directory"),
+    ("baseline", "--prior-baseline needs held-out lane views"),
 ])
 def test_bad_input_is_one_clear_error(tiny_scene, tmp_path, kind, match):
     ref = tmp_path / "ref"
@@ -163,6 +207,8 @@ def test_bad_input_is_one_clear_error(tiny_scene, tmp_path, kind, match):
         kw["bins"] = (1.0, 0.0)
     elif kind == "weights":
         kw["weights"] = tmp_path / "no_weights"
+    elif kind == "baseline":
+        kw.update(prior_baseline=True, n_heldout=0)
     out = tmp_path / "evalout"
     with pytest.raises(InputError, match=match):
         evaluate(_opts(scene, out_dir=out, **kw))
@@ -183,6 +229,8 @@ def test_cli_eval_json(tiny_scene, tmp_path, capsys):
         assert key in data
     out = capsys.readouterr().out
     assert "fd_effnet_lite0 seen vs novel" in out and "unavailable" in out
+    assert "scene / the prior's own images: 2 m" in out
+    assert "prior_baseline" in data["fd_effnet_lite0"]
     assert main(["eval", str(tmp_path / "none")]) == 1
 
 

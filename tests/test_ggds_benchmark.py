@@ -31,4 +31,10 @@ def test_quality_run_reports_fd_over_content(tmp_path):
                   out=tmp_path / "scene", fd=True, log=lambda *a: None)
     ratios = res["fd_novel_over_content_per_bin"]
     assert set(ratios) == {"0.5", "1", "2", "4", "8"}
-    assert res["fd_novel_over_content"] == max(ratios.values()) > 0
+    assert res["fd_novel_over_content"] == pytest.approx(max(ratios.values()), abs=1e-3)
+    assert res["fd_novel_over_content"] > 0 and res["fd_seeds"] == 1
+    prior = res["fd_prior_novel_over_content_per_bin"]
+    assert set(prior) == set(ratios) and res["fd_prior_novel_over_content"] == pytest.approx(
+        max(prior.values()), abs=1e-3)
+    assert res["fd_novel_over_prior"] == pytest.approx(
+        max(ratios[b] / prior[b] for b in ratios), rel=1e-2)

@@ -75,7 +75,7 @@ def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions
 
 
 def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt="sunny afternoon in Madrid",
-            out=None, fd=True, strip=None, log=print) -> dict:
+            out=None, fd=True, strip=None, log=print, fd_seeds=1) -> dict:
     """A `generate` with its defaults (or the given steps / surfels / resolution) on
     ``layout_path``, then: held-out PSNR against the prior at 1× and at 2× the training
     resolution, depth / normal / off-surface figures, and with ``fd`` the `eval` Fréchet
@@ -102,14 +102,15 @@ def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt
         res["heldout_s"] = round(time.perf_counter() - t, 1)
         if fd:
             t = time.perf_counter()
-            res.update(_fd(target))
+            res.update(_fd(target, fd_seeds))
             res["eval_s"] = round(time.perf_counter() - t, 1)
         res["total_s"] = round(time.perf_counter() - t0, 1)
     log(f"quality after {res['steps']} steps ({res['surfels']:,} surfels): held-out PSNR "
         f"{res['psnr_heldout']:.2f} dB (2x: {res['psnr_heldout_2x']:.2f} dB), depth err "
         f"{100 * res['depth_rel_err']:.2f} %, normal err {res['normal_err_deg']:.2f} deg, "
         f"off-surface {100 * res['off_surface_frac']:.3f} %, {res['s_per_step']:.2f} s/step"
-        + (f", fd novel/content max {res['fd_novel_over_content']:.2f}" if fd else ""))
+        + (f", fd novel/content max {res['fd_novel_over_content']:.2f} (the prior's own images: "
+           f"{res.get('fd_prior_novel_over_content', float('nan')):.2f})" if fd else ""))
     return res
 
 
@@ -192,27 +193,43 @@ def write_strip(path: Path, rows) -> None:
     plt.close(fig)
 
 
-def _fd(scene_dir: Path) -> dict:
-    """`eval` with its defaults: Fréchet distance seen vs novel per bin over the content-change
-    baseline (seen vs fresh on-lane views); ≤ 1 at every bin means moving the camera off the
-    training views changes the images less than a change of place does."""
+def _fd(scene_dir: Path, seeds: int = 1) -> dict:
+    """`eval` with its defaults at eval seeds 0 .. seeds-1 (other seen views and novel
+    offsets each): Fréchet distance seen vs novel per bin over the content-change baseline
+    (seen vs fresh on-lane views), averaged over the seeds (one seed's ratio moves by ~0.15);
+    ≤ 1 at every bin means moving the camera off the training views changes the images less
+    than a change of place does. The same ratio of the prior's own images of the same views
+    (eval's prior baseline) says what a scene reproducing its prior exactly would score."""
     from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
-    with tempfile.TemporaryDirectory() as tmp:
-        r = evaluate(EvalOptions(scene=scene_dir, out_dir=Path(tmp), progress=False,
-                                 log=lambda *a: None))
-    fd = r["fd_effnet_lite0"]
-    content = fd["seen_vs_heldout_lane"]["value"]
-    per_bin = {b: v["value"] for b, v in fd["seen_vs_novel"]["per_bin"].items()}
-    ratio = {b: v / content for b, v in per_bin.items()}
-    return {"fd_novel_over_content": max(ratio.values()),
-            "fd_novel_over_content_per_bin": {b: round(v, 3) for b, v in ratio.items()},
-            "fd_novel_per_bin": {b: round(v, 2) for b, v in per_bin.items()},
-            "fd_content": round(content, 2),
-            "eval_geometry_seen": r["geometry"]["seen"]["all"]}
+    runs = []
+    for seed in range(seeds):
+        with tempfile.TemporaryDirectory() as tmp:
+            runs.append(evaluate(EvalOptions(scene=scene_dir, out_dir=Path(tmp), seed=seed,
+                                             progress=False, log=lambda *a: None)))
+    fds = [r["fd_effnet_lite0"] for r in runs]
+    bins = list(fds[0]["seen_vs_novel"]["per_bin"])
+    scene = {b: [f["seen_vs_novel"]["per_bin"][b]["value"] / f["seen_vs_heldout_lane"]["value"]
+                 for f in fds] for b in bins}
+    mean = {b: float(np.mean(v)) for b, v in scene.items()}
+    out = {"fd_novel_over_content": max(mean.values()),
+           "fd_novel_over_content_per_bin": {b: round(v, 3) for b, v in mean.items()},
+           "fd_novel_over_content_per_seed": {b: [round(x, 3) for x in v] for b, v in scene.items()},
+           "fd_seeds": seeds,
+           "fd_novel_per_bin": {b: round(fds[0]["seen_vs_novel"]["per_bin"][b]["value"], 2)
+                                for b in bins},
+           "fd_content": round(fds[0]["seen_vs_heldout_lane"]["value"], 2),
+           "eval_geometry_seen": runs[0]["geometry"]["seen"]["all"]}
+    if all("prior_baseline" in f for f in fds):
+        prior = {b: float(np.mean([f["prior_baseline"]["novel_over_content"][b] for f in fds]))
+                 for b in bins}
+        out["fd_prior_novel_over_content_per_bin"] = {b: round(v, 3) for b, v in prior.items()}
+        out["fd_prior_novel_over_content"] = max(prior.values())
+        out["fd_novel_over_prior"] = max(mean[b] / max(prior[b], 1e-12) for b in bins)
+    return out
 
 
 def main(json_path=None, quick=False, layout=None, steps=None, fd=True, strip=None,
-         log=print) -> dict:
+         log=print, fd_seeds=None) -> dict:
     """Timing on a 100 m chunk of `layout` (default the generated 200 m sample); quality with
     `generate`'s defaults on `layout`, or by default on the README sample (hand_crossing, whose
     figures are the top-level keys) and the generated 200 m sample."""
@@ -222,9 +239,13 @@ def main(json_path=None, quick=False, layout=None, steps=None, fd=True, strip=No
     timing = time_steps(timing_layout, counts=counts, resolutions=res, steps=3 if quick else 5, log=log)
     if strip is None and json_path:
         strip = str(Path(json_path).with_suffix("")) + "_before_after.png"
+    fd_seeds = (1 if quick else 4) if fd_seeds is None else fd_seeds
+    if fd and fd_seeds < 1:
+        from lsd3d_usd.errors import InputError
+        raise InputError(f"--fd-seeds {fd_seeds}: must be >= 1 (or --no-fd)")
     if quick:
         runs = [quality(SAMPLES / "hand_crossing.usda", steps=steps or 10, surfels=20_000,
-                        resolution=(320, 180), fd=fd, strip=strip, log=log)]
+                        resolution=(320, 180), fd=fd, strip=strip, log=log, fd_seeds=fd_seeds)]
     else:
         quality_layouts = [Path(layout)] if layout else [SAMPLES / "hand_crossing.usda",
                                                          SAMPLES / "generated_seed7_200x200.usda"]
@@ -232,13 +253,15 @@ def main(json_path=None, quick=False, layout=None, steps=None, fd=True, strip=No
         for i, lay in enumerate(quality_layouts):
             log(f"quality run on {lay.name} ...")
             runs.append(dict(quality(lay, steps=steps, fd=fd, strip=strip if i == 0 else None,
-                                     log=log), layout=lay.name))
+                                     log=log, fd_seeds=fd_seeds), layout=lay.name))
     q = runs[0]
     head = next((r for r in timing if r["n"] == 500_000 and (r["width"], r["height"]) == (480, 270)),
                 timing[-1])
     result = {"s_per_step": head["s_per_step"], "psnr_novel": q["psnr_novel"],
               "psnr_heldout": q["psnr_heldout"], "psnr_heldout_2x": q["psnr_heldout_2x"],
               "fd_novel_over_content": q.get("fd_novel_over_content"),
+              "fd_prior_novel_over_content": q.get("fd_prior_novel_over_content"),
+              "fd_novel_over_prior": q.get("fd_novel_over_prior"),
               "depth_rel_err": q["depth_rel_err"], "normal_err_deg": q["normal_err_deg"],
               "off_surface_frac": q["off_surface_frac"], "timing": timing, "quality": q,
               "quality_runs": runs}

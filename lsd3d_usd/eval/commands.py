@@ -35,7 +35,8 @@ def _eval(args) -> int:
         deferred_strength=args.deferred_strength, deferred_steps=args.deferred_steps,
         deferred_prior=args.deferred_prior,
         deferred_controlnet=Path(args.deferred_controlnet) if args.deferred_controlnet else None,
-        deferred_device=args.deferred_device, deferred_seed=args.deferred_seed)
+        deferred_device=args.deferred_device, deferred_seed=args.deferred_seed,
+        prior_baseline=args.prior_baseline)
     check_deferred_args(args)
     res = evaluate(o)
     if args.json:
@@ -48,6 +49,11 @@ def _eval(args) -> int:
     if "seen_vs_heldout_lane" in res["fd_effnet_lite0"]:
         print(f"fd_effnet_lite0 seen vs other on-lane views: "
               f"{res['fd_effnet_lite0']['seen_vs_heldout_lane']['value']:.2f}")
+    if "prior_baseline" in res["fd_effnet_lite0"]:
+        pb = res["fd_effnet_lite0"]["prior_baseline"]
+        rows = ", ".join(f"{b} m {pb['scene_novel_over_content'][b]:.2f} / {v:.2f}"
+                         for b, v in pb["novel_over_content"].items())
+        print(f"fd_effnet_lite0 novel over content change, scene / the prior's own images: {rows}")
     if "vs_reference" in res["fd_effnet_lite0"]:
         r = res["fd_effnet_lite0"]["vs_reference"]
         print(f"fd_effnet_lite0 vs reference: seen {r['seen']['value']:.2f}, novel {r['novel']['value']:.2f}")
@@ -117,6 +123,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="display encoding before features (default clamp: what GGDS's prior sees)")
     p.add_argument("--exposure", type=float, default=0.0, help="exposure in stops before tone mapping")
     p.add_argument("--max-reference", type=int, default=500, help="use at most this many reference images")
+    p.add_argument("--prior-baseline", action=argparse.BooleanOptionalAction, default=None,
+                   help="also render the scene's prior at t = 1 from the same seen, novel and "
+                        "held-out views: the Fréchet distances a scene reproducing its prior "
+                        "exactly would give (default: on for the procedural prior, off for a "
+                        "diffusion prior, which is slow on the CPU)")
     p.add_argument("-o", "--out", metavar="DIR", help="report folder (default SCENE/eval)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_deferred_arguments(p, "the seen, novel and trajectory views (figures beside the raw ones)")

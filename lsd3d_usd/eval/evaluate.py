@@ -51,6 +51,7 @@ class EvalOptions:
     deferred_controlnet: Path | None = None
     deferred_device: str | None = None
     deferred_seed: int | None = None
+    prior_baseline: bool | None = None   # the prior's own images as FD baseline; None: auto
 
 
 # ------------------------------------------------------------------ input checks
@@ -162,6 +163,10 @@ def evaluate(o: EvalOptions) -> dict:
         raise InputError(f"{sc.layer_path('proxy')}: the scene has no proxy layer (needed for geometry)")
     out_dir = Path(o.out_dir) if o.out_dir else sc.root / "eval"
     deferrer = _deferrer(o) if o.deferred else None
+    from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
+    n_held = o.n_seen if o.n_heldout is None else o.n_heldout
+    base, base_why = open_baseline(o.scene, o.prior_baseline, n_held,
+                                   lambda rgb: display(rgb, o.tonemap, o.exposure))
 
     from lsd3d_usd.eval import geometry as G
     from lsd3d_usd.eval import metrics as M
@@ -186,7 +191,6 @@ def evaluate(o: EvalOptions) -> dict:
     seen_sel = [seen.views[i] for i in pick]
     novel = V.novel_views(seen_sel, o.bins, o.per_bin, o.seed + 1, layout,
                           train_centres=[v.camera.center for v in seen.views])
-    n_held = o.n_seen if o.n_heldout is None else o.n_heldout
     heldout = V.heldout_lane_views(layout, n_held, w, h, o.seed, seen_sel)
     traj, traj_info = V.lane_trajectory(layout, o.frames, o.step_m, w, h)
     timings["load_s"] = time.perf_counter() - t
@@ -210,6 +214,8 @@ def evaluate(o: EvalOptions) -> dict:
         seen_gb.append(gb)
         if deferrer is not None:
             dfr.add("seen", deferrer, fr["rgb"], v.camera, o)
+        if base is not None:
+            base.add("seen", fr["rgb"], v.camera)
         bar.update(1)
     for nv in novel:
         fr = render_view(surfels, env, nv.view.camera)
@@ -218,6 +224,8 @@ def evaluate(o: EvalOptions) -> dict:
         novel_img.append(display(fr["rgb"], o.tonemap, o.exposure))
         if deferrer is not None:
             dfr.add("novel", deferrer, fr["rgb"], nv.view.camera, o)
+        if base is not None:
+            base.add("novel", fr["rgb"], nv.view.camera)
         r = G.reprojection_depth_error(seen_sel[nv.source].camera, seen_frames[nv.source],
                                        seen_gb[nv.source], nv.view.camera, fr, gb)
         if r is not None:
@@ -229,6 +237,8 @@ def evaluate(o: EvalOptions) -> dict:
         fr = render_view(surfels, env, cam)
         heldout_frames.append(fr)
         heldout_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        if base is not None:
+            base.add("heldout", fr["rgb"], cam)
         bar.update(1)
     timings["render_seen_novel_s"] = time.perf_counter() - t
 
@@ -248,6 +258,8 @@ def evaluate(o: EvalOptions) -> dict:
     timings["render_trajectory_s"] = time.perf_counter() - t
     if deferrer is not None:
         timings["deferred_s"] = dfr.seconds
+    if base is not None:
+        timings["prior_baseline_s"] = base.seconds
 
     # --- features and Fréchet distances
     t = time.perf_counter()
@@ -280,6 +292,9 @@ def evaluate(o: EvalOptions) -> dict:
                                             for b in o.bins}}}
     if heldout_img:
         fd_out["seen_vs_heldout_lane"] = fd(f_seen, embed(heldout_img)).to_json()
+    if base is not None:
+        fd_out["prior_baseline"] = baseline_fd(fd, embed, base.images, o.bins, bins_arr, fd_out,
+                                               base.sp.spec)
     n_ref = 0
     if ref_imgs is not None:
         f_ref = embed(ref_imgs)
@@ -345,6 +360,8 @@ def evaluate(o: EvalOptions) -> dict:
                                "reason": "no --reference DIR of images given"})
     if why:
         unavailable.append({"metric": "seams", "reason": why})
+    if base_why:
+        unavailable.append({"metric": "fd_effnet_lite0.prior_baseline", "reason": base_why})
     timings["total_s"] = time.perf_counter() - t_start
     result = {
         "scene": str(sc.root),

@@ -65,6 +65,12 @@ def fd_plot(path: Path, result: dict) -> Path:
     if "seen_vs_heldout_lane" in fd:
         ax[0].axhline(fd["seen_vs_heldout_lane"]["value"], color="gray", ls="--",
                       label="seen vs other on-lane views (content change)")
+    if "prior_baseline" in fd:
+        pb = fd["prior_baseline"]
+        ax[0].plot(bins, [pb["seen_vs_novel"]["per_bin"][f"{b:g}"]["value"] for b in bins], "^:",
+                   color="C1", label="the prior's own images: seen vs novel")
+        ax[0].axhline(pb["seen_vs_heldout_lane"]["value"], color="C1", ls=":",
+                      label="the prior's own images: content change")
     if "vs_reference" in fd:
         ax[0].plot(bins, [fd["vs_reference"]["novel_per_bin"][f"{b:g}"]["value"] for b in bins], "s-",
                    label="novel vs reference")
@@ -210,6 +216,17 @@ def html_report(result: dict, images: dict) -> str:
                      _fmt(fd["seen_vs_heldout_lane"]["value"]), "", "", "", ""])
     fd_table = _table(["comparison", "FD EffNet-Lite0", "nearest train cam (m)", "|yaw| (deg)",
                        "multi-view depth err (median)", "> 5 %"], rows)
+    if "prior_baseline" in fd:
+        pb = fd["prior_baseline"]
+        pb_rows = [[f"{b} m", _fmt(pb["scene_novel_over_content"][b], digits=3),
+                    _fmt(pb["novel_over_content"][b], digits=3),
+                    _fmt(pb["scene_over_prior"][b], digits=3)] for b in bins]
+        fd_table += ("<h3>Novel views against the prior's own images of the same views</h3>"
+                     "<p>FD seen vs novel over FD seen vs other on-lane views (content change), "
+                     "for the scene and for the prior's images at t = 1 of the same cameras: "
+                     "a scene that reproduced its prior exactly would score the prior's ratio."
+                     "</p>" + _table(["novel bin", "scene", f"prior ({html.escape(pb['prior'])})",
+                                       "scene / prior"], pb_rows))
     ref = ""
     if "vs_reference" in fd:
         r = fd["vs_reference"]

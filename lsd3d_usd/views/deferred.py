@@ -155,6 +155,16 @@ def _recorded_config(sc):
     return None, (runs[0].name if runs else None)
 
 
+def recorded_prior_name(scene_path) -> str:
+    """The registered name of the prior the scene's newest unmuted GGDS run recorded (the
+    default prior's when none is recorded, as load_scene_prior falls back to it)."""
+    from lsd3d_usd import scene as S
+    from lsd3d_usd.ggds.priors import PriorConfig
+    recorded, _ = _recorded_config(S.Scene.open(scene_root(scene_path)))
+    spec = ((recorded or {}).get("prior") or {}).get("name") or PriorConfig().name
+    return str(spec).split(":", 1)[0]
+
+
 def _scene_seed(sc) -> int:
     from pxr import Sdf
 

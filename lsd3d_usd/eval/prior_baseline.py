@@ -1,0 +1,89 @@
+"""The prior's own images as the baseline of the novel-view Fréchet distances.
+
+`eval` compares the seen views' features with novel views displaced by 0.5-8 m and with fresh
+on-lane views (the content change). A novel view 8 m off the lane looks at other things than
+any lane view does (façades close up, the far side of a sidewalk, from up to 2 m higher), so
+even a scene that reproduced its prior exactly would show a larger FD there than a mere change
+of place gives. This module renders the prior's image at t = 1 of the same seen, novel and
+held-out lane cameras, so each bin's ratio can be read against the ratio the prior itself
+gives: the scene is as good as its prior can make it where the two ratios agree.
+
+Cheap with the procedural prior (one G-buffer and one procedural shade per view, ~0.1 s at
+320×180); a diffusion prior on the CPU takes minutes per view, so `auto` runs it only for the
+procedural prior.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from lsd3d_usd.errors import InputError
+
+CHEAP_PRIORS = ("procedural",)
+
+
+def open_baseline(scene_path, mode: bool | None, n_heldout: int, display):
+    """(PriorImages or None, why not or None). ``mode`` True forces it (an unusable scene
+    prior or no held-out views is then an error), False turns it off, None (auto) runs it
+    for a cheap prior when the scene has what it needs."""
+    from lsd3d_usd.views.deferred import recorded_prior_name
+    if mode is False:
+        return None, "turned off (--no-prior-baseline)"
+    if n_heldout <= 0:
+        if mode:
+            raise InputError("--prior-baseline needs held-out lane views (--heldout > 0)")
+        return None, "no held-out lane views (--heldout 0)"
+    if mode is None:
+        name = recorded_prior_name(scene_path)
+        if name not in CHEAP_PRIORS:
+            return None, (f"the scene's prior {name!r} is slow on the CPU; ask for it with "
+                          "--prior-baseline")
+    try:
+        return PriorImages(scene_path, display), None
+    except InputError as e:
+        if mode:
+            raise
+        return None, str(e)
+
+
+class PriorImages:
+    """Display images of the scene's prior at t = 1 for eval's cameras, by view set."""
+
+    def __init__(self, scene_path, display):
+        from lsd3d_usd.views.deferred import DEFAULT_STEPS, Deferrer, load_scene_prior
+        self.sp = load_scene_prior(scene_path)
+        self.deferrer = Deferrer(self.sp, 1.0, DEFAULT_STEPS)
+        self.display = display
+        self.images = {"seen": [], "novel": [], "heldout": []}
+        self.seconds = 0.0
+
+    def add(self, kind: str, rgb: np.ndarray, camera) -> None:
+        """``rgb``: the scene's render of ``camera`` (a diffusion prior starts from it; the
+        procedural prior's image at t = 1 does not depend on it)."""
+        t = time.perf_counter()
+        self.images[kind].append(self.display(self.deferrer.images(rgb, camera, (1.0,))[0]))
+        self.seconds += time.perf_counter() - t
+
+
+def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, spec: str) -> dict:
+    """``images``: the prior's display images {"seen", "novel", "heldout"} (novel in the order
+    of ``bins_arr``); ``scene_fd``: eval's fd_effnet_lite0 of the scene (with
+    seen_vs_heldout_lane). ``fd(a, b)`` -> FDResult. Returns the ``prior_baseline`` entry."""
+    f_seen, f_novel = embed(images["seen"]), embed(images["novel"])
+    content = fd(f_seen, embed(images["heldout"]))
+    per_bin = {f"{b:g}": fd(f_seen, f_novel[bins_arr == b]) for b in bins}
+    prior_ratio = {k: r.value / max(content.value, 1e-12) for k, r in per_bin.items()}
+    scene_content = scene_fd["seen_vs_heldout_lane"]["value"]
+    scene_ratio = {k: v["value"] / max(scene_content, 1e-12)
+                   for k, v in scene_fd["seen_vs_novel"]["per_bin"].items()}
+    return {
+        "prior": spec,
+        "views": "the prior's own image (t = 1) of the same seen, novel and held-out lane views",
+        "seen_vs_novel": {"per_bin": {k: r.to_json() for k, r in per_bin.items()}},
+        "seen_vs_heldout_lane": content.to_json(),
+        "novel_over_content": {k: round(v, 4) for k, v in prior_ratio.items()},
+        "scene_novel_over_content": {k: round(v, 4) for k, v in scene_ratio.items()},
+        "scene_over_prior": {k: round(scene_ratio[k] / max(prior_ratio[k], 1e-12), 4)
+                             for k in prior_ratio},
+    }
