@@ -38,3 +38,9 @@ def test_quality_run_reports_fd_over_content(tmp_path):
         max(prior.values()), abs=1e-3)
     assert res["fd_novel_over_prior"] == pytest.approx(
         max(ratios[b] / prior[b] for b in ratios), rel=1e-2)
+
+
+def test_fd_seeds_below_one_is_refused_before_any_work(capsys):
+    from lsd3d_usd.cli import main
+    assert main(["bench", "ggds", "--quick", "--fd-seeds", "0"]) == 1
+    assert "--fd-seeds 0: must be >= 1" in capsys.readouterr().err

@@ -233,16 +233,16 @@ def main(json_path=None, quick=False, layout=None, steps=None, fd=True, strip=No
     """Timing on a 100 m chunk of `layout` (default the generated 200 m sample); quality with
     `generate`'s defaults on `layout`, or by default on the README sample (hand_crossing, whose
     figures are the top-level keys) and the generated 200 m sample."""
+    fd_seeds = (1 if quick else 4) if fd_seeds is None else fd_seeds
+    if fd and fd_seeds < 1:
+        from lsd3d_usd.errors import InputError
+        raise InputError(f"--fd-seeds {fd_seeds}: must be >= 1 (or --no-fd)")
     timing_layout = Path(layout) if layout else SAMPLES / "generated_seed7_200x200.usda"
     counts = (50_000,) if quick else (100_000, 500_000)
     res = ((320, 180),) if quick else ((480, 270), (960, 540))
     timing = time_steps(timing_layout, counts=counts, resolutions=res, steps=3 if quick else 5, log=log)
     if strip is None and json_path:
         strip = str(Path(json_path).with_suffix("")) + "_before_after.png"
-    fd_seeds = (1 if quick else 4) if fd_seeds is None else fd_seeds
-    if fd and fd_seeds < 1:
-        from lsd3d_usd.errors import InputError
-        raise InputError(f"--fd-seeds {fd_seeds}: must be >= 1 (or --no-fd)")
     if quick:
         runs = [quality(SAMPLES / "hand_crossing.usda", steps=steps or 10, surfels=20_000,
                         resolution=(320, 180), fd=fd, strip=strip, log=log, fd_seeds=fd_seeds)]
