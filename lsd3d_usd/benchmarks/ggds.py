@@ -220,9 +220,11 @@ def _fd(scene_dir: Path, seeds: int = 1) -> dict:
            "fd_content": round(fds[0]["seen_vs_heldout_lane"]["value"], 2),
            "eval_geometry_seen": runs[0]["geometry"]["seen"]["all"]}
     if all("prior_baseline" in f for f in fds):
-        prior = {b: float(np.mean([f["prior_baseline"]["novel_over_content"][b] for f in fds]))
-                 for b in bins}
+        per_seed = {b: [f["prior_baseline"]["novel_over_content"][b] for f in fds] for b in bins}
+        prior = {b: float(np.mean(v)) for b, v in per_seed.items()}
         out["fd_prior_novel_over_content_per_bin"] = {b: round(v, 3) for b, v in prior.items()}
+        out["fd_prior_novel_over_content_per_seed"] = {b: [round(x, 3) for x in v]
+                                                       for b, v in per_seed.items()}
         out["fd_prior_novel_over_content"] = max(prior.values())
         out["fd_novel_over_prior"] = max(mean[b] / max(prior[b], 1e-12) for b in bins)
     return out
