@@ -36,6 +36,7 @@ def test_quality_run_reports_fd_over_content(tmp_path):
     prior = res["fd_prior_novel_over_content_per_bin"]
     assert set(prior) == set(ratios) and res["fd_prior_novel_over_content"] == pytest.approx(
         max(prior.values()), abs=1e-3)
+    assert all(len(v) == 1 for v in res["fd_prior_novel_over_content_per_seed"].values())
     assert res["fd_novel_over_prior"] == pytest.approx(
         max(ratios[b] / prior[b] for b in ratios), rel=1e-2)
 
