@@ -137,7 +137,10 @@ def test_interrupted_run_resumes_with_finished_chunks_untouched(tmp_path, monkey
     assert S.Scene.open(out).unfinished_runs() == []
     per = json.loads((out / "ggds" / run / "summary.json").read_text())["per_region"]
     plan = json.loads((out / "ggds" / run / "run.json").read_text())
-    # (regions run by this invocation report their figures) the third region (interrupted,
+    # the two regions finished before the interruption still report their task figures
+    for name in finished:
+        assert per[name]["wall_s"] > 0 and per[name]["views"] > 0 and per[name]["cpu_s"] > 0
+    # the third region (interrupted,
     # resumed from its checkpoint) still has an unfinished neighbour, whose band colours the
     # start fitted came back with it; the last region's neighbours had all finished
     third, last = (per[plan["phases"][i][0]] for i in (2, 3))

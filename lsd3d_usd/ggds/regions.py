@@ -410,6 +410,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
                 for r in todo:
                     summaries[r.name] = run_region(jobs[r.name], term_state=term_state,
                                                    progress=progress, log=log)
+                    _record_task(sc, run, r.name, summaries[r.name])
                     finished.update(r.keys)
             else:
                 summaries.update(_run_pool(pool, jobs, retries, sc, run, bar, log))
@@ -443,15 +444,30 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
         summary["per_region"] = {
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
                                             "metrics")},
-                **{kk: summaries.get(k, {}).get(kk) for kk in ("wall_s", "cpu_s", "context",
-                                                               "context_colour_start",
-                                                               "views", "neighbour_views",
-                                                               "fit_views",
-                                                               "peak_rss_mb")}}
+                **_task_figures(sc, run, k, summaries.get(k))}
             for k, v in regions_done.items()}
     from lsd3d_usd.ggds.store import write_json
     write_json(sc.run_files(run).dir / "summary.json", summary)
     return summary
+
+
+TASK_FIGURES = ("wall_s", "cpu_s", "context", "context_colour_start", "views",
+                "neighbour_views", "fit_views", "peak_rss_mb")
+
+
+def _record_task(sc, run: str, region: str, summary: dict) -> None:
+    """Keep a finished region's task figures in its task.json as soon as it returns, so a
+    later (resumed) invocation reports them too."""
+    from lsd3d_usd.ggds.store import region_progress, write_region_task
+    if region and region_progress(sc, run, region).get("complete"):
+        write_region_task(sc, run, region, {k: summary.get(k) for k in TASK_FIGURES})
+
+
+def _task_figures(sc, run: str, region: str, summary: dict | None) -> dict:
+    """A region's task figures: this invocation's, else those an earlier one recorded."""
+    from lsd3d_usd.ggds.store import region_task
+    return {k: (summary if summary is not None else region_task(sc, run, region)).get(k)
+            for k in TASK_FIGURES}
 
 
 def _run_pool(pool, jobs: dict, retries: int, sc, run, bar, log) -> dict:
@@ -478,6 +494,7 @@ def _run_pool(pool, jobs: dict, retries: int, sc, run, bar, log) -> dict:
             running.discard(name)
             if status == OK:
                 out[name] = value
+                _record_task(sc, run, name, value)
                 refresh_run_layer(sc, run)
                 if bar is not None:
                     bar.update(1)

@@ -10,7 +10,8 @@ that holds the optimised attributes (splats.chunkio). Beside it, ``ggds/<run>/``
                           uses the run folder itself): the checkpoint while unfinished
                           (state.json + state-<step>.safetensors: tensors and JSON, never a
                           pickle), progress.json, views.json, summary.json, loss.png,
-                          before_after.png
+                          before_after.png, task.json (the driver's record of a finished
+                          chunk region's task: wall / CPU seconds, views, peak memory)
 
 Checkpoints of older versions (a pickled ``state.pt``) are refused, never loaded. Only one
 process writes the run layer: the driver (or, in a single process, the region's store).
@@ -63,6 +64,17 @@ def run_chunk_folder(sc: S.Scene, run: str) -> Path:
 def region_dir(sc: S.Scene, run: str, region: str) -> Path:
     d = sc.run_files(run).dir
     return d / region if region else d
+
+
+def region_task(sc: S.Scene, run: str, region: str) -> dict:
+    """What the invocation that finished ``region`` measured of its task (wall and CPU
+    seconds, views, peak memory; regions.TASK_FIGURES), or {} before then."""
+    p = region_dir(sc, run, region) / "task.json"
+    return _read_json(p, "region task figures") if p.is_file() else {}
+
+
+def write_region_task(sc: S.Scene, run: str, region: str, figures: dict) -> Path:
+    return write_json(region_dir(sc, run, region) / "task.json", figures)
 
 
 def write_plan(sc: S.Scene, run: str, plan: dict) -> Path:
