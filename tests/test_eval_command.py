@@ -136,7 +136,10 @@ def test_prior_baseline_measures_the_views_not_the_scene(tiny_scene, tmp_path):
     sc.mute(run)
     before = evaluate(_opts(copy, run=run, out_dir=tmp_path / "b"))
     pa, pb = (r["fd_effnet_lite0"]["prior_baseline"] for r in (after, before))
-    assert pa["prior"] == "procedural" and set(pa["novel_over_content"]) == {"0.5", "4"}
+    assert pa["prior"] == pb["prior"] == "procedural"
+    # the muted run's own recorded prior, not a default
+    assert pa["prior_source"] == pb["prior_source"] == f"recorded by GGDS run {run}"
+    assert set(pa["prior_novel_over_content"]) == {"0.5", "4"}
     for k in ("0.5", "4"):
         assert pa["seen_vs_novel"]["per_bin"][k]["value"] == pytest.approx(
             pb["seen_vs_novel"]["per_bin"][k]["value"], rel=1e-6)
@@ -150,7 +153,7 @@ def test_prior_baseline_measures_the_views_not_the_scene(tiny_scene, tmp_path):
             scene = f["seen_vs_novel"]["per_bin"][k]["value"] / f["seen_vs_heldout_lane"]["value"]
             prior = p["seen_vs_novel"]["per_bin"][k]["value"] / p["seen_vs_heldout_lane"]["value"]
             assert p["scene_novel_over_content"][k] == pytest.approx(scene, abs=1e-4)
-            assert p["novel_over_content"][k] == pytest.approx(prior, abs=1e-4)
+            assert p["prior_novel_over_content"][k] == pytest.approx(prior, abs=1e-4)
             assert p["scene_over_prior"][k] == pytest.approx(scene / prior, rel=1e-3)
     assert res["timings"]["prior_baseline_s"] > 0
 
@@ -159,7 +162,7 @@ def test_prior_baseline_skipped_with_a_reason(tiny_scene, tmp_path, monkeypatch)
     from lsd3d_usd.eval.prior_baseline import open_baseline
     assert open_baseline(tiny_scene, False, 3, None) == (None, "turned off (--no-prior-baseline)")
     assert open_baseline(tiny_scene, None, 0, None)[1] == "no held-out lane views (--heldout 0)"
-    monkeypatch.setattr("lsd3d_usd.views.deferred.recorded_prior_name", lambda p: "diffusers")
+    monkeypatch.setattr("lsd3d_usd.views.deferred.recorded_prior_name", lambda p, run: "diffusers")
     base, why = open_baseline(tiny_scene, None, 3, None)
     assert base is None and "'diffusers' is slow on the CPU" in why and "--prior-baseline" in why
     res = evaluate(_opts(tiny_scene, out_dir=tmp_path / "e", bins=(1.0,), per_bin=1, frames=2))

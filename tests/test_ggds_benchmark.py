@@ -41,7 +41,41 @@ def test_quality_run_reports_fd_over_content(tmp_path):
         max(ratios[b] / prior[b] for b in ratios), rel=1e-2)
 
 
-def test_fd_seeds_below_one_is_refused_before_any_work(capsys):
+def test_fd_seeds_below_one_is_refused_before_any_work(capsys, monkeypatch):
+    from lsd3d_usd.benchmarks import ggds as B
     from lsd3d_usd.cli import main
+
+    def no_work(*a, **k):
+        raise AssertionError("bench ggds started work before checking --fd-seeds")
+    monkeypatch.setattr(B, "time_steps", no_work)
+    monkeypatch.setattr(B, "quality", no_work)
     assert main(["bench", "ggds", "--quick", "--fd-seeds", "0"]) == 1
     assert "--fd-seeds 0: must be >= 1" in capsys.readouterr().err
+
+
+def test_fd_ratios_are_seed_means(monkeypatch, tmp_path):
+    """bench ggds's FD keys: each ratio is the mean over the eval seeds of FD / content, the
+    prior's likewise, and fd_novel_over_prior the largest bin's quotient of the two means."""
+    from lsd3d_usd.benchmarks import ggds as B
+    from lsd3d_usd.eval import evaluate as E
+    canned = {0: ({"0.5": 10.0, "8": 120.0}, 100.0, {"0.5": 0.2, "8": 1.5}),
+              1: ({"0.5": 30.0, "8": 80.0}, 50.0, {"0.5": 0.4, "8": 1.1})}
+    seeds = []
+
+    def fake(o):
+        seeds.append(o.seed)
+        per, content, prior = canned[o.seed]
+        return {"fd_effnet_lite0": {
+                    "seen_vs_novel": {"per_bin": {b: {"value": v} for b, v in per.items()}},
+                    "seen_vs_heldout_lane": {"value": content},
+                    "prior_baseline": {"prior_novel_over_content": prior}},
+                "geometry": {"seen": {"all": {"seed": o.seed}}}}
+    monkeypatch.setattr(E, "evaluate", fake)
+    res = B._fd(tmp_path, 2)
+    assert seeds == [0, 1] and res["fd_seeds"] == 2
+    assert res["fd_novel_over_content_per_seed"] == {"0.5": [0.1, 0.6], "8": [1.2, 1.6]}
+    assert res["fd_novel_over_content_per_bin"] == {"0.5": 0.35, "8": 1.4}
+    assert res["fd_novel_over_content"] == pytest.approx(1.4)
+    assert res["fd_prior_novel_over_content_per_bin"] == {"0.5": 0.3, "8": 1.3}
+    assert res["fd_novel_over_prior"] == pytest.approx(max(0.35 / 0.3, 1.4 / 1.3))
+    assert res["fd_content"] == 100.0 and res["eval_geometry_seen"] == {"seed": 0}

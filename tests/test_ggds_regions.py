@@ -140,9 +140,9 @@ def test_interrupted_run_resumes_with_finished_chunks_untouched(tmp_path, monkey
     # the two regions finished before the interruption still report their task figures
     for name in finished:
         assert per[name]["wall_s"] > 0 and per[name]["views"] > 0 and per[name]["cpu_s"] > 0
-    # the third region (interrupted,
-    # resumed from its checkpoint) still has an unfinished neighbour, whose band colours the
-    # start fitted came back with it; the last region's neighbours had all finished
+    # the third region (interrupted, resumed from its checkpoint) still has an unfinished
+    # neighbour, whose band colours the start fitted came back with it; the last region's
+    # neighbours had all finished
     third, last = (per[plan["phases"][i][0]] for i in (2, 3))
     assert 0 < third["context_colour_start"] < third["context"]
     assert last["context"] > 0 and last["context_colour_start"] == 0

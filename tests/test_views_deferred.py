@@ -93,6 +93,25 @@ def test_same_input_gives_the_same_frame():
     # the same call through defer_frames, in a sequence: frames do not influence each other
     seq = D.defer_frames([x * 0.5, x, x * 0.5], [cam, cam, cam], sp, 0.3)
     assert np.array_equal(seq[1], a) and np.array_equal(seq[0], seq[2])
+    # nothing of a frame stays behind in the prior's per-view cache (a video's frames are
+    # never seen again: a cache would hold up to 256 frames' shading)
+    assert not sp.prior.__dict__.get("_render_cache")
+
+
+def test_fine_gbuffer_gives_the_supersampled_prior_image():
+    """fine=True: the prior's image as GGDS's training targets are (2×2 per pixel), which a
+    centre-sampled image is not; a 2× G-buffer box-filtered down gives the same."""
+    sp = scene_prior(prior=ProceduralPrior(seed=3, supersample=2))   # generate's default
+    cam = camera()
+    x = np.zeros((cam.height, cam.width, 3), np.float32)
+    d = D.Deferrer(sp, 1.0)
+    centre = d.images(x, cam, (1.0,))[0]
+    fine = d.images(x, cam, (1.0,), fine=True)[0]
+    assert np.abs(fine - centre).mean() > 1e-3
+    big = d.images(np.zeros((2 * cam.height, 2 * cam.width, 3), np.float32),
+                   cam.with_resolution(2 * cam.width, 2 * cam.height), (1.0,))[0]
+    down = big.reshape(cam.height, 2, cam.width, 2, 3).mean((1, 3))
+    assert np.abs(fine - down).mean() < 0.25 * np.abs(centre - down).mean()
 
 
 def test_strength_moves_the_frame_towards_the_prior():

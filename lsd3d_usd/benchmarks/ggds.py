@@ -109,8 +109,9 @@ def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt
         f"{res['psnr_heldout']:.2f} dB (2x: {res['psnr_heldout_2x']:.2f} dB), depth err "
         f"{100 * res['depth_rel_err']:.2f} %, normal err {res['normal_err_deg']:.2f} deg, "
         f"off-surface {100 * res['off_surface_frac']:.3f} %, {res['s_per_step']:.2f} s/step"
-        + (f", fd novel/content max {res['fd_novel_over_content']:.2f} (the prior's own images: "
-           f"{res.get('fd_prior_novel_over_content', float('nan')):.2f})" if fd else ""))
+        + (f", fd novel/content max {res['fd_novel_over_content']:.2f}" if fd else "")
+        + (f" (the prior's own images: {res['fd_prior_novel_over_content']:.2f})"
+           if "fd_prior_novel_over_content" in res else ""))
     return res
 
 
@@ -199,7 +200,9 @@ def _fd(scene_dir: Path, seeds: int = 1) -> dict:
     (seen vs fresh on-lane views), averaged over the seeds (one seed's ratio moves by ~0.15);
     ≤ 1 at every bin means moving the camera off the training views changes the images less
     than a change of place does. The same ratio of the prior's own images of the same views
-    (eval's prior baseline) says what a scene reproducing its prior exactly would score."""
+    (eval's prior baseline) says what a scene reproducing its prior exactly would score;
+    fd_novel_over_prior is the largest over the bins of scene / prior (both seed means).
+    fd_novel_per_bin, fd_content and eval_geometry_seen are eval seed 0's."""
     from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
     runs = []
     for seed in range(seeds):
@@ -220,7 +223,8 @@ def _fd(scene_dir: Path, seeds: int = 1) -> dict:
            "fd_content": round(fds[0]["seen_vs_heldout_lane"]["value"], 2),
            "eval_geometry_seen": runs[0]["geometry"]["seen"]["all"]}
     if all("prior_baseline" in f for f in fds):
-        per_seed = {b: [f["prior_baseline"]["novel_over_content"][b] for f in fds] for b in bins}
+        per_seed = {b: [f["prior_baseline"]["prior_novel_over_content"][b] for f in fds]
+                    for b in bins}
         prior = {b: float(np.mean(v)) for b, v in per_seed.items()}
         out["fd_prior_novel_over_content_per_bin"] = {b: round(v, 3) for b, v in prior.items()}
         out["fd_prior_novel_over_content_per_seed"] = {b: [round(x, 3) for x in v]

@@ -52,7 +52,7 @@ def _eval(args) -> int:
     if "prior_baseline" in res["fd_effnet_lite0"]:
         pb = res["fd_effnet_lite0"]["prior_baseline"]
         rows = ", ".join(f"{b} m {pb['scene_novel_over_content'][b]:.2f} / {v:.2f}"
-                         for b, v in pb["novel_over_content"].items())
+                         for b, v in pb["prior_novel_over_content"].items())
         print(f"fd_effnet_lite0 novel over content change, scene / the prior's own images: {rows}")
     if "vs_reference" in res["fd_effnet_lite0"]:
         r = res["fd_effnet_lite0"]["vs_reference"]

@@ -64,6 +64,8 @@ def _check(o: EvalOptions) -> None:
         raise InputError(f"--seen {o.n_seen}: must be >= 1")
     if o.n_heldout is not None and o.n_heldout < 0:
         raise InputError(f"--heldout {o.n_heldout}: must be >= 0")
+    if o.prior_baseline and o.n_heldout == 0:
+        raise InputError("--prior-baseline needs held-out lane views (--heldout > 0)")
     if o.per_bin < 1:
         raise InputError(f"--per-bin {o.per_bin}: must be >= 1")
     if not o.bins or any(not b > 0 for b in o.bins):
@@ -166,7 +168,7 @@ def evaluate(o: EvalOptions) -> dict:
     from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
     n_held = o.n_seen if o.n_heldout is None else o.n_heldout
     base, base_why = open_baseline(o.scene, o.prior_baseline, n_held,
-                                   lambda rgb: display(rgb, o.tonemap, o.exposure))
+                                   lambda rgb: display(rgb, o.tonemap, o.exposure), o.run)
 
     from lsd3d_usd.eval import geometry as G
     from lsd3d_usd.eval import metrics as M
@@ -294,7 +296,7 @@ def evaluate(o: EvalOptions) -> dict:
         fd_out["seen_vs_heldout_lane"] = fd(f_seen, embed(heldout_img)).to_json()
     if base is not None:
         fd_out["prior_baseline"] = baseline_fd(fd, embed, base.images, o.bins, bins_arr, fd_out,
-                                               base.sp.spec)
+                                               base.sp)
     n_ref = 0
     if ref_imgs is not None:
         f_ref = embed(ref_imgs)

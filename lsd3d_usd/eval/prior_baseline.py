@@ -8,9 +8,9 @@ of place gives. This module renders the prior's image at t = 1 of the same seen,
 held-out lane cameras, so each bin's ratio can be read against the ratio the prior itself
 gives: the scene is as good as its prior can make it where the two ratios agree.
 
-Cheap with the procedural prior (one G-buffer and one procedural shade per view, ~0.1 s at
-320×180); a diffusion prior on the CPU takes minutes per view, so `auto` runs it only for the
-procedural prior.
+Cheap with the procedural prior (one G-buffer and one 2×2 supersampled procedural shade per
+view, ~0.1 s at 320×180); a diffusion prior on the CPU takes minutes per view, so `auto` runs
+it only for the procedural prior.
 """
 from __future__ import annotations
 
@@ -23,24 +23,23 @@ from lsd3d_usd.errors import InputError
 CHEAP_PRIORS = ("procedural",)
 
 
-def open_baseline(scene_path, mode: bool | None, n_heldout: int, display):
-    """(PriorImages or None, why not or None). ``mode`` True forces it (an unusable scene
-    prior or no held-out views is then an error), False turns it off, None (auto) runs it
-    for a cheap prior when the scene has what it needs."""
+def open_baseline(scene_path, mode: bool | None, n_heldout: int, display, run: str | None = None):
+    """(PriorImages or None, why not or None) for the prior GGDS run ``run`` (default: the
+    newest unmuted one) recorded. ``mode`` True forces it (an unusable scene prior is then
+    an error), False turns it off, None (auto) runs it for a cheap prior when the scene has
+    what it needs. ``n_heldout`` > 0 when forced is checked by eval's option checks."""
     from lsd3d_usd.views.deferred import recorded_prior_name
     if mode is False:
         return None, "turned off (--no-prior-baseline)"
     if n_heldout <= 0:
-        if mode:
-            raise InputError("--prior-baseline needs held-out lane views (--heldout > 0)")
         return None, "no held-out lane views (--heldout 0)"
-    if mode is None:
-        name = recorded_prior_name(scene_path)
-        if name not in CHEAP_PRIORS:
-            return None, (f"the scene's prior {name!r} is slow on the CPU; ask for it with "
-                          "--prior-baseline")
     try:
-        return PriorImages(scene_path, display), None
+        if mode is None:
+            name = recorded_prior_name(scene_path, run)
+            if name not in CHEAP_PRIORS:
+                return None, (f"the scene's prior {name!r} is slow on the CPU; ask for it with "
+                              "--prior-baseline")
+        return PriorImages(scene_path, display, run), None
     except InputError as e:
         if mode:
             raise
@@ -48,28 +47,34 @@ def open_baseline(scene_path, mode: bool | None, n_heldout: int, display):
 
 
 class PriorImages:
-    """Display images of the scene's prior at t = 1 for eval's cameras, by view set."""
+    """Display images of the scene's prior at t = 1 for eval's cameras, by view set, made as
+    GGDS's training targets are (the prior's pixel supersampling included)."""
 
-    def __init__(self, scene_path, display):
+    def __init__(self, scene_path, display, run: str | None = None):
         from lsd3d_usd.views.deferred import DEFAULT_STEPS, Deferrer, load_scene_prior
-        self.sp = load_scene_prior(scene_path)
+        t = time.perf_counter()
+        self.sp = load_scene_prior(scene_path, run=run, purpose="the prior baseline",
+                                   override="--no-prior-baseline")
         self.deferrer = Deferrer(self.sp, 1.0, DEFAULT_STEPS)
         self.display = display
         self.images = {"seen": [], "novel": [], "heldout": []}
-        self.seconds = 0.0
+        self.seconds = time.perf_counter() - t
 
     def add(self, kind: str, rgb: np.ndarray, camera) -> None:
-        """``rgb``: the scene's render of ``camera`` (a diffusion prior starts from it; the
-        procedural prior's image at t = 1 does not depend on it)."""
+        """``rgb``: the scene's render of ``camera``. The procedural prior's image at t = 1
+        does not depend on it; a diffusion prior's starts from it (then the baseline measures
+        the scene too, not the views alone)."""
         t = time.perf_counter()
-        self.images[kind].append(self.display(self.deferrer.images(rgb, camera, (1.0,))[0]))
+        y = self.deferrer.images(rgb, camera, (1.0,), fine=True)[0]
+        self.images[kind].append(self.display(y))
         self.seconds += time.perf_counter() - t
 
 
-def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, spec: str) -> dict:
+def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, sp) -> dict:
     """``images``: the prior's display images {"seen", "novel", "heldout"} (novel in the order
     of ``bins_arr``); ``scene_fd``: eval's fd_effnet_lite0 of the scene (with
-    seen_vs_heldout_lane). ``fd(a, b)`` -> FDResult. Returns the ``prior_baseline`` entry."""
+    seen_vs_heldout_lane); ``sp``: the ScenePrior. ``fd(a, b)`` -> FDResult. Returns the
+    ``prior_baseline`` entry."""
     f_seen, f_novel = embed(images["seen"]), embed(images["novel"])
     content = fd(f_seen, embed(images["heldout"]))
     per_bin = {f"{b:g}": fd(f_seen, f_novel[bins_arr == b]) for b in bins}
@@ -78,11 +83,12 @@ def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, spec: s
     scene_ratio = {k: v["value"] / max(scene_content, 1e-12)
                    for k, v in scene_fd["seen_vs_novel"]["per_bin"].items()}
     return {
-        "prior": spec,
+        "prior": sp.spec,
+        "prior_source": sp.source,
         "views": "the prior's own image (t = 1) of the same seen, novel and held-out lane views",
         "seen_vs_novel": {"per_bin": {k: r.to_json() for k, r in per_bin.items()}},
         "seen_vs_heldout_lane": content.to_json(),
-        "novel_over_content": {k: round(v, 4) for k, v in prior_ratio.items()},
+        "prior_novel_over_content": {k: round(v, 4) for k, v in prior_ratio.items()},
         "scene_novel_over_content": {k: round(v, 4) for k, v in scene_ratio.items()},
         "scene_over_prior": {k: round(scene_ratio[k] / max(prior_ratio[k], 1e-12), 4)
                              for k in prior_ratio},

@@ -219,7 +219,7 @@ def html_report(result: dict, images: dict) -> str:
     if "prior_baseline" in fd:
         pb = fd["prior_baseline"]
         pb_rows = [[f"{b} m", _fmt(pb["scene_novel_over_content"][b], digits=3),
-                    _fmt(pb["novel_over_content"][b], digits=3),
+                    _fmt(pb["prior_novel_over_content"][b], digits=3),
                     _fmt(pb["scene_over_prior"][b], digits=3)] for b in bins]
         fd_table += ("<h3>Novel views against the prior's own images of the same views</h3>"
                      "<p>FD seen vs novel over FD seen vs other on-lane views (content change), "

@@ -435,16 +435,16 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
                "wall_s": round(time.perf_counter() - t0, 1),
                **aggregate_metrics([p.get("metrics") or {} for p in done],
                                    [p.get("surfels", 0) for p in done])}
+    tasks = {k: _task_figures(sc, run, k, summaries.get(k)) for k in regions_done}
+    rss = [t["peak_rss_mb"] for t in tasks.values() if t.get("peak_rss_mb")]
     if in_process:
-        summary["worker_peak_rss_mb"] = peak_rss_mb()
-    else:
-        rss = [v.get("peak_rss_mb") for v in summaries.values() if v.get("peak_rss_mb")]
-        summary["worker_peak_rss_mb"] = max(rss) if rss else None
+        rss.append(peak_rss_mb())
+    summary["worker_peak_rss_mb"] = max(rss) if rss else None
     if any(plan["regions"]):   # chunk regions (a whole-scene region is the summary itself)
         summary["per_region"] = {
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
                                             "metrics")},
-                **_task_figures(sc, run, k, summaries.get(k))}
+                **tasks[k]}
             for k, v in regions_done.items()}
     from lsd3d_usd.ggds.store import write_json
     write_json(sc.run_files(run).dir / "summary.json", summary)

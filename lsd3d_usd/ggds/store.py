@@ -70,7 +70,10 @@ def region_task(sc: S.Scene, run: str, region: str) -> dict:
     """What the invocation that finished ``region`` measured of its task (wall and CPU
     seconds, views, peak memory; regions.TASK_FIGURES), or {} before then."""
     p = region_dir(sc, run, region) / "task.json"
-    return _read_json(p, "region task figures") if p.is_file() else {}
+    try:     # a report's input only: unreadable reads as unknown, never fails a run
+        return json.loads(p.read_text(encoding="utf-8")) if p.is_file() else {}
+    except (OSError, ValueError, UnicodeDecodeError):
+        return {}
 
 
 def write_region_task(sc: S.Scene, run: str, region: str, figures: dict) -> Path:

@@ -103,14 +103,15 @@ class ScenePrior:
                     "frame here (a GPU path; docs/render.md has the measured figures)")
         return None
 
-    def gbuffer(self, camera):
-        """The proxy G-buffer of ``camera`` with sun visibility (as GGDS computes it), without
-        ``fine``: deferral runs once per frame of a video, so a supersampling prior samples
-        pixel centres here (4× less work per frame at 2×2), and actors overlaid on it would
-        be missing from a finer one."""
+    def gbuffer(self, camera, fine: bool = False):
+        """The proxy G-buffer of ``camera`` with sun visibility (as GGDS computes it), by
+        default without ``fine``: deferral runs once per frame of a video, so a supersampling
+        prior samples pixel centres here (4× less work per frame at 2×2), and actors overlaid
+        on it would be missing from a finer one. ``fine``: as GGDS's training targets (eval's
+        prior baseline)."""
         from lsd3d_usd.ggds.conditioning import table_gbuffer
         V, F, _ = self.proxy
-        return table_gbuffer(camera, V, F, self.face_table, self.shadow, fine=False)
+        return table_gbuffer(camera, V, F, self.face_table, self.shadow, fine=fine)
 
     @cached_property
     def face_table(self):
@@ -142,9 +143,13 @@ def scene_root(path) -> Path:
                      f"sublayers one (the proxy, env and GGDS layers condition the prior)")
 
 
-def _recorded_config(sc):
-    """(generate configuration dict or None, the run it came from or None)."""
-    runs = [li for li in sc.runs() if not li.muted and li.exists]
+def _recorded_config(sc, run: str | None = None):
+    """(generate configuration dict or None, the run it came from or None): of ``run`` (muted
+    or not) when given, else of the newest unmuted run that records one."""
+    if run is not None:
+        runs = [li for li in sc.runs() if run in (li.name, li.path.name) and li.exists]
+    else:
+        runs = [li for li in sc.runs() if not li.muted and li.exists]
     for li in runs:
         raw = li.provenance.get("generate")
         if raw:
@@ -155,12 +160,13 @@ def _recorded_config(sc):
     return None, (runs[0].name if runs else None)
 
 
-def recorded_prior_name(scene_path) -> str:
-    """The registered name of the prior the scene's newest unmuted GGDS run recorded (the
-    default prior's when none is recorded, as load_scene_prior falls back to it)."""
+def recorded_prior_name(scene_path, run: str | None = None) -> str:
+    """The registered name of the prior the scene's GGDS run ``run`` (default: the newest
+    unmuted one) recorded (the default prior's when none is recorded, as load_scene_prior
+    falls back to it)."""
     from lsd3d_usd import scene as S
     from lsd3d_usd.ggds.priors import PriorConfig
-    recorded, _ = _recorded_config(S.Scene.open(scene_root(scene_path)))
+    recorded, _ = _recorded_config(S.Scene.open(scene_root(scene_path)), run)
     spec = ((recorded or {}).get("prior") or {}).get("name") or PriorConfig().name
     return str(spec).split(":", 1)[0]
 
@@ -174,9 +180,10 @@ def _scene_seed(sc) -> int:
 
 
 def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
-                     device: str | None = None) -> ScenePrior:
-    """The prior the scene's newest unmuted GGDS run was made with (its recorded `generate`
-    configuration), or ``prior`` ("procedural", "diffusers:DIR", another registered name) to
+                     device: str | None = None, run: str | None = None,
+                     purpose: str = "deferral", override: str = "--deferred-prior") -> ScenePrior:
+    """The prior the scene's GGDS run ``run`` (default: the newest unmuted one) was made with
+    (its recorded `generate` configuration), or ``prior`` ("procedural", "diffusers:DIR", another registered name) to
     override it; ``controlnet`` / ``device`` override those settings. Also the scene's env
     (as GGDS saw it: env layer parameters + its EXR), the proxy and a sun shadow map."""
     from lsd3d_usd import configtree
@@ -190,7 +197,7 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
 
     t0 = time.perf_counter()
     sc = S.Scene.open(scene_root(scene_path))
-    recorded, run = _recorded_config(sc)
+    recorded, run = _recorded_config(sc, run)
     if recorded is not None:
         cfg = configtree.from_dict(PriorConfig, recorded.get("prior", {}))
         seed = int(recorded.get("seed", 0))
@@ -202,7 +209,7 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
                   else "default (the scene has no GGDS run)")
     if prior is not None:
         cfg.name = check_prior_name(prior)
-        source = "--deferred-prior"
+        source = override
     if controlnet is not None:
         cfg.controlnet = Path(controlnet)
     if device is not None:
@@ -213,12 +220,12 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
         if prior is not None:
             raise
         raise InputError(f"the scene's prior ({source}): {e}; choose another with "
-                         "--deferred-prior") from None
+                         f"{override}") from None
 
     env_layer = next((li for li in sc.layers() if li.name == "env"), None)
     if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
-        raise InputError(f"{sc.layer_path('env')}: deferral needs the scene's env layer with its "
-                         "parameters (customLayerData lsd3d.params)")
+        raise InputError(f"{sc.layer_path('env')}: {purpose} needs the scene's env layer with "
+                         "its parameters (customLayerData lsd3d.params)")
     try:
         params = EnvParams.from_dict(dict(env_layer.provenance["params"]))
     except (KeyError, TypeError, ValueError) as e:
@@ -231,7 +238,7 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
     light = scene_light(params, texture)
     proxy_path = sc.layer_path("proxy")
     if not proxy_path.is_file():
-        raise InputError(f"{proxy_path}: deferral needs the scene's proxy layer (the prior's "
+        raise InputError(f"{proxy_path}: {purpose} needs the scene's proxy layer (the prior's "
                          "G-buffer)")
     V, F, ids = proxy_arrays(proxy_path)
     shadow = shadow_map(V, F, light.sun_direction)
@@ -282,7 +289,7 @@ class Deferrer:
         return self.images(rgb, camera, (self.strength,), actor_mask, depth)[0]
 
     def images(self, rgb: np.ndarray, camera, levels, actor_mask: np.ndarray | None = None,
-               depth: np.ndarray | None = None) -> list:
+               depth: np.ndarray | None = None, fine: bool = False) -> list:
         """The prior's images of one frame at each noise level in ``levels`` (one G-buffer for
         all): ``defer`` is levels = (strength,); eval adds t = 1, the prior's own image of the
         view, as the reference distribution."""
@@ -294,9 +301,12 @@ class Deferrer:
                              f"{camera.width}x{camera.height}")
         levels = [check_strength(t, "deferral noise level") for t in levels]
         t0 = time.perf_counter()
-        gb = self.sp.gbuffer(camera)
+        gb = self.sp.gbuffer(camera, fine=fine)
         if actor_mask is not None:
             gb = _overlay_actors(gb, camera, actor_mask, depth)
+        # a key of its own, forgotten below: a prior's per-view cache would otherwise keep
+        # every frame's derived images (up to its bound) for views never seen again
+        gb.key = key = object()
         x = torch.from_numpy(np.clip(np.nan_to_num(rgb, nan=0.0, posinf=0.0), 0.0, None))
         keep = None if actor_mask is None else np.asarray(actor_mask, bool)[..., None]
         outs = []
@@ -308,6 +318,9 @@ class Deferrer:
             if t == self.strength and len(outs) == 1:
                 self.frames += 1
                 self.seconds += time.perf_counter() - t0
+        forget = getattr(self.sp.prior, "forget", None)
+        if forget is not None:
+            forget([key])
         return outs
 
     def defer_frame(self, frame, camera):
