@@ -153,6 +153,22 @@ def test_interrupted_run_resumes_with_finished_chunks_untouched(tmp_path, monkey
     assert len({json.dumps(v, sort_keys=True) for v in views}) == len(views) <= 12
 
 
+def test_worker_pool_records_each_regions_task(chunked, tmp_path):
+    """Regions run in worker processes: each finished region's task record (task.json,
+    what a resumed run reports) holds its worker's peak memory, and the run's worker peak is
+    the largest of them."""
+    src, _ = chunked
+    out = tmp_path / "scene"
+    shutil.copytree(src, out)
+    summary = gen(out, run={"workers": 2})["ggds"]
+    assert summary["complete"]
+    tasks = {d.name: json.loads((d / "task.json").read_text())
+             for d in (out / "ggds" / summary["run"]).iterdir() if (d / "task.json").is_file()}
+    assert set(tasks) == {"chunk_0_0", "chunk_0_m1", "chunk_m1_0", "chunk_m1_m1"}
+    assert all(t["peak_rss_mb"] > 0 and t["wall_s"] > 0 and t["views"] > 0 for t in tasks.values())
+    assert summary["worker_peak_rss_mb"] == max(t["peak_rss_mb"] for t in tasks.values())
+
+
 def test_failing_chunk_is_named_and_the_scene_stays_valid(chunked, tmp_path):
     src, _ = chunked
     out = tmp_path / "scene"
