@@ -457,9 +457,10 @@ TASK_FIGURES = ("wall_s", "cpu_s", "context", "context_colour_start", "views",
 
 def _record_task(sc, run: str, region: str, summary: dict) -> None:
     """Keep a finished region's task figures in its task.json as soon as it returns, so a
-    later (resumed) invocation reports them too."""
-    from lsd3d_usd.ggds.store import region_progress, write_region_task
-    if region and region_progress(sc, run, region).get("complete"):
+    later (resumed) invocation reports them too (``summary``: run_region's, which says
+    whether the region completed)."""
+    from lsd3d_usd.ggds.store import write_region_task
+    if region and summary.get("complete"):
         write_region_task(sc, run, region, {k: summary.get(k) for k in TASK_FIGURES})
 
 

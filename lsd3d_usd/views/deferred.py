@@ -183,9 +183,11 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
                      device: str | None = None, run: str | None = None,
                      purpose: str = "deferral", override: str = "--deferred-prior") -> ScenePrior:
     """The prior the scene's GGDS run ``run`` (default: the newest unmuted one) was made with
-    (its recorded `generate` configuration), or ``prior`` ("procedural", "diffusers:DIR", another registered name) to
-    override it; ``controlnet`` / ``device`` override those settings. Also the scene's env
-    (as GGDS saw it: env layer parameters + its EXR), the proxy and a sun shadow map."""
+    (its recorded `generate` configuration), or ``prior`` ("procedural", "diffusers:DIR",
+    another registered name) to override it; ``controlnet`` / ``device`` override those
+    settings. Also the scene's env (as GGDS saw it: env layer parameters + its EXR), the
+    proxy and a sun shadow map. ``purpose`` / ``override``: what the error lines name as
+    needing the scene, and the flag that chooses another prior."""
     from lsd3d_usd import configtree
     from lsd3d_usd import scene as S
     from lsd3d_usd.env.params import EnvParams
