@@ -439,3 +439,96 @@ def test_view_fit_recovers_direction_dependent_targets_and_skips_occluded():
         # where the camera saw it, the fit gives its colour (pixel-centre quantisation of the
         # direction: about 1e-3 at 400 px)
         np.testing.assert_allclose(col[inside, 0], 0.3 + 0.4 * d[inside, 2], atol=5e-3)
+
+
+def _zonal_fit(cos_rows, colour, rng):
+    """A ViewFit over ground surfels (normal +z) whose samples look down at the given |cos|
+    values (one row per surfel, random azimuths), with colours from ``colour(|cos|)``."""
+    from lsd3d_usd.ggds.worldfit import ViewFit
+    fit = ViewFit(len(cos_rows), 1)
+    for i, cs in enumerate(cos_rows):
+        cs = np.asarray(cs, np.float64)
+        az = rng.uniform(0, 2 * np.pi, len(cs))
+        s = np.sqrt(1 - cs ** 2)
+        d = np.stack([s * np.cos(az), s * np.sin(az), -cs], 1)
+        B = sh_basis(torch.from_numpy(d), 1).numpy()
+        c = np.repeat(colour(cs)[:, None], 3, 1)
+        fit.A[i] = B.T @ B
+        fit.b[i] = B.T @ (c - 0.5)
+        fit.count[i] = len(cs)
+    return fit
+
+
+def test_view_fit_zonal_prior_borrows_the_slope_of_well_seen_peers():
+    """A surfel seen at one angle only cannot tell its slope with the angle from its DC term:
+    towards zero it keeps its grazing colour from a steep view, towards its group's median
+    slope it dims as its well-seen peers do; the well-seen ones barely move."""
+    from lsd3d_usd.ggds.worldfit import facing_ids, zonal_directions, zonal_slopes
+    rng = np.random.default_rng(3)
+    colour = lambda cs: 0.62 - 0.5 * cs          # road sheen: brighter at grazing angles
+    rows = [rng.uniform(0.03, 0.6, 12) for _ in range(40)] + [np.full(12, 0.08)]
+    fit = _zonal_fit(rows, colour, rng)
+    nrm = np.tile([0.0, 0.0, 1.0], (len(rows), 1))
+    groups = facing_ids(nrm, np.full(len(rows), 3))
+    plain, _ = fit.solve(nrm, 0.003, 1.0)
+    table = zonal_slopes([(fit, nrm, groups)], 0.003, 1.0)
+    prior, seen = fit.solve(nrm, 0.003, 1.0, slopes=(groups, table))
+    assert seen.all()
+    steep = np.array([[0.3, 0.0, -np.sqrt(1 - 0.09)]])              # |cos| 0.95
+    B = sh_basis(torch.from_numpy(steep), 1).numpy()[0]
+    truth = colour(np.array([0.95]))[0]
+    assert abs(0.5 + B @ plain[-1, :, 0] - truth) > 0.3             # stays at its grazing 0.58
+    assert abs(0.5 + B @ prior[-1, :, 0] - truth) < 0.03
+    # its zonal coefficient is the group's median (of the first, plain solve)
+    U = zonal_directions(nrm, 1)[:, 1:4]
+    z = np.einsum("ns,ns->n", U, plain[:, 1:4, 0].astype(np.float64))
+    assert abs(U[-1] @ prior[-1, 1:4, 0] - np.median(z[:-1])) < 1e-3
+    # the well-seen ones' colours over the angles they were seen at stay as close to the truth
+    cs = np.linspace(0.03, 0.6, 8)
+    d = np.stack([np.sqrt(1 - cs ** 2), 0 * cs, -cs], 1)
+    Bs = sh_basis(torch.from_numpy(d), 1).numpy()
+    err = lambda x: np.abs(0.5 + Bs @ x[:-1, :, 0].T - colour(cs)[:, None]).max()
+    assert err(prior) <= err(plain) + 1e-3 and err(prior) < 0.02
+    # the grazing colour it was seen at is kept either way
+    g = np.array([[0.0, np.sqrt(1 - 0.0064), -0.08]])
+    Bg = sh_basis(torch.from_numpy(g), 1).numpy()[0]
+    assert abs(0.5 + Bg @ prior[-1, :, 0] - colour(np.array([0.08]))[0]) < 0.01
+
+
+def test_view_fit_zonal_prior_against_a_plain_least_squares():
+    """The second solve is ridge regression centred on the group's slope: the same as one
+    float64 least squares with ridge rows sqrt(w·Λ)(x − mean); groups too small to trust
+    (fewer than min_members well-seen surfels) keep the plain solve."""
+    from lsd3d_usd.ggds.worldfit import ridge_matrix, zonal_directions, zonal_slopes
+    rng = np.random.default_rng(5)
+    nrm = rng.normal(size=(30, 3)) * 0.05 + [0.0, 0.0, 1.0]
+    colour = lambda cs: 0.5 - 0.3 * cs
+    rows = [rng.uniform(0.05, 0.7, 10) for _ in range(29)] + [np.full(10, 0.2)]
+    fit = _zonal_fit(rows, colour, rng)
+    groups = np.zeros(30, np.int64)
+    groups[:3] = -1                              # unlabelled: no group, the plain ridge
+    plain, _ = fit.solve(nrm, 0.01, 0.5)
+    table = zonal_slopes([(fit, nrm, groups)], 0.01, 0.5, min_members=5)
+    got, _ = fit.solve(nrm, 0.01, 0.5, slopes=(groups, table))
+    U = zonal_directions(nrm, 1)
+    w = fit.A[:, 0, 0]
+    info = (np.einsum("ns,nst,nt->n", U, fit.A, U)
+            - np.einsum("ns,ns->n", U, fit.A[:, :, 0]) ** 2 / w)
+    good = (info / (info + 0.01 * w) >= 0.8) & (groups == 0)
+    assert 5 <= good.sum() < 27
+    zbar = np.median(np.einsum("ns,nsc->nc", U, plain.astype(np.float64))[good], axis=0)
+    np.testing.assert_allclose(table[0, 0], zbar, atol=1e-6)
+    np.testing.assert_array_equal(got[:3], plain[:3])
+    for i in range(3, 30):
+        lam = w[i] * ridge_matrix(nrm[i:i + 1], 1, 0.01, 0.5)[0]
+        ev, V = np.linalg.eigh(lam)
+        L = (V * np.sqrt(np.maximum(ev, 0))).T
+        # rows: data (A = MᵀM, b = Mᵀy) and the ridge about U_i·zbar
+        M = np.linalg.cholesky(fit.A[i] + 1e-12 * np.eye(4)).T
+        y = np.linalg.solve(M.T, fit.b[i])
+        mean = U[i][:, None] * zbar[None, :]
+        ref = np.linalg.lstsq(np.vstack([M, L]), np.vstack([y, L @ mean]), rcond=None)[0]
+        np.testing.assert_allclose(got[i], ref, atol=2e-5)
+    few = zonal_slopes([(fit, nrm, groups)], 0.01, 0.5, min_members=28)
+    assert not few.any()
+    np.testing.assert_array_equal(fit.solve(nrm, 0.01, 0.5, slopes=(groups, few))[0], plain)

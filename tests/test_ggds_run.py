@@ -322,8 +322,10 @@ def test_fit_views_join_the_colour_start_and_leave_nothing_behind():
 
 def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with_it():
     """context_start rows (a neighbour's initial surfels) get the colours a run training them
-    would start from (per-surfel least squares: the same fit as one run over all surfels);
-    the other context rows keep theirs; a checkpoint carries the fitted colours."""
+    would start from: the same fit as one run over the region's and those rows (per-surfel
+    least squares; the groups' zonal slopes pooled over both); the other context rows keep
+    theirs; a checkpoint carries the fitted colours."""
+    import dataclasses
     from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
     base = make_run(steps=2)
     full = base.field()
@@ -332,11 +334,26 @@ def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with
     start = ctx.positions[:, 0] >= 30          # an unfinished neighbour's rows
     proxy = (base.vertices, base.faces, base.face_ids)
     prior = ProceduralPrior()
+    cfg = dataclasses.replace(base.cfg, world_init_zonal_prior=True)
 
-    def region():
-        return GGDSRun(own, proxy, base.views, prior, PriorEnv(), base.cfg, context=ctx,
+    def region(cfg=cfg):
+        return GGDSRun(own, proxy, base.views, prior, PriorEnv(), cfg, context=ctx,
                        context_start=start)
-    run, joint = region(), GGDSRun(full, proxy, base.views, prior, PriorEnv(), base.cfg)
+    fitted = np.flatnonzero((x < 20) | (x >= 30))
+    run, joint = region(), GGDSRun(full.subset(fitted), proxy, base.views, prior, PriorEnv(),
+                                   cfg)
+    assert run.world_init() and joint.world_init()
+    np.testing.assert_allclose(run.params["sh"].detach().numpy(),
+                               joint.params["sh"].detach().numpy()[x[fitted] < 20], atol=1e-6)
+    got = run.context["sh"].float().numpy()
+    want = joint.params["sh"].detach().numpy()[x[fitted] >= 30]
+    seen = np.any(got[start] != ctx.sh[start].astype(np.float16).astype(np.float32), axis=(1, 2))
+    np.testing.assert_allclose(got[start][seen], want[seen],
+                               atol=2e-3 + 1e-3 * np.abs(want).max())
+    # with per-surfel ridges towards zero, the same as one run over all surfels
+    plain_cfg = dataclasses.replace(base.cfg, world_init_zonal_prior=False)
+    run = region(plain_cfg)
+    joint = GGDSRun(full, proxy, base.views, prior, PriorEnv(), plain_cfg)
     assert run.world_init() and joint.world_init()
     got = run.context["sh"].float().numpy()
     assert np.array_equal(got[~start], ctx.sh[~start].astype(np.float16).astype(np.float32))
@@ -345,12 +362,12 @@ def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with
     want = joint.params["sh"].detach().numpy()[x >= 20][start][changed]
     np.testing.assert_allclose(got[start][changed], want, atol=2e-3 + 1e-3 * np.abs(want).max())
     # the trainable rows start as they would without the context fit
-    plain = GGDSRun(own, proxy, base.views, prior, PriorEnv(), base.cfg, context=ctx)
+    plain = GGDSRun(own, proxy, base.views, prior, PriorEnv(), plain_cfg, context=ctx)
     assert plain.world_init()
     assert torch.equal(plain.params["sh"], run.params["sh"])
     assert torch.equal(plain.context["sh"], torch.from_numpy(ctx.sh.astype(np.float16)))
     tensors, meta = run.checkpoint()
-    again = region()
+    again = region(plain_cfg)
     again.restore(tensors, meta)
     assert torch.equal(again.context["sh"], run.context["sh"])
     with pytest.raises(ValueError, match="context_start"):

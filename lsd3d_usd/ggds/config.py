@@ -169,6 +169,11 @@ class GGDSConfig:
     world_init_ridge_tangent: float = option(1.0, help="world-space start: ridge on the SH "
                                                        "terms that depend on the azimuth around "
                                                        "the normal", lo=0.0)
+    world_init_zonal_prior: bool = option(False, help="world-space start: the ridge on the "
+                                                      "terms that depend on the angle to the "
+                                                      "normal pulls towards the median of the "
+                                                      "well-seen surfels of the same class and "
+                                                      "facing, not towards zero")
     perceptual: bool = option(True, help="the perceptual loss term", alias="perceptual",
                               negate="--no-perceptual")
     lpips: Path | None = option(None, help="use LPIPS as the perceptual term: a local "

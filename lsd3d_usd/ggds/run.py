@@ -140,6 +140,10 @@ class GGDSRun:
                 raise ValueError(f"context_start has shape {start.shape}, the context holds "
                                  f"{int(self.context['means'].shape[0])} surfels")
             self._context_fit = np.flatnonzero(start)
+        # classes of the context rows the colour start fits (their group slopes)
+        self._context_classes = None
+        if len(self._context_fit) and context.semantic_ids is not None:
+            self._context_classes = context.semantic_ids[self._context_fit]
         self.context_started = 0    # context rows whose colours the start fitted (or restored)
         self.params = P.to_params(field)
         for p in self.params.values():
@@ -348,7 +352,7 @@ class GGDSRun:
         the steps would), and for surfels none sees, to the prior evaluated in 3D over its
         disk from the nearest cameras (worldfit.fit_sh). GGDS steps refine from there.
         Returns whether it ran."""
-        from lsd3d_usd.ggds.worldfit import ViewFit, fit_sh
+        from lsd3d_usd.ggds.worldfit import ViewFit, facing_ids, fit_sh, zonal_slopes
         from lsd3d_usd.render.sh import sh_degree_of
         c = self.cfg
         f = self.field()
@@ -383,7 +387,16 @@ class GGDSRun:
                 ctx_fit.add_view(*ctx, cam, target, gb.depth.numpy())
             if fit_only:
                 self.prior.forget([gb.key])
-        sh, seen = fit.solve(normals, c.world_init_ridge, c.world_init_ridge_tangent)
+        slopes = ctx_slopes = None
+        if c.world_init_zonal_prior:   # each group's slope from every surfel the start fits
+            fits = [(fit, normals, facing_ids(normals, f.semantic_ids))]
+            if ctx_fit is not None and self._context_classes is not None:
+                fits.append((ctx_fit, ctx[2], facing_ids(ctx[2], self._context_classes)))
+            table = zonal_slopes(fits, c.world_init_ridge, c.world_init_ridge_tangent)
+            slopes = (fits[0][2], table)
+            ctx_slopes = (fits[1][2], table) if len(fits) > 1 else None
+        sh, seen = fit.solve(normals, c.world_init_ridge, c.world_init_ridge_tangent,
+                             slopes=slopes)
         if not seen.all():
             rest = np.flatnonzero(~seen)
             sub = fit_sh(self.prior, self.env, f.subset(rest),
@@ -394,7 +407,8 @@ class GGDSRun:
             sh[rest] = sub
         self.params["sh"][:] = torch.from_numpy(sh)
         if ctx_fit is not None:   # unseen context rows keep their colours
-            csh, cseen = ctx_fit.solve(ctx[2], c.world_init_ridge, c.world_init_ridge_tangent)
+            csh, cseen = ctx_fit.solve(ctx[2], c.world_init_ridge, c.world_init_ridge_tangent,
+                                       slopes=ctx_slopes)
             rows = torch.from_numpy(self._context_fit[cseen])
             self.context["sh"][rows] = torch.from_numpy(csh[cseen]).to(torch.float16)
             self.context_started = int(cseen.sum())

@@ -46,6 +46,20 @@ def disk_pattern(k: int, radius: float) -> np.ndarray:
     return np.stack([r * np.cos(a), r * np.sin(a)], axis=1)
 
 
+def zonal_directions(normals: np.ndarray, degree: int) -> np.ndarray:
+    """(N,S): per degree l ≥ 1, the unit coefficient direction of the zonal harmonic about
+    each normal (Y_l(n) normalised, by the addition theorem); zero in the DC slot. A
+    surfel's colour changes with the angle to its normal alone along these directions."""
+    n = np.asarray(normals, np.float64)
+    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    Y = sh_basis(torch.from_numpy(n), degree).numpy()            # (N,S)
+    U = np.zeros_like(Y)
+    for l in range(1, degree + 1):
+        sl = slice(l * l, (l + 1) * (l + 1))
+        U[:, sl] = Y[:, sl] / np.linalg.norm(Y[:, sl], axis=1, keepdims=True)
+    return U
+
+
 def ridge_matrix(normals: np.ndarray | None, degree: int, ridge: float,
                  ridge_tangent: float) -> np.ndarray:
     """(N,S,S) (or (1,S,S) without normals) penalty on the non-DC SH coefficients: ``ridge``
@@ -58,13 +72,11 @@ def ridge_matrix(normals: np.ndarray | None, degree: int, ridge: float,
         idx = np.arange(1, S)
         R[0, idx, idx] = ridge
         return R
-    n = np.asarray(normals, np.float64)
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    Y = sh_basis(torch.from_numpy(n), degree).numpy()            # (N,S)
-    R = np.zeros((len(n), S, S))
+    U = zonal_directions(normals, degree)
+    R = np.zeros((len(U), S, S))
     for l in range(1, degree + 1):
         sl = slice(l * l, (l + 1) * (l + 1))
-        u = Y[:, sl] / np.linalg.norm(Y[:, sl], axis=1, keepdims=True)
+        u = U[:, sl]
         uu = np.einsum("ni,nj->nij", u, u)
         eye = np.eye(2 * l + 1)[None]
         R[:, sl, sl] = ridge * uu + ridge_tangent * (eye - uu)
@@ -95,11 +107,48 @@ def cell_ids(positions: np.ndarray, normals: np.ndarray, classes: np.ndarray,
     """(N,) dense ids of the groups that share view-dependent colour: same ``cell``-metre
     grid cell, same semantic class, same dominant normal axis and sign."""
     g = np.floor(np.asarray(positions, np.float64) / cell).astype(np.int64)
+    key = np.concatenate([g, _facing_key(normals, classes)], 1)
+    return np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)
+
+
+def facing_ids(normals: np.ndarray, classes: np.ndarray) -> np.ndarray:
+    """(N,) ids of the groups of surfels with the same semantic class and the same dominant
+    normal axis and sign (a road, a façade facing +x, ...): class·6 + axis·2 + sign, the
+    same for any set of surfels; -1 for unlabelled surfels (class < 0)."""
+    k = _facing_key(normals, classes)
+    return np.where(k[:, 0] >= 0, k[:, 0] * 6 + k[:, 1] * 2 + k[:, 2], -1)
+
+
+def _facing_key(normals, classes) -> np.ndarray:
     n = np.asarray(normals, np.float64)
     ax = np.argmax(np.abs(n), axis=1)
     sign = np.take_along_axis(n, ax[:, None], 1)[:, 0] >= 0
-    key = np.stack([g[:, 0], g[:, 1], g[:, 2], np.asarray(classes, np.int64), ax, sign], 1)
-    return np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)
+    return np.stack([np.asarray(classes, np.int64), ax, sign], 1)
+
+
+def zonal_slopes(fits, ridge: float, ridge_tangent: float, *, min_share: float = 0.8,
+                 min_members: int = 32) -> np.ndarray:
+    """(G,degree,3) per group id (G = largest id + 1) and degree: the median zonal
+    coefficient of the group's well-determined surfels (ViewFit.zonal_coefficients), pooled
+    over ``fits`` = [(ViewFit, normals, groups (N,) ids, -1 = none)]; zero for a group with
+    fewer than ``min_members`` of them."""
+    zs, goods, gs = [], [], []
+    for fit, normals, groups in fits:
+        seen, z, good = fit.zonal_coefficients(normals, ridge, ridge_tangent,
+                                               min_share=min_share)
+        zs.append(z)
+        goods.append(good)
+        gs.append(np.asarray(groups)[seen])
+    degree = fits[0][0].degree
+    g = np.concatenate(gs) if gs else np.zeros(0, np.int64)
+    z, good = np.concatenate(zs), np.concatenate(goods)
+    table = np.zeros((max(int(g.max()) + 1, 0) if len(g) else 0, degree, 3))
+    for gid in np.unique(g[g >= 0]):       # unlabelled (-1): no group
+        for l in range(degree):
+            ok = (g == gid) & good[:, l]
+            if ok.sum() >= min_members:
+                table[gid, l] = np.median(z[ok, l], axis=0)
+    return table
 
 
 def solve_sh_pooled(basis: np.ndarray, colours: np.ndarray, groups: np.ndarray,
@@ -249,19 +298,82 @@ class ViewFit:
             self.A, self.b, self.count)
 
     def solve(self, normals: np.ndarray, ridge: float, ridge_tangent: float,
-              block: int = 65536):
+              block: int = 65536, *, slopes: tuple | None = None):
         """(sh (N,S,3) float32, seen (N,) bool); rows not seen are zero. Solved in blocks of
-        ``block`` surfels, so the temporaries stay small next to the accumulators."""
-        n, S = self.A.shape[:2]
-        out = np.zeros((n, S, 3), np.float32)
+        ``block`` surfels, so the temporaries stay small next to the accumulators.
+
+        With ``slopes`` = (groups (N,) ids, table (G,degree,3) from zonal_slopes), the
+        zonal ridge pulls each surfel towards its group's zonal coefficients instead of
+        towards zero. Why: a surfel seen from one angle only (at grazing angles only, or at a
+        chunk border by few views) cannot tell its zonal slope from its DC term; towards zero
+        it keeps its grazing sheen when seen from closer or higher, towards its group's it
+        dims as its well-seen peers do."""
         seen = self.count > 0
         rows = np.flatnonzero(seen)
         normals = np.asarray(normals)
+        mean = None
+        if slopes is not None and ridge > 0 and len(rows):
+            mean = self._slope_mean(rows, normals, *slopes, block)
+        return self._solve(rows, normals, ridge, ridge_tangent, block, mean), seen
+
+    def zonal_coefficients(self, normals: np.ndarray, ridge: float, ridge_tangent: float,
+                           block: int = 65536, *, min_share: float = 0.8):
+        """(seen (N,) bool, z (R,degree,3), good (R,degree) bool) for the R seen surfels: each
+        one's zonal coefficients from the plain solve and whether its data determine them
+        (the spread of its views' angles carries at least ``min_share`` of the estimate
+        against the ridge)."""
+        sh, seen = self.solve(normals, ridge, ridge_tangent, block)
+        rows = np.flatnonzero(seen)
+        normals = np.asarray(normals)
+        L = self.degree
+        z = np.zeros((len(rows), L, 3))
+        good = np.zeros((len(rows), L), bool)
+        for a in range(0, len(rows), block):
+            r = rows[a:a + block]
+            U = zonal_directions(normals[r], L)
+            A = self.A[r]
+            w = np.maximum(A[:, 0, 0], 1e-300)
+            for l in range(1, L + 1):
+                u = np.zeros_like(U)
+                u[:, l * l:(l + 1) * (l + 1)] = U[:, l * l:(l + 1) * (l + 1)]
+                # the data's precision on the zonal coefficient once the DC term is free
+                info = (np.einsum("ns,nst,nt->n", u, A, u)
+                        - np.einsum("ns,ns->n", u, A[:, :, 0]) ** 2 / w)
+                good[a:a + block, l - 1] = (ridge > 0) & (
+                    info >= min_share / (1 - min_share) * w * ridge)
+                z[a:a + block, l - 1] = np.einsum("ns,nsc->nc", u, sh[r].astype(np.float64))
+        return seen, z, good
+
+    def _solve(self, rows, normals, ridge, ridge_tangent, block, mean):
+        n, S = self.A.shape[:2]
+        out = np.zeros((n, S, 3), np.float32)
         for a in range(0, len(rows), block):
             r = rows[a:a + block]
             A = self.A[r]
+            w = A[:, 0, 0].copy()
             reg = ridge_matrix(normals[r], self.degree, ridge, ridge_tangent)
             # in units of the surfel's total weight (A00 = C0² Σw), as solve_sh's K·C0²
-            A += A[:, 0, 0, None, None] * reg + 1e-12 * np.eye(S)[None]
-            out[r] = np.linalg.solve(A, self.b[r]).astype(np.float32)
-        return out, seen
+            A += w[:, None, None] * reg + 1e-12 * np.eye(S)[None]
+            b = self.b[r]
+            if mean is not None:   # the ridge centred on mean: (A + wΛ) x = b + wΛ·mean
+                m = mean[r].astype(np.float64)
+                b = b + w[:, None, None] * np.einsum("nst,ntc->nsc", reg, m)
+            out[r] = np.linalg.solve(A, b).astype(np.float32)
+        return out
+
+    def _slope_mean(self, rows, normals, groups, table, block):
+        """(N,S,3) float32: each seen surfel's group slope along its own zonal directions."""
+        n, S = self.A.shape[:2]
+        mean = np.zeros((n, S, 3), np.float32)
+        groups = np.asarray(groups)
+        for a in range(0, len(rows), block):
+            r = rows[a:a + block]
+            g = groups[r]
+            inside = (g >= 0) & (g < len(table))
+            U = zonal_directions(normals[r], self.degree)
+            for l in range(1, self.degree + 1):
+                sl = slice(l * l, (l + 1) * (l + 1))
+                z = np.zeros((len(r), 3))
+                z[inside] = table[g[inside], l - 1]
+                mean[r, sl] = U[:, sl, None] * z[:, None, :]
+        return mean
