@@ -308,13 +308,24 @@ class ViewFit:
         chunk border by few views) cannot tell its zonal slope from its DC term; towards zero
         it keeps its grazing sheen when seen from closer or higher, towards its group's it
         dims as its well-seen peers do."""
+        n, S = self.A.shape[:2]
+        out = np.zeros((n, S, 3), np.float32)
         seen = self.count > 0
         rows = np.flatnonzero(seen)
         normals = np.asarray(normals)
-        mean = None
-        if slopes is not None and ridge > 0 and len(rows):
-            mean = self._slope_mean(rows, normals, *slopes, block)
-        return self._solve(rows, normals, ridge, ridge_tangent, block, mean), seen
+        for a in range(0, len(rows), block):
+            r = rows[a:a + block]
+            A = self.A[r]
+            w = A[:, 0, 0].copy()
+            reg = ridge_matrix(normals[r], self.degree, ridge, ridge_tangent)
+            # in units of the surfel's total weight (A00 = C0² Σw), as solve_sh's K·C0²
+            A += w[:, None, None] * reg + 1e-12 * np.eye(S)[None]
+            b = self.b[r]
+            if slopes is not None:   # the ridge centred on the group's slope
+                b = b + w[:, None, None] * ridge * self._slope_mean(normals[r], slopes[0][r],
+                                                                    slopes[1])
+            out[r] = np.linalg.solve(A, b).astype(np.float32)
+        return out, seen
 
     def zonal_coefficients(self, normals: np.ndarray, ridge: float, ridge_tangent: float,
                            block: int = 65536, *, min_share: float = 0.8):
@@ -344,36 +355,17 @@ class ViewFit:
                 z[a:a + block, l - 1] = np.einsum("ns,nsc->nc", u, sh[r].astype(np.float64))
         return seen, z, good
 
-    def _solve(self, rows, normals, ridge, ridge_tangent, block, mean):
-        n, S = self.A.shape[:2]
-        out = np.zeros((n, S, 3), np.float32)
-        for a in range(0, len(rows), block):
-            r = rows[a:a + block]
-            A = self.A[r]
-            w = A[:, 0, 0].copy()
-            reg = ridge_matrix(normals[r], self.degree, ridge, ridge_tangent)
-            # in units of the surfel's total weight (A00 = C0² Σw), as solve_sh's K·C0²
-            A += w[:, None, None] * reg + 1e-12 * np.eye(S)[None]
-            b = self.b[r]
-            if mean is not None:   # the ridge centred on mean: (A + wΛ) x = b + wΛ·mean
-                m = mean[r].astype(np.float64)
-                b = b + w[:, None, None] * np.einsum("nst,ntc->nsc", reg, m)
-            out[r] = np.linalg.solve(A, b).astype(np.float32)
-        return out
-
-    def _slope_mean(self, rows, normals, groups, table, block):
-        """(N,S,3) float32: each seen surfel's group slope along its own zonal directions."""
-        n, S = self.A.shape[:2]
-        mean = np.zeros((n, S, 3), np.float32)
-        groups = np.asarray(groups)
-        for a in range(0, len(rows), block):
-            r = rows[a:a + block]
-            g = groups[r]
-            inside = (g >= 0) & (g < len(table))
-            U = zonal_directions(normals[r], self.degree)
-            for l in range(1, self.degree + 1):
-                sl = slice(l * l, (l + 1) * (l + 1))
-                z = np.zeros((len(r), 3))
-                z[inside] = table[g[inside], l - 1]
-                mean[r, sl] = U[:, sl, None] * z[:, None, :]
+    def _slope_mean(self, normals, groups, table) -> np.ndarray:
+        """(R,S,3): the group's zonal coefficients along each surfel's own zonal directions
+        (zero outside the table: unlabelled, no slope). As those directions are the zonal
+        ridge's eigenvectors (eigenvalue ``ridge``), Λ·mean = ridge·mean."""
+        g = np.asarray(groups)
+        inside = (g >= 0) & (g < len(table))
+        U = zonal_directions(normals, self.degree)
+        mean = np.zeros(U.shape + (3,))
+        for l in range(1, self.degree + 1):
+            sl = slice(l * l, (l + 1) * (l + 1))
+            z = np.zeros((len(g), 3))
+            z[inside] = table[g[inside], l - 1]
+            mean[:, sl] = U[:, sl, None] * z[:, None, :]
         return mean
