@@ -81,7 +81,9 @@ def _scale_args(p: argparse.ArgumentParser):
     p.add_argument("--json", metavar="OUT.json", help="write results as JSON (per configuration: "
                    "chunks, surfels, surfels_per_m2, per_chunk_s, total_s, peak_rss_mb, "
                    "driver_rss_mb, seam_psnr_drop_db, seam_psnr_drop_matched_db and its "
-                   "ci95, border_coverage)")
+                   "ci95, border_coverage; the 4-chunk corridor and grid also run as one "
+                   "region, and the summary's seam_drop_vs_one_region_db is what chunk-wise "
+                   "GGDS adds to the seam drop, paired per view)")
     p.add_argument("--png", metavar="OUT.png", help="time and memory against chunks (default: "
                                                     "next to --json)")
     p.add_argument("--full", action="store_true",

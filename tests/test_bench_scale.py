@@ -54,3 +54,40 @@ def test_paired_over_seeds():
     mean, (lo, hi) = _paired_seeds(pairs)
     assert abs(mean - 0.1) < 1e-3
     assert lo < -0.5 and hi > 0.5          # the spread between seeds, not 0 width
+
+
+def _seam_stats(border_factor, views=6):
+    """SeamStats of one-row views across the border x = 100 of chunks (0,0) and (1,0), the
+    band's error ``border_factor`` × the interiors'."""
+    from lsd3d_usd.eval.seams import SeamStats
+    from lsd3d_usd.render.gbuffer import GBuffer
+    st = SeamStats(100.0, {(0, 0), (1, 0)})
+    xs = np.linspace(60.0, 140.0, 81)
+    n = len(xs)
+    gb = GBuffer(depth=np.full((1, n), 10.0, np.float32),
+                 normal=np.tile(np.array([0, 0, 1], np.float32), (1, n, 1)),
+                 semantic=np.ones((1, n), np.int32),
+                 position=np.stack([xs, np.full(n, 50.0), np.zeros(n)], 1)[None],
+                 face_index=np.zeros((1, n), np.int32))
+    err = 1e-3 * np.where(np.abs(xs - 100) <= 5, border_factor, 1.0)
+    target = np.full((1, n, 3), 0.5)
+    for _ in range(views):
+        st.add(target + np.sqrt(err)[None, :, None], target, np.ones((1, n)),
+               np.full((1, n), 10.0), gb.normal, gb)
+    return st
+
+
+def test_seams_against_the_one_region_scene_pair_configs_by_name_and_seed():
+    """bench scale pairs each chunk-wise 4-chunk scene with its one-region run of the same
+    GGDS seed (run_config's names), and reports nothing for a pair it does not have."""
+    from lsd3d_usd.benchmarks.scale import _seams_vs_one_region
+    stats = {"corridor4": _seam_stats(4.0), "corridor4_scene": _seam_stats(2.0),
+             "grid4": _seam_stats(1.0), "grid4_scene": _seam_stats(1.0),
+             "corridor4_s12": _seam_stats(3.0), "corridor4_scene_s12": _seam_stats(3.0),
+             "grid4_s12": _seam_stats(2.0)}
+    out = _seams_vs_one_region(stats, 11, [11, 12])
+    assert set(out) == {"11", "12"}
+    assert abs(out["11"]["corridor4"]["difference_db"] - 10 * np.log10(2)) < 1e-3
+    assert out["11"]["grid4"]["difference_db"] == 0.0
+    assert out["12"]["corridor4"]["difference_db"] == 0.0
+    assert out["12"]["grid4"]["difference_db"] is None     # no one-region run of seed 12

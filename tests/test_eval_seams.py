@@ -126,3 +126,66 @@ def test_the_interval_over_views_is_tight_for_a_steady_seam_and_wide_for_one_bad
     assert one_view["psnr_drop_matched_db"] > 2.5     # the point figure alone looks like a seam
     assert lo < 1.0 < 4 < hi                          # the interval says it rests on one view
     assert _seam_views([2.0], rng)["psnr_drop_matched_ci95_db"] is None
+
+
+def _stats(view_errs, xs_per_view, cls_per_view):
+    """SeamStats over views whose pixel errors are view_errs[v](x, class)."""
+    st = SeamStats(100.0, KEYS)
+    for err_of, xs, cls in zip(view_errs, xs_per_view, cls_per_view):
+        _add(st, _view(xs, cls, None), err_of)
+    return st
+
+
+def _plain_matched_drop(views):
+    """float64, loop by loop: interior MSE per class at the border's class mix over all views,
+    against the border's MSE (one depth bin here), in dB."""
+    b_sq, b_n, i_sq, i_n = {}, {}, {}, {}
+    for err_of, xs, cls in views:
+        for x, c in zip(xs, cls):
+            e = err_of(x, c)
+            sq, nn = (b_sq, b_n) if abs(x - 100) <= 5 else (i_sq, i_n)
+            sq[c] = sq.get(c, 0.0) + e
+            nn[c] = nn.get(c, 0) + 1
+    common = [c for c in b_n if c in i_n]
+    nb = sum(b_n[c] for c in common)
+    mse_b = sum(b_sq[c] for c in common) / nb
+    mse_i = sum(b_n[c] / nb * i_sq[c] / i_n[c] for c in common)
+    return 10 * math.log10(mse_b / mse_i)
+
+
+def test_paired_drop_removes_what_the_layout_puts_in_its_border_bands():
+    from lsd3d_usd.eval.seams import paired_matched_drop
+    rng = np.random.default_rng(7)
+    xs = [np.concatenate([rng.uniform(95, 105, 80), rng.uniform(10, 90, 200)]) for _ in range(24)]
+    cls = [np.where(rng.random(len(x)) < 0.3, 3, 1) for x in xs]
+    hard = [float(rng.uniform(1.5, 4.0)) for _ in xs]      # the band's content: hard per view
+
+    def reference_err(h):
+        return lambda x, c: (1e-3 if c == 1 else 3e-3) * (h if abs(x - 100) <= 5 else 1.0)
+
+    def chunked_err(h):         # the same content, and the chunk border twice as bad again
+        return lambda x, c: reference_err(h)(x, c) * (2.0 if abs(x - 100) <= 5 else 1.0)
+    ref = _stats([reference_err(h) for h in hard], xs, cls)
+    scene = _stats([chunked_err(h) for h in hard], xs, cls)
+    out = paired_matched_drop(scene, ref)
+    assert out["reference_db"] > 1.5                     # the content alone reads as a "seam"
+    assert out["views"] == 24
+    # the difference is the chunking's own factor 2, against a plain float64 computation
+    plain = (_plain_matched_drop(zip([chunked_err(h) for h in hard], xs, cls))
+             - _plain_matched_drop(zip([reference_err(h) for h in hard], xs, cls)))
+    assert out["difference_db"] == pytest.approx(plain, abs=2e-3)
+    assert out["difference_db"] == pytest.approx(10 * math.log10(2), abs=2e-3)
+    lo, hi = out["ci95_db"]                # every view has the same factor: a tight interval
+    assert lo <= out["difference_db"] <= hi and hi - lo < 0.05
+    same = paired_matched_drop(ref, ref)
+    assert same["difference_db"] == 0.0 and same["ci95_db"] == [0.0, 0.0]
+
+
+def test_paired_drop_needs_the_same_views():
+    from lsd3d_usd.eval.seams import paired_matched_drop
+    rng = np.random.default_rng(8)
+    xs = [np.concatenate([rng.uniform(95, 105, 20), rng.uniform(10, 90, 40)]) for _ in range(3)]
+    cls = [np.ones(len(x), int) for x in xs]
+    flat = [lambda x, c: 1e-3] * 3
+    with pytest.raises(ValueError, match="3 views against 2"):
+        paired_matched_drop(_stats(flat, xs, cls), _stats(flat[:2], xs[:2], cls[:2]))

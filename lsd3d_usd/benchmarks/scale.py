@@ -26,6 +26,8 @@ from lsd3d_usd.eval.seams_eval import pooled_psnr
 
 CONFIGS = [("corridor", 1), ("corridor", 4), ("grid", 4)]
 FULL_CONFIGS = [("corridor", 16), ("grid", 16)]
+# also run as one region (no chunk seams): the seam measure's baseline
+BASELINE_CONFIGS = [("corridor", 4), ("grid", 4)]
 
 
 def _extent(shape: str, chunks: int) -> tuple[int, int]:
@@ -87,13 +89,14 @@ def _layout(path: Path, extent, seed: int) -> Path:
 
 
 def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
-                   seed: int = 0) -> tuple[dict | None, list | None]:
+                   seed: int = 0) -> tuple[dict | None, list | None, object]:
     """(the seam measure on held-out-style views over the whole scene, the PSNR of each of
     ``same_cameras`` over the pixels showing chunk 0_0: views from the same positions in
-    every configuration, scored on the same surface)."""
+    every configuration, scored on the same surface; the seam views' eval.seams.SeamStats,
+    for pairing with another scene of the same layout, or None)."""
     from lsd3d_usd import scene as S
     from lsd3d_usd.eval.evaluate import render_view
-    from lsd3d_usd.eval.seams_eval import measure_seams, view_errors
+    from lsd3d_usd.eval.seams_eval import seam_stats, view_errors
     from lsd3d_usd.ggds.cameras import sample_views
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
@@ -108,13 +111,14 @@ def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
     runs = sc.runs()
     run = runs[0].name if runs else None
     # rendered as the measure asks (none for a scene of one chunk, which has no seams)
-    res, why = measure_seams(sc, run, layout, proxy, cams,
-                             (render_view(surfels, env, cam) for cam in cams))
+    stats, why = seam_stats(sc, run, layout, proxy, cams,
+                            (render_view(surfels, env, cam) for cam in cams))
+    res = stats.result() if stats is not None else None
     chunk = float(layout.chunk_size)
     same, _ = view_errors(sc, run, proxy, same_cameras,
                           (render_view(surfels, env, cam) for cam in same_cameras),
                           region=(0.0, 0.0, chunk, chunk))
-    return (res if res is not None else {"unavailable": why}), same
+    return (res if res is not None else {"unavailable": why}), same, stats
 
 
 def same_view_cameras(seed: int, views: int, size=(240, 135)) -> list:
@@ -159,9 +163,11 @@ def _paired_seeds(pairs: list, draws: int = 1000) -> tuple[float, list]:
 
 def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int, seed: int,
                views_per_chunk: int, mode: str = "chunk", seams_views: int = 48,
-               same_cameras=(), ggds_seed: int | None = None, log=print) -> dict:
+               same_cameras=(), ggds_seed: int | None = None, seam_stats: dict | None = None,
+               log=print) -> dict:
     """One configuration: the layout of ``seed``, `generate` with ``ggds_seed`` (default
-    ``seed``: the training views, surfel start and GGDS's noise), then the measures."""
+    ``seed``: the training views, surfel start and GGDS's noise), then the measures.
+    ``seam_stats`` (a dict), where given, keeps the seam views' statistics by config name."""
     extent = _extent(shape, chunks)
     ggds_seed = seed if ggds_seed is None else int(ggds_seed)
     name = (f"{shape}{chunks}" + ("" if mode == "chunk" else f"_{mode}")
@@ -186,7 +192,9 @@ def run_config(shape: str, chunks: int, work: Path, *, steps: int, workers: int,
     full = [r for r in per.values() if r.get("wall_s") and (r.get("surfels") or 0) >= 0.25 * big]
     walls = [r["wall_s"] for r in full] or [g.get("wall_s", 0.0)]
     cpus = [r["cpu_s"] for r in full if r.get("cpu_s")]
-    seams, same = _view_measures(out, seams_views, list(same_cameras), seed=seed)
+    seams, same, stats = _view_measures(out, seams_views, list(same_cameras), seed=seed)
+    if seam_stats is not None and stats is not None:
+        seam_stats[name] = stats
     surf = s["surfels"]
     row = {"config": name, "shape": shape, "chunks": int(surf["chunks"]), "ggds_seed": ggds_seed,
            "extent_m": list(extent), "regions": g.get("regions"), "mode": mode,
@@ -311,6 +319,35 @@ def plot(rows: list, path) -> None:
     fig.tight_layout(); fig.savefig(path, dpi=100); plt.close(fig)
 
 
+def _seams_vs_one_region(stats: dict, seed: int, seeds: list) -> dict:
+    """Per GGDS seed and baseline layout: the chunk-wise scene's matched seam drop against the
+    same layout's one-region scene from the same views (eval.seams.paired_matched_drop)."""
+    from lsd3d_usd.eval.seams import paired_matched_drop
+    out = {}
+    for s_ in seeds:
+        tag = "" if s_ == seed else f"_s{s_}"
+        row = out[str(s_)] = {}
+        for shape, n in BASELINE_CONFIGS:
+            a, b = stats.get(f"{shape}{n}{tag}"), stats.get(f"{shape}{n}_scene{tag}")
+            row[f"{shape}{n}"] = (paired_matched_drop(a, b) if a is not None
+                                      and b is not None else {"difference_db": None,
+                                                              "ci95_db": None})
+    return out
+
+
+def _log_seams_vs_one_region(added: dict, log) -> None:
+    for s_, row in added.items():
+        for k, v in row.items():
+            log(f"{k} seed {s_}: seam drop {v.get('scene_db')} dB chunk-wise, "
+                f"{v.get('reference_db')} dB as one region: chunk-wise adds "
+                f"{v['difference_db']} dB {v['ci95_db']}")
+
+
+def _mean(vals):
+    vals = [v for v in vals if v is not None]
+    return round(float(np.mean(vals)), 3) if vals else None
+
+
 def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_chunk=24,
          work=None, png_path=None, seam_views=48, same_views=32, repeats=1, log=print) -> dict:
     workers = workers or os.cpu_count() or 1
@@ -320,21 +357,32 @@ def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_
         wdir = Path(work) if work else Path(tmp)
         wdir.mkdir(parents=True, exist_ok=True)
 
+        stats: dict = {}
+
         def run(shape, n, ggds_seed=None, **kw):
             return run_config(shape, n, wdir, steps=steps, workers=workers, seed=seed,
                               views_per_chunk=views_per_chunk, seams_views=seam_views,
-                              same_cameras=same, ggds_seed=ggds_seed, log=log, **kw)
+                              same_cameras=same, ggds_seed=ggds_seed, seam_stats=stats,
+                              log=log, **kw)
+        seeds = [seed + k for k in range(max(int(repeats), 1))]
         rows = [run(shape, n) for shape, n in configs]
-        # the same 4-chunk grid as one region: the seam measure's content baseline
-        base = run("grid", 4, mode="scene")
-        result = {"configs": rows, "scene_region_grid4": base}
+        # the 4-chunk corridor and grid as one region (no chunk seams), per GGDS seed: the
+        # seam measure's baseline for what a layout's border bands hold
+        bases = {s_: {f"{shape}{n}": run(shape, n, ggds_seed=s_, mode="scene")
+                      for shape, n in BASELINE_CONFIGS} for s_ in seeds}
+        result = {"configs": rows, **{f"scene_region_{k}": v for k, v in bases[seed].items()}}
+        base = bases[seed]["grid4"]
         one = min(rows, key=lambda r: r["chunks"])
         big = max(rows, key=lambda r: r["chunks"])
         # the same layouts again with other GGDS seeds: the spread of a run's training views
-        again = [[run(shape, n, ggds_seed=seed + k) for shape, n in configs]
-                 for k in range(1, max(int(repeats), 1))]
+        again = [[run(shape, n, ggds_seed=s_) for shape, n in configs] for s_ in seeds[1:]]
         if again:
             result["repeats"] = again
+            result["scene_region_repeats"] = [bases[s_] for s_ in seeds[1:]]
+        result["seam_vs_one_region"] = added = _seams_vs_one_region(stats, seed, seeds)
+        _log_seams_vs_one_region(added, log)
+        here = added[str(seed)]
+        by_seed = {k: [added[str(s_)][k]["difference_db"] for s_ in seeds] for k in here}
         ib, io = rows.index(big), rows.index(one)    # the same configurations, other seeds
         runs = [(big, one)] + [(rr[ib], rr[io]) for rr in again]
         pairs = [(b["same_views_errors"], o["same_views_errors"]) for b, o in runs
@@ -362,6 +410,12 @@ def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_
             "seam_psnr_drop_matched_db": big["seam_psnr_drop_matched_db"],
             "seam_psnr_drop_matched_ci95_db": big["seam_psnr_drop_matched_ci95_db"],
             "seam_psnr_drop_scene_region_db": base["seam_psnr_drop_db"],
+            # what chunk-wise GGDS adds to the matched drop, paired per view against the same
+            # layout as one region (4-chunk corridor and grid; per GGDS seed and their mean)
+            "seam_drop_vs_one_region_db": {k: v["difference_db"] for k, v in here.items()},
+            "seam_drop_vs_one_region_ci95_db": {k: v["ci95_db"] for k, v in here.items()},
+            "seam_drop_vs_one_region_seeds_db": {k: by_seed[k] for k in here},
+            "seam_drop_vs_one_region_mean_db": {k: _mean(by_seed[k]) for k in here},
             "border_coverage": big["border_coverage"]}
         if full:
             result["streaming"] = stream_test(wdir, seed, log=log)

@@ -83,6 +83,14 @@ def pooled_psnr(errors) -> float:
 def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[dict | None, str | None]:
     """(seam statistics, None) over the given rendered views, or (None, why not). ``frames``
     may be any iterable: it is consumed only when there is something to measure."""
+    stats, why = seam_stats(sc, run, layout, proxy, cameras, frames)
+    return (stats.result(), None) if stats is not None else (None, why)
+
+
+def seam_stats(sc, run: str | None, layout, proxy, cameras, frames):
+    """(the accumulated eval.seams.SeamStats of the given rendered views, None), or (None,
+    why not): measure_seams before its summary, for comparing scenes view by view
+    (eval.seams.paired_matched_drop)."""
     from lsd3d_usd.eval.geometry import surfel_depth
     from lsd3d_usd.eval.seams import SeamStats
     from lsd3d_usd.render.gbuffer import render_gbuffer
@@ -101,4 +109,4 @@ def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[
     for j, (cam, fr) in enumerate(zip(cameras, frames)):
         stats.add(fr["rgb"], target(cam, fr["rgb"], j), fr["alpha"], surfel_depth(fr),
                   fr["normal_world"], render_gbuffer(V, F, cam, C))
-    return stats.result(), None
+    return stats, None
