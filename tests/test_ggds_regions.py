@@ -351,3 +351,38 @@ def test_lane_length_inside_a_box():
                                             clip=True)} == {"l0"}
     assert lane_length_inside(layout, (100, 100, 200, 200)) == 0.0
     assert lane_length_inside(layout, (-100, -100, 100, 100)) == pytest.approx(36 + 40, abs=1.0)
+
+
+def test_eval_seams_against_the_same_layout_without_chunk_seams(chunked, tmp_path):
+    """eval --seams-reference: the same layout optimised as one region, rendered from the
+    evaluated scene's seam views, gives the part of the seam drop the chunking adds; a scene
+    is its own reference at exactly 0; a reference with other targets is refused before
+    anything is rendered or written."""
+    from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
+    out, _ = chunked
+    one = tmp_path / "one"
+    gen(one, ggds={"regions": {"mode": "scene"}, "views": 6, "held_out": 1})
+
+    def ev(ref, name):
+        return evaluate(EvalOptions(scene=out, out_dir=tmp_path / name, n_seen=3, per_bin=1,
+                                    bins=(1.0,), resolution=(64, 40), frames=2, progress=False,
+                                    log=lambda *a: None, prior_baseline=False,
+                                    seams_reference=ref))
+    res = ev(one, "ev")
+    vs = res["seams"]["vs_reference"]
+    assert vs["scene"] == str(one) and vs["views"] == 6            # 3 seen + 3 held-out
+    assert vs["scene_db"] == res["seams"]["psnr_drop_matched_db"]
+    assert vs["difference_db"] == pytest.approx(vs["scene_db"] - vs["reference_db"], abs=2e-3)
+    lo, hi = vs["ci95_db"]
+    assert lo <= vs["difference_db"] <= hi
+    assert "adds" in (tmp_path / "ev" / "report.html").read_text()
+    self_ = ev(out, "self")["seams"]["vs_reference"]
+    assert self_["difference_db"] == 0.0 and self_["ci95_db"] == [0.0, 0.0]
+    other = tmp_path / "other"                    # another environment: other targets
+    gen(other, ggds={"regions": {"mode": "scene"}, "views": 6, "held_out": 1},
+        env_resolution=(32, 16))
+    with pytest.raises(InputError, match="used another env"):
+        ev(other, "bad")
+    assert not (tmp_path / "bad").exists()
+    with pytest.raises(InputError):
+        ev(tmp_path / "no_such_scene", "bad")

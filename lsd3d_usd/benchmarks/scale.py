@@ -113,6 +113,7 @@ def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
     # rendered as the measure asks (none for a scene of one chunk, which has no seams)
     stats, why = seam_stats(sc, run, layout, proxy, cams,
                             (render_view(surfels, env, cam) for cam in cams))
+    stats = stats[0] if stats is not None else None
     res = stats.result() if stats is not None else None
     chunk = float(layout.chunk_size)
     same, _ = view_errors(sc, run, proxy, same_cameras,

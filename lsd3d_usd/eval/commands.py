@@ -36,7 +36,8 @@ def _eval(args) -> int:
         deferred_prior=args.deferred_prior,
         deferred_controlnet=Path(args.deferred_controlnet) if args.deferred_controlnet else None,
         deferred_device=args.deferred_device, deferred_seed=args.deferred_seed,
-        prior_baseline=args.prior_baseline)
+        prior_baseline=args.prior_baseline,
+        seams_reference=Path(args.seams_reference) if args.seams_reference else None)
     check_deferred_args(args)
     res = evaluate(o)
     if args.json:
@@ -71,6 +72,10 @@ def _eval(args) -> int:
               f"{dfd['vs_prior_target']['raw']['value']:.2f} -> deferred "
               f"{dfd['vs_prior_target']['deferred']['value']:.2f}; temporal warp err raw "
               f"{t['warp_err']} -> deferred {td['warp_err']}")
+    vs = (res.get("seams") or {}).get("vs_reference")
+    if vs:
+        print(f"seams: matched drop {vs['scene_db']} dB, the reference {vs['reference_db']} dB: "
+              f"chunk-wise adds {vs['difference_db']} dB (95 % interval {vs['ci95_db']})")
     for u in res["unavailable"]:
         print(f"{u['metric']}: unavailable: {u['reason']}")
     for w in res["warnings"]:
@@ -128,6 +133,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "held-out views: the Fréchet distances a scene reproducing its prior "
                         "exactly would give (default: on for the procedural prior, off for a "
                         "diffusion prior, which is slow on the CPU)")
+    p.add_argument("--seams-reference", metavar="SCENE",
+                   help="a scene of the same layout without chunk seams (generated with "
+                        "--regions scene and the same seed and settings): rendered from the "
+                        "same views, it gives what the chunk-wise optimisation adds to the seam "
+                        "drop (seams.vs_reference in the JSON)")
     p.add_argument("-o", "--out", metavar="DIR", help="report folder (default SCENE/eval)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_deferred_arguments(p, "the seen, novel and trajectory views (figures beside the raw ones)")

@@ -52,6 +52,7 @@ class EvalOptions:
     deferred_device: str | None = None
     deferred_seed: int | None = None
     prior_baseline: bool | None = None   # the prior's own images as FD baseline; None: auto
+    seams_reference: Path | None = None  # the same layout without chunk seams (seams_eval)
 
 
 # ------------------------------------------------------------------ input checks
@@ -195,6 +196,10 @@ def evaluate(o: EvalOptions) -> dict:
                           train_centres=[v.camera.center for v in seen.views])
     heldout = V.heldout_lane_views(layout, n_held, w, h, o.seed, seen_sel)
     traj, traj_info = V.lane_trajectory(layout, o.frames, o.step_m, w, h)
+    seams_ref = None
+    if o.seams_reference is not None:   # checked before any rendering: a bad one fails at once
+        from lsd3d_usd.eval.seams_eval import seams_reference
+        seams_ref = seams_reference(o.seams_reference, sc, seen.run, (PV, PF, PC))
     timings["load_s"] = time.perf_counter() - t
     o.log(f"eval: {surfels.n:,} surfels; seen: {seen.source}; {len(seen_sel)} seen + "
           f"{len(novel)} novel views ({len(o.bins)} bins) + {len(traj)} trajectory frames at {w}x{h}")
@@ -327,10 +332,17 @@ def evaluate(o: EvalOptions) -> dict:
 
     # --- seams between chunks
     t = time.perf_counter()
-    from lsd3d_usd.eval.seams_eval import measure_seams
-    seams, why = measure_seams(sc, seen.run, layout, (PV, PF, PC),
-                               [v.camera for v in seen_sel] + list(heldout),
-                               seen_frames + heldout_frames)
+    from lsd3d_usd.eval.seams_eval import seam_stats
+    seam_cams = [v.camera for v in seen_sel] + list(heldout)
+    frame_sets = [seen_frames + heldout_frames]
+    if seams_ref is not None:       # the reference scene from the same cameras, one at a time
+        frame_sets.append(render_view(seams_ref[0], seams_ref[1], c) for c in seam_cams)
+    stats, why = seam_stats(sc, seen.run, layout, (PV, PF, PC), seam_cams, *frame_sets)
+    seams = stats[0].result() if stats is not None else None
+    if seams is not None and seams_ref is not None:
+        from lsd3d_usd.eval.seams import paired_matched_drop
+        seams["vs_reference"] = {"scene": str(o.seams_reference), "run": seams_ref[2],
+                                 **paired_matched_drop(stats[0], stats[1], o.seed)}
     timings["seams_s"] = time.perf_counter() - t
 
     # --- multi-view summary

@@ -188,6 +188,13 @@ def _seams_html(result) -> str:
         drop += (f"; class and distance matched: {s['psnr_drop_matched_db']:.2f} dB"
                  + (f" (95 % interval over the views {ci[0]:.2f} to {ci[1]:.2f} dB)" if ci else ""))
     drop += "</p>" if drop else ""
+    vs = s.get("vs_reference")
+    if vs and vs.get("difference_db") is not None:
+        ci = vs.get("ci95_db")
+        drop += (f"<p>Against {html.escape(vs['scene'])} (the same layout without chunk seams, "
+                 f"from the same views): its matched drop {vs['reference_db']:.2f} dB, so the "
+                 f"chunk-wise optimisation adds {vs['difference_db']:.2f} dB"
+                 + (f" (95 % interval {ci[0]:.2f} to {ci[1]:.2f} dB)" if ci else "") + "</p>")
     return _table(["pixels", "PSNR vs prior (dB)", "coverage", "depth err", "normal err",
                    "pixels"], rows) + drop
 

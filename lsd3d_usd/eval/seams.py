@@ -164,7 +164,7 @@ class SeamStats:
         frac = round(float(total[0, 1][both].sum() / total[0, 1].sum()), 4)
         if not np.isfinite(drop):
             return None, None, frac
-        ci = _bootstrap_ci([arr], lambda a: _drop_db(a), seed)
+        ci = _bootstrap_ci([arr], _drop_db, seed)
         return round(float(drop), 3), ci, frac
 
     def _class_table(self) -> dict:

@@ -84,13 +84,14 @@ def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[
     """(seam statistics, None) over the given rendered views, or (None, why not). ``frames``
     may be any iterable: it is consumed only when there is something to measure."""
     stats, why = seam_stats(sc, run, layout, proxy, cameras, frames)
-    return (stats.result(), None) if stats is not None else (None, why)
+    return (stats[0].result(), None) if stats is not None else (None, why)
 
 
-def seam_stats(sc, run: str | None, layout, proxy, cameras, frames):
-    """(the accumulated eval.seams.SeamStats of the given rendered views, None), or (None,
-    why not): measure_seams before its summary, for comparing scenes view by view
-    (eval.seams.paired_matched_drop)."""
+def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
+    """([eval.seams.SeamStats per set of rendered frames], None), or (None, why not):
+    measure_seams before its summary. Several frame sets (other scenes of the same layout
+    rendered from the same cameras) share the border bands, the G-buffers and the run's
+    targets, for comparing scenes view by view (eval.seams.paired_matched_drop)."""
     from lsd3d_usd.eval.geometry import surfel_depth
     from lsd3d_usd.eval.seams import SeamStats
     from lsd3d_usd.render.gbuffer import render_gbuffer
@@ -105,8 +106,53 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, frames):
     V, F, C = proxy
     bounds = {k: (b[0], b[1], b[3], b[4]) for k, v in chunks.items()
               if len(b := v.get("bounds") or []) == 6}
-    stats = SeamStats(float(layout.chunk_size), keys, bounds=bounds)
-    for j, (cam, fr) in enumerate(zip(cameras, frames)):
-        stats.add(fr["rgb"], target(cam, fr["rgb"], j), fr["alpha"], surfel_depth(fr),
-                  fr["normal_world"], render_gbuffer(V, F, cam, C))
+    stats = [SeamStats(float(layout.chunk_size), keys, bounds=bounds) for _ in frame_sets]
+    for j, (cam, *frames) in enumerate(zip(cameras, *frame_sets)):
+        gb = render_gbuffer(V, F, cam, C)
+        for st, fr in zip(stats, frames):
+            st.add(fr["rgb"], target(cam, fr["rgb"], j), fr["alpha"], surfel_depth(fr),
+                   fr["normal_world"], gb)
     return stats, None
+
+
+def seams_reference(path, sc, run: str | None, proxy):
+    """(surfels, env, run name) of a reference scene for the seam measure (``eval
+    --seams-reference``): the same layout without chunk seams (e.g. generated with
+    ``--regions scene`` and the same seed and settings), rendered from the evaluated scene's
+    cameras and scored against the same targets. InputError, naming what differs, unless it
+    has the same proxy geometry and its newest active GGDS run used the same prior,
+    environment and seed as ``run``."""
+    import numpy as np
+
+    from lsd3d_usd import scene as S
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.ggds.store import read_plan
+    from lsd3d_usd.proxy.usdio import proxy_arrays
+    from lsd3d_usd.views.stage_data import read_dome, scene_surfels
+    ref = S.Scene.open(path)
+    what = f"--seams-reference {path}"
+    if not ref.layer_path("proxy").is_file():
+        raise InputError(f"{what}: the scene has no proxy layer")
+    mine = proxy_arrays(sc.layer_path("proxy"))
+    theirs = proxy_arrays(ref.layer_path("proxy"))
+    if any(a.shape != b.shape or not np.array_equal(a, b) for a, b in zip(mine, theirs)):
+        raise InputError(f"{what}: its proxy geometry differs from {sc.root}'s: the reference "
+                         "must be generated from the same layout")
+    runs = [li for li in ref.runs() if not li.muted and li.exists]
+    if not runs:
+        raise InputError(f"{what}: the scene has no active GGDS run")
+    if run is None:
+        raise InputError(f"{sc.root}: no GGDS run to compare with {what}")
+    mp, rp = read_plan(sc, run), read_plan(ref, runs[0].name)
+    for key in ("prior", "env"):
+        if mp["generate"].get(key) != rp["generate"].get(key):
+            raise InputError(f"{what}: its run {runs[0].name} used another {key} than run "
+                             f"{run}: their targets would differ")
+    if int(mp.get("seed", 0)) != int(rp.get("seed", 0)):
+        raise InputError(f"{what}: its run {runs[0].name} has seed {rp.get('seed')}, run {run} "
+                         f"{mp.get('seed')}: their environments and targets would differ")
+    stage = ref.open_stage()
+    surfels = scene_surfels(stage)
+    if surfels is None:
+        raise InputError(f"{what}: no surfels to render")
+    return surfels, read_dome(stage), runs[0].name
