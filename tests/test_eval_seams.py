@@ -189,3 +189,19 @@ def test_paired_drop_needs_the_same_views():
     flat = [lambda x, c: 1e-3] * 3
     with pytest.raises(ValueError, match="3 views against 2"):
         paired_matched_drop(_stats(flat, xs, cls), _stats(flat[:2], xs[:2], cls[:2]))
+
+
+def test_paired_drop_counts_each_scene_over_its_own_cells():
+    """Cells only one scene holds (another class in its border band) stay in that scene's
+    drop: the difference is the two matched drops' difference."""
+    from lsd3d_usd.eval.seams import paired_matched_drop
+    rng = np.random.default_rng(9)
+    xs = [np.concatenate([rng.uniform(95, 105, 40), rng.uniform(10, 90, 80)]) for _ in range(5)]
+    ones = [np.ones(len(x), int) for x in xs]
+    mixed = [np.where(rng.random(len(x)) < 0.5, 3, 1) for x in xs]
+    scene = _stats([lambda x, c: 1e-3 * (2.0 if abs(x - 100) <= 5 else 1.0)] * 5, xs, ones)
+    ref = _stats([lambda x, c: (1e-3 if c == 1 else 4e-3) * (3.0 if abs(x - 100) <= 5 and c == 3
+                                                            else 1.0)] * 5, xs, mixed)
+    out = paired_matched_drop(scene, ref)
+    assert out["reference_db"] > 0.5
+    assert out["difference_db"] == pytest.approx(out["scene_db"] - out["reference_db"], abs=2e-3)

@@ -73,7 +73,7 @@ def _eval(args) -> int:
               f"{dfd['vs_prior_target']['deferred']['value']:.2f}; temporal warp err raw "
               f"{t['warp_err']} -> deferred {td['warp_err']}")
     vs = (res.get("seams") or {}).get("vs_reference")
-    if vs:
+    if vs and vs.get("difference_db") is not None:
         print(f"seams: matched drop {vs['scene_db']} dB, the reference {vs['reference_db']} dB: "
               f"chunk-wise adds {vs['difference_db']} dB (95 % interval {vs['ci95_db']})")
     for u in res["unavailable"]:
@@ -136,8 +136,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seams-reference", metavar="SCENE",
                    help="a scene of the same layout without chunk seams (generated with "
                         "--regions scene and the same seed and settings): rendered from the "
-                        "same views, it gives what the chunk-wise optimisation adds to the seam "
-                        "drop (seams.vs_reference in the JSON)")
+                        "held-out views, it gives what the chunk-wise optimisation adds to the "
+                        "seam drop (seams.vs_reference in the JSON)")
     p.add_argument("-o", "--out", metavar="DIR", help="report folder (default SCENE/eval)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_deferred_arguments(p, "the seen, novel and trajectory views (figures beside the raw ones)")

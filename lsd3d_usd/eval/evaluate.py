@@ -149,6 +149,28 @@ def _bar(total, desc, o: EvalOptions):
     return tqdm(total=total, desc=desc, unit="view", disable=not o.progress)
 
 
+def _seams_vs_reference(seams, why, seams_ref, o, sc, run, layout, proxy, heldout,
+                        heldout_frames):
+    """(seams with ``vs_reference`` added, None) or (seams, why not). Only the held-out lane
+    views count: the seen views are the evaluated run's training cameras, which the reference
+    never trained on."""
+    if seams is None:
+        return seams, f"no seam measure ({why})"
+    if len(heldout) < 2:
+        return seams, "needs at least 2 held-out lane views (--heldout)"
+    from lsd3d_usd.eval.seams import paired_matched_drop
+    from lsd3d_usd.eval.seams_eval import load_reference_surfels, seam_stats
+    ref, ref_run = seams_ref
+    field, env = load_reference_surfels(ref)
+    stats, why = seam_stats(sc, run, layout, proxy, list(heldout), heldout_frames,
+                            (render_view(field, env, c) for c in heldout))
+    if stats is None:
+        return seams, why
+    seams["vs_reference"] = {"scene": str(o.seams_reference), "run": ref_run,
+                             **paired_matched_drop(stats[0], stats[1], o.seed)}
+    return seams, None
+
+
 # ------------------------------------------------------------------ the driver
 def evaluate(o: EvalOptions) -> dict:
     t_start = time.perf_counter()
@@ -332,17 +354,14 @@ def evaluate(o: EvalOptions) -> dict:
 
     # --- seams between chunks
     t = time.perf_counter()
-    from lsd3d_usd.eval.seams_eval import seam_stats
-    seam_cams = [v.camera for v in seen_sel] + list(heldout)
-    frame_sets = [seen_frames + heldout_frames]
-    if seams_ref is not None:       # the reference scene from the same cameras, one at a time
-        frame_sets.append(render_view(seams_ref[0], seams_ref[1], c) for c in seam_cams)
-    stats, why = seam_stats(sc, seen.run, layout, (PV, PF, PC), seam_cams, *frame_sets)
-    seams = stats[0].result() if stats is not None else None
-    if seams is not None and seams_ref is not None:
-        from lsd3d_usd.eval.seams import paired_matched_drop
-        seams["vs_reference"] = {"scene": str(o.seams_reference), "run": seams_ref[2],
-                                 **paired_matched_drop(stats[0], stats[1], o.seed)}
+    from lsd3d_usd.eval.seams_eval import measure_seams
+    seams, why = measure_seams(sc, seen.run, layout, (PV, PF, PC),
+                               [v.camera for v in seen_sel] + list(heldout),
+                               seen_frames + heldout_frames)
+    ref_why = None
+    if seams_ref is not None:
+        seams, ref_why = _seams_vs_reference(seams, why, seams_ref, o, sc, seen.run, layout,
+                                             (PV, PF, PC), heldout, heldout_frames)
     timings["seams_s"] = time.perf_counter() - t
 
     # --- multi-view summary
@@ -374,6 +393,8 @@ def evaluate(o: EvalOptions) -> dict:
                                "reason": "no --reference DIR of images given"})
     if why:
         unavailable.append({"metric": "seams", "reason": why})
+    if ref_why:
+        unavailable.append({"metric": "seams.vs_reference", "reason": ref_why})
     if base_why:
         unavailable.append({"metric": "fd_effnet_lite0.prior_baseline", "reason": base_why})
     timings["total_s"] = time.perf_counter() - t_start

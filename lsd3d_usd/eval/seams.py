@@ -191,7 +191,8 @@ def paired_matched_drop(scene: SeamStats, reference: SeamStats, seed: int = 0) -
     if len(scene.per_view) != len(reference.per_view):
         raise ValueError(f"paired seam drop: {len(scene.per_view)} views against "
                          f"{len(reference.per_view)}; the two need the same cameras")
-    cells, a = scene.view_cells()
+    cells = sorted({c for st in (scene, reference) for v in st.per_view for k in v for c in v[k]})
+    _, a = scene.view_cells(cells)
     _, b = reference.view_cells(cells)
 
     def diff(x, y):

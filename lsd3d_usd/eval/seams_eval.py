@@ -91,7 +91,8 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
     """([eval.seams.SeamStats per set of rendered frames], None), or (None, why not):
     measure_seams before its summary. Several frame sets (other scenes of the same layout
     rendered from the same cameras) share the border bands, the G-buffers and the run's
-    targets, for comparing scenes view by view (eval.seams.paired_matched_drop)."""
+    targets (at t = 1 the procedural prior's target is its own render, whatever the frame:
+    made once per view), for comparing scenes view by view (eval.seams.paired_matched_drop)."""
     from lsd3d_usd.eval.geometry import surfel_depth
     from lsd3d_usd.eval.seams import SeamStats
     from lsd3d_usd.render.gbuffer import render_gbuffer
@@ -109,50 +110,70 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
     stats = [SeamStats(float(layout.chunk_size), keys, bounds=bounds) for _ in frame_sets]
     for j, (cam, *frames) in enumerate(zip(cameras, *frame_sets)):
         gb = render_gbuffer(V, F, cam, C)
+        tgt = target(cam, frames[0]["rgb"], j)
         for st, fr in zip(stats, frames):
-            st.add(fr["rgb"], target(cam, fr["rgb"], j), fr["alpha"], surfel_depth(fr),
-                   fr["normal_world"], gb)
+            st.add(fr["rgb"], tgt, fr["alpha"], surfel_depth(fr), fr["normal_world"], gb)
     return stats, None
 
 
-def seams_reference(path, sc, run: str | None, proxy):
-    """(surfels, env, run name) of a reference scene for the seam measure (``eval
-    --seams-reference``): the same layout without chunk seams (e.g. generated with
-    ``--regions scene`` and the same seed and settings), rendered from the evaluated scene's
-    cameras and scored against the same targets. InputError, naming what differs, unless it
-    has the same proxy geometry and its newest active GGDS run used the same prior,
-    environment and seed as ``run``."""
+def seams_reference(path, sc, run: str | None, proxy) -> tuple:
+    """(the reference scene, its run) for the seam measure (``eval --seams-reference``): the
+    same layout without chunk seams (generated with ``--regions scene`` and the same seed and
+    settings), to be rendered from the evaluated scene's held-out views and scored against the
+    same targets. InputError, naming what differs, unless it is another scene with the same
+    proxy geometry whose newest active GGDS run optimised the whole scene as one region with
+    the same prior, environment and seed as ``run``. Reads only; load_reference_surfels
+    loads its surfels when they are needed."""
     import numpy as np
 
     from lsd3d_usd import scene as S
     from lsd3d_usd.errors import InputError
     from lsd3d_usd.ggds.store import read_plan
     from lsd3d_usd.proxy.usdio import proxy_arrays
-    from lsd3d_usd.views.stage_data import read_dome, scene_surfels
-    ref = S.Scene.open(path)
     what = f"--seams-reference {path}"
+    ref = S.Scene.open(path)
+    if ref.root.resolve() == sc.root.resolve():
+        raise InputError(f"{what}: that is the evaluated scene itself; give the same layout "
+                         "generated with --regions scene")
     if not ref.layer_path("proxy").is_file():
         raise InputError(f"{what}: the scene has no proxy layer")
-    mine = proxy_arrays(sc.layer_path("proxy"))
     theirs = proxy_arrays(ref.layer_path("proxy"))
-    if any(a.shape != b.shape or not np.array_equal(a, b) for a, b in zip(mine, theirs)):
+    if any(a.shape != b.shape or not np.array_equal(a, b) for a, b in zip(proxy, theirs)):
         raise InputError(f"{what}: its proxy geometry differs from {sc.root}'s: the reference "
                          "must be generated from the same layout")
+    if run is None:
+        raise InputError(f"{sc.root}: no GGDS run to compare with {what}")
     runs = [li for li in ref.runs() if not li.muted and li.exists]
     if not runs:
         raise InputError(f"{what}: the scene has no active GGDS run")
-    if run is None:
-        raise InputError(f"{sc.root}: no GGDS run to compare with {what}")
-    mp, rp = read_plan(sc, run), read_plan(ref, runs[0].name)
+    ref_run = runs[0].name
+
+    def plan(scene, name, whose):
+        try:
+            return read_plan(scene, name)
+        except InputError as e:
+            raise InputError(f"{what}: {whose} run {name} has no readable plan ({e})") from None
+    mp, rp = plan(sc, run, "the evaluated scene's"), plan(ref, ref_run, "the reference's")
+    if set(rp.get("regions") or {}) != {""}:
+        raise InputError(f"{what}: its run {ref_run} optimised {len(rp.get('regions') or {})} "
+                         "chunk regions; a reference without chunk seams is one region "
+                         "(generate --regions scene)")
     for key in ("prior", "env"):
         if mp["generate"].get(key) != rp["generate"].get(key):
-            raise InputError(f"{what}: its run {runs[0].name} used another {key} than run "
+            raise InputError(f"{what}: its run {ref_run} used another {key} than run "
                              f"{run}: their targets would differ")
     if int(mp.get("seed", 0)) != int(rp.get("seed", 0)):
-        raise InputError(f"{what}: its run {runs[0].name} has seed {rp.get('seed')}, run {run} "
+        raise InputError(f"{what}: its run {ref_run} has seed {rp.get('seed')}, run {run} "
                          f"{mp.get('seed')}: their environments and targets would differ")
+    return ref, ref_run
+
+
+def load_reference_surfels(ref):
+    """(surfels, dome) of a reference scene checked by seams_reference."""
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.views.stage_data import read_dome, scene_surfels
     stage = ref.open_stage()
     surfels = scene_surfels(stage)
     if surfels is None:
-        raise InputError(f"{what}: no surfels to render")
-    return surfels, read_dome(stage), runs[0].name
+        raise InputError(f"--seams-reference {ref.root}: no surfels to render")
+    return surfels, read_dome(stage)
