@@ -9,6 +9,7 @@ does), then display encoding (tone map, default "clamp" = what GGDS's prior sees
 """
 from __future__ import annotations
 
+import itertools
 import time
 import warnings
 from dataclasses import dataclass
@@ -147,28 +148,6 @@ def display(rgb: np.ndarray, tonemap: str, exposure: float) -> np.ndarray:
 def _bar(total, desc, o: EvalOptions):
     from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit="view", disable=not o.progress)
-
-
-def _seams_vs_reference(seams, why, seams_ref, o, sc, run, layout, proxy, heldout,
-                        heldout_frames):
-    """(seams with ``vs_reference`` added, None) or (seams, why not). Only the held-out lane
-    views count: the seen views are the evaluated run's training cameras, which the reference
-    never trained on."""
-    if seams is None:
-        return seams, f"no seam measure ({why})"
-    if len(heldout) < 2:
-        return seams, "needs at least 2 held-out lane views (--heldout)"
-    from lsd3d_usd.eval.seams import paired_matched_drop
-    from lsd3d_usd.eval.seams_eval import load_reference_surfels, seam_stats
-    ref, ref_run = seams_ref
-    field, env = load_reference_surfels(ref)
-    stats, why = seam_stats(sc, run, layout, proxy, list(heldout), heldout_frames,
-                            (render_view(field, env, c) for c in heldout))
-    if stats is None:
-        return seams, why
-    seams["vs_reference"] = {"scene": str(o.seams_reference), "run": ref_run,
-                             **paired_matched_drop(stats[0], stats[1], o.seed)}
-    return seams, None
 
 
 # ------------------------------------------------------------------ the driver
@@ -354,14 +333,27 @@ def evaluate(o: EvalOptions) -> dict:
 
     # --- seams between chunks
     t = time.perf_counter()
-    from lsd3d_usd.eval.seams_eval import measure_seams
-    seams, why = measure_seams(sc, seen.run, layout, (PV, PF, PC),
-                               [v.camera for v in seen_sel] + list(heldout),
-                               seen_frames + heldout_frames)
+    from lsd3d_usd.eval.seams import paired_matched_drop
+    from lsd3d_usd.eval.seams_eval import reference_frames, seam_stats
+    frame_sets = [seen_frames + heldout_frames]
     ref_why = None
-    if seams_ref is not None:
-        seams, ref_why = _seams_vs_reference(seams, why, seams_ref, o, sc, seen.run, layout,
-                                             (PV, PF, PC), heldout, heldout_frames)
+    if seams_ref is not None and len(heldout) < 2:
+        ref_why = "needs at least 2 held-out lane views (--heldout)"
+    elif seams_ref is not None:
+        # only the held-out lane views count: the seen views are the evaluated run's training
+        # cameras, which the reference never trained on
+        skip = [None] * len(seen_sel)
+        frame_sets += [skip + heldout_frames,
+                       itertools.chain(skip, reference_frames(seams_ref[0], heldout))]
+    stats, why = seam_stats(sc, seen.run, layout, (PV, PF, PC),
+                            [v.camera for v in seen_sel] + list(heldout), *frame_sets)
+    seams = stats[0].result() if stats is not None else None
+    if seams_ref is not None and not ref_why:
+        if seams is None:
+            ref_why = f"no seam measure ({why})"
+        else:
+            seams["vs_reference"] = {"scene": str(o.seams_reference), "run": seams_ref[1],
+                                     **paired_matched_drop(stats[1], stats[2], o.seed)}
     timings["seams_s"] = time.perf_counter() - t
 
     # --- multi-view summary

@@ -197,10 +197,13 @@ def paired_matched_drop(scene: SeamStats, reference: SeamStats, seed: int = 0) -
 
     def diff(x, y):
         return _drop_db(x) - _drop_db(y)
-    d = float(diff(a.sum(0)[None], b.sum(0)[None])[0])
-    out = {"scene_db": scene._matched(seed)[0], "reference_db": reference._matched(seed)[0],
-           "difference_db": round(d, 3) if np.isfinite(d) else None, "ci95_db": None,
-           "views": len(scene.per_view)}
+    da, db = (float(_drop_db(x.sum(0)[None])[0]) for x in (a, b))
+    d = da - db
+
+    def rounded(v):
+        return round(v, 3) if np.isfinite(v) else None
+    out = {"scene_db": rounded(da), "reference_db": rounded(db), "difference_db": rounded(d),
+           "ci95_db": None, "views": len(scene.per_view)}
     if np.isfinite(d):
         out["ci95_db"] = _bootstrap_ci([a, b], diff, seed)
     return out

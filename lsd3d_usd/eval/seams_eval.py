@@ -92,7 +92,8 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
     measure_seams before its summary. Several frame sets (other scenes of the same layout
     rendered from the same cameras) share the border bands, the G-buffers and the run's
     targets (at t = 1 the procedural prior's target is its own render, whatever the frame:
-    made once per view), for comparing scenes view by view (eval.seams.paired_matched_drop)."""
+    made once per view), for comparing scenes view by view (eval.seams.paired_matched_drop).
+    A set's frame may be None: that set leaves the view out (its first set has them all)."""
     from lsd3d_usd.eval.geometry import surfel_depth
     from lsd3d_usd.eval.seams import SeamStats
     from lsd3d_usd.render.gbuffer import render_gbuffer
@@ -112,7 +113,8 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
         gb = render_gbuffer(V, F, cam, C)
         tgt = target(cam, frames[0]["rgb"], j)
         for st, fr in zip(stats, frames):
-            st.add(fr["rgb"], tgt, fr["alpha"], surfel_depth(fr), fr["normal_world"], gb)
+            if fr is not None:
+                st.add(fr["rgb"], tgt, fr["alpha"], surfel_depth(fr), fr["normal_world"], gb)
     return stats, None
 
 
@@ -168,12 +170,16 @@ def seams_reference(path, sc, run: str | None, proxy) -> tuple:
     return ref, ref_run
 
 
-def load_reference_surfels(ref):
-    """(surfels, dome) of a reference scene checked by seams_reference."""
+def reference_frames(ref, cameras):
+    """Frames of a reference scene checked by seams_reference, rendered lazily: its surfels are
+    loaded only when the first frame is asked for (never when there is no seam measure)."""
     from lsd3d_usd.errors import InputError
+    from lsd3d_usd.eval.evaluate import render_view
     from lsd3d_usd.views.stage_data import read_dome, scene_surfels
     stage = ref.open_stage()
     surfels = scene_surfels(stage)
     if surfels is None:
         raise InputError(f"--seams-reference {ref.root}: no surfels to render")
-    return surfels, read_dome(stage)
+    env = read_dome(stage)
+    for cam in cameras:
+        yield render_view(surfels, env, cam)
