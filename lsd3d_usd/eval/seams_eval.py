@@ -124,7 +124,7 @@ def seams_reference(path, sc, run: str | None, proxy) -> tuple:
     settings), to be rendered from the evaluated scene's held-out views and scored against the
     same targets. InputError, naming what differs, unless it is another scene with the same
     proxy geometry whose newest active GGDS run optimised the whole scene as one region with
-    the same prior, environment and seed as ``run``. Reads only; load_reference_surfels
+    the same prior, environment and seed as ``run``. Reads only; reference_frames
     loads its surfels when they are needed."""
     import numpy as np
 
