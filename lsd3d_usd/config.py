@@ -15,8 +15,8 @@ from pathlib import Path
 from lsd3d_usd import configtree as ct
 from lsd3d_usd.configtree import option
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.config import GGDSConfig
-from lsd3d_usd.ggds.priors import PriorConfig
+from lsd3d_usd.ggds.settings import GGDSConfig
+from lsd3d_usd.ggds.priors.registry import PriorConfig
 
 STYLES = ("urban", "suburban", "highway")
 WEATHERS = ("clear", "partly-cloudy", "overcast", "fog", "rain", "snow")   # env.params.WEATHERS

@@ -83,7 +83,7 @@ def read_layout_for(cfg: GenerateConfig):
 def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | None:
     """Cross-key checks and the prior / loss files, before anything is written. Returns the
     loss terms' prepared state (e.g. LPIPS weights read once), or None without GGDS."""
-    from lsd3d_usd.ggds.priors import check_prior
+    from lsd3d_usd.ggds.priors.registry import check_prior
     g = cfg.ggds
     if run is not None and run.resume and run.force:
         raise InputError("--resume and --force exclude each other")
@@ -96,8 +96,8 @@ def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | N
     if g.steps == 0 and not (run and run.resume):
         return None
     check_prior(cfg.prior)
-    from lsd3d_usd.ggds.priors import PRIORS
-    from lsd3d_usd.ggds.terms import LOSSES
+    from lsd3d_usd.ggds.priors.registry import PRIORS
+    from lsd3d_usd.ggds.losses.terms import LOSSES
     weight = g.weights.get("perceptual")
     if weight is None:   # the prior's default, known without loading it
         weight = _prior_default_weight(PRIORS.get(cfg.prior.kind), "perceptual")
@@ -112,9 +112,9 @@ def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | N
 
 
 def _prior_default_weight(entry, term: str) -> float:
-    from lsd3d_usd.ggds.prior_base import Prior
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
-    from lsd3d_usd.ggds.priors import PROCEDURAL
+    from lsd3d_usd.ggds.priors.base import Prior
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
+    from lsd3d_usd.ggds.priors.registry import PROCEDURAL
     cls = ProceduralPrior if entry is PROCEDURAL else Prior
     return cls.default_weights.get(term, 0.0)
 
@@ -137,7 +137,7 @@ def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
     layout, source = read_layout_for(cfg)
     from lsd3d_usd.proxy.usdio import layout_hash
     lhash = layout_hash(layout)
-    from lsd3d_usd.ggds.envbridge import env_params
+    from lsd3d_usd.conditioning.light import env_params
     params = env_params(ct.to_dict(cfg.env), cfg.seed, run.log)
     w, h = cfg.env.resolution
     ehash = params.content_hash(w, h)
@@ -147,7 +147,7 @@ def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
 
 def _resume_config(sc: S.Scene, cfg: GenerateConfig, run: RunOptions):
     """The newest unfinished run's recorded configuration; explicit conflicting keys refused."""
-    from lsd3d_usd.ggds.store import read_plan, region_progress
+    from lsd3d_usd.ggds.run.store import read_plan, region_progress
     names = sc.unfinished_runs()
     if not names:
         raise InputError(f"{sc.root}: no unfinished GGDS run to resume")
@@ -249,7 +249,7 @@ def _env_step(sc: S.Scene, p: Plan):
     from pxr import UsdLux
 
     from lsd3d_usd.env import write_env, write_env_layer
-    from lsd3d_usd.ggds.envbridge import scene_light
+    from lsd3d_usd.conditioning.light import scene_light
     w, h = p.cfg.env.resolution
     exr = write_env(p.env_params, sc.textures_dir, w, h)
     light = scene_light(p.env_params, exr)
@@ -274,7 +274,8 @@ def _env_step(sc: S.Scene, p: Plan):
 
 def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
     """The initial surfels, chunk by chunk (ggds.initial), unless they are up to date."""
-    from lsd3d_usd.ggds.initial import write_initial_surfels
+    from lsd3d_usd.conditioning.light import colour_by_light
+    from lsd3d_usd.splats.initial import write_initial_surfels
     from lsd3d_usd.memtune import release_free_memory
     from lsd3d_usd.splats import chunkio
     path = sc.layer_path("surfels")
@@ -289,7 +290,8 @@ def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
     sc.guard_step_layer("surfels", p.surfels_hash)   # (runs were retired up front if allowed)
     c = p.cfg.surfels
     info = write_initial_surfels(
-        sc.layer_path("proxy"), p.layout, light, path, count=c.count, density=c.density,
+        sc.layer_path("proxy"), p.layout, path,
+        colour=lambda field, V, F: colour_by_light(field, light, V, F), count=c.count, density=c.density,
         max_count=c.max_count, sh_degree=c.sh_degree, seed=p.cfg.seed,
         inputs_hash=p.surfels_hash, progress=run.progress,
         provenance=S.provenance("surfels", ct.to_dict(c), seed=p.cfg.seed))
@@ -319,8 +321,8 @@ def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     """GGDS region by region (ggds.regions): a new run, or the unfinished one resumed."""
     import os
 
-    from lsd3d_usd.ggds.regions import phases_from_plan, plan_regions, run_regions
-    from lsd3d_usd.ggds.store import read_plan, write_plan
+    from lsd3d_usd.ggds.regions.driver import phases_from_plan, plan_regions, run_regions
+    from lsd3d_usd.ggds.run.store import read_plan, write_plan
     from lsd3d_usd.splats.chunkio import read_chunk_map
     cfg = p.cfg
     if p.resume_run:

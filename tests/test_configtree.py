@@ -130,18 +130,18 @@ def test_config_file_relative_paths_and_errors(tmp_path):
 
 
 def test_prior_seed_follows_the_scene_seed():
-    from lsd3d_usd.ggds.priors import make_prior
+    from lsd3d_usd.ggds.priors.registry import make_prior
     assert make_prior(generate_config(seed=7).prior, seed=7).seed == 7
 
 
 def test_stored_configuration_without_a_newer_leaf_keeps_its_old_behaviour():
     """A run recorded before an option existed is read back with the value that matches what
     the code did then (the option's ``recorded``), not the new default."""
-    from lsd3d_usd.ggds.priors import PriorConfig
+    from lsd3d_usd.ggds.priors.registry import PriorConfig
     old = ct.from_dict(PriorConfig, {"name": "procedural"})
     assert old.supersample == 1 and PriorConfig().supersample == 2
     assert ct.from_dict(PriorConfig, {"name": "procedural", "supersample": 3}).supersample == 3
-    from lsd3d_usd.ggds.config import RegionConfig
+    from lsd3d_usd.ggds.settings import RegionConfig
     # chunk regions' colour start fitted to no views inside their margin before fit_inner_frac
     assert ct.from_dict(RegionConfig, {"mode": "chunk"}).fit_inner_frac == 0.0
     assert RegionConfig().fit_inner_frac == 1.0

@@ -13,7 +13,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import models
 from lsd3d_usd.eval import views as V
 from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
-from lsd3d_usd.ggds.cameras import sample_views
+from lsd3d_usd.conditioning.views import sample_views
 from lsd3d_usd.layout.usdio import read_layout
 from lsd3d_usd.config import generate_config
 from lsd3d_usd.pipeline import RunOptions, generate
@@ -241,7 +241,7 @@ def test_reference_images_resized_on_load_give_the_same_features(tmp_path):
     import torch
 
     from lsd3d_usd.eval.evaluate import load_reference, reference_images
-    from lsd3d_usd.ggds.effnet import EffNetFeatureExtractor
+    from lsd3d_usd.ggds.losses.effnet import EffNetFeatureExtractor
     rng = np.random.default_rng(1)
     full = [rng.uniform(size=(300, 410, 3)), np.repeat(rng.uniform(size=(90, 120, 1)), 3, axis=2)]
     for i, im in enumerate(full):

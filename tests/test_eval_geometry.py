@@ -8,7 +8,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import geometry as G
 from lsd3d_usd.eval import temporal as T
 from lsd3d_usd.eval import views as V
-from lsd3d_usd.ggds.cameras import sample_views
+from lsd3d_usd.conditioning.views import sample_views
 from lsd3d_usd.layout.usdio import read_layout
 from lsd3d_usd.render.camera import Camera, look_at
 from lsd3d_usd.render.gbuffer import render_gbuffer

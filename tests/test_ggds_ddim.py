@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.ddim import DDIMSchedule, eps_from_model_output
+from lsd3d_usd.ggds.priors.ddim import DDIMSchedule, eps_from_model_output
 
 
 def point_oracle(sched, z_star):

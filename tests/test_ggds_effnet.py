@@ -5,10 +5,9 @@ import torch
 import torch.nn.functional as F
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds import effnet
-from lsd3d_usd.ggds.effnet import (EMBED_DIM, FEATURE_CHANNELS, EffNetFeatureExtractor,
-                                   EfficientNetLite0, bundled_weights_path, load_efficientnet_lite0)
-from lsd3d_usd.ggds.perceptual import EffNetPerceptualLoss
+from lsd3d_usd.ggds.losses import effnet
+from lsd3d_usd.ggds.losses.effnet import (EMBED_DIM, FEATURE_CHANNELS, EffNetFeatureExtractor, EfficientNetLite0, bundled_weights_path, load_efficientnet_lite0)
+from lsd3d_usd.ggds.losses.perceptual import EffNetPerceptualLoss
 
 skdata = pytest.importorskip("skimage.data")
 

@@ -6,7 +6,7 @@ import numpy as np
 
 from conftest import ROOT
 from lsd3d_usd.config import generate_config
-from lsd3d_usd.ggds import initial
+from lsd3d_usd.splats import initial
 from lsd3d_usd.pipeline import RunOptions, generate
 from lsd3d_usd.splats import chunkio
 

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.ddim import DDIMSchedule
-from lsd3d_usd.ggds.losses import disparity_loss, l1_loss, normal_loss, omega, tv_loss
+from lsd3d_usd.ggds.priors.ddim import DDIMSchedule
+from lsd3d_usd.ggds.losses.image import disparity_loss, l1_loss, normal_loss, omega, tv_loss
 
 
 def test_omega_kinds():
@@ -104,9 +104,9 @@ def test_disparity_loss_relative_and_absolute():
 def test_l2_term_is_off_by_default_and_is_the_mean_squared_error():
     from types import SimpleNamespace
 
-    from lsd3d_usd.ggds.config import GGDSConfig
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
-    from lsd3d_usd.ggds.terms import LOSSES, StepContext, active_terms
+    from lsd3d_usd.ggds.settings import GGDSConfig
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
+    from lsd3d_usd.ggds.losses.terms import LOSSES, StepContext, active_terms
     prior = ProceduralPrior()
     assert "l2" not in [t.name for t, _ in active_terms(GGDSConfig(), prior)]
     cfg = GGDSConfig()

@@ -9,8 +9,8 @@ import torch
 import torch.nn.functional as F
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds import lpips as lp
-from lsd3d_usd.ggds.lpips import LPIPSLoss, load_backbone
+from lsd3d_usd.ggds.losses import lpips as lp
+from lsd3d_usd.ggds.losses.lpips import LPIPSLoss, load_backbone
 
 # torchvision's feature conv indices (what a real alexnet()/vgg16() state dict holds).
 CONV_IDX = {"alex": (0, 3, 6, 8, 10), "vgg": (0, 2, 5, 7, 10, 12, 14, 17, 19, 21, 24, 26, 28)}

@@ -6,8 +6,8 @@ import pytest
 import torch
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.prior_base import PriorEnv
-from lsd3d_usd.ggds.synthetic import street_gbuffer
+from lsd3d_usd.conditioning.light import PriorEnv
+from lsd3d_usd.ggds.priors.synthetic import street_gbuffer
 
 diffusers = pytest.importorskip("diffusers")
 transformers = pytest.importorskip("transformers")
@@ -64,7 +64,7 @@ def tiny_dirs(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def prior(tiny_dirs):
-    from lsd3d_usd.ggds.diffusers_prior import DiffusersPrior
+    from lsd3d_usd.ggds.priors.diffusion import DiffusersPrior
     root, cn = tiny_dirs
     return DiffusersPrior.from_pretrained(root, controlnet_dir=cn, guidance_scale=3.0)
 
@@ -119,7 +119,7 @@ def test_controlnet_conditioning_matters(prior, view):
     ("tokenizer/merges.txt+tokenizer/tokenizer.json", "tokenizer"), ("controlnet/diffusion_pytorch_model.safetensors", "ControlNet"),
 ])
 def test_incomplete_directory_is_a_clear_error(tiny_dirs, tmp_path, remove, msg):
-    from lsd3d_usd.ggds.diffusers_prior import DiffusersPrior
+    from lsd3d_usd.ggds.priors.diffusion import DiffusersPrior
     root, _ = tiny_dirs
     copy = tmp_path / "m"
     shutil.copytree(root, copy)
@@ -132,7 +132,7 @@ def test_incomplete_directory_is_a_clear_error(tiny_dirs, tmp_path, remove, msg)
 
 
 def test_missing_dir_and_sdxl_refused(tmp_path):
-    from lsd3d_usd.ggds.diffusers_prior import DiffusersPrior
+    from lsd3d_usd.ggds.priors.diffusion import DiffusersPrior
     with pytest.raises(InputError, match="not found"):
         DiffusersPrior.from_pretrained(tmp_path / "nope")
     (tmp_path / "xl" / "text_encoder_2").mkdir(parents=True)

@@ -5,11 +5,12 @@ import pytest
 import torch
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds import noise
+from lsd3d_usd.ggds.priors import noise
 from lsd3d_usd.ggds.filters import box_filter, guided_filter
-from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
-from lsd3d_usd.ggds.prior_base import GBuffer, PriorEnv, default_sky_sh
-from lsd3d_usd.ggds.synthetic import street_gbuffer
+from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
+from lsd3d_usd.conditioning.gbuffer import GBuffer
+from lsd3d_usd.conditioning.light import PriorEnv, default_sky_sh
+from lsd3d_usd.ggds.priors.synthetic import street_gbuffer
 from lsd3d_usd.semantics import CLASS_ID
 
 W, H = 96, 54
@@ -176,9 +177,9 @@ def test_bad_env_is_a_clear_error():
 
 def test_view_render_is_cached_per_gbuffer_and_env():
     import torch
-    from lsd3d_usd.ggds.prior_base import PriorEnv
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
-    from lsd3d_usd.ggds.synthetic import street_gbuffer
+    from lsd3d_usd.conditioning.light import PriorEnv
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
+    from lsd3d_usd.ggds.priors.synthetic import street_gbuffer
     prior, env = ProceduralPrior(), PriorEnv()
     gb = street_gbuffer(48, 32, eye=(0.0, -6.0, 1.6), target=(20.0, -6.0, 1.2))
     x = torch.rand(32, 48, 3)
@@ -223,7 +224,7 @@ def test_finer_gbuffer_splits_each_pixel():
     inverse depth is affine in the pixel, so its mean over a block is the coarse pixel's."""
     import numpy as np
 
-    from lsd3d_usd.ggds.conditioning import view_gbuffer
+    from lsd3d_usd.conditioning.gbuffer import view_gbuffer
     from lsd3d_usd.render.camera import Camera, look_at
     V = np.array([[-50, -50, 0], [50, -50, 0], [50, 50, 0], [-50, 50, 0]], np.float64)
     F = np.array([[0, 1, 2], [0, 2, 3]])

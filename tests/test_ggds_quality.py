@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 import torch
 
-from lsd3d_usd.ggds import params as P
-from lsd3d_usd.ggds.antialias import filter_sigma, smooth
-from lsd3d_usd.ggds.sampling import footprint, pick_views
-from lsd3d_usd.ggds.worldfit import disk_pattern, fit_sh, solve_sh
+from lsd3d_usd.ggds.optim import params as P
+from lsd3d_usd.ggds.optim.antialias import filter_sigma, smooth
+from lsd3d_usd.conditioning.visibility import footprint, pick_views
+from lsd3d_usd.ggds.colour_start.worldfit import disk_pattern, fit_sh, solve_sh
 from lsd3d_usd.render.camera import Camera, look_at
 from lsd3d_usd.render.sh import sh_basis
 from lsd3d_usd.splats.field import SurfelField
@@ -49,7 +49,7 @@ def test_footprint_matches_per_camera_projection():
 
 
 def test_project_matches_each_camera_with_margin_and_bad_points():
-    from lsd3d_usd.ggds.sampling import CameraSet, project
+    from lsd3d_usd.conditioning.visibility import CameraSet, project
     rng = np.random.default_rng(3)
     pts = rng.uniform(-8, 8, (500, 3))
     pts[0] = np.nan                     # a non-finite point is in no view
@@ -183,7 +183,7 @@ def test_solve_sh_recovers_a_function_in_its_span_and_ridge_limits():
 
 
 def test_pooled_solve_matches_one_big_least_squares():
-    from lsd3d_usd.ggds.worldfit import cell_ids, ridge_matrix, solve_sh_pooled
+    from lsd3d_usd.ggds.colour_start.worldfit import cell_ids, ridge_matrix, solve_sh_pooled
     rng = np.random.default_rng(6)
     N, K, S = 7, 5, 4
     d = rng.normal(size=(N, K, 3))
@@ -299,8 +299,8 @@ def test_run_bakes_the_filter_into_its_field_and_resumes_it():
 
 # ------------------------------------------------------------------ error-driven densification
 def test_densify_moves_redundant_surfels_to_high_residual_within_the_budget():
-    from lsd3d_usd.ggds.adam import SelectiveAdam
-    from lsd3d_usd.ggds.strategy import MCMCStrategy
+    from lsd3d_usd.ggds.optim.adam import SelectiveAdam
+    from lsd3d_usd.ggds.optim.strategy import MCMCStrategy
     n = 200
     rng = np.random.default_rng(4)
     pos = rng.normal(size=(n, 3)) * [10, 10, 0]
@@ -375,7 +375,7 @@ def test_run_with_densification_resumes_exactly():
 
 # ------------------------------------------------------------------ off-lane training views
 def test_displaced_views_cover_eval_novel_positions_in_the_given_proportion():
-    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.conditioning.views import sample_views
     from lsd3d_usd.layout.model import Building, LaneCenter, Layout
     lay = Layout(lanes=[LaneCenter(id="l0", points=[[0, 0, 0], [60, 0, 0]])],
                  buildings=[Building(id="b0", footprint=np.array(
@@ -412,7 +412,7 @@ def _plane_view(cam):
 
 
 def test_view_fit_recovers_direction_dependent_targets_and_skips_occluded():
-    from lsd3d_usd.ggds.worldfit import ViewFit
+    from lsd3d_usd.ggds.colour_start.worldfit import ViewFit
     rng = np.random.default_rng(7)
     n = 60
     pos = np.c_[rng.uniform(-1.5, 1.5, (n, 2)), np.zeros(n)]
@@ -444,7 +444,7 @@ def test_view_fit_recovers_direction_dependent_targets_and_skips_occluded():
 def _zonal_fit(cos_rows, colour, rng):
     """A ViewFit over ground surfels (normal +z) whose samples look down at the given |cos|
     values (one row per surfel, random azimuths), with colours from ``colour(|cos|)``."""
-    from lsd3d_usd.ggds.worldfit import ViewFit
+    from lsd3d_usd.ggds.colour_start.worldfit import ViewFit
     fit = ViewFit(len(cos_rows), 1)
     for i, cs in enumerate(cos_rows):
         cs = np.asarray(cs, np.float64)
@@ -463,7 +463,7 @@ def test_view_fit_zonal_prior_borrows_the_slope_of_well_seen_peers():
     """A surfel seen at one angle only cannot tell its slope with the angle from its DC term:
     towards zero it keeps its grazing colour from a steep view, towards its group's median
     slope it dims as its well-seen peers do; the well-seen ones barely move."""
-    from lsd3d_usd.ggds.worldfit import facing_ids, zonal_directions, zonal_slopes
+    from lsd3d_usd.ggds.colour_start.worldfit import (facing_ids, zonal_directions, zonal_slopes)
     rng = np.random.default_rng(3)
     colour = lambda cs: 0.62 - 0.5 * cs          # road sheen: brighter at grazing angles
     rows = [rng.uniform(0.03, 0.6, 12) for _ in range(40)] + [np.full(12, 0.08)]
@@ -499,7 +499,7 @@ def test_view_fit_zonal_prior_against_a_plain_least_squares():
     """The second solve is ridge regression centred on the group's slope: the same as one
     float64 least squares with ridge rows sqrt(w·Λ)(x − mean); groups too small to trust
     (fewer than min_members well-seen surfels) keep the plain solve."""
-    from lsd3d_usd.ggds.worldfit import ridge_matrix, zonal_directions, zonal_slopes
+    from lsd3d_usd.ggds.colour_start.worldfit import (ridge_matrix, zonal_directions, zonal_slopes)
     rng = np.random.default_rng(5)
     nrm = rng.normal(size=(30, 3)) * 0.05 + [0.0, 0.0, 1.0]
     colour = lambda cs: 0.5 - 0.3 * cs

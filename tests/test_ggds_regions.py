@@ -13,8 +13,8 @@ from lsd3d_usd import scene as S
 from lsd3d_usd import validation
 from lsd3d_usd.config import generate_config
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.config import RegionConfig
-from lsd3d_usd.ggds.regions import Region, plan_regions, region_context
+from lsd3d_usd.ggds.settings import RegionConfig
+from lsd3d_usd.ggds.regions.driver import Region, plan_regions, region_context
 from lsd3d_usd.pipeline import RunOptions, generate
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"   # 4 chunks: (-1|0, -1|0)
@@ -105,7 +105,7 @@ def test_neighbours_condition_a_region_within_the_band(chunked):
 
 
 def test_interrupted_run_resumes_with_finished_chunks_untouched(tmp_path, monkeypatch):
-    from lsd3d_usd.ggds import run as R
+    from lsd3d_usd.ggds.run import optimisation as R
     out = tmp_path / "scene"
     real = R.GGDSRun.step
     calls = {"n": 0}
@@ -148,7 +148,7 @@ def test_interrupted_run_resumes_with_finished_chunks_untouched(tmp_path, monkey
     assert last["context"] > 0 and last["context_colour_start"] == 0
     # both trained on some of their neighbours' views too (share_views)
     assert third["neighbour_views"] > 0 and last["neighbour_views"] > 0
-    from lsd3d_usd.ggds.store import run_views
+    from lsd3d_usd.ggds.run.store import run_views
     views = run_views(S.Scene.open(out), run)
     assert len({json.dumps(v, sort_keys=True) for v in views}) == len(views) <= 12
 
@@ -187,8 +187,8 @@ def test_cameras_layer_holds_every_regions_training_views(chunked):
     """Chunk mode: /World/Cameras/Train are the views sampled for each region, in
     region-name order, each naming its region; what a region trained on (views.json) is,
     in the same order, those of them that see its surfels."""
-    from lsd3d_usd.ggds.cameras import View
-    from lsd3d_usd.ggds.store import run_views
+    from lsd3d_usd.conditioning.views import View
+    from lsd3d_usd.ggds.run.store import run_views
     from lsd3d_usd.render.camera import from_usd
     out, summary = chunked
     sc = S.Scene.open(out)
@@ -212,8 +212,8 @@ def test_cameras_layer_holds_every_regions_training_views(chunked):
 
 
 def test_views_seeing_keeps_the_views_a_region_is_in():
-    from lsd3d_usd.ggds.cameras import View
-    from lsd3d_usd.ggds.sampling import views_seeing
+    from lsd3d_usd.conditioning.views import View
+    from lsd3d_usd.conditioning.visibility import views_seeing
     from lsd3d_usd.render.camera import Camera, look_at
     pts = np.random.default_rng(0).uniform([0, 0, 0], [10, 10, 2], (50_000, 3))
 
@@ -228,8 +228,8 @@ def test_views_seeing_keeps_the_views_a_region_is_in():
 
 
 def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
-    from lsd3d_usd.ggds.config import GGDSConfig
-    from lsd3d_usd.ggds.regions import region_fit_views
+    from lsd3d_usd.ggds.settings import GGDSConfig
+    from lsd3d_usd.ggds.regions.driver import region_fit_views
     from lsd3d_usd.layout.usdio import read_layout
     from dataclasses import replace
     layout = read_layout(LAYOUT)
@@ -264,8 +264,8 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
 
 
 def test_a_region_also_trains_on_its_neighbours_views_near_it():
-    from lsd3d_usd.ggds.config import GGDSConfig
-    from lsd3d_usd.ggds.regions import neighbour_views, region_views
+    from lsd3d_usd.ggds.settings import GGDSConfig
+    from lsd3d_usd.ggds.regions.driver import neighbour_views, region_views
     from lsd3d_usd.layout.usdio import read_layout
     from dataclasses import replace
     layout = read_layout(LAYOUT)
@@ -297,7 +297,7 @@ def test_eval_measures_seams_of_a_chunked_scene(chunked):
     from lsd3d_usd.eval.evaluate import render_view
     from lsd3d_usd.eval.report import _seams_html
     from lsd3d_usd.eval.seams_eval import measure_seams, pooled_psnr, view_errors
-    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.conditioning.views import sample_views
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
     from lsd3d_usd.views.stage_data import SceneReader
@@ -338,7 +338,7 @@ def test_eval_measures_seams_of_a_chunked_scene(chunked):
 
 
 def test_lane_length_inside_a_box():
-    from lsd3d_usd.ggds.cameras import lane_length_inside
+    from lsd3d_usd.conditioning.views import lane_length_inside
     from lsd3d_usd.layout.model import LaneCenter, Layout
     layout = Layout(lanes=[LaneCenter(id="l0", points=[[2, -1.5, 0], [38, -1.5, 0]]),
                            LaneCenter(id="l1", points=[[10, -20, 0], [10, 20, 0]])])
@@ -346,7 +346,7 @@ def test_lane_length_inside_a_box():
     # outside, so sample_views(region=box, clip=True) never stands on it
     box = (0, -5, 20, 5)
     assert lane_length_inside(layout, box) == pytest.approx(18, abs=0.6)
-    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.conditioning.views import sample_views
     assert {v.lane_id for v in sample_views(layout, 50, 32, 24, seed=1, region=box,
                                             clip=True)} == {"l0"}
     assert lane_length_inside(layout, (100, 100, 200, 200)) == 0.0

@@ -4,13 +4,14 @@ import numpy as np
 import pytest
 import torch
 
-from lsd3d_usd.ggds import params as P
-from lsd3d_usd.ggds.adam import SelectiveAdam
-from lsd3d_usd.ggds.cameras import View, sample_views
-from lsd3d_usd.ggds.prior_base import Prior, PriorEnv
-from lsd3d_usd.ggds.config import GGDSConfig, StrategyConfig
-from lsd3d_usd.ggds.run import GGDSRun, point_triangle_distance
-from lsd3d_usd.ggds.strategy import MCMCStrategy
+from lsd3d_usd.ggds.optim import params as P
+from lsd3d_usd.ggds.optim.adam import SelectiveAdam
+from lsd3d_usd.conditioning.views import View, sample_views
+from lsd3d_usd.ggds.priors.base import Prior
+from lsd3d_usd.conditioning.light import PriorEnv
+from lsd3d_usd.ggds.settings import GGDSConfig, StrategyConfig
+from lsd3d_usd.ggds.run.optimisation import GGDSRun, point_triangle_distance
+from lsd3d_usd.ggds.optim.strategy import MCMCStrategy
 from lsd3d_usd.layout.model import LaneCenter, Layout
 from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
 from lsd3d_usd.splats.field import SurfelField
@@ -127,7 +128,7 @@ def test_selective_adam_matches_torch_adam_on_full_rows():
 
 
 def test_selective_adam_in_row_blocks_equals_one_block(monkeypatch):
-    from lsd3d_usd.ggds import adam
+    from lsd3d_usd.ggds.optim import adam
     torch.manual_seed(1)
     init = {"sh": torch.randn(50, 4, 3), "o": torch.randn(50)}
     scales = {"sh": torch.tensor([1.0, 0.5, 0.5, 0.5])[:, None]}
@@ -232,7 +233,8 @@ def test_stratified_views_leave_no_stretch_of_lane_without_a_view():
 def test_packed_view_gbuffer_unpacks_to_the_full_gbuffer():
     """GGDS keeps training views packed (depth, face, position, sun) and derives the rest per
     visit: the unpacked G-buffer equals one built straight from the mesh rasteriser."""
-    from lsd3d_usd.ggds.conditioning import shadow_map, view_gbuffer
+    from lsd3d_usd.conditioning.shadow import shadow_map
+    from lsd3d_usd.conditioning.gbuffer import view_gbuffer
     from lsd3d_usd.render.camera import Camera, look_at
     from lsd3d_usd.render.gbuffer import render_gbuffer
     V, F, ids = street()
@@ -258,7 +260,7 @@ def test_packed_view_gbuffer_unpacks_to_the_full_gbuffer():
 
 
 def test_training_view_gbuffers_are_keyed_so_the_prior_renders_each_view_once():
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
     run = make_run(steps=2)
     prior = ProceduralPrior()
     calls = []
@@ -274,7 +276,7 @@ def test_training_view_gbuffers_are_keyed_so_the_prior_renders_each_view_once():
 
 
 def test_release_views_drops_the_runs_caches_and_only_them():
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
     prior = ProceduralPrior()
     run, other = make_run(steps=2), make_run(steps=2)
     run.prior = other.prior = prior
@@ -290,7 +292,7 @@ def test_release_views_drops_the_runs_caches_and_only_them():
 
 
 def test_view_gbuffer_of_an_empty_proxy_is_all_empty():
-    from lsd3d_usd.ggds.conditioning import view_gbuffer
+    from lsd3d_usd.conditioning.gbuffer import view_gbuffer
     from lsd3d_usd.render.camera import Camera
     gb = view_gbuffer(Camera.from_fov(16, 9, 60), np.zeros((0, 3)), np.zeros((0, 3), np.int64),
                       np.zeros(0, np.int32))
@@ -300,7 +302,7 @@ def test_view_gbuffer_of_an_empty_proxy_is_all_empty():
 def test_fit_views_join_the_colour_start_and_leave_nothing_behind():
     """World-space start with training views A and fit-only views B gives the colours of a
     run that trains on A + B (the same least squares); the fit views' targets are not kept."""
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
     base = make_run(steps=2)
     views = base.views
     a, b = views[:3], views[3:]
@@ -326,7 +328,7 @@ def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with
     least squares; the groups' zonal slopes pooled over both); the other context rows keep
     theirs; a checkpoint carries the fitted colours."""
     import dataclasses
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
     base = make_run(steps=2)
     full = base.field()
     x = full.positions[:, 0]
@@ -378,7 +380,7 @@ def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with
 def test_context_cull_renders_the_same_image_as_all_context_surfels():
     """render() passes the rasteriser only the context surfels whose bounding sphere reaches
     the view; the image (and the trainable rows' gradients) are those of all of them."""
-    from lsd3d_usd.ggds.sampling import spheres_in_view
+    from lsd3d_usd.conditioning.visibility import spheres_in_view
     base = make_run(steps=2)
     V, F, ids = street()
     ctx = mesh_to_surfels(V, F, ids, count=6000, seed=3, sh_degree=1, color=(0.3, 0.6, 0.2))

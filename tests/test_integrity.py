@@ -99,7 +99,7 @@ def test_pickled_checkpoint_is_refused_and_never_unpickled(tmp_path, run_cli):
 def test_truncated_or_foreign_checkpoint_is_one_line(tmp_path, run_cli, monkeypatch):
     out = tmp_path / "scene"
     gen(out)
-    from lsd3d_usd.ggds import run as R
+    from lsd3d_usd.ggds.run import optimisation as R
     real = R.GGDSRun.step
     n = {"k": 0}
 
@@ -188,7 +188,7 @@ def test_import_ply_over_a_run_needs_retire(finished, tmp_path, run_cli):
 
 def test_resume_uses_recorded_settings_and_refuses_conflicts(tmp_path, run_cli, monkeypatch):
     out = tmp_path / "scene"
-    from lsd3d_usd.ggds import run as R
+    from lsd3d_usd.ggds.run import optimisation as R
     real = R.GGDSRun.step
     n = {"k": 0}
 

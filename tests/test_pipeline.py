@@ -100,8 +100,8 @@ class _Stop(Exception):
 
 
 def test_ggds_writes_overs_and_survives_interrupt(tmp_path, monkeypatch):
-    pytest.importorskip("lsd3d_usd.ggds.procedural_prior")
-    from lsd3d_usd.ggds import run as R
+    pytest.importorskip("lsd3d_usd.ggds.priors.procedural")
+    from lsd3d_usd.ggds.run import optimisation as R
     out = tmp_path / "scene"
     generate(opts(out))
     surfels_before = (out / "layers" / "surfels.usdc").read_bytes()
@@ -151,7 +151,7 @@ def test_generated_scene_has_cameras_to_look_through(tmp_path, capsys):
     from pxr import UsdGeom
 
     from lsd3d_usd.cli import main
-    from lsd3d_usd.ggds.cameras import View
+    from lsd3d_usd.conditioning.views import View
     from lsd3d_usd.render.camera import from_usd
     out = tmp_path / "scene"
     summary = generate(opts(out, steps=2, **{"ggds.held_out": 2}))
@@ -162,7 +162,7 @@ def test_generated_scene_has_cameras_to_look_through(tmp_path, capsys):
                           + [f"/World/Cameras/HeldOut/HeldOut_{k:03d}" for k in range(2)]
                           + [f"/World/Cameras/Overview/{n}" for n in
                              ("Top", "SouthWest", "SouthEast", "NorthEast", "NorthWest")])
-    from lsd3d_usd.ggds.store import run_views
+    from lsd3d_usd.ggds.run.store import run_views
     run = next(li for li in S.Scene.open(out).layers() if li.is_run)
     trained = [View.from_json(d) for d in run_views(S.Scene.open(out), run.name)]
     assert len(trained) == 4

@@ -9,8 +9,8 @@ import torch
 
 from conftest import ROOT
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.prior_base import PriorEnv
-from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+from lsd3d_usd.conditioning.light import PriorEnv
+from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
 from lsd3d_usd.render.camera import Camera, look_at
 from lsd3d_usd.semantics import class_id
 from lsd3d_usd.views import deferred as D
@@ -253,7 +253,7 @@ def tiny_diffusers(tmp_path_factory):
 
 
 def test_controlnet_sees_the_cameras_proxy_gbuffer(tiny_diffusers):
-    from lsd3d_usd.ggds.diffusers_prior import DiffusersPrior, disparity_condition
+    from lsd3d_usd.ggds.priors.diffusion import DiffusersPrior, disparity_condition
     root, cn = tiny_diffusers
     prior = DiffusersPrior.from_pretrained(root, controlnet_dir=cn, guidance_scale=2.0)
     sp = scene_prior(prior=prior)

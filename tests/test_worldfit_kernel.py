@@ -3,8 +3,8 @@ import numpy as np
 import pytest
 import torch
 
-from lsd3d_usd.ggds.worldfit import ViewFit
-from lsd3d_usd.ggds.worldfit_kernels import summed_area
+from lsd3d_usd.ggds.colour_start.worldfit import ViewFit
+from lsd3d_usd.ggds.colour_start.kernels import summed_area
 from lsd3d_usd.render.camera import Camera, look_at
 from lsd3d_usd.render.sh import sh_basis
 

@@ -19,7 +19,7 @@ import time
 
 import torch
 
-from lsd3d_usd.ggds.ddim import DDIMSchedule
+from lsd3d_usd.ggds.priors.ddim import DDIMSchedule
 
 
 def linear_net(sched, dim, seed=0):

@@ -121,7 +121,7 @@ def _sweep(a, result, names, raw, per_level, cams, frames, levels, t_render):
     import torch
 
     from lsd3d_usd.eval.metrics import FewSamplesWarning, frechet_distance_features
-    from lsd3d_usd.ggds.effnet import EffNetFeatureExtractor
+    from lsd3d_usd.ggds.losses.effnet import EffNetFeatureExtractor
     n_frames = sum(len(v) for v in raw.values())
     ext = EffNetFeatureExtractor()
 

@@ -55,8 +55,8 @@ def main(argv=None):
     ap.add_argument("--json")
     a = ap.parse_args(argv)
 
-    from lsd3d_usd.ggds.diffusers_prior import DiffusersPrior
-    from lsd3d_usd.ggds.prior_base import PriorEnv
+    from lsd3d_usd.ggds.priors.diffusion import DiffusersPrior
+    from lsd3d_usd.conditioning.light import PriorEnv
     from lsd3d_usd.render.camera import Camera, look_at
     from lsd3d_usd.views.deferred import Deferrer, ScenePrior
 

@@ -83,10 +83,11 @@ def main(argv=None):
     w, h = (int(x) for x in a.size.lower().split("x"))
 
     import lsd3d_usd  # noqa: F401  (schema registration; torch first as in the CLI)
-    from lsd3d_usd.ggds import run as run_mod
-    from lsd3d_usd.ggds.cameras import sample_views
-    from lsd3d_usd.ggds.prior_base import Prior, PriorEnv
-    from lsd3d_usd.ggds.run import GGDSConfig, GGDSRun
+    from lsd3d_usd.ggds.run import optimisation as run_mod
+    from lsd3d_usd.conditioning.views import sample_views
+    from lsd3d_usd.ggds.priors.base import Prior
+    from lsd3d_usd.conditioning.light import PriorEnv
+    from lsd3d_usd.ggds.run.optimisation import GGDSConfig, GGDSRun
     from lsd3d_usd.layout.model import LaneCenter, Layout
     from lsd3d_usd.semantics import CLASS_COLORS
     from lsd3d_usd.splats.init import mesh_to_surfels
@@ -100,7 +101,7 @@ def main(argv=None):
     views = sample_views(layout, a.views, w, h, seed=0, novel_frac=0.25)
     sky = torch.tensor([0.55, 0.65, 0.85])
     if a.prior == "procedural":
-        from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+        from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
         prior = ProceduralPrior()
     else:
         class ClassColour(Prior):
@@ -114,7 +115,7 @@ def main(argv=None):
     cfg = GGDSConfig(steps=1000, width=w, height=h, n_views=a.views, seed=0,
                      w_perceptual=0.0 if a.no_perceptual else GGDSConfig.w_perceptual)
     if cfg.w_perceptual > 0:
-        from lsd3d_usd.ggds.perceptual import EffNetPerceptualLoss
+        from lsd3d_usd.ggds.losses.perceptual import EffNetPerceptualLoss
         perceptual = EffNetPerceptualLoss()
     run = GGDSRun(field, (V, F, ids), views, prior, PriorEnv(), cfg, face_index=face,
                   background_fn=lambda cam: sky.expand(cam.height, cam.width, 3).contiguous(),

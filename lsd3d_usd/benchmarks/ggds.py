@@ -31,12 +31,12 @@ def _chunk_proxy(layout, chunk):
 def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions=((480, 270),),
                steps=5, warmup=2, prompt="sunny afternoon in Madrid", log=print) -> list[dict]:
     from lsd3d_usd.env import build_params
-    from lsd3d_usd.ggds.cameras import sample_views
-    from lsd3d_usd.ggds.conditioning import shadow_map
-    from lsd3d_usd.ggds.envbridge import scene_light
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
-    from lsd3d_usd.ggds.config import GGDSConfig
-    from lsd3d_usd.ggds.run import GGDSRun
+    from lsd3d_usd.conditioning.views import sample_views
+    from lsd3d_usd.conditioning.shadow import shadow_map
+    from lsd3d_usd.conditioning.light import scene_light
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
+    from lsd3d_usd.ggds.settings import GGDSConfig
+    from lsd3d_usd.ggds.run.optimisation import GGDSRun
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.semantics import CLASSES
     from lsd3d_usd.splats.init import mesh_to_surfels
@@ -123,12 +123,12 @@ def _heldout(scene_dir: Path, cfg, strip) -> dict:
     from pxr import Usd
 
     from lsd3d_usd import scene as S
-    from lsd3d_usd.ggds.cameras import sample_views
-    from lsd3d_usd.ggds.conditioning import shadow_map
+    from lsd3d_usd.conditioning.views import sample_views
+    from lsd3d_usd.conditioning.shadow import shadow_map
     from lsd3d_usd import configtree as ct
-    from lsd3d_usd.ggds.envbridge import env_params, scene_light
-    from lsd3d_usd.ggds.heldout import heldout_psnr, render_and_target, scaled
-    from lsd3d_usd.ggds.priors import make_prior
+    from lsd3d_usd.conditioning.light import env_params, scene_light
+    from lsd3d_usd.ggds.run.heldout import heldout_psnr, render_and_target, scaled
+    from lsd3d_usd.ggds.priors.registry import make_prior
     from lsd3d_usd.pipeline import read_layout_for
     from lsd3d_usd.proxy.usdio import proxy_arrays
     from lsd3d_usd.splats import chunkio
@@ -178,7 +178,7 @@ def write_strip(path: Path, rows) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from lsd3d_usd.ggds.effnet import linear_to_srgb
+    from lsd3d_usd.ggds.losses.effnet import linear_to_srgb
     fig, ax = plt.subplots(len(rows), 3, figsize=(13.5, 2.6 * len(rows)), squeeze=False)
     for i, (label, *imgs) in enumerate(rows):
         for j, (img, title) in enumerate(zip(imgs, ("initial surfels", "after GGDS",

@@ -97,7 +97,7 @@ def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
     from lsd3d_usd import scene as S
     from lsd3d_usd.eval.evaluate import render_view
     from lsd3d_usd.eval.seams_eval import seam_stats, view_errors
-    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.conditioning.views import sample_views
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
     from lsd3d_usd.views.stage_data import SceneReader
@@ -126,7 +126,7 @@ def same_view_cameras(seed: int, views: int, size=(240, 135)) -> list:
     """Held-out-style cameras on the lanes of chunk 0_0 alone (the one-chunk corridor's
     layout; the generator makes a chunk's content the same at every extent), so that every
     configuration's PSNR is measured from the same positions."""
-    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.conditioning.views import sample_views
     from lsd3d_usd.layout import generator
     layout = generator.generate(seed, _extent("corridor", 1), "urban")
     return [v.camera for v in sample_views(layout, views, *size, seed=seed + 777,

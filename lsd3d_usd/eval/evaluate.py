@@ -273,7 +273,7 @@ def evaluate(o: EvalOptions) -> dict:
     t = time.perf_counter()
     import torch
 
-    from lsd3d_usd.ggds.effnet import EffNetFeatureExtractor
+    from lsd3d_usd.ggds.losses.effnet import EffNetFeatureExtractor
     ext = EffNetFeatureExtractor()
 
     def embed(imgs):

@@ -13,10 +13,11 @@ def run_targets(sc, run: str | None, proxy):
 
     from lsd3d_usd import configtree as ct
     from lsd3d_usd.env.exr import write_env
-    from lsd3d_usd.ggds.conditioning import FaceTable, shadow_map, table_gbuffer
-    from lsd3d_usd.ggds.envbridge import env_params, scene_light
-    from lsd3d_usd.ggds.priors import PriorConfig, make_prior
-    from lsd3d_usd.ggds.store import read_plan
+    from lsd3d_usd.conditioning.gbuffer import FaceTable, table_gbuffer
+    from lsd3d_usd.conditioning.shadow import shadow_map
+    from lsd3d_usd.conditioning.light import env_params, scene_light
+    from lsd3d_usd.ggds.priors.registry import PriorConfig, make_prior
+    from lsd3d_usd.ggds.run.store import read_plan
     if run is None:
         return None, "no GGDS run: the prior and light of its targets are unknown"
     try:
@@ -130,7 +131,7 @@ def seams_reference(path, sc, run: str | None, proxy) -> tuple:
 
     from lsd3d_usd import scene as S
     from lsd3d_usd.errors import InputError
-    from lsd3d_usd.ggds.store import read_plan
+    from lsd3d_usd.ggds.run.store import read_plan
     from lsd3d_usd.proxy.usdio import proxy_arrays
     what = f"--seams-reference {path}"
     ref = S.Scene.open(path)

@@ -20,8 +20,8 @@ import numpy as np
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.cameras import View, sample_views
-from lsd3d_usd.ggds.config import GGDSConfig
+from lsd3d_usd.conditioning.views import View, sample_views
+from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.render.camera import Camera, look_at
 
 DEFAULT_BINS = (0.5, 1.0, 2.0, 4.0, 8.0)
@@ -74,7 +74,7 @@ def seen_views(sc: S.Scene, layout, run: str | None, width: int, height: int) ->
                                     f"(sample_views, scene seed {seed}, fov {GGDS_FOV_DEG:g} deg)")
     if not info.exists:
         raise InputError(f"{info.path}: GGDS run layer file is missing")
-    from lsd3d_usd.ggds.store import run_views
+    from lsd3d_usd.ggds.run.store import run_views
     raw = run_views(sc, info.name)      # ggds/<run>/**/views.json
     if raw is None:                     # older runs: in the layer's provenance
         raw = info.provenance.get("trainViews")

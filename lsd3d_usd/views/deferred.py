@@ -60,7 +60,7 @@ def check_steps(n, where: str = "--deferred-steps") -> int:
 
 def check_prior_name(spec, where: str = "--deferred-prior") -> str:
     """A registered prior's name (with its argument): one InputError line otherwise."""
-    from lsd3d_usd.ggds.priors import PRIORS
+    from lsd3d_usd.ggds.priors.registry import PRIORS
     name = str(spec).split(":", 1)[0]
     if name not in PRIORS.names():
         known = ", ".join(f"{n}:DIR" if PRIORS.get(n).takes_arg else n for n in PRIORS.names())
@@ -109,14 +109,14 @@ class ScenePrior:
         prior samples pixel centres here (4× less work per frame at 2×2), and actors overlaid
         on it would be missing from a finer one. ``fine``: as GGDS's training targets (eval's
         prior baseline)."""
-        from lsd3d_usd.ggds.conditioning import table_gbuffer
+        from lsd3d_usd.conditioning.gbuffer import table_gbuffer
         V, F, _ = self.proxy
         return table_gbuffer(camera, V, F, self.face_table, self.shadow, fine=fine)
 
     @cached_property
     def face_table(self):
         """The proxy's FaceTable, built once for every frame."""
-        from lsd3d_usd.ggds.conditioning import FaceTable
+        from lsd3d_usd.conditioning.gbuffer import FaceTable
         return FaceTable.of(*self.proxy)
 
 
@@ -165,7 +165,7 @@ def recorded_prior_name(scene_path, run: str | None = None) -> str:
     unmuted one) recorded (the default prior's when none is recorded, as load_scene_prior
     falls back to it)."""
     from lsd3d_usd import scene as S
-    from lsd3d_usd.ggds.priors import PriorConfig
+    from lsd3d_usd.ggds.priors.registry import PriorConfig
     recorded, _ = _recorded_config(S.Scene.open(scene_root(scene_path)), run)
     spec = ((recorded or {}).get("prior") or {}).get("name") or PriorConfig().name
     return str(spec).split(":", 1)[0]
@@ -192,9 +192,9 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
     from lsd3d_usd import scene as S
     from lsd3d_usd.env.params import EnvParams
     from lsd3d_usd.env.usdlayer import read_env_prim
-    from lsd3d_usd.ggds.conditioning import shadow_map
-    from lsd3d_usd.ggds.envbridge import scene_light
-    from lsd3d_usd.ggds.priors import PriorConfig, make_prior
+    from lsd3d_usd.conditioning.shadow import shadow_map
+    from lsd3d_usd.conditioning.light import scene_light
+    from lsd3d_usd.ggds.priors.registry import PriorConfig, make_prior
     from lsd3d_usd.proxy.usdio import proxy_arrays
 
     t0 = time.perf_counter()

@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 import torch.nn.functional as F
 
-from lsd3d_usd.ggds.effnet import FEATURE_BLOCKS, EffNetFeatureExtractor, to_batch
+from lsd3d_usd.ggds.losses.effnet import FEATURE_BLOCKS, EffNetFeatureExtractor, to_batch
 
 
 def _unit(f: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:

@@ -29,7 +29,7 @@ import torch.nn as nn
 import torch.nn.functional as F
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.effnet import linear_to_srgb, to_batch
+from lsd3d_usd.ggds.losses.effnet import linear_to_srgb, to_batch
 
 SHIFT = (-0.030, -0.088, -0.188)
 SCALE = (0.458, 0.448, 0.450)

@@ -16,8 +16,8 @@ from typing import Callable
 import numpy as np
 import torch
 
-from lsd3d_usd.ggds.config import GGDSConfig
-from lsd3d_usd.ggds.run import GGDSRun
+from lsd3d_usd.ggds.settings import GGDSConfig
+from lsd3d_usd.ggds.run.optimisation import GGDSRun
 from lsd3d_usd.splats.field import SurfelField
 
 BEFORE_AFTER_VIEWS = 2
@@ -160,8 +160,8 @@ def _plots(run: GGDSRun, prior, inputs: GGDSInputs, before: list, out_dir) -> No
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from lsd3d_usd.ggds.conditioning import view_gbuffer
-    from lsd3d_usd.ggds.effnet import linear_to_srgb
+    from lsd3d_usd.conditioning.gbuffer import view_gbuffer
+    from lsd3d_usd.ggds.losses.effnet import linear_to_srgb
     out_dir.mkdir(parents=True, exist_ok=True)
     h = run.history
     if h:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import torch
 
-from lsd3d_usd.ggds import noise
+from lsd3d_usd.ggds.priors import noise
 from lsd3d_usd.semantics import CLASS_ID
 
 GROUND_CLASSES = ("road", "lane_marking", "crosswalk", "curb", "sidewalk")

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from lsd3d_usd.ggds.cameras import View
+from lsd3d_usd.conditioning.views import View
 
 
 def scaled(views: list[View], factor: float) -> list[View]:
@@ -25,7 +25,7 @@ def scaled(views: list[View], factor: float) -> list[View]:
 def render_and_target(field, view: View, prior, env, proxy, *, background_fn=None, shadow=None,
                       t_eval: float = 1.0, n_denoise: int = 5, seed: int = 10_000):
     """(render rgb (H,W,3), prior target (H,W,3)) of ``field`` (a SurfelField) for one view."""
-    from lsd3d_usd.ggds.conditioning import view_gbuffer
+    from lsd3d_usd.conditioning.gbuffer import view_gbuffer
     from lsd3d_usd.render.raster_types import RasterSettings
     from lsd3d_usd.render.rasterize import rasterize
     cam = view.camera

@@ -35,9 +35,11 @@ import torch.nn.functional as F
 
 from lsd3d_usd.colour import srgb_decode as srgb_to_linear  # noqa: F401
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.ddim import DDIMSchedule, eps_from_model_output
-from lsd3d_usd.ggds.effnet import linear_to_srgb
-from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv, check_image, check_t
+from lsd3d_usd.ggds.priors.ddim import DDIMSchedule, eps_from_model_output
+from lsd3d_usd.ggds.losses.effnet import linear_to_srgb
+from lsd3d_usd.conditioning.gbuffer import GBuffer
+from lsd3d_usd.ggds.priors.base import Prior, check_image, check_t
+from lsd3d_usd.conditioning.light import PriorEnv
 
 _MODEL_WEIGHTS = ("diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.bin")
 _TEXT_WEIGHTS = ("model.safetensors", "pytorch_model.bin")

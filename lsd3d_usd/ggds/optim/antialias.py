@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from lsd3d_usd.ggds.sampling import footprint
+from lsd3d_usd.conditioning.visibility import footprint
 
 
 def filter_sigma(positions: np.ndarray, cameras, k: float, *, margin_frac: float = 0.15,

@@ -14,7 +14,7 @@ MAX_RESOLUTION = 8192                        # GGDS render side limit (pixels)
 
 
 def _loss_weights() -> dict:
-    from lsd3d_usd.ggds.terms import LOSSES
+    from lsd3d_usd.ggds.losses.terms import LOSSES
     return {name: LOSSES.get(name).default_weight for name in LOSSES.names()}
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import torch
 
-from lsd3d_usd.ggds.prior_base import GBuffer
+from lsd3d_usd.conditioning.gbuffer import GBuffer
 from lsd3d_usd.semantics import CLASS_ID
 
 

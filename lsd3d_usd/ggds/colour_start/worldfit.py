@@ -31,7 +31,7 @@ import math
 import numpy as np
 import torch
 
-from lsd3d_usd.ggds.sampling import CameraSet, pick_views
+from lsd3d_usd.conditioning.visibility import CameraSet, pick_views
 from lsd3d_usd.render.sh import C0, sh_basis
 
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
@@ -280,7 +280,7 @@ class ViewFit:
         """Add one view's samples; returns how many surfels it saw. ``target`` (H,W,3) and
         ``depth`` (H,W: camera z, inf where empty) are the view's; positions may be float32
         (widened per surfel)."""
-        from lsd3d_usd.ggds.worldfit_kernels import accumulate_view, summed_area
+        from lsd3d_usd.ggds.colour_start.kernels import accumulate_view, summed_area
         tgt = target.numpy() if isinstance(target, torch.Tensor) else np.asarray(target)
         dep = np.asarray(depth)
         if dep.shape != tgt.shape[:2] or tgt.ndim != 3 or tgt.shape[2] != 3:

@@ -47,7 +47,7 @@ class LossTerm:
 
 # ----------------------------------------------------------------------------- built-ins
 def _l1(ctx: StepContext):
-    from lsd3d_usd.ggds import losses
+    from lsd3d_usd.ggds.losses import image as losses
     return losses.l1_loss(ctx.x, ctx.target)
 
 
@@ -61,9 +61,9 @@ def _perceptual(ctx: StepContext):
 
 def _perceptual_setup(cfg, prior):
     if cfg.lpips is not None:
-        from lsd3d_usd.ggds.lpips import LPIPSLoss
+        from lsd3d_usd.ggds.losses.lpips import LPIPSLoss
         return LPIPSLoss.from_files(cfg.lpips, cfg.lpips_lin, linear=True)  # renders are linear
-    from lsd3d_usd.ggds.perceptual import EffNetPerceptualLoss
+    from lsd3d_usd.ggds.losses.perceptual import EffNetPerceptualLoss
     return EffNetPerceptualLoss()
 
 
@@ -71,28 +71,28 @@ def _normal(ctx: StepContext):
     import numpy as np
     import torch
 
-    from lsd3d_usd.ggds import losses
+    from lsd3d_usd.ggds.losses import image as losses
     R = torch.from_numpy(ctx.camera.viewmat[:3, :3].astype(np.float32))
     proxy_n_cam = ctx.gbuffer.normal @ R.T
     return losses.normal_loss(ctx.render.normal, proxy_n_cam, ctx.covered(), two_sided=True)
 
 
 def _disparity(ctx: StepContext):
-    from lsd3d_usd.ggds import losses
+    from lsd3d_usd.ggds.losses import image as losses
     return losses.disparity_loss(ctx.render.depth_expected, ctx.gbuffer.depth, ctx.covered())
 
 
 def _normal_consistency(ctx: StepContext):
     import torch
 
-    from lsd3d_usd.ggds.regularizers import normal_consistency
+    from lsd3d_usd.ggds.losses.regularizers import normal_consistency
     r = ctx.render
     return normal_consistency(r.normal, r.depth_expected, r.alpha,
                               torch.from_numpy(ctx.camera.K))
 
 
 def _tv(ctx: StepContext):
-    from lsd3d_usd.ggds import losses
+    from lsd3d_usd.ggds.losses import image as losses
     return losses.tv_loss(ctx.x)
 
 
@@ -115,7 +115,7 @@ DISTORTION = LossTerm("distortion", _distortion, 0.0, needs=("distortion",),
                       help="2DGS depth distortion (measured: no PSNR gain on the README sample)")
 
 LOSSES = Registry("lsd3d_usd.losses", "loss term", {
-    t.name: f"lsd3d_usd.ggds.terms:{n}" for n, t in (
+    t.name: f"lsd3d_usd.ggds.losses.terms:{n}" for n, t in (
         ("L1", L1), ("L2", L2), ("PERCEPTUAL", PERCEPTUAL), ("NORMAL", NORMAL), ("DISPARITY", DISPARITY),
         ("NORMAL_CONSISTENCY", NORMAL_CONSISTENCY), ("TV", TV), ("DISTORTION", DISTORTION))})
 

@@ -1,6 +1,6 @@
-"""GGDS's starting point: surfels seeded on the proxy mesh (splats.init) and coloured by the
-scene's light — class albedo times sky irradiance plus the sun where the proxy does not shadow
-it — so the first renders already look like the scene and GGDS refines from there.
+"""GGDS's starting point: surfels seeded on the proxy mesh (splats.init), coloured by a function
+the caller gives (generate: conditioning.light.colour_by_light, the scene's light on class
+albedos), so the first renders already look like the scene and GGDS refines from there.
 
 Surfels are made chunk by chunk and written to per-chunk files as soon as a chunk is complete
 (splats.chunkio), so memory follows a few chunks, not the scene: a 10 km corridor initialises
@@ -46,17 +46,6 @@ def _weighted_area(V: np.ndarray, F: np.ndarray, layout) -> tuple[np.ndarray, np
     area = 0.5 * np.linalg.norm(np.cross(Vs[Fs[:, 1]] - Vs[Fs[:, 0]], Vs[Fs[:, 2]] - Vs[Fs[:, 0]]),
                                 axis=1)
     return area, w
-
-
-def colour_by_light(field: SurfelField, light, shadow) -> None:
-    """Initial DC colours in place: class albedo × (sky + shadowed sun) irradiance."""
-    from lsd3d_usd.semantics import CLASS_COLORS
-    from lsd3d_usd.splats.field import rgb_to_sh_dc
-    vis = shadow.visibility(field.positions.astype(np.float64) + 0.05 * field.normals()) \
-        if shadow is not None else None
-    albedo = CLASS_COLORS[np.clip(field.semantic_ids, 0, None)]
-    rgb = np.clip(albedo * light.irradiance(field.normals(), vis), 0.0, 4.0)
-    field.sh[:, 0, :] = rgb_to_sh_dc(rgb)
 
 
 def _owners(positions: np.ndarray, seed_key, chunk_size: float, tol: float = 1e-3) -> dict:
@@ -163,14 +152,15 @@ def _counts(keys, cache, layout, count, density, max_count) -> tuple[dict, dict]
                     "viewWeightedArea_m2": round(sum(wareas.values()), 1)}
 
 
-def write_initial_surfels(proxy_path, layout, light, out_root, *, count: int | None,
+def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | None,
                           density: float, max_count: int, sh_degree: int = 1, seed: int = 0,
                           inputs_hash: str, provenance: dict | None = None,
                           progress: bool = False) -> dict:
     """Seed, colour and write the initial surfels of every proxy chunk to a new chunk folder
     named by ``inputs_hash``, then the surfel root layer ``out_root`` (splats.chunkio), then
-    remove the folders of earlier versions. Returns a summary."""
-    from lsd3d_usd.ggds.conditioning import shadow_map
+    remove the folders of earlier versions. ``colour(field, vertices, faces)`` sets a chunk's
+    surfel colours in place, given the proxy of its 3×3 neighbourhood (what can shadow it).
+    Returns a summary."""
     from lsd3d_usd.proxy.usdio import read_chunk_map
     from lsd3d_usd.scene import parse_chunk_prim_name
     from lsd3d_usd.semantics import CLASSES
@@ -218,7 +208,7 @@ def write_initial_surfels(proxy_path, layout, light, out_root, *, count: int | N
                                               face_weights=weights, max_count=max_count)
                 face = parent[face]
                 NV, NF = cache.neighbourhood(key)
-                colour_by_light(field, light, shadow_map(NV, NF, light.sun_direction))
+                colour(field, NV, NF)
                 for target, idx in _owners(field.positions, key, chunk_size).items():
                     src = np.tile(np.asarray(key, np.int32), (len(idx), 1))
                     pending.setdefault(target, []).append(

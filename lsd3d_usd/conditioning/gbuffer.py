@@ -1,61 +1,80 @@
-"""Per-view conditioning for GGDS: the proxy G-buffer as the prior wants it, with a sun
-shadow term from a shadow map of the proxy (rendered by the mesh G-buffer rasteriser from a
-distant camera along the sun direction, i.e. a near-orthographic light view)."""
+"""The proxy G-buffer of a view as a prior wants it (GBuffer), with the sun's visibility from a
+shadow map (conditioning.shadow); the compact form GGDS keeps per training view
+(PackedGBuffer) and the per-face lookup tables that unpack it (FaceTable)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Hashable
+from typing import Callable, Hashable, Optional
 
 import numpy as np
 import torch
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.prior_base import GBuffer
-from lsd3d_usd.render.camera import Camera, look_at, pixel_directions
+from lsd3d_usd.conditioning.shadow import ShadowMap
+from lsd3d_usd.render.camera import Camera, pixel_directions
 from lsd3d_usd.render.gbuffer import face_normals, pixel_positions, render_depth
 
 
 @dataclass
-class ShadowMap:
-    camera: Camera
-    depth: np.ndarray     # (S,S) camera z of the nearest proxy surface seen from the sun
-    bias: float           # metres
+class GBuffer:
+    """Proxy G-buffer of one view, torch tensors on one device.
 
-    def visibility(self, points: np.ndarray) -> np.ndarray:
-        """1 where `points` (..., 3) see the sun, 0 where the proxy occludes it."""
-        shape = points.shape[:-1]
-        p = points.reshape(-1, 3)
-        ok = np.isfinite(p).all(axis=1)
-        uv, z = self.camera.project(np.where(ok[:, None], p, 0.0))
-        i = np.floor(uv[:, 0]).astype(np.int64)
-        j = np.floor(uv[:, 1]).astype(np.int64)
-        inside = ok & (i >= 0) & (j >= 0) & (i < self.depth.shape[1]) & (j < self.depth.shape[0])
-        vis = np.ones(len(p), np.float32)
-        occ = self.depth[np.clip(j, 0, self.depth.shape[0] - 1), np.clip(i, 0, self.depth.shape[1] - 1)]
-        vis[inside & (occ < z - self.bias)] = 0.0
-        return vis.reshape(shape)
+    depth:        (H, W) camera z in metres (along the optical axis); inf where empty.
+    normal:       (H, W, 3) world-space unit normals; anything where empty.
+    semantic:     (H, W) int class ids of lsd3d_usd.semantics; -1 where empty / sky.
+    world_pos:    (H, W, 3) world positions (metres); anything finite or nan where empty.
+    view_dirs:    (H, W, 3) world-space unit rays from the camera through each pixel.
+    camera_position: (3,) world position of the camera centre.
+    sun_visibility: optional (H, W) in [0, 1], 1 = lit by the sun (ray cast against the
+                  proxy by the caller); None means everything is lit.
+    key:          optional hashable identity of the view: equal keys promise equal contents,
+                  so a prior may cache what it derives from the G-buffer under it (GGDS
+                  rebuilds a training view's G-buffer every time it visits the view).
+    fine:         optional callable k -> the same view's G-buffer at k× the resolution (each
+                  pixel split into k×k), made on demand, for a prior that integrates over
+                  pixels instead of sampling their centres.
+    """
+    depth: torch.Tensor
+    normal: torch.Tensor
+    semantic: torch.Tensor
+    world_pos: torch.Tensor
+    view_dirs: torch.Tensor
+    camera_position: torch.Tensor
+    sun_visibility: Optional[torch.Tensor] = None
+    key: Optional[Hashable] = None
+    fine: Optional[Callable[[int], "GBuffer"]] = None
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.depth.shape)
 
-def shadow_map(vertices: np.ndarray, faces: np.ndarray, sun_dir: np.ndarray,
-               resolution: int = 2048) -> ShadowMap | None:
-    """Shadow map covering the proxy's bounds; None when the sun is below the horizon."""
-    sun = np.asarray(sun_dir, np.float64)
-    sun = sun / np.linalg.norm(sun)
-    if sun[2] <= 0.02 or len(faces) == 0:
-        return None
-    lo, hi = vertices.min(0), vertices.max(0)
-    centre = 0.5 * (lo + hi)
-    radius = 0.5 * float(np.linalg.norm(hi - lo)) + 1.0
-    dist = 50.0 * radius  # far enough that the perspective is nearly orthographic
-    eye = centre + sun * dist
-    up = (0.0, 1.0, 0.0) if abs(sun[2]) > 0.99 else (0.0, 0.0, 1.0)
-    fov = 2.0 * np.degrees(np.arctan(radius / (dist - radius)))
-    cam = Camera.from_fov(resolution, resolution, fov, pose=look_at(eye, centre, up),
-                          near=dist - 2 * radius, far=dist + 2 * radius)
-    depth, _ = render_depth(vertices, faces, cam)
-    texel = 2.0 * radius / resolution
-    # Bias grows with the slope of a texel seen from the sun; 2 texels covers up to ~60 deg.
-    return ShadowMap(cam, depth.astype(np.float32), bias=2.0 * texel + 0.02)
+    @property
+    def valid(self) -> torch.Tensor:
+        """(H, W) bool: pixels covered by proxy geometry."""
+        return torch.isfinite(self.depth) & (self.depth > 0)
+
+    def disparity(self) -> torch.Tensor:
+        """(H, W) 1 / depth, 0 where empty."""
+        d = self.depth
+        ok = self.valid
+        return torch.where(ok, 1.0 / torch.where(ok, d, torch.ones_like(d)), torch.zeros_like(d))
+
+    def validate(self, height: int | None = None, width: int | None = None) -> None:
+        """Raise InputError naming the first field whose shape does not match."""
+        if self.depth.ndim != 2:
+            raise InputError(f"GBuffer.depth must be (H, W), got {tuple(self.depth.shape)}")
+        H, W = self.depth.shape
+        if height is not None and (H, W) != (height, width):
+            raise InputError(f"GBuffer is {W}x{H} but the image is {width}x{height}")
+        expect = {"normal": (H, W, 3), "semantic": (H, W), "world_pos": (H, W, 3),
+                  "view_dirs": (H, W, 3), "camera_position": (3,)}
+        if self.sun_visibility is not None:
+            expect["sun_visibility"] = (H, W)
+        for name, shape in expect.items():
+            got = tuple(getattr(self, name).shape)
+            if got != shape:
+                raise InputError(f"GBuffer.{name} must be {shape}, got {got}")
+
 
 
 def view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray | None,

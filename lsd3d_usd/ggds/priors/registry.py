@@ -81,7 +81,7 @@ def _procedural_check(arg, cfg):
 
 
 def _procedural_make(arg, cfg, seed):
-    from lsd3d_usd.ggds.procedural_prior import ProceduralPrior
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
     return ProceduralPrior(seed=seed, supersample=cfg.supersample)
 
 
@@ -91,13 +91,13 @@ def _diffusers_check(arg, cfg):
     if not Path(arg).is_dir():
         raise InputError(f"--prior diffusers:{arg}: no such directory (the diffusion prior "
                          "loads local weights only; nothing is downloaded)")
-    from lsd3d_usd.ggds.diffusers_prior import check_model_dir
+    from lsd3d_usd.ggds.priors.diffusion import check_model_dir
     check_model_dir(arg, cfg.controlnet)
     _check_device_available(cfg)
 
 
 def _diffusers_make(arg, cfg, seed):
-    from lsd3d_usd.ggds.diffusers_prior import DiffusersPrior
+    from lsd3d_usd.ggds.priors.diffusion import DiffusersPrior
     return DiffusersPrior.from_pretrained(arg, cfg.controlnet, device=cfg.device,
                                           guidance_scale=cfg.guidance)
 
@@ -108,8 +108,8 @@ DIFFUSERS = PriorEntry(_diffusers_make, _diffusers_check, takes_arg=True,
                        help="latent diffusion + depth ControlNet from a local diffusers folder")
 
 PRIORS = Registry("lsd3d_usd.priors", "prior", {
-    "procedural": "lsd3d_usd.ggds.priors:PROCEDURAL",
-    "diffusers": "lsd3d_usd.ggds.priors:DIFFUSERS",
+    "procedural": "lsd3d_usd.ggds.priors.registry:PROCEDURAL",
+    "diffusers": "lsd3d_usd.ggds.priors.registry:DIFFUSERS",
 })
 
 

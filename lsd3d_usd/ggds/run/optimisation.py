@@ -20,15 +20,18 @@ import numpy as np
 import torch
 
 from lsd3d_usd.configtree import to_dict
-from lsd3d_usd.ggds import losses, params as P
-from lsd3d_usd.ggds.adam import SelectiveAdam, lr_at
-from lsd3d_usd.ggds.cameras import View
-from lsd3d_usd.ggds.conditioning import (FaceTable, PackedGBuffer, ShadowMap,
-                                         finer, pack_view_gbuffer, table_gbuffer)
-from lsd3d_usd.ggds.config import GGDSConfig
-from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv
-from lsd3d_usd.ggds.strategy import MCMCStrategy
-from lsd3d_usd.ggds.terms import StepContext, active_terms
+from lsd3d_usd.ggds.losses import image as losses
+from lsd3d_usd.ggds.optim import params as P
+from lsd3d_usd.ggds.optim.adam import SelectiveAdam, lr_at
+from lsd3d_usd.conditioning.views import View
+from lsd3d_usd.conditioning.gbuffer import (FaceTable, PackedGBuffer, finer, pack_view_gbuffer, table_gbuffer)
+from lsd3d_usd.conditioning.shadow import ShadowMap
+from lsd3d_usd.ggds.settings import GGDSConfig
+from lsd3d_usd.conditioning.gbuffer import GBuffer
+from lsd3d_usd.ggds.priors.base import Prior
+from lsd3d_usd.conditioning.light import PriorEnv
+from lsd3d_usd.ggds.optim.strategy import MCMCStrategy
+from lsd3d_usd.ggds.losses.terms import StepContext, active_terms
 from lsd3d_usd.render.raster_types import RasterResult, RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.splats.field import SurfelField
@@ -222,7 +225,7 @@ class GGDSRun:
 
     # ------------------------------------------------------------ anti-aliasing
     def _filter_sigma(self, positions: np.ndarray, rows: np.ndarray) -> torch.Tensor | None:
-        from lsd3d_usd.ggds.antialias import filter_sigma
+        from lsd3d_usd.ggds.optim.antialias import filter_sigma
         k = self.cfg.filter_3d
         if not k > 0:
             return None
@@ -233,7 +236,7 @@ class GGDSRun:
         """(N,) fraction of each surfel's opacity the 3D filter keeps (None without it)."""
         if self.filter3d is None:
             return None
-        from lsd3d_usd.ggds.antialias import smooth
+        from lsd3d_usd.ggds.optim.antialias import smooth
         s = self.params["scales"].exp()
         return smooth(s, torch.ones(len(s)), self.filter3d)[1]
 
@@ -258,7 +261,7 @@ class GGDSRun:
         3D smoothing filter on, each disk convolved with its frequency limit."""
         a = P.activated(params)
         if self.filter3d is not None:
-            from lsd3d_usd.ggds.antialias import smooth
+            from lsd3d_usd.ggds.optim.antialias import smooth
             a["scales"], a["opacities"] = smooth(a["scales"], a["opacities"], self.filter3d)
         return a
 
@@ -270,7 +273,7 @@ class GGDSRun:
         if self.context is not None:   # trainable rows first: visible_index < n are ours
             # only the neighbours' surfels that can reach this view: the same image, without
             # per-surfel buffers and gradient rows for the rest (~1.5x a chunk's surfels)
-            from lsd3d_usd.ggds.sampling import spheres_in_view
+            from lsd3d_usd.conditioning.visibility import spheres_in_view
             keep = torch.from_numpy(np.flatnonzero(spheres_in_view(
                 self.context["means"].numpy(), self._context_radii, camera)))
             a = {k: torch.cat([a[k], self.context[k].index_select(0, keep).to(a[k].dtype)])
@@ -352,7 +355,7 @@ class GGDSRun:
         the steps would), and for surfels none sees, to the prior evaluated in 3D over its
         disk from the nearest cameras (worldfit.fit_sh). GGDS steps refine from there.
         Returns whether it ran."""
-        from lsd3d_usd.ggds.worldfit import ViewFit, facing_ids, fit_sh, zonal_slopes
+        from lsd3d_usd.ggds.colour_start.worldfit import (ViewFit, facing_ids, fit_sh, zonal_slopes)
         from lsd3d_usd.render.sh import sh_degree_of
         c = self.cfg
         f = self.field()

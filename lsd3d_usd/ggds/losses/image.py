@@ -21,8 +21,8 @@ import math
 import torch
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.config import OMEGA_KINDS
-from lsd3d_usd.ggds.ddim import DDIMSchedule
+from lsd3d_usd.ggds.settings import OMEGA_KINDS
+from lsd3d_usd.ggds.priors.ddim import DDIMSchedule
 
 DEFAULT_SCHEDULE = DDIMSchedule()   # SD 1.x/2.x scaled-linear betas (ggds/ddim.py)
 

@@ -28,10 +28,10 @@ import numpy as np
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.config import RegionConfig
+from lsd3d_usd.ggds.settings import RegionConfig
 from lsd3d_usd.memtune import peak_rss_mb
 
-TASK_TARGET = "lsd3d_usd.ggds.regions:run_region_task"
+TASK_TARGET = "lsd3d_usd.ggds.regions.driver:run_region_task"
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     (views.scene_cameras) authors the same views; run_region then trains a chunk region on
     those that see any of its surfels (sampling.views_seeing), with ``share_views`` also on
     its neighbours' that stand near it (neighbour_views)."""
-    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.conditioning.views import sample_views
     rseed = region_seed(seed, region)
     w, h = g.resolution
     whole = not region.name
@@ -119,7 +119,7 @@ def neighbour_views(layout, g, seed: int, region: Region, chunks) -> list:
     (docs/large_scale.md, "Seams"). A neighbour whose views stand denser than the region's own
     (a chunk holding only the end of a lane) is thinned to the region's density, so no
     neighbour floods it with views."""
-    from lsd3d_usd.ggds.cameras import lane_length_inside
+    from lsd3d_usd.conditioning.views import lane_length_inside
     size, m = float(layout.chunk_size), g.regions.view_margin_m
 
     def grown(r):
@@ -152,7 +152,7 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
     near a border is seen by a whole-scene fit from both sides and from afar; the region's
     training views reach only ``view_margin_m`` across, so without these its colour would be
     fitted from one side)."""
-    from lsd3d_usd.ggds.cameras import sample_views
+    from lsd3d_usd.conditioning.views import sample_views
     r = g.regions
     w, h = g.resolution
     rseed = region_seed(seed, region)
@@ -232,7 +232,7 @@ def region_context(sc: S.Scene, run: str, region: Region, finished: set, band_m:
     """(frozen surfels of the neighbours within ``band_m`` of the region: this run's result
     for finished neighbours, the initial surfels otherwise; (n,) bool: which rows are
     initial), or None when there are none."""
-    from lsd3d_usd.ggds.store import run_layer_path
+    from lsd3d_usd.ggds.run.store import run_layer_path
     from lsd3d_usd.splats import chunkio
     from lsd3d_usd.splats.field import SurfelField
     if band_m <= 0:
@@ -262,12 +262,12 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
                refresh: bool = True) -> dict:
     """Optimise one region (``job``: the plain data run_regions builds). Returns its summary."""
     from lsd3d_usd.env.exr import write_env
-    from lsd3d_usd.ggds.conditioning import shadow_map
-    from lsd3d_usd.ggds.config import GGDSConfig
-    from lsd3d_usd.ggds.envbridge import env_params, scene_light
-    from lsd3d_usd.ggds.priors import PriorConfig, make_prior
-    from lsd3d_usd.ggds.runner import GGDSInputs, run_ggds
-    from lsd3d_usd.ggds.store import RegionRunStore
+    from lsd3d_usd.conditioning.shadow import shadow_map
+    from lsd3d_usd.ggds.settings import GGDSConfig
+    from lsd3d_usd.conditioning.light import env_params, scene_light
+    from lsd3d_usd.ggds.priors.registry import PriorConfig, make_prior
+    from lsd3d_usd.ggds.run.lifecycle import GGDSInputs, run_ggds
+    from lsd3d_usd.ggds.run.store import RegionRunStore
     from lsd3d_usd.layout.usdio import read_layout
     log = log or (lambda *a: None)
     sc = S.Scene(job["scene"])
@@ -292,7 +292,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
         log(f"ggds: {region.name}: no drivable lane inside: its initial surfels are kept")
         return skip_region(sc, job["run"], region, "no drivable lane inside")
     if not whole:
-        from lsd3d_usd.ggds.sampling import views_seeing
+        from lsd3d_usd.conditioning.visibility import views_seeing
         own = {id(v) for v in views}
         if rcfg.share_views:
             from lsd3d_usd.splats.chunkio import read_chunk_map
@@ -343,7 +343,7 @@ def run_region(job: dict, *, term_state=None, progress: bool = False, log=None,
 def skip_region(sc: S.Scene, run: str, region: Region, reason: str) -> dict:
     """A region GGDS cannot optimise (no surfels, or no lane to place views on) keeps its
     initial surfels; recorded as done so the run can complete."""
-    from lsd3d_usd.ggds.store import region_dir, write_json
+    from lsd3d_usd.ggds.run.store import region_dir, write_json
     progress = {"complete": True, "skipped": reason, "stepsDone": 0,
                 "keys": [list(k) for k in region.keys], "surfels": 0}
     write_json(region_dir(sc, run, region.name) / "progress.json", progress)
@@ -377,8 +377,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
     """Run every unfinished region phase by phase (in this process when one worker or one
     region; else on a local pool or Ray), updating the run layer as regions finish. Returns
     the run summary (also ggds/<run>/summary.json)."""
-    from lsd3d_usd.ggds.store import (aggregate_metrics, read_plan, refresh_run_layer,
-                                      region_progress, write_plan)
+    from lsd3d_usd.ggds.run.store import (aggregate_metrics, read_plan, refresh_run_layer, region_progress, write_plan)
     plan = read_plan(sc, run)
     t0 = time.perf_counter()
     finished = {tuple(k) for name in plan["regions"] if region_progress(sc, run, name)
@@ -446,7 +445,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
                                             "metrics")},
                 **tasks[k]}
             for k, v in regions_done.items()}
-    from lsd3d_usd.ggds.store import write_json
+    from lsd3d_usd.ggds.run.store import write_json
     write_json(sc.run_files(run).dir / "summary.json", summary)
     return summary
 
@@ -459,14 +458,14 @@ def _record_task(sc, run: str, region: str, summary: dict) -> None:
     """Keep a finished region's task figures in its task.json as soon as it returns, so a
     later (resumed) invocation reports them too (``summary``: run_region's, which says
     whether the region completed)."""
-    from lsd3d_usd.ggds.store import write_region_task
+    from lsd3d_usd.ggds.run.store import write_region_task
     if region and summary.get("complete"):
         write_region_task(sc, run, region, {k: summary.get(k) for k in TASK_FIGURES})
 
 
 def _task_figures(sc, run: str, region: str, summary: dict | None) -> dict:
     """A region's task figures: this invocation's, else those an earlier one recorded."""
-    from lsd3d_usd.ggds.store import region_task
+    from lsd3d_usd.ggds.run.store import region_task
     return {k: (summary if summary is not None else region_task(sc, run, region)).get(k)
             for k in TASK_FIGURES}
 
@@ -475,7 +474,7 @@ def _run_pool(pool, jobs: dict, retries: int, sc, run, bar, log) -> dict:
     """One phase's regions on an executor; a region that fails after its retries stops the
     run with one line naming it (the scene stays valid; --resume continues)."""
     from lsd3d_usd.execution import ERROR, OK, SUSPECT
-    from lsd3d_usd.ggds.store import refresh_run_layer
+    from lsd3d_usd.ggds.run.store import refresh_run_layer
     attempts = {name: 0 for name in jobs}
     waiting = list(jobs)
     running = set()

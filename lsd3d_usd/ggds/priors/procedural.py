@@ -21,9 +21,11 @@ import math
 
 import torch
 
-from lsd3d_usd.ggds import materials as mat
+from lsd3d_usd.ggds.priors import materials as mat
 from lsd3d_usd.ggds.filters import guided_filter
-from lsd3d_usd.ggds.prior_base import GBuffer, Prior, PriorEnv, check_image, check_t
+from lsd3d_usd.conditioning.gbuffer import GBuffer
+from lsd3d_usd.ggds.priors.base import Prior, check_image, check_t
+from lsd3d_usd.conditioning.light import PriorEnv
 from lsd3d_usd.shmath import sh_basis9
 
 
