@@ -100,7 +100,7 @@ def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | N
     from lsd3d_usd.ggds.losses.terms import LOSSES
     weight = g.weights.get("perceptual")
     if weight is None:   # the prior's default, known without loading it
-        weight = _prior_default_weight(PRIORS.get(cfg.prior.kind), "perceptual")
+        weight = PRIORS.get(cfg.prior.kind).default_weight("perceptual")
     if g.lpips is not None and (not g.perceptual or not weight > 0):
         raise InputError(f"--lpips {g.lpips}: the perceptual weight is 0 (--no-perceptual, or "
                          "the procedural prior's default), so LPIPS would not be used; "
@@ -109,14 +109,6 @@ def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | N
     if g.lpips is not None:   # keys, shapes, lin weights checked now; loaded once
         state["perceptual"] = LOSSES.get("perceptual").setup(g, None)
     return state
-
-
-def _prior_default_weight(entry, term: str) -> float:
-    from lsd3d_usd.ggds.priors.base import Prior
-    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
-    from lsd3d_usd.ggds.priors.registry import PROCEDURAL
-    cls = ProceduralPrior if entry is PROCEDURAL else Prior
-    return cls.default_weights.get(term, 0.0)
 
 
 def _surfels_hash(layout_hash: str, env_hash: str, cfg: GenerateConfig) -> str:
@@ -321,7 +313,8 @@ def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     """GGDS region by region (ggds.regions): a new run, or the unfinished one resumed."""
     import os
 
-    from lsd3d_usd.ggds.regions.driver import phases_from_plan, plan_regions, run_regions
+    from lsd3d_usd.ggds.regions.driver import run_regions
+    from lsd3d_usd.ggds.regions.plan import phases_from_plan, plan_regions
     from lsd3d_usd.ggds.run.store import read_plan, write_plan
     from lsd3d_usd.splats.chunkio import read_chunk_map
     cfg = p.cfg
@@ -341,7 +334,7 @@ def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     run.log(f"ggds: {name}: {n} region(s) in {len(phases)} phase(s)")
     return run_regions(sc, name, phases=phases, ggds=ct.to_dict(cfg.ggds),
                        prior=ct.to_dict(cfg.prior), env=ct.to_dict(cfg.env), seed=cfg.seed,
-                       resume=p.resume_run is not None, stop_at=p.stop_at,
+                       stop_at=p.stop_at,
                        keep_checkpoint=run.keep_checkpoint,
                        workers=run.workers or os.cpu_count() or 1, executor=run.executor,
                        address=run.address, term_state=p.term_state, progress=run.progress,

@@ -1,5 +1,5 @@
-"""Named, pluggable parts (priors, loss terms, map importers, renderer backends) looked up in
-one registry each.
+"""Named, pluggable parts looked up in one registry each: priors, loss terms, map importers,
+renderer backends, layout blocks, benchmarks (and the sensor models and dataset writers).
 
 A registry holds the project's built-in entries (``"module:attribute"`` targets, imported only
 when used, so listing names stays cheap) and the Python entry points of its group, so a
@@ -7,6 +7,11 @@ third-party package adds a part by declaring, in its own pyproject.toml::
 
     [project.entry-points."lsd3d_usd.priors"]
     myprior = "mypkg.prior:MY_PRIOR"
+
+At run time ``register(name, "module:attribute")`` adds an entry by target: such entries
+travel to worker processes (``portable()`` in the parent, ``adopt()`` in the worker; the
+region workers of GGDS do this), since a worker imports the target itself. An object
+registered directly (``register(name, obj)``) lives in this process only.
 
 A name that is registered twice (an entry point shadowing a built-in) is an error rather
 than a silent override: which one runs must never depend on install order.
@@ -20,16 +25,26 @@ from typing import Any
 
 from lsd3d_usd.errors import InputError
 
+REGISTRIES: dict[str, "Registry"] = {}   # by entry-point group, every registry of the process
+
+
+def _is_target(obj: Any) -> bool:
+    return isinstance(obj, str) and ":" in obj and all(obj.partition(":")[::2])
+
 
 class Registry:
     """Entries of one kind: ``names()``, ``get(name)``; ``what`` names the kind in errors."""
 
     def __init__(self, group: str, what: str, builtins: dict[str, str]):
+        if group in REGISTRIES:
+            raise ValueError(f"a registry for {group} exists already")
         self.group = group
         self.what = what
         self._targets: dict[str, str] = dict(builtins)
+        self._runtime: dict[str, str] = {}     # targets registered at run time (portable)
         self._loaded: dict[str, Any] = {}
         self._scanned = False
+        REGISTRIES[group] = self
 
     def _scan(self) -> None:
         if self._scanned:
@@ -42,19 +57,27 @@ class Registry:
             self._targets[ep.name] = ep.value
 
     def register(self, name: str, obj: Any) -> None:
-        """Register an object directly (tests, notebooks)."""
+        """Register ``obj``: a ``"module:attribute"`` target (portable to worker processes)
+        or the object itself (this process only)."""
         self._scan()
         if name in self._targets or name in self._loaded:
             raise InputError(f"{self.what} {name!r} is already registered")
-        self._loaded[name] = obj
+        if _is_target(obj):
+            self._targets[name] = self._runtime[name] = obj
+        else:
+            self._loaded[name] = obj
 
     def unregister(self, name: str) -> None:
         self._loaded.pop(name, None)
         self._targets.pop(name, None)
+        self._runtime.pop(name, None)
 
     def names(self) -> list[str]:
         self._scan()
         return sorted(set(self._targets) | set(self._loaded))
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.names()
 
     def get(self, name: str) -> Any:
         self._scan()
@@ -74,3 +97,25 @@ class Registry:
             raise InputError(f"{self.what} {name!r}: cannot load {target}: {e}") from None
         self._loaded[name] = obj
         return obj
+
+    def items(self):
+        """(name, entry) of every entry, loading each."""
+        return [(n, self.get(n)) for n in self.names()]
+
+
+def portable() -> dict[str, dict[str, str]]:
+    """The run-time target registrations of every registry of this process, by group: what a
+    worker process needs to resolve the same names (``adopt``)."""
+    return {g: dict(r._runtime) for g, r in REGISTRIES.items() if r._runtime}
+
+
+def adopt(registrations: dict[str, dict[str, str]]) -> None:
+    """Apply a parent's ``portable()`` registrations in this (worker) process; names already
+    registered with the same target are left as they are."""
+    for group, entries in (registrations or {}).items():
+        reg = REGISTRIES.get(group)
+        if reg is None:   # a registry defined by a plugin module: import it by its group
+            continue
+        for name, target in entries.items():
+            if reg._targets.get(name) != target:
+                reg.register(name, target)

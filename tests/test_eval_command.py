@@ -162,7 +162,7 @@ def test_prior_baseline_skipped_with_a_reason(tiny_scene, tmp_path, monkeypatch)
     from lsd3d_usd.eval.prior_baseline import open_baseline
     assert open_baseline(tiny_scene, False, 3, None) == (None, "turned off (--no-prior-baseline)")
     assert open_baseline(tiny_scene, None, 0, None)[1] == "no held-out lane views (--heldout 0)"
-    monkeypatch.setattr("lsd3d_usd.views.deferred.recorded_prior_name", lambda p, run: "diffusers")
+    monkeypatch.setattr("lsd3d_usd.ggds.priors.scene.recorded_prior_name", lambda p, run: "diffusers")
     base, why = open_baseline(tiny_scene, None, 3, None)
     assert base is None and "'diffusers' is slow on the CPU" in why and "--prior-baseline" in why
     res = evaluate(_opts(tiny_scene, out_dir=tmp_path / "e", bins=(1.0,), per_bin=1, frames=2))

@@ -274,25 +274,22 @@ def test_disk_pattern_fills_the_disk():
 # ------------------------------------------------------------------ inside a run
 def test_run_bakes_the_filter_into_its_field_and_resumes_it():
     from test_ggds_run import make_run
-    from dataclasses import replace
-    run = make_run(steps=12)
-    run.cfg = replace(run.cfg, filter_3d=0.5)
-    means = run.params["means"].detach().numpy()    # the initial surfels
-    run.filter3d = run._filter_sigma(means, np.arange(len(means)))
-    assert run.filter3d is not None and (run.filter3d > 0).all()
+    run = make_run(steps=12, filter_3d=0.5)
+    sigma = run.state.filter3d                  # from the initial surfels and training views
+    assert sigma is not None and (sigma > 0).all()
     for _ in range(6):
         run.step()
     f = run.field()
     raw = P.activated(run.params)
-    s, o = smooth(raw["scales"].detach(), raw["opacities"].detach(), run.filter3d)
+    s, o = smooth(raw["scales"].detach(), raw["opacities"].detach(), sigma)
     np.testing.assert_allclose(f.scales, s.numpy(), rtol=1e-6)
     np.testing.assert_allclose(f.opacities, o.numpy(), rtol=1e-6)
-    assert np.all(f.scales >= run.filter3d.numpy()[:, None] * (1 - 1e-6))
+    assert np.all(f.scales >= sigma.numpy()[:, None] * (1 - 1e-6))
     tensors, meta = run.checkpoint()
     from safetensors.torch import load, save
     tensors, meta = load(save(tensors)), json.loads(json.dumps(meta))
     with torch.no_grad():
-        run.filter3d.mul_(3.0)
+        run.state.filter3d.mul_(3.0)
     run.restore(tensors, meta)
     np.testing.assert_allclose(run.field().scales, f.scales)
 
@@ -343,16 +340,12 @@ def test_densify_moves_redundant_surfels_to_high_residual_within_the_budget():
 
 def test_run_with_densification_resumes_exactly():
     from test_ggds_run import make_run
-    from dataclasses import replace
+
+    from lsd3d_usd.ggds.settings import StrategyConfig
 
     def build():
-        run = make_run(steps=12)
-        run.cfg = replace(run.cfg, filter_3d=2.0, strategy=replace(run.cfg.strategy,
-                                                                   densify_frac=0.05))
-        run.strategy.densify_frac = 0.05
-        means = run.params["means"].detach().numpy()    # the initial surfels
-        run.filter3d = run._filter_sigma(means, np.arange(len(means)))
-        return run
+        return make_run(steps=12, filter_3d=2.0,
+                        strategy=StrategyConfig(relocate_every=10, densify_frac=0.05))
     a = build()
     for _ in range(12):
         a.step()
@@ -369,8 +362,8 @@ def test_run_with_densification_resumes_exactly():
         c.step()
     for k in P.KEYS:
         torch.testing.assert_close(c.params[k], a.params[k], rtol=1e-5, atol=1e-6)
-    torch.testing.assert_close(c.filter3d, a.filter3d)
-    np.testing.assert_array_equal(c.face_index, a.face_index)
+    torch.testing.assert_close(c.state.filter3d, a.state.filter3d)
+    np.testing.assert_array_equal(c.state.face_index, a.state.face_index)
 
 
 # ------------------------------------------------------------------ off-lane training views

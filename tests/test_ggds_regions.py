@@ -14,7 +14,8 @@ from lsd3d_usd import validation
 from lsd3d_usd.config import generate_config
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.settings import RegionConfig
-from lsd3d_usd.ggds.regions.driver import Region, plan_regions, region_context
+from lsd3d_usd.ggds.regions.inputs import region_context
+from lsd3d_usd.ggds.regions.plan import Region, plan_regions
 from lsd3d_usd.pipeline import RunOptions, generate
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"   # 4 chunks: (-1|0, -1|0)
@@ -229,7 +230,7 @@ def test_views_seeing_keeps_the_views_a_region_is_in():
 
 def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     from lsd3d_usd.ggds.settings import GGDSConfig
-    from lsd3d_usd.ggds.regions.driver import region_fit_views
+    from lsd3d_usd.ggds.regions.views import region_fit_views
     from lsd3d_usd.layout.usdio import read_layout
     from dataclasses import replace
     layout = read_layout(LAYOUT)
@@ -265,7 +266,7 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
 
 def test_a_region_also_trains_on_its_neighbours_views_near_it():
     from lsd3d_usd.ggds.settings import GGDSConfig
-    from lsd3d_usd.ggds.regions.driver import neighbour_views, region_views
+    from lsd3d_usd.ggds.regions.views import neighbour_views, region_views
     from lsd3d_usd.layout.usdio import read_layout
     from dataclasses import replace
     layout = read_layout(LAYOUT)

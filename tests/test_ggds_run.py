@@ -10,7 +10,10 @@ from lsd3d_usd.conditioning.views import View, sample_views
 from lsd3d_usd.ggds.priors.base import Prior
 from lsd3d_usd.conditioning.light import PriorEnv
 from lsd3d_usd.ggds.settings import GGDSConfig, StrategyConfig
-from lsd3d_usd.ggds.run.optimisation import GGDSRun, point_triangle_distance
+from lsd3d_usd.conditioning.scene import Conditioning
+from lsd3d_usd.ggds.run.evaluate import point_triangle_distance
+from lsd3d_usd.ggds.run.inputs import GGDSInputs
+from lsd3d_usd.ggds.run.optimisation import GGDSRun
 from lsd3d_usd.ggds.optim.strategy import MCMCStrategy
 from lsd3d_usd.layout.model import LaneCenter, Layout
 from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
@@ -51,7 +54,13 @@ def layout():
     return Layout(lanes=[LaneCenter(id="l0", points=[[2, -1.5, 0], [38, -1.5, 0]])])
 
 
-def make_run(steps=20, seed=0, n=4000, far_extra=0):
+def new_run(field, proxy, views, prior, cfg, env=None, backdrop=None, **inputs):
+    """A GGDSRun over arrays (no scene light: ``backdrop`` as the background)."""
+    cond = Conditioning.of_arrays(proxy, env, backdrop=backdrop)
+    return GGDSRun(GGDSInputs(field=field, conditioning=cond, views=views, **inputs), prior, cfg)
+
+
+def make_run(steps=20, seed=0, n=4000, far_extra=0, prior=None, **config):
     V, F, ids = street()
     # Grey start: the run must learn the class colours from the prior.
     field, face = mesh_to_surfels(V, F, ids, count=n, seed=seed, sh_degree=1, color=(0.5, 0.5, 0.5),
@@ -62,10 +71,10 @@ def make_run(steps=20, seed=0, n=4000, far_extra=0):
         field = SurfelField.concat([field, far])
         face = np.concatenate([face, face[:far_extra]])
     views = sample_views(layout(), 6, 64, 48, seed=seed, novel_frac=0.3)
-    cfg = GGDSConfig(steps=steps, resolution=(64, 48), seed=seed, perceptual=False,
-                     strategy=StrategyConfig(relocate_every=10))
-    return GGDSRun(field, (V, F, ids), views, ClassColourTestPrior(), PriorEnv(), cfg,
-                   face_index=face, background_fn=lambda cam: SKY.expand(cam.height, cam.width, 3))
+    config.setdefault("strategy", StrategyConfig(relocate_every=10))
+    cfg = GGDSConfig(steps=steps, resolution=(64, 48), seed=seed, perceptual=False, **config)
+    return new_run(field, (V, F, ids), views, prior or ClassColourTestPrior(), cfg, face_index=face,
+                   backdrop=lambda cam: SKY.expand(cam.height, cam.width, 3))
 
 
 def test_loss_falls_and_stays_finite():
@@ -278,15 +287,14 @@ def test_training_view_gbuffers_are_keyed_so_the_prior_renders_each_view_once():
 def test_release_views_drops_the_runs_caches_and_only_them():
     from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
     prior = ProceduralPrior()
-    run, other = make_run(steps=2), make_run(steps=2)
-    run.prior = other.prior = prior
+    run, other = make_run(steps=2, prior=prior), make_run(steps=2, prior=prior)
     for r in (run, other):
         for i in (0, 1):
             prior.cached_render(r.view_data(i).gbuffer, r.env)
-    assert len(prior._render_cache) == 4 and len(run._view_cache) == 2
+    assert len(prior._render_cache) == 4 and run.views.cached == 2
     before = run.view_data(1).gbuffer
     run.release_views()
-    assert not run._view_cache and len(prior._render_cache) == 2   # the other run's stay
+    assert not run.views.cached and len(prior._render_cache) == 2   # the other run's stay
     after = run.view_data(1).gbuffer                                # rebuilt on demand
     assert after.key == before.key and torch.equal(after.depth, before.depth)
 
@@ -304,13 +312,12 @@ def test_fit_views_join_the_colour_start_and_leave_nothing_behind():
     run that trains on A + B (the same least squares); the fit views' targets are not kept."""
     from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
     base = make_run(steps=2)
-    views = base.views
+    views = base.views.views
     a, b = views[:3], views[3:]
     prior = ProceduralPrior()
 
     def run_with(train, fit):
-        r = GGDSRun(base.field(), (base.vertices, base.faces, base.face_ids), train, prior,
-                    PriorEnv(), base.cfg, fit_views=fit)
+        r = new_run(base.field(), base.conditioning.proxy, train, prior, base.cfg, fit_views=fit)
         assert r.world_init()
         return r
     split, joint, alone = run_with(a, b), run_with(a + b, []), run_with(a, [])
@@ -319,7 +326,7 @@ def test_fit_views_join_the_colour_start_and_leave_nothing_behind():
     assert not np.allclose(split.params["sh"].detach().numpy(), alone.params["sh"].detach().numpy())
     keys = {k[0][1] for k in prior._render_cache}
     assert not any(len(k) == 3 and k[1] == "fit" for k in keys)
-    assert len(split._view_cache) == len(a)
+    assert split.views.cached == len(a)
 
 
 def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with_it():
@@ -334,16 +341,15 @@ def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with
     x = full.positions[:, 0]
     own, ctx = full.subset(np.flatnonzero(x < 20)), full.subset(np.flatnonzero(x >= 20))
     start = ctx.positions[:, 0] >= 30          # an unfinished neighbour's rows
-    proxy = (base.vertices, base.faces, base.face_ids)
+    proxy = base.conditioning.proxy
     prior = ProceduralPrior()
     cfg = dataclasses.replace(base.cfg, world_init_zonal_prior=True)
 
     def region(cfg=cfg):
-        return GGDSRun(own, proxy, base.views, prior, PriorEnv(), cfg, context=ctx,
-                       context_start=start)
+        return new_run(own, proxy, base.views.views, prior, cfg, context=ctx, context_start=start)
     fitted = np.flatnonzero((x < 20) | (x >= 30))
-    run, joint = region(), GGDSRun(full.subset(fitted), proxy, base.views, prior, PriorEnv(),
-                                   cfg)
+    run, joint = region(), new_run(full.subset(fitted), proxy, base.views.views,
+                                   prior, cfg)
     assert run.world_init() and joint.world_init()
     np.testing.assert_allclose(run.params["sh"].detach().numpy(),
                                joint.params["sh"].detach().numpy()[x[fitted] < 20], atol=1e-6)
@@ -355,7 +361,7 @@ def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with
     # with per-surfel ridges towards zero, the same as one run over all surfels
     plain_cfg = dataclasses.replace(base.cfg, world_init_zonal_prior=False)
     run = region(plain_cfg)
-    joint = GGDSRun(full, proxy, base.views, prior, PriorEnv(), plain_cfg)
+    joint = new_run(full, proxy, base.views.views, prior, plain_cfg)
     assert run.world_init() and joint.world_init()
     got = run.context["sh"].float().numpy()
     assert np.array_equal(got[~start], ctx.sh[~start].astype(np.float16).astype(np.float32))
@@ -364,7 +370,7 @@ def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with
     want = joint.params["sh"].detach().numpy()[x >= 20][start][changed]
     np.testing.assert_allclose(got[start][changed], want, atol=2e-3 + 1e-3 * np.abs(want).max())
     # the trainable rows start as they would without the context fit
-    plain = GGDSRun(own, proxy, base.views, prior, PriorEnv(), plain_cfg, context=ctx)
+    plain = new_run(own, proxy, base.views.views, prior, plain_cfg, context=ctx)
     assert plain.world_init()
     assert torch.equal(plain.params["sh"], run.params["sh"])
     assert torch.equal(plain.context["sh"], torch.from_numpy(ctx.sh.astype(np.float16)))
@@ -373,7 +379,7 @@ def test_colour_start_colours_the_unfinished_neighbours_context_and_resumes_with
     again.restore(tensors, meta)
     assert torch.equal(again.context["sh"], run.context["sh"])
     with pytest.raises(ValueError, match="context_start"):
-        GGDSRun(own, proxy, base.views, prior, PriorEnv(), base.cfg, context=ctx,
+        new_run(own, proxy, base.views.views, prior, base.cfg, context=ctx,
                 context_start=start[:-1])
 
 
@@ -388,15 +394,15 @@ def test_context_cull_renders_the_same_image_as_all_context_surfels():
     ctx.positions = (ctx.positions + rng.uniform(-40, 40, (ctx.n, 3)) * [1, 1, 0.1]
                      ).astype(np.float32)
     ctx.scales = (ctx.scales * rng.uniform(0.5, 30.0, (ctx.n, 1))).astype(np.float32)  # some large
-    run = GGDSRun(base.field(), (V, F, ids), base.views, ClassColourTestPrior(), PriorEnv(),
+    run = new_run(base.field(), (V, F, ids), base.views.views, ClassColourTestPrior(),
                   base.cfg, context=ctx)
     checked = 0
-    for v in base.views:
+    for v in base.views.views:
         cam = v.camera
-        kept = spheres_in_view(run.context["means"].numpy(), run._context_radii, cam)
+        kept = spheres_in_view(run.context["means"].numpy(), run.context.radii, cam)
         checked += int((~kept).sum() > 0 and kept.sum() > 0)
         got = run.render(cam)
-        a = run.activated(run.params)
+        a = run.state.activated()
         n_own = a["means"].shape[0]
         a = {k: torch.cat([a[k].detach(), run.context[k].to(a[k].dtype)]) for k in a}
         from lsd3d_usd.render.rasterize import rasterize

@@ -83,7 +83,7 @@ def test_backends_agree_on_gradients(seed):
 
 
 def test_registry_names_and_plugging_in_a_backend():
-    assert {"numba", "torch"} <= set(backends.BACKENDS)
+    assert {"numba", "torch"} <= set(backends.BACKENDS.names())
     s, _, _ = scene(n=10)
     with pytest.raises(InputError, match=r"^rasterize: unknown backend 'gsplat'; known: numba, torch"):
         rast(s, backend="gsplat")
@@ -109,7 +109,7 @@ def test_registry_names_and_plugging_in_a_backend():
         assert torch.allclose(a.depth_expected[m], b.depth_expected[m], rtol=1e-5)
         assert rast(s, backend=Halved()).alpha.max() <= 0.5  # objects work without registering
     finally:
-        del backends.BACKENDS["halved"]
+        backends.BACKENDS.unregister("halved")
 
 
 def test_torch_backend_refuses_scenes_over_its_budget():
@@ -219,4 +219,4 @@ def test_docs_backend_example_plugs_in_and_matches_the_torch_backend():
             assert torch.equal(getattr(a, k), getattr(b, k)), k
         assert a.stats.n_visible == b.stats.n_visible > 0
     finally:
-        backends.BACKENDS.pop("torch64", None)
+        backends.BACKENDS.unregister("torch64")

@@ -13,6 +13,9 @@ from lsd3d_usd.conditioning.light import PriorEnv
 from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
 from lsd3d_usd.render.camera import Camera, look_at
 from lsd3d_usd.semantics import class_id
+from lsd3d_usd.conditioning.scene import Conditioning
+from lsd3d_usd.ggds.priors import scene as SP
+from lsd3d_usd.ggds.priors.registry import check_prior_name
 from lsd3d_usd.views import deferred as D
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
@@ -47,8 +50,9 @@ def street_proxy(building_y=8.0):
 
 
 def scene_prior(proxy=None, prior=None):
-    return D.ScenePrior(prior or ProceduralPrior(seed=3), PriorEnv(), proxy or street_proxy(),
-                        None, "procedural", "test", 3)
+    return SP.ScenePrior(prior or ProceduralPrior(seed=3),
+                         Conditioning.of_arrays(proxy or street_proxy(), PriorEnv()),
+                         "procedural", "test", 3)
 
 
 def camera(yaw_deg=0.0, width=96, height=64, x=0.0):
@@ -159,7 +163,7 @@ def test_bad_steps(n):
 
 def test_unknown_prior_is_one_line():
     with pytest.raises(InputError) as e:
-        D.check_prior_name("nosuch:x")
+        check_prior_name("nosuch:x")
     msg = str(e.value)
     assert "\n" not in msg and "nosuch" in msg and "procedural" in msg and "diffusers:DIR" in msg
 
@@ -316,18 +320,18 @@ def tiny_scene(tmp_path_factory):
 
 
 def test_scene_prior_comes_from_the_run_and_can_be_overridden(tiny_scene):
-    sp = D.load_scene_prior(tiny_scene)
+    sp = SP.load_scene_prior(tiny_scene)
     assert sp.spec == "procedural" and sp.source.startswith("recorded by GGDS run ggds_")
     assert sp.seed == 5 and sp.prior.seed == 5
     assert sp.shadow is not None and len(sp.proxy[1]) > 0
-    over = D.load_scene_prior(tiny_scene / "scene.usda", prior="procedural")
+    over = SP.load_scene_prior(tiny_scene / "scene.usda", prior="procedural")
     assert over.source == "--deferred-prior"
     with pytest.raises(InputError, match="unknown prior"):
-        D.load_scene_prior(tiny_scene, prior="nosuch")
+        SP.load_scene_prior(tiny_scene, prior="nosuch")
     with pytest.raises(InputError, match="no such directory"):
-        D.load_scene_prior(tiny_scene, prior="diffusers:/no/such/dir")
+        SP.load_scene_prior(tiny_scene, prior="diffusers:/no/such/dir")
     with pytest.raises(InputError, match="needs a scene folder"):
-        D.scene_root(tiny_scene / "layers")
+        SP.scene_root(tiny_scene / "layers")
 
 
 def test_render_rig_deferred_writes_beside_the_raw_files(tiny_scene, tmp_path, run_cli):

@@ -68,7 +68,8 @@ def main(argv=None) -> dict:
     a = ap.parse_args(argv)
 
     from lsd3d_usd.render.camera import from_usd
-    from lsd3d_usd.views.deferred import Deferrer, load_scene_prior
+    from lsd3d_usd.ggds.priors.scene import load_scene_prior
+    from lsd3d_usd.views.deferred import Deferrer
     from lsd3d_usd.views.frame import render_scene
     from lsd3d_usd.views.rig_stage import build_rig_stage
     from lsd3d_usd.views.rigs import RIGS

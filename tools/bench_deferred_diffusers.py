@@ -58,7 +58,9 @@ def main(argv=None):
     from lsd3d_usd.ggds.priors.diffusion import DiffusersPrior
     from lsd3d_usd.conditioning.light import PriorEnv
     from lsd3d_usd.render.camera import Camera, look_at
-    from lsd3d_usd.views.deferred import Deferrer, ScenePrior
+    from lsd3d_usd.conditioning.scene import Conditioning
+    from lsd3d_usd.ggds.priors.scene import ScenePrior
+    from lsd3d_usd.views.deferred import Deferrer
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
     from test_views_deferred import street_proxy
@@ -69,7 +71,7 @@ def main(argv=None):
         root, cn = build(Path(tmp), not a.no_controlnet)
         prior = DiffusersPrior.from_pretrained(root, controlnet_dir=cn)
         setup = time.perf_counter() - t0
-        sp = ScenePrior(prior, PriorEnv(prompt="a street"), street_proxy(), None,
+        sp = ScenePrior(prior, Conditioning.of_arrays(street_proxy(), PriorEnv(prompt="a street")),
                         "diffusers:<SD-1.5-sized, random weights>", "benchmark", 0)
         d = Deferrer(sp, a.strength, a.steps)
         eye = np.array([0.0, -1.5, 1.6])

@@ -6,13 +6,12 @@ a proxy mesh, seeds N surfels on it with mesh_to_surfels (default 500 k), sample
 its lanes at WxH (default 480x270) and runs GGDSRun.step with the ProceduralPrior (or the
 constant class-colour test prior with --prior class-colour), printing per step:
 
+    view     the view's G-buffer unpacked from its cache
     render   rasterize forward (incl. parameter activation) ; rast_fwd = the rasteriser alone
     prior    prior.target
-    percept  the EfficientNet perceptual loss forward (with --perceptual, the default as in
-             `generate`)
+    loss     the loss terms (the EfficientNet perceptual loss unless --no-perceptual)
     backward loss.backward(); rast_bwd = the rasteriser's numba backward inside it
-    optim    SelectiveAdam.step;  strategy: MCMC noise / relocation
-    rest     the other loss terms and bookkeeping (total minus the above)
+    update   selective Adam, the MCMC strategy
 
 The per-view G-buffers are built (and cached by GGDSRun) before timing, as a real run builds
 each once. Medians over the timed steps are printed last, with the machine load.
@@ -83,11 +82,13 @@ def main(argv=None):
     w, h = (int(x) for x in a.size.lower().split("x"))
 
     import lsd3d_usd  # noqa: F401  (schema registration; torch first as in the CLI)
-    from lsd3d_usd.ggds.run import optimisation as run_mod
+    from lsd3d_usd.conditioning.scene import Conditioning
     from lsd3d_usd.conditioning.views import sample_views
     from lsd3d_usd.ggds.priors.base import Prior
-    from lsd3d_usd.conditioning.light import PriorEnv
-    from lsd3d_usd.ggds.run.optimisation import GGDSConfig, GGDSRun
+    from lsd3d_usd.ggds.run import step as step_mod
+    from lsd3d_usd.ggds.run.inputs import GGDSInputs
+    from lsd3d_usd.ggds.run.optimisation import GGDSRun
+    from lsd3d_usd.ggds.settings import GGDSConfig
     from lsd3d_usd.layout.model import LaneCenter, Layout
     from lsd3d_usd.semantics import CLASS_COLORS
     from lsd3d_usd.splats.init import mesh_to_surfels
@@ -111,15 +112,13 @@ def main(argv=None):
                 col = torch.from_numpy(CLASS_COLORS)[gbuffer.semantic.clamp(min=0)]
                 return torch.where((gbuffer.semantic >= 0)[..., None], col, sky)
         prior = ClassColour()
-    perceptual = None
-    cfg = GGDSConfig(steps=1000, width=w, height=h, n_views=a.views, seed=0,
-                     w_perceptual=0.0 if a.no_perceptual else GGDSConfig.w_perceptual)
-    if cfg.w_perceptual > 0:
-        from lsd3d_usd.ggds.losses.perceptual import EffNetPerceptualLoss
-        perceptual = EffNetPerceptualLoss()
-    run = GGDSRun(field, (V, F, ids), views, prior, PriorEnv(), cfg, face_index=face,
-                  background_fn=lambda cam: sky.expand(cam.height, cam.width, 3).contiguous(),
-                  perceptual=perceptual)
+    weights = dict(GGDSConfig().weights, perceptual=0.0 if a.no_perceptual else 0.05)
+    cfg = GGDSConfig(steps=1000, resolution=(w, h), views=a.views, seed=0, weights=weights,
+                     perceptual=not a.no_perceptual)
+    cond = Conditioning.of_arrays((V, F, ids),
+                                  backdrop=lambda cam: sky.expand(cam.height, cam.width, 3).contiguous())
+    run = GGDSRun(GGDSInputs(field=field, conditioning=cond, views=views, face_index=face),
+                  prior, cfg)
     t_setup = time.perf_counter() - t0
     t0 = time.perf_counter()
     for i in range(len(views)):
@@ -128,59 +127,35 @@ def main(argv=None):
     print(f"setup {t_setup:.2f} s ({len(field.positions)} surfels, {len(F)} faces); "
           f"G-buffers of {len(views)} views {t_views:.2f} s (once per view, cached)")
 
-    timers: dict[str, float] = {}
     stats: dict = {}
-
-    def timed(name, fn):
-        def wrapper(*args, **kw):
-            t = time.perf_counter()
-            try:
-                return fn(*args, **kw)
-            finally:
-                timers[name] = timers.get(name, 0.0) + time.perf_counter() - t
-        return wrapper
-
-    orig_rasterize = run_mod.rasterize
+    orig_rasterize = step_mod.rasterize
 
     def rasterize_spy(*args, **kw):
         t = time.perf_counter()
         out = orig_rasterize(*args, **kw)
-        timers["rast_fwd"] = timers.get("rast_fwd", 0.0) + time.perf_counter() - t
+        stats["rast_fwd"] = time.perf_counter() - t
         stats["raster"] = out.stats  # the backward adds its timings to it
         return out
 
-    run_mod.rasterize = rasterize_spy
-    run.render = timed("render", run.render)
-    run.prior.target = timed("prior", run.prior.target)
-    if run.perceptual is not None:
-        run.perceptual = timed("percept", run.perceptual)
-    run.optimizer.step = timed("optim", run.optimizer.step)
-    run.strategy.step_post_backward = timed("strategy", run.strategy.step_post_backward)
-    orig_backward = torch.Tensor.backward
-    torch.Tensor.backward = timed("backward", orig_backward)
-    cols = ("total", "render", "rast_fwd", "prior", "percept", "backward", "rast_bwd", "optim",
-            "strategy", "rest")
+    step_mod.rasterize = rasterize_spy
+    cols = ("total", "view", "render", "rast_fwd", "prior", "loss", "backward", "rast_bwd",
+            "update")
     rows = []
     try:
         print(" ".join(f"{c:>9}" for c in ("step", "visible") + cols))
         for k in range(a.steps + 1):
-            timers.clear()
-            t = time.perf_counter()
             rec = run.step()
-            timers["total"] = time.perf_counter() - t
-            timers["rast_bwd"] = stats["raster"].timings.get("backward_s", float("nan"))
-            timers.setdefault("percept", 0.0)
-            timers["rest"] = timers["total"] - sum(timers.get(c, 0.0) for c in
-                                                   ("render", "prior", "percept", "backward",
-                                                    "optim", "strategy"))
+            t = {"total": rec["seconds"], "rast_fwd": stats["rast_fwd"],
+                 "rast_bwd": stats["raster"].timings.get("backward_s", float("nan")),
+                 **{c: rec[f"{c}_s"] for c in ("view", "render", "prior", "loss", "backward",
+                                                "update")}}
             tag = "warm-up" if k == 0 else str(k)
-            print(f"{tag:>9} {rec['visible']:>9} " + " ".join(f"{timers.get(c, 0.0):9.3f}" for c in cols),
+            print(f"{tag:>9} {rec['visible']:>9} " + " ".join(f"{t[c]:9.3f}" for c in cols),
                   flush=True)
             if k > 0:
-                rows.append([timers.get(c, 0.0) for c in cols])
+                rows.append([t[c] for c in cols])
     finally:
-        torch.Tensor.backward = orig_backward
-        run_mod.rasterize = orig_rasterize
+        step_mod.rasterize = orig_rasterize
     med = np.median(np.array(rows), axis=0)
     print(f"{'median':>9} {'':>9} " + " ".join(f"{v:9.3f}" for v in med))
     print(f"load average {os.getloadavg()} on {os.cpu_count()} cores, OMP_WAIT_POLICY="

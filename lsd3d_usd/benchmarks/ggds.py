@@ -10,14 +10,39 @@ import time
 from pathlib import Path
 
 import numpy as np
+from matplotlib.figure import Figure
+from pxr import Usd
+
+from lsd3d_usd import scene as S
+from lsd3d_usd.colour import srgb_encode
+from lsd3d_usd.conditioning.light import scene_light
+from lsd3d_usd.conditioning.scene import Conditioning
+from lsd3d_usd.conditioning.views import sample_views
+from lsd3d_usd.config import generate_config
+from lsd3d_usd.env import build_params
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
+from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
+from lsd3d_usd.ggds.priors.scene import load_scene_prior
+from lsd3d_usd.ggds.regions.plan import Region
+from lsd3d_usd.ggds.regions.views import region_views
+from lsd3d_usd.ggds.run.evaluate import field_renderer, heldout_psnr, render_and_target, scaled
+from lsd3d_usd.ggds.run.inputs import GGDSInputs
+from lsd3d_usd.ggds.run.optimisation import GGDSRun
+from lsd3d_usd.ggds.settings import GGDSConfig
+from lsd3d_usd.layout.usdio import read_layout
+from lsd3d_usd.pipeline import RunOptions, generate, read_layout_for
+from lsd3d_usd.proxy import build_proxy
+from lsd3d_usd.proxy.mesh import merge_parts
+from lsd3d_usd.semantics import CLASS_ID, CLASSES
+from lsd3d_usd.splats import chunkio
+from lsd3d_usd.splats.field import SurfelField
+from lsd3d_usd.splats.init import mesh_to_surfels
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples" / "layouts"
 
 
 def _chunk_proxy(layout, chunk):
-    from lsd3d_usd.proxy import build_proxy
-    from lsd3d_usd.proxy.mesh import merge_parts
-    from lsd3d_usd.semantics import CLASS_ID
     parts = build_proxy(layout, chunks=[chunk])[chunk]
     vs, fs, ids, base = [], [], [], 0
     for name, cm in sorted(merge_parts(parts).items()):
@@ -30,23 +55,12 @@ def _chunk_proxy(layout, chunk):
 
 def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions=((480, 270),),
                steps=5, warmup=2, prompt="sunny afternoon in Madrid", log=print) -> list[dict]:
-    from lsd3d_usd.env import build_params
-    from lsd3d_usd.conditioning.views import sample_views
-    from lsd3d_usd.conditioning.shadow import shadow_map
-    from lsd3d_usd.conditioning.light import scene_light
-    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
-    from lsd3d_usd.ggds.settings import GGDSConfig
-    from lsd3d_usd.ggds.run.optimisation import GGDSRun
-    from lsd3d_usd.layout.usdio import read_layout
-    from lsd3d_usd.semantics import CLASSES
-    from lsd3d_usd.splats.init import mesh_to_surfels
 
     layout = read_layout(layout_path)
     V, F, ids = _chunk_proxy(layout, tuple(chunk))
     s = layout.chunk_size
     region = (chunk[0] * s, chunk[1] * s, (chunk[0] + 1) * s, (chunk[1] + 1) * s)
-    light = scene_light(build_params(prompt)[0])
-    shadow = shadow_map(V, F, light.sun_direction)
+    cond = Conditioning.build((V, F, ids), scene_light(build_params(prompt)[0]))
     out = []
     for n in counts:
         field, face = mesh_to_surfels(V, F, ids, count=n, seed=0, sh_degree=1,
@@ -54,8 +68,8 @@ def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions
         for (w, h) in resolutions:
             views = sample_views(layout, 16, w, h, seed=0, region=region)
             cfg = GGDSConfig(steps=warmup + steps, resolution=(w, h), perceptual=False)
-            run = GGDSRun(field, (V, F, ids), views, ProceduralPrior(), light.prior_env, cfg,
-                          shadow=shadow, face_index=face)
+            run = GGDSRun(GGDSInputs(field=field, conditioning=cond, views=views,
+                                     face_index=face), ProceduralPrior(), cfg)
             for i in range(len(views)):  # G-buffers are cached per view: not part of a step
                 run.view_data(i)
             for _ in range(warmup):
@@ -82,8 +96,6 @@ def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt
     distances (seen vs novel per distance bin, over the content-change baseline). ``strip``:
     a PNG path for the before/after image strip (initial surfels, after GGDS, prior target;
     at 1× and 2×)."""
-    from lsd3d_usd.config import generate_config
-    from lsd3d_usd.pipeline import RunOptions, generate
     with tempfile.TemporaryDirectory() as tmp:
         target = Path(out) if out else Path(tmp) / "scene"
         kw = {} if steps is None else {"steps": steps}  # None: generate's default
@@ -117,38 +129,17 @@ def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt
 
 def _heldout(scene_dir: Path, cfg, strip) -> dict:
     """Held-out PSNR of the scene as written (composed stage) at 1× and 2×, the views GGDS
-    held out (pipeline: seed + 7919, half off the lanes), and the image strip."""
-    import glob
-
-    from pxr import Usd
-
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.conditioning.views import sample_views
-    from lsd3d_usd.conditioning.shadow import shadow_map
-    from lsd3d_usd import configtree as ct
-    from lsd3d_usd.conditioning.light import env_params, scene_light
-    from lsd3d_usd.ggds.run.heldout import heldout_psnr, render_and_target, scaled
-    from lsd3d_usd.ggds.priors.registry import make_prior
-    from lsd3d_usd.pipeline import read_layout_for
-    from lsd3d_usd.proxy.usdio import proxy_arrays
-    from lsd3d_usd.splats import chunkio
-    from lsd3d_usd.splats.field import SurfelField
-    from lsd3d_usd.views.stage_data import scene_surfels
+    held out (a whole-scene region's: regions.views.region_views), and the image strip."""
     sc = S.Scene.open(scene_dir)
     layout, _ = read_layout_for(cfg)
-    proxy = proxy_arrays(sc.layer_path("proxy"))
-    exr = sorted(glob.glob(str(sc.textures_dir / "env_*.exr")))[0]
-    light = scene_light(env_params(ct.to_dict(cfg.env), cfg.seed), exr)
     g = cfg.ggds
-    w, h = g.resolution
-    views = sample_views(layout, g.held_out, w, h, seed=cfg.seed + 7919, novel_frac=0.5,
-                         fov_deg=g.fov_deg)
-    prior = make_prior(cfg.prior, seed=cfg.seed)
-    shadow = shadow_map(proxy[0], proxy[1], light.sun_direction)
+    _, views = region_views(layout, g, cfg.seed, Region((), ""))
+    sp = load_scene_prior(scene_dir, purpose="bench ggds")
+    cond = sp.conditioning
     after = scene_surfels(Usd.Stage.Open(str(sc.root_layer_path)))
-    kw = dict(background_fn=light.background, shadow=shadow, n_denoise=g.n_denoise)
-    p1 = heldout_psnr(after, views, prior, light.prior_env, proxy, **kw)
-    p2 = heldout_psnr(after, scaled(views, 2.0), prior, light.prior_env, proxy, **kw)
+    kw = dict(n_denoise=g.n_denoise)
+    p1 = heldout_psnr(after, views, sp.prior, cond, **kw)
+    p2 = heldout_psnr(after, scaled(views, 2.0), sp.prior, cond, **kw)
     out = {"psnr_heldout": float(np.mean(p1)), "psnr_heldout_2x": float(np.mean(p2)),
            "psnr_heldout_lane": _mean_kind(p1, views, "lane"),
            "psnr_heldout_offlane": _mean_kind(p1, views, "novel")}
@@ -157,11 +148,11 @@ def _heldout(scene_dir: Path, cfg, strip) -> dict:
         before = SurfelField.concat([chunkio.read_chunk(root, k)
                                      for k in sorted(chunkio.read_chunk_map(root))])
         rows = []
-        for v in views[:2]:
-            for f, vv in ((1.0, v), (2.0, scaled([v], 2.0)[0])):
-                x0, _ = render_and_target(before, vv, prior, light.prior_env, proxy, **kw)
-                x1, tgt = render_and_target(after, vv, prior, light.prior_env, proxy, **kw)
-                rows.append((f"{vv.camera.width}x{vv.camera.height}", x0, x1, tgt))
+        for j, v in enumerate(views[:2]):
+            for vv in (v, scaled([v], 2.0)[0]):
+                x0, _, _ = render_and_target(field_renderer(before), vv, sp.prior, cond, j, **kw)
+                x1, tgt, _ = render_and_target(field_renderer(after), vv, sp.prior, cond, j, **kw)
+                rows.append((f"{vv.camera.width}x{vv.camera.height}", x0.rgb, x1.rgb, tgt))
         write_strip(Path(strip), rows)
         out["strip"] = str(strip)
     return out
@@ -174,16 +165,13 @@ def _mean_kind(psnrs, views, kind) -> float | None:
 
 def write_strip(path: Path, rows) -> None:
     """rows of (label, initial, after GGDS, target) images (H,W,3) linear → one PNG."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from lsd3d_usd.ggds.losses.effnet import linear_to_srgb
-    fig, ax = plt.subplots(len(rows), 3, figsize=(13.5, 2.6 * len(rows)), squeeze=False)
+    fig = Figure(figsize=(13.5, 2.6 * len(rows)))
+    ax = fig.subplots(len(rows), 3, squeeze=False)
     for i, (label, *imgs) in enumerate(rows):
         for j, (img, title) in enumerate(zip(imgs, ("initial surfels", "after GGDS",
                                                      "prior target"))):
-            ax[i, j].imshow(linear_to_srgb(img.clamp(0, 1)).numpy(), interpolation="none")
+            ax[i, j].imshow(srgb_encode(img.clamp(0, 1)).numpy(), interpolation="none")
             ax[i, j].set_xticks([]); ax[i, j].set_yticks([])
             if i == 0:
                 ax[i, j].set_title(title)
@@ -191,7 +179,6 @@ def write_strip(path: Path, rows) -> None:
     fig.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def _fd(scene_dir: Path, seeds: int = 1) -> dict:
@@ -203,7 +190,6 @@ def _fd(scene_dir: Path, seeds: int = 1) -> dict:
     (eval's prior baseline) says what a scene reproducing its prior exactly would score;
     fd_novel_over_prior is the largest over the bins of scene / prior (both seed means).
     fd_novel_per_bin, fd_content and eval_geometry_seen are eval seed 0's."""
-    from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
     runs = []
     for seed in range(seeds):
         with tempfile.TemporaryDirectory() as tmp:
@@ -241,7 +227,6 @@ def main(json_path=None, quick=False, layout=None, steps=None, fd=True, strip=No
     figures are the top-level keys) and the generated 200 m sample."""
     fd_seeds = (1 if quick else 4) if fd_seeds is None else fd_seeds
     if fd and fd_seeds < 1:
-        from lsd3d_usd.errors import InputError
         raise InputError(f"--fd-seeds {fd_seeds}: must be >= 1 (or --no-fd)")
     timing_layout = Path(layout) if layout else SAMPLES / "generated_seed7_200x200.usda"
     counts = (50_000,) if quick else (100_000, 500_000)

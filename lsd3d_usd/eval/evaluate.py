@@ -78,8 +78,8 @@ def _check(o: EvalOptions) -> None:
         raise InputError(f"--step {o.step_m}: must be positive")
     if o.tonemap not in TONEMAPS:
         raise InputError(f"--tonemap {o.tonemap!r}: choose from {', '.join(TONEMAPS)}")
-    from lsd3d_usd.views.deferred import (check_device, check_prior_name, check_steps,
-                                          check_strength)
+    from lsd3d_usd.ggds.priors.registry import check_device, check_prior_name
+    from lsd3d_usd.views.deferred import check_steps, check_strength
     if o.deferred_strength is not None:
         check_strength(o.deferred_strength)
     if o.deferred_steps is not None:
@@ -426,7 +426,8 @@ def evaluate(o: EvalOptions) -> dict:
 
 
 def _deferrer(o: EvalOptions):
-    from lsd3d_usd.views.deferred import DEFAULT_STEPS, DEFAULT_STRENGTH, Deferrer, load_scene_prior
+    from lsd3d_usd.ggds.priors.scene import load_scene_prior
+    from lsd3d_usd.views.deferred import DEFAULT_STEPS, DEFAULT_STRENGTH, Deferrer
     sp = load_scene_prior(o.scene, o.deferred_prior, o.deferred_controlnet, o.deferred_device)
     d = Deferrer(sp, DEFAULT_STRENGTH if o.deferred_strength is None else o.deferred_strength,
                  DEFAULT_STEPS if o.deferred_steps is None else o.deferred_steps, o.deferred_seed)

@@ -10,7 +10,7 @@ gives: the scene is as good as its prior can make it where the two ratios agree.
 
 Cheap with the procedural prior (one G-buffer and one 2×2 supersampled procedural shade per
 view, ~0.1 s at 320×180); a diffusion prior on the CPU takes minutes per view, so `auto` runs
-it only for the procedural prior.
+it only for priors registered as cheap on a CPU (the procedural prior).
 """
 from __future__ import annotations
 
@@ -20,23 +20,20 @@ import numpy as np
 
 from lsd3d_usd.errors import InputError
 
-CHEAP_PRIORS = ("procedural",)
-
-
 def open_baseline(scene_path, mode: bool | None, n_heldout: int, display, run: str | None = None):
     """(PriorImages or None, why not or None) for the prior GGDS run ``run`` (default: the
     newest unmuted one) recorded. ``mode`` True forces it (an unusable scene prior is then
     an error), False turns it off, None (auto) runs it for a cheap prior when the scene has
     what it needs. ``n_heldout`` > 0 when forced is checked by eval's option checks."""
-    from lsd3d_usd.views.deferred import recorded_prior_name
+    from lsd3d_usd.ggds.priors.scene import recorded_prior_is_cheap
     if mode is False:
         return None, "turned off (--no-prior-baseline)"
     if n_heldout <= 0:
         return None, "no held-out lane views (--heldout 0)"
     try:
         if mode is None:
-            name = recorded_prior_name(scene_path, run)
-            if name not in CHEAP_PRIORS:
+            cheap, name = recorded_prior_is_cheap(scene_path, run)
+            if not cheap:
                 return None, (f"the scene's prior {name!r} is slow on the CPU; ask for it with "
                               "--prior-baseline")
         return PriorImages(scene_path, display, run), None
@@ -51,7 +48,8 @@ class PriorImages:
     GGDS's training targets are (the prior's pixel supersampling included)."""
 
     def __init__(self, scene_path, display, run: str | None = None):
-        from lsd3d_usd.views.deferred import DEFAULT_STEPS, Deferrer, load_scene_prior
+        from lsd3d_usd.ggds.priors.scene import load_scene_prior
+        from lsd3d_usd.views.deferred import DEFAULT_STEPS, Deferrer
         t = time.perf_counter()
         self.sp = load_scene_prior(scene_path, run=run, purpose="the prior baseline",
                                    override="--no-prior-baseline")

@@ -5,47 +5,25 @@ from __future__ import annotations
 import numpy as np
 
 
-def run_targets(sc, run: str | None, proxy):
-    """(target(camera, rgb, j) -> (H, W, 3) array at t = 1, None) for the scene's GGDS run
-    ``run``, or (None, why not). ``j`` seeds the prior as held-out view j; with
-    ``gbuffer=True`` target returns (array, the view's proxy GBuffer it conditioned on)."""
-    import torch
-
-    from lsd3d_usd import configtree as ct
-    from lsd3d_usd.env.exr import write_env
-    from lsd3d_usd.conditioning.gbuffer import FaceTable, table_gbuffer
-    from lsd3d_usd.conditioning.shadow import shadow_map
-    from lsd3d_usd.conditioning.light import env_params, scene_light
-    from lsd3d_usd.ggds.priors.registry import PriorConfig, make_prior
-    from lsd3d_usd.ggds.run.store import read_plan
+def run_prior(sc, run: str | None, proxy):
+    """(the ScenePrior of the scene's GGDS run ``run`` over ``proxy``, None), or (None, why
+    not): its held-out targets are what the seam measure scores views against."""
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.ggds.priors.registry import PRIORS
+    from lsd3d_usd.ggds.priors.scene import load_scene_prior, recorded_config
     if run is None:
         return None, "no GGDS run: the prior and light of its targets are unknown"
+    recorded, _ = recorded_config(sc, run)
+    if recorded is None:
+        return None, f"run {run} records no configuration"
+    name = str((recorded.get("prior") or {}).get("name") or "procedural")
+    if not PRIORS.get(name.split(":", 1)[0]).cheap_on_cpu:
+        return None, (f"the run's prior ({name}) is a GPU path; seam targets are made with a "
+                      "prior that is cheap on the CPU only")
     try:
-        plan = read_plan(sc, run)
-    except Exception as e:  # an older run without a plan
-        return None, f"run {run} has no readable plan ({e})"
-    gen = plan["generate"]
-    prior_cfg = ct.from_dict(PriorConfig, gen["prior"])
-    if prior_cfg.kind != "procedural":
-        return None, f"the run's prior ({prior_cfg.name}) is a GPU path; targets are made " \
-                     "with the procedural prior only"
-    seed = int(plan.get("seed", 0))
-    params = env_params(gen["env"], seed)
-    w, h = gen["env"]["resolution"]
-    light = scene_light(params, write_env(params, sc.textures_dir, int(w), int(h)))
-    prior = make_prior(prior_cfg, seed=seed)
-    V, F, C = proxy
-    shadow = shadow_map(V, F, light.sun_direction)
-    table = FaceTable.of(V, F, C)
-
-    def target(cam, rgb, j: int, gbuffer: bool = False):
-        gb = table_gbuffer(cam, V, F, table, shadow)
-        x = torch.from_numpy(np.ascontiguousarray(rgb, np.float32))
-        with torch.no_grad():
-            out = prior.target(x.clamp(0, None), gb, light.prior_env, 1.0,
-                               seed=10_000 + j).numpy()
-        return (out, gb) if gbuffer else out
-    return target, None
+        return load_scene_prior(sc.root, run=run, proxy=proxy, purpose="the seam measure"), None
+    except InputError as e:
+        return None, str(e)
 
 
 def view_errors(sc, run: str | None, proxy, cameras, frames,
@@ -54,12 +32,12 @@ def view_errors(sc, run: str | None, proxy, cameras, frames,
     or (None, why not). ``region`` (x0, y0, x1, y1): only the pixels whose proxy surface lies
     inside it (what views from the same positions share when the scenes around differ; a
     view without such pixels gives (0, 0))."""
-    target, why = run_targets(sc, run, proxy)
-    if target is None:
+    sp, why = run_prior(sc, run, proxy)
+    if sp is None:
         return None, why
     out = []
     for j, (cam, fr) in enumerate(zip(cameras, frames)):
-        x_hat, gb = target(cam, fr["rgb"], j, gbuffer=True)
+        x_hat, gb = sp.heldout_target(cam, fr["rgb"], j)
         err = (np.clip(fr["rgb"], 0, 1) - np.clip(x_hat, 0, 1)) ** 2
         if region is not None:   # the target's own G-buffer: no second rasterisation
             p, x0, y0, x1, y1 = gb.world_pos.numpy(), *region
@@ -103,8 +81,8 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
     keys = set(chunks)
     if len(keys) < 2:
         return None, "the scene's surfels are not stored in two or more chunks"
-    target, why = run_targets(sc, run, proxy)
-    if target is None:
+    sp, why = run_prior(sc, run, proxy)
+    if sp is None:
         return None, why
     V, F, C = proxy
     bounds = {k: (b[0], b[1], b[3], b[4]) for k, v in chunks.items()
@@ -112,7 +90,7 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
     stats = [SeamStats(float(layout.chunk_size), keys, bounds=bounds) for _ in frame_sets]
     for j, (cam, *frames) in enumerate(zip(cameras, *frame_sets)):
         gb = render_gbuffer(V, F, cam, C)
-        tgt = target(cam, frames[0]["rgb"], j)
+        tgt, _ = sp.heldout_target(cam, frames[0]["rgb"], j)
         for st, fr in zip(stats, frames):
             if fr is not None:
                 st.add(fr["rgb"], tgt, fr["alpha"], surfel_depth(fr), fr["normal_world"], gb)

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from lsd3d_usd.configtree import option
+from lsd3d_usd.render.backends import check_backend_name
 
 OMEGA_KINDS = ("uniform", "sds", "signal")   # ggds/losses.py: omega(t)
 MAX_RESOLUTION = 8192                        # GGDS render side limit (pixels)
@@ -174,6 +175,9 @@ class GGDSConfig:
                                                       "normal pulls towards the median of the "
                                                       "well-seen surfels of the same class and "
                                                       "facing, not towards zero")
+    backend: str = option("numba", help="renderer backend of the run (render/backends.py: "
+                                        "numba, torch, or a registered one)",
+                          check=lambda v, where: check_backend_name(v, where), recorded="numba")
     perceptual: bool = option(True, help="the perceptual loss term", alias="perceptual",
                               negate="--no-perceptual")
     lpips: Path | None = option(None, help="use LPIPS as the perceptual term: a local "

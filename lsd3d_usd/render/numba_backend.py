@@ -165,3 +165,4 @@ class NumbaBackend:
         return BackendOutput(rgb=rgb_t, alpha=alpha, depth_acc=dacc_t, depth_median=dmed_t,
                              normal=nacc_t, distortion=dist_t if s.distortion else None,
                              argmax=argmax, visible_index=vis, stats=stats)
+NUMBA = NumbaBackend()

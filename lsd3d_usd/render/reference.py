@@ -229,3 +229,4 @@ class TorchBackend:
                              distortion=out.get("distortion"),
                              argmax=out["weight_argmax"] if inputs.want_argmax else None,
                              visible_index=vis, stats=stats)
+TORCH = TorchBackend()

@@ -41,8 +41,8 @@ def deferred_flags_given(args) -> list[str]:
 def check_deferred_args(args) -> None:
     """Flag checks before anything is loaded or written."""
     from lsd3d_usd.errors import InputError
-    from lsd3d_usd.views.deferred import (check_device, check_prior_name, check_steps,
-                                          check_strength)
+    from lsd3d_usd.ggds.priors.registry import check_device, check_prior_name
+    from lsd3d_usd.views.deferred import check_steps, check_strength
     given = deferred_flags_given(args)
     if given and not args.deferred:
         raise InputError(f"{given[0]} needs --deferred")
@@ -60,7 +60,8 @@ def make_deferrer(scene, args, log=None):
     """The Deferrer of the deferred flags (None without --deferred)."""
     if not args.deferred:
         return None
-    from lsd3d_usd.views.deferred import DEFAULT_STEPS, DEFAULT_STRENGTH, Deferrer, load_scene_prior
+    from lsd3d_usd.ggds.priors.scene import load_scene_prior
+    from lsd3d_usd.views.deferred import DEFAULT_STEPS, DEFAULT_STRENGTH, Deferrer
     sp = load_scene_prior(scene, args.deferred_prior, args.deferred_controlnet, args.deferred_device)
     if log is not None:
         log(f"deferred: prior {sp.spec} ({sp.source}), T {args.deferred_strength or DEFAULT_STRENGTH}"

@@ -2,7 +2,7 @@
 image prior from a low noise level T with N steps, conditioned on the proxy G-buffer of the
 same camera, and the result is the frame shown ("deferred", after deferred neural rendering).
 
-    sp = load_scene_prior("out/crossing")            # the prior GGDS used, its env, the proxy
+    sp = load_scene_prior("out/crossing")            # ggds.priors.scene: the prior GGDS used
     out = defer_frames(frames, cameras, sp, strength=0.3, steps=5)
 
 What the prior does at T is the prior's own `target` (ggds/prior_base.py), exactly as GGDS
@@ -26,13 +26,12 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, field
-from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.ggds.priors.scene import ScenePrior
 
 # Chosen by the strength sweep on the README sample's rig route (docs/render.md, "Deferred").
 DEFAULT_STRENGTH = 0.3
@@ -58,194 +57,10 @@ def check_steps(n, where: str = "--deferred-steps") -> int:
     return int(n)
 
 
-def check_prior_name(spec, where: str = "--deferred-prior") -> str:
-    """A registered prior's name (with its argument): one InputError line otherwise."""
-    from lsd3d_usd.ggds.priors.registry import PRIORS
-    name = str(spec).split(":", 1)[0]
-    if name not in PRIORS.names():
-        known = ", ".join(f"{n}:DIR" if PRIORS.get(n).takes_arg else n for n in PRIORS.names())
-        raise InputError(f"{where} {spec!r}: unknown prior; known: {known}")
-    return str(spec)
-
-
-def check_device(device, where: str = "--deferred-device") -> str:
-    d = str(device)
-    if d != "cpu" and not (d == "cuda" or (d.startswith("cuda:") and d[5:].isdigit())):
-        raise InputError(f"{where} {device!r}: expected cpu, cuda or cuda:N")
-    return d
-
-
 def deferred_name(path) -> Path:
     """<stem>_deferred<suffix> beside ``path`` (Front.0003.png -> Front.0003_deferred.png)."""
     p = Path(path)
     return p.with_name(f"{p.stem}{SUFFIX}{p.suffix}")
-
-
-# ------------------------------------------------------------------------ the scene's prior
-@dataclass
-class ScenePrior:
-    """Everything deferral needs from a scene: its prior and what conditions it."""
-    prior: object                 # ggds.prior_base.Prior
-    env: object                   # ggds.prior_base.PriorEnv
-    proxy: tuple                  # (V (n,3), F (m,3), face class ids (m,))
-    shadow: object | None         # ggds.conditioning.ShadowMap of the sun, or None
-    spec: str                     # the prior as configured: "procedural", "diffusers:DIR", ...
-    source: str                   # where the choice came from
-    seed: int                     # the scene's seed (the prior's material seed)
-    setup_s: float = 0.0
-    info: dict = field(default_factory=dict)
-
-    def note(self) -> str | None:
-        """A one-line warning where the prior will be slow (a diffusion model on the CPU)."""
-        device = str(getattr(self.prior, "device", "cpu"))
-        if hasattr(self.prior, "unet") and device == "cpu":
-            return ("the diffusion prior runs on the CPU: an SD-1.5-sized model takes minutes per "
-                    "frame here (a GPU path; docs/render.md has the measured figures)")
-        return None
-
-    def gbuffer(self, camera, fine: bool = False):
-        """The proxy G-buffer of ``camera`` with sun visibility (as GGDS computes it), by
-        default without ``fine``: deferral runs once per frame of a video, so a supersampling
-        prior samples pixel centres here (4× less work per frame at 2×2), and actors overlaid
-        on it would be missing from a finer one. ``fine``: as GGDS's training targets (eval's
-        prior baseline)."""
-        from lsd3d_usd.conditioning.gbuffer import table_gbuffer
-        V, F, _ = self.proxy
-        return table_gbuffer(camera, V, F, self.face_table, self.shadow, fine=fine)
-
-    @cached_property
-    def face_table(self):
-        """The proxy's FaceTable, built once for every frame."""
-        from lsd3d_usd.conditioning.gbuffer import FaceTable
-        return FaceTable.of(*self.proxy)
-
-
-def scene_root(path) -> Path:
-    """The scene folder behind ``path``: a scene folder, its scene.usda, or a USD file that
-    sublayers one (a rig's OUT/rig.usda). One InputError line otherwise."""
-    from pxr import Sdf
-
-    from lsd3d_usd import scene as S
-    p = Path(path)
-    if p.is_dir():
-        if (p / S.ROOT_FILE).is_file():
-            return p.absolute()
-        raise InputError(f"{path}: deferral needs a scene folder (holding {S.ROOT_FILE})")
-    if p.name == S.ROOT_FILE and p.is_file():
-        return p.parent.absolute()
-    layer = Sdf.Layer.FindOrOpen(str(p)) if p.is_file() else None
-    if layer is not None:
-        for sub in layer.subLayerPaths:
-            q = Path(sub) if Path(sub).is_absolute() else p.parent / sub
-            if q.name == S.ROOT_FILE and q.is_file():
-                return q.parent.resolve()
-    raise InputError(f"{path}: deferral needs a scene folder, its {S.ROOT_FILE}, or a file that "
-                     f"sublayers one (the proxy, env and GGDS layers condition the prior)")
-
-
-def _recorded_config(sc, run: str | None = None):
-    """(generate configuration dict or None, the run it came from or None): of ``run`` (muted
-    or not) when given, else of the newest unmuted run that records one."""
-    if run is not None:
-        runs = [li for li in sc.runs() if run in (li.name, li.path.name) and li.exists]
-    else:
-        runs = [li for li in sc.runs() if not li.muted and li.exists]
-    for li in runs:
-        raw = li.provenance.get("generate")
-        if raw:
-            try:
-                return json.loads(raw), li.name
-            except ValueError:
-                raise InputError(f"{li.path}: customLayerData lsd3d.generate is not JSON") from None
-    return None, (runs[0].name if runs else None)
-
-
-def recorded_prior_name(scene_path, run: str | None = None) -> str:
-    """The registered name of the prior the scene's GGDS run ``run`` (default: the newest
-    unmuted one) recorded (the default prior's when none is recorded, as load_scene_prior
-    falls back to it)."""
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.ggds.priors.registry import PriorConfig
-    recorded, _ = _recorded_config(S.Scene.open(scene_root(scene_path)), run)
-    spec = ((recorded or {}).get("prior") or {}).get("name") or PriorConfig().name
-    return str(spec).split(":", 1)[0]
-
-
-def _scene_seed(sc) -> int:
-    from pxr import Sdf
-
-    from lsd3d_usd import scene as S
-    prov = S.read_provenance(Sdf.Layer.FindOrOpen(str(sc.root_layer_path)))
-    return int(prov.get("seed", 0))
-
-
-def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
-                     device: str | None = None, run: str | None = None,
-                     purpose: str = "deferral", override: str = "--deferred-prior") -> ScenePrior:
-    """The prior the scene's GGDS run ``run`` (default: the newest unmuted one) was made with
-    (its recorded `generate` configuration), or ``prior`` ("procedural", "diffusers:DIR",
-    another registered name) to override it; ``controlnet`` / ``device`` override those
-    settings. Also the scene's env (as GGDS saw it: env layer parameters + its EXR), the
-    proxy and a sun shadow map. ``purpose`` / ``override``: what the error lines name as
-    needing the scene, and the flag that chooses another prior."""
-    from lsd3d_usd import configtree
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.env.params import EnvParams
-    from lsd3d_usd.env.usdlayer import read_env_prim
-    from lsd3d_usd.conditioning.shadow import shadow_map
-    from lsd3d_usd.conditioning.light import scene_light
-    from lsd3d_usd.ggds.priors.registry import PriorConfig, make_prior
-    from lsd3d_usd.proxy.usdio import proxy_arrays
-
-    t0 = time.perf_counter()
-    sc = S.Scene.open(scene_root(scene_path))
-    recorded, run = _recorded_config(sc, run)
-    if recorded is not None:
-        cfg = configtree.from_dict(PriorConfig, recorded.get("prior", {}))
-        seed = int(recorded.get("seed", 0))
-        prompt = (recorded.get("env") or {}).get("prompt") or ""
-        source = f"recorded by GGDS run {run}"
-    else:
-        cfg, seed, prompt = PriorConfig(), _scene_seed(sc), ""
-        source = (f"default (GGDS run {run} records no configuration)" if run
-                  else "default (the scene has no GGDS run)")
-    if prior is not None:
-        cfg.name = check_prior_name(prior)
-        source = override
-    if controlnet is not None:
-        cfg.controlnet = Path(controlnet)
-    if device is not None:
-        cfg.device = check_device(device)
-    try:
-        p = make_prior(cfg, seed=seed)
-    except InputError as e:
-        if prior is not None:
-            raise
-        raise InputError(f"the scene's prior ({source}): {e}; choose another with "
-                         f"{override}") from None
-
-    env_layer = next((li for li in sc.layers() if li.name == "env"), None)
-    if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
-        raise InputError(f"{sc.layer_path('env')}: {purpose} needs the scene's env layer with "
-                         "its parameters (customLayerData lsd3d.params)")
-    try:
-        params = EnvParams.from_dict(dict(env_layer.provenance["params"]))
-    except (KeyError, TypeError, ValueError) as e:
-        raise InputError(f"{env_layer.path}: unreadable env parameters ({e})") from None
-    params.extras["prompt"] = prompt
-    stage = sc.open_stage(load=False)
-    texture = read_env_prim(stage).get("texture")
-    if not texture or not Path(texture).is_file():
-        raise InputError(f"{env_layer.path}: the env map texture {texture!r} is missing")
-    light = scene_light(params, texture)
-    proxy_path = sc.layer_path("proxy")
-    if not proxy_path.is_file():
-        raise InputError(f"{proxy_path}: {purpose} needs the scene's proxy layer (the prior's "
-                         "G-buffer)")
-    V, F, ids = proxy_arrays(proxy_path)
-    shadow = shadow_map(V, F, light.sun_direction)
-    return ScenePrior(p, light.prior_env, (V, F, ids), shadow, cfg.name, source, seed,
-                      time.perf_counter() - t0, {"run": run, "exposure": light.exposure})
 
 
 # ------------------------------------------------------------------------ one frame

@@ -57,7 +57,8 @@ def ggds_views(sc: S.Scene, layout, cfg) -> tuple[list, list]:
     sampled by ggds.regions.region_views; a region without lanes inside has none (GGDS
     keeps its surfels as they are)."""
     from lsd3d_usd.errors import InputError
-    from lsd3d_usd.ggds.regions.driver import plan_regions, region_views
+    from lsd3d_usd.ggds.regions.plan import plan_regions
+    from lsd3d_usd.ggds.regions.views import region_views
     from lsd3d_usd.splats.chunkio import read_chunk_map
     regions = sorted((r for phase in plan_regions(read_chunk_map(sc.layer_path("surfels")),
                                                   cfg.ggds.regions) for r in phase),

@@ -62,3 +62,17 @@ class Prior:
     def describe(self) -> dict:
         """Parameters for layer provenance."""
         return {"prior": self.name}
+
+
+# The prior's seed of held-out view j's target: disjoint from the training steps' seeds
+# (seed * 100003 + step), the same wherever a held-out view is scored.
+HELDOUT_SEED = 10_000
+
+
+def heldout_target(prior: Prior, x: torch.Tensor, gbuffer: GBuffer, env: PriorEnv, j: int, *,
+                   t: float = 1.0, n_steps: int = 5) -> torch.Tensor:
+    """The target held-out view ``j`` is scored against: the prior at noise level ``t`` from
+    the render ``x`` (negative radiance clamped), with the held-out seed of view ``j``."""
+    with torch.no_grad():
+        return prior.target(x.clamp(0, None), gbuffer, env, t, n_steps=n_steps,
+                            seed=HELDOUT_SEED + int(j))

@@ -3,11 +3,15 @@
 
 A registered prior is a :class:`PriorEntry`: a factory ``make(arg, config, seed) -> Prior``
 plus a ``check(arg, config)`` run before anything is written (missing files, a device torch
-cannot see). ``--prior NAME[:ARG]`` selects one: ``procedural`` or ``diffusers:DIR``.
+cannot see), the prior's class (its default loss weights are known without making it),
+whether it is cheap on a CPU (eval's prior baselines run only such priors unasked), and the
+options it takes beyond ``--prior NAME[:ARG]`` (``--set prior.options.KEY=VALUE``).
+``--prior NAME[:ARG]`` selects one: ``procedural`` or ``diffusers:DIR``.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import importlib
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -16,19 +20,22 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.registry import Registry
 
 
-def _check_spec(v: str, where: str) -> str:
-    name = v.split(":", 1)[0]
+def check_prior_name(v: str, where: str = "--prior") -> str:
+    """A registered prior's name (with its argument): one InputError line otherwise."""
+    name = str(v).split(":", 1)[0]
     if name not in PRIORS.names():
         names = sorted(PRIORS.names(), key=lambda n: (n != "procedural", n))
         known = " or ".join(f"'{n}:DIR'" if PRIORS.get(n).takes_arg else f"'{n}'" for n in names)
-        raise InputError(f"{where} {v!r}: use {known}")
-    return v
+        raise InputError(f"{where} {v!r}: unknown prior; use {known}")
+    return str(v)
 
 
-def _check_device(v: str, where: str) -> str:
-    if v != "cpu" and not v.startswith("cuda"):
-        raise InputError(f"{where}: expected cpu or cuda[:N], got {v!r}")
-    return v
+def check_device(v: str, where: str = "--device") -> str:
+    """cpu, cuda or cuda:N; one InputError line otherwise."""
+    d = str(v)
+    if d != "cpu" and not (d == "cuda" or (d.startswith("cuda:") and d[5:].isdigit())):
+        raise InputError(f"{where} {v!r}: expected cpu, cuda or cuda:N")
+    return d
 
 
 @dataclass
@@ -36,17 +43,20 @@ class PriorConfig:
     name: str = option("procedural", help="image prior: 'procedural' (runs on CPU) or "
                                           "'diffusers:DIR' (a local latent-diffusion directory; "
                                           "never downloads), or another registered prior",
-                       flag="--prior", alias="prior", check=_check_spec, metavar="PRIOR")
+                       flag="--prior", alias="prior", check=check_prior_name, metavar="PRIOR")
     controlnet: Path | None = option(None, help="local depth ControlNet directory for the "
                                                 "diffusers prior", flag="--controlnet",
                                      alias="controlnet", metavar="DIR")
     device: str = option("cpu", help="torch device of the prior (cuda only where torch sees "
-                                     "one)", flag="--device", alias="device", check=_check_device)
+                                     "one)", flag="--device", alias="device", check=check_device)
     guidance: float = option(7.5, help="classifier-free guidance scale (diffusers prior)",
                              lo=0.0, hi=100.0)
     supersample: int = option(2, help="procedural prior: each pixel the mean of S×S samples, "
                                       "as a camera integrates over its pixels (1 = the pixel "
                                       "centre, which aliases)", lo=1, hi=8, recorded=1)
+    options: dict[str, str] = option(
+        help="options of the chosen prior beyond its NAME:ARG (prior.options.KEY=VALUE; the "
+             "keys a prior takes are listed by its registry entry)", default_factory=dict)
 
     @property
     def kind(self) -> str:
@@ -63,6 +73,18 @@ class PriorEntry:
     check: Callable           # (arg, PriorConfig) -> None; raise InputError
     takes_arg: bool = False
     help: str = ""
+    prior_class: str = "lsd3d_usd.ggds.priors.base:Prior"   # "module:Class" of what make returns
+    cheap_on_cpu: bool = False    # a target in well under a second per view on 2 cores
+    options: dict = field(default_factory=dict)   # {KEY: help} of prior.options it reads
+
+    def prior_type(self) -> type:
+        module, _, name = self.prior_class.partition(":")
+        return getattr(importlib.import_module(module), name)
+
+    def default_weight(self, term: str) -> float:
+        """The prior's default weight of a loss term (Prior.default_weights), known without
+        making the prior."""
+        return float(self.prior_type().default_weights.get(term, 0.0))
 
 
 def _check_device_available(cfg: PriorConfig) -> None:
@@ -103,9 +125,12 @@ def _diffusers_make(arg, cfg, seed):
 
 
 PROCEDURAL = PriorEntry(_procedural_make, _procedural_check,
-                        help="procedural materials lit by the environment (CPU, deterministic)")
+                        help="procedural materials lit by the environment (CPU, deterministic)",
+                        prior_class="lsd3d_usd.ggds.priors.procedural:ProceduralPrior",
+                        cheap_on_cpu=True)
 DIFFUSERS = PriorEntry(_diffusers_make, _diffusers_check, takes_arg=True,
-                       help="latent diffusion + depth ControlNet from a local diffusers folder")
+                       help="latent diffusion + depth ControlNet from a local diffusers folder",
+                       prior_class="lsd3d_usd.ggds.priors.diffusion:DiffusersPrior")
 
 PRIORS = Registry("lsd3d_usd.priors", "prior", {
     "procedural": "lsd3d_usd.ggds.priors.registry:PROCEDURAL",
@@ -115,11 +140,16 @@ PRIORS = Registry("lsd3d_usd.priors", "prior", {
 
 def check_prior(cfg: PriorConfig) -> None:
     """Everything about the prior that can be checked without loading it."""
-    PRIORS.get(cfg.kind).check(cfg.arg, cfg)
+    entry = PRIORS.get(cfg.kind)
+    for key in cfg.options:
+        if key not in entry.options:
+            takes = ", ".join(sorted(entry.options)) or "none"
+            raise InputError(f"prior.options.{key}: the {cfg.kind} prior takes no such option "
+                             f"(its options: {takes})")
+    entry.check(cfg.arg, cfg)
 
 
 def make_prior(cfg: PriorConfig, seed: int = 0):
     """The prior, loaded once (its seed follows the scene's)."""
-    entry = PRIORS.get(cfg.kind)
-    entry.check(cfg.arg, cfg)
-    return entry.make(cfg.arg, cfg, seed)
+    check_prior(cfg)
+    return PRIORS.get(cfg.kind).make(cfg.arg, cfg, seed)

@@ -10,36 +10,15 @@ from __future__ import annotations
 
 import signal
 import time
-from dataclasses import dataclass, field
-from typing import Callable
 
-import numpy as np
 import torch
+from tqdm import tqdm
 
-from lsd3d_usd.ggds.settings import GGDSConfig
+from lsd3d_usd.ggds.run.inputs import GGDSInputs
 from lsd3d_usd.ggds.run.optimisation import GGDSRun
-from lsd3d_usd.splats.field import SurfelField
-
-BEFORE_AFTER_VIEWS = 2
-
-
-@dataclass
-class GGDSInputs:
-    """Everything a run optimises against, as arrays (no USD)."""
-    field: SurfelField                      # the initial surfels (trainable)
-    proxy: tuple                            # (V (n,3), F (m,3), face class ids (m,))
-    views: list                             # training views (ggds.cameras.View)
-    held_out: list                          # held-out views (evaluation only)
-    env: object                             # prior_base.PriorEnv
-    background: Callable | None = None      # camera -> (H,W,3) env radiance behind the surfels
-    shadow: object | None = None            # conditioning.ShadowMap of the sun
-    face_index: np.ndarray | None = None    # seed proxy face of every surfel
-    context: SurfelField | None = None      # frozen neighbour surfels rendered with them
-    focus: tuple | None = None              # (x0, y0, x1, y1) the loaded surfels cover
-    fit_views: list = ()                    # more views for the world-space colour start only
-    # (len(context),) bool: context rows whose colours start with the region's (a neighbour's
-    # initial surfels, which still carry class colours); None: the context keeps its colours
-    context_start: np.ndarray | None = None
+from lsd3d_usd.ggds.run.plots import BEFORE_AFTER_VIEWS, render_rgb, write_plots
+from lsd3d_usd.ggds.settings import GGDSConfig
+from lsd3d_usd.memtune import release_free_memory
 
 
 def _log_nothing(*a):
@@ -76,11 +55,7 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     they are set to None here, so a caller that keeps no other reference frees them (a
     region's initial surfels and band are ~0.2 GB each per million)."""
     n_surfels = int(inputs.field.n)
-    run = GGDSRun(inputs.field, inputs.proxy, inputs.views, prior, inputs.env, config,
-                  background_fn=inputs.background, shadow=inputs.shadow,
-                  face_index=inputs.face_index, term_state=term_state,
-                  context=inputs.context, focus=inputs.focus, fit_views=inputs.fit_views,
-                  context_start=inputs.context_start)
+    run = GGDSRun(inputs, prior, config, term_state=term_state)
     inputs.field = inputs.context = None
     store.write_views(inputs.views)
     before = []
@@ -90,18 +65,16 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
         log(f"ggds: resuming {store.name} at step {run.step_index} of {config.steps}")
     else:
         with torch.no_grad():  # "before" = the initial surfels as authored
-            before = [_render(run, v) for v in inputs.held_out[:BEFORE_AFTER_VIEWS]]
+            before = [render_rgb(run, v) for v in inputs.held_out[:BEFORE_AFTER_VIEWS]]
         if config.world_init and run.world_init():
             log("ggds: surfel colours initialised from the world-space prior")
             # its least-squares temporaries (hundreds of MB) would otherwise stay resident
             # as free heap beside the steps' own buffers (memtune keeps up to 1 GiB)
-            from lsd3d_usd.memtune import release_free_memory
             release_free_memory()
     target = config.steps if stop_at is None else min(int(stop_at), config.steps)
     interrupted = False
     bar = None
     if progress:
-        from tqdm import tqdm
         bar = tqdm(total=target, initial=run.step_index, desc="GGDS", unit="step")
     try:
         while run.step_index < target:
@@ -134,59 +107,12 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
         return summary
     # the per-view caches (~6 MB a view) are done with: not held through evaluation and writing
     run.release_views()
-    from lsd3d_usd.memtune import release_free_memory
     release_free_memory()
     t = time.perf_counter()
     metrics = run.evaluate(inputs.held_out) if inputs.held_out else {}
     _save(store, run, prior, inputs, metrics=metrics, final=True, keep_checkpoint=keep_checkpoint)
     summary.update(metrics)
     summary["eval_s"] = round(time.perf_counter() - t, 2)
-    _plots(run, prior, inputs, before, store.plot_dir)
+    write_plots(run, inputs.held_out, before, store.plot_dir)
     store.write_summary(summary)
     return summary
-
-
-def _render(run: GGDSRun, view) -> torch.Tensor:
-    cam = view.camera
-    bg = run.background_fn(cam) if run.background_fn else None
-    return run.render(cam, background=bg).rgb
-
-
-@torch.no_grad()
-def _plots(run: GGDSRun, prior, inputs: GGDSInputs, before: list, out_dir) -> None:
-    """loss.png (losses and PSNR against the prior per step) and before_after.png (initial
-    surfels, after GGDS, prior target for the first held-out views)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from lsd3d_usd.conditioning.gbuffer import view_gbuffer
-    from lsd3d_usd.ggds.losses.effnet import linear_to_srgb
-    out_dir.mkdir(parents=True, exist_ok=True)
-    h = run.history
-    if h:
-        fig, ax = plt.subplots(1, 2, figsize=(10, 3.2))
-        steps = [r["step"] for r in h]
-        for key in ("loss", "l1", "disparity", "normal"):
-            ys = np.array([r.get(key, np.nan) for r in h])
-            k = max(1, len(ys) // 20)
-            ax[0].plot(steps, np.convolve(ys, np.ones(k) / k, mode="same"), label=key)
-        ax[0].set_yscale("log"); ax[0].set_xlabel("step"); ax[0].legend(); ax[0].set_title("GGDS losses")
-        ax[1].plot(steps, [r["psnr_target"] for r in h], ".", ms=3)
-        ax[1].set_xlabel("step"); ax[1].set_ylabel("PSNR render vs prior target (dB)")
-        fig.tight_layout(); fig.savefig(out_dir / "loss.png", dpi=100); plt.close(fig)
-    rows = []
-    for i, v in enumerate(inputs.held_out[:BEFORE_AFTER_VIEWS]):
-        x = _render(run, v)
-        gb = view_gbuffer(v.camera, run.vertices, run.faces, run.face_ids, run.shadow)
-        tgt = prior.target(x.clamp(0, None), gb, run.env, 1.0, seed=i)
-        rows.append((before[i] if i < len(before) else x, x, tgt))
-    if rows:
-        fig, ax = plt.subplots(len(rows), 3, figsize=(12, 2.4 * len(rows)), squeeze=False)
-        for i, imgs in enumerate(rows):
-            for j, (img, title) in enumerate(zip(imgs, ("initial surfels", "after GGDS",
-                                                         "prior target"))):
-                ax[i, j].imshow(linear_to_srgb(img.clamp(0, 1)).numpy()); ax[i, j].set_axis_off()
-                if i == 0:
-                    ax[i, j].set_title(title)
-        fig.tight_layout(); fig.savefig(out_dir / "before_after.png", dpi=100); plt.close(fig)

@@ -118,24 +118,35 @@ def refresh_run_layer(sc: S.Scene, run: str) -> Path:
             key = parse_chunk_prim_name(f.stem.replace("chunk_", "Chunk_", 1))
             infos[key] = {"file": f.name}
     regions = {name: region_progress(sc, run, name) for name in plan["regions"]}
-    done = [r for r in regions.values() if r.get("complete")]
-    steps = [int(r.get("stepsDone", 0)) for r in regions.values() if not r.get("skipped")]
-    metrics = aggregate_metrics([r.get("metrics") or {} for r in done],
-                                [r.get("surfels", 0) for r in done])
-    seconds = sum(float(r.get("seconds", 0.0)) for r in regions.values())
+    totals = run_summary(regions)
     prior = next((r["prior"] for r in regions.values() if r.get("prior")), {})
     prov = S.provenance(
         "ggds", {**plan.get("params", {}), **prior}, seed=plan.get("seed"),
-        timings={"optimise_s": round(seconds, 2),
-                 "s_per_step": round(seconds / max(sum(steps), 1), 4)},
-        stepsDone=min(steps) if steps else 0, complete=bool(plan.get("complete")),
+        timings={"optimise_s": round(totals["seconds"], 2),
+                 "s_per_step": round(totals["s_per_step"], 4)},
+        stepsDone=totals["steps"], complete=bool(plan.get("complete")),
         prompt=plan.get("prompt", ""), dependsOn=plan.get("dependsOn"),
-        generate=json.dumps(plan.get("generate", {})), metrics=metrics or None,
+        generate=json.dumps(plan.get("generate", {})), metrics=totals["metrics"] or None,
         regions=json.dumps({k: {kk: v.get(kk) for kk in ("stepsDone", "complete", "keys")}
                             for k, v in regions.items()}))
     path = chunkio.write_root(run_layer_path(sc, run), folder, infos, prov, define=False)
     sc.add_layer(path.name)
     return path
+
+
+def run_summary(regions: dict) -> dict:
+    """A run's totals from its regions' progress ({region: progress.json}): complete, steps
+    (the fewest of the optimised regions), seconds, s_per_step, surfels, and the held-out
+    metrics of the finished regions weighted by their surfels."""
+    done = [r for r in regions.values() if r.get("complete")]
+    steps = [int(r.get("stepsDone", 0)) for r in regions.values() if not r.get("skipped")]
+    seconds = sum(float(r.get("seconds", 0.0)) for r in regions.values())
+    return {"complete": all(r.get("complete") for r in regions.values()),
+            "steps": min(steps) if steps else 0, "seconds": seconds,
+            "s_per_step": seconds / max(sum(steps), 1),
+            "surfels": int(sum(r.get("surfels", 0) for r in regions.values())),
+            "metrics": aggregate_metrics([r.get("metrics") or {} for r in done],
+                                         [r.get("surfels", 0) for r in done])}
 
 
 def aggregate_metrics(metrics: list[dict], weights: list[float]) -> dict:

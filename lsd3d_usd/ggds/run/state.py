@@ -1,0 +1,141 @@
+"""The optimisation state of a run: the surfel parameters, selective Adam, the MCMC strategy,
+the schedules, the random generator and the history, and how they checkpoint (flat named
+tensors for safetensors plus plain JSON)."""
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from lsd3d_usd.configtree import to_dict
+from lsd3d_usd.ggds.optim import params as P
+from lsd3d_usd.ggds.optim.adam import SelectiveAdam, lr_at
+from lsd3d_usd.ggds.optim.antialias import filter_sigma, smooth
+from lsd3d_usd.ggds.optim.strategy import MCMCStrategy
+from lsd3d_usd.ggds.settings import GGDSConfig
+from lsd3d_usd.splats.field import SurfelField
+
+
+class RunState:
+    """``field``: the initial surfels (read once: the state keeps its own tensors).
+    ``cameras``: the training cameras (the 3D smoothing filter's sampling rates)."""
+
+    def __init__(self, field: SurfelField, config: GGDSConfig, cameras, face_index=None):
+        self.cfg = config
+        # what the result keeps of the initial field; the rest lives in the parameters
+        self.semantics = (field.semantic_ids, field.semantic_classes)
+        self.params = P.to_params(field)
+        for p in self.params.values():
+            p.requires_grad_(True)
+        k = self.params["sh"].shape[1]
+        sh_scale = torch.full((k, 1), float(config.lr.sh_rest_factor))
+        sh_scale[0] = 1.0
+        self.optimizer = SelectiveAdam(self.params, self.lrs(0), lr_scales={"sh": sh_scale},
+                                       eps_by_key={"sh": config.lr.adam_eps_sh})
+        st = config.strategy
+        self.strategy = MCMCStrategy(noise_scale=st.noise_scale, gate_sharpness=st.gate_sharpness,
+                                     gate_threshold=st.gate_threshold,
+                                     relocate_every=st.relocate_every, dead_opacity=st.dead_opacity,
+                                     max_relocate_frac=st.max_relocate_frac,
+                                     densify_frac=st.densify_frac,
+                                     redundant_coef=st.redundant_coef, seed=config.seed)
+        self.face_index = None if face_index is None else np.asarray(face_index, np.int64).copy()
+        # Per-surfel σ of the 3D smoothing filter (optim/antialias.py), or None when off.
+        self.filter3d = (torch.from_numpy(filter_sigma(field.positions, list(cameras),
+                                                       config.filter_3d))
+                         if config.filter_3d > 0 else None)
+        self.rng = np.random.default_rng(config.seed)
+        self.step_index = 0
+        self.history: list[dict] = []
+        self.seconds = 0.0
+
+    @property
+    def n(self) -> int:
+        return int(self.params["means"].shape[0])
+
+    # ------------------------------------------------------------ schedules
+    def lrs(self, step: int) -> dict:
+        c, lr = self.cfg, self.cfg.lr
+        return {"means": lr_at(step, c.steps, lr.means, lr.means_end), "quats": lr.quats,
+                "scales": lr.scales, "opacities": lr.opacities,
+                "sh": lr.sh_dc if lr.sh_dc_end is None else lr_at(step, c.steps, lr.sh_dc,
+                                                                  lr.sh_dc_end)}
+
+    def t_min(self, step: int) -> float:
+        c = self.cfg
+        f = min(step / max(c.steps - 1, 1), 1.0)
+        return c.t_min_start + (c.t_min_end - c.t_min_start) * f
+
+    # ------------------------------------------------------------ the renderer's values
+    def activated(self, params: dict | None = None) -> dict:
+        """The renderer's values of ``params`` (default: the state's): constrained
+        (params.activated) and, with the 3D smoothing filter on, each disk convolved with its
+        frequency limit."""
+        a = P.activated(self.params if params is None else params)
+        if self.filter3d is not None:
+            a["scales"], a["opacities"] = smooth(a["scales"], a["opacities"], self.filter3d)
+        return a
+
+    @torch.no_grad()
+    def filter_coef(self) -> torch.Tensor | None:
+        """(N,) fraction of each surfel's opacity the 3D filter keeps (None without it)."""
+        if self.filter3d is None:
+            return None
+        s = self.params["scales"].exp()
+        return smooth(s, torch.ones(len(s)), self.filter3d)[1]
+
+    def field(self) -> SurfelField:
+        """The surfels as the renderer sees them (the 3D filter baked in)."""
+        return P.to_field(self.params, *self.semantics, activate=self.activated)
+
+    def track_relocation(self) -> None:
+        """A relocated surfel sits on its source's disk: it inherits the source's seed face
+        and, seen by the same views, its frequency limit."""
+        dead, src = self.strategy.last_relocation
+        if self.face_index is not None:
+            self.face_index[dead.numpy()] = self.face_index[src.numpy()]
+        if self.filter3d is not None:
+            self.filter3d[dead] = self.filter3d[src]
+
+    # ------------------------------------------------------------ checkpoint
+    def checkpoint(self, optimizer: bool = True) -> tuple[dict, dict]:
+        """(tensors, meta): everything a resume needs of the state. Without ``optimizer`` the
+        Adam moments are left out (a resume then restarts them at zero)."""
+        tensors = {f"params.{k}": v.detach().contiguous() for k, v in self.params.items()}
+        if optimizer:
+            st = self.optimizer.state_dict()
+            tensors.update({f"adam.m.{k}": v.contiguous() for k, v in st["m"].items()})
+            tensors.update({f"adam.v.{k}": v.contiguous() for k, v in st["v"].items()})
+            tensors["adam.t"] = st["t"].contiguous()
+        tensors.update(self.strategy.state_tensors())
+        if self.face_index is not None:
+            tensors["face_index"] = torch.from_numpy(np.ascontiguousarray(self.face_index))
+        if self.filter3d is not None:
+            tensors["filter3d"] = self.filter3d.contiguous()
+        meta = {"step": self.step_index, "rng": self.rng.bit_generator.state,
+                "history": list(self.history), "seconds": self.seconds,
+                "config": to_dict(self.cfg), "optimizer": bool(optimizer)}
+        return tensors, meta
+
+    def restore(self, tensors: dict, meta: dict) -> None:
+        """Inverse of :meth:`checkpoint`. Shapes must match the run's surfels."""
+        with torch.no_grad():
+            for k, p in self.params.items():
+                v = tensors.get(f"params.{k}")
+                if v is None or v.shape != p.shape:
+                    got = "missing" if v is None else f"shape {tuple(v.shape)}"
+                    raise ValueError(f"checkpoint params.{k} is {got}, the scene's surfels give "
+                                     f"{tuple(p.shape)}")
+                p.copy_(v)
+        if meta.get("optimizer", True) and "adam.t" in tensors:
+            self.optimizer.load_state_dict({
+                "m": {k: tensors[f"adam.m.{k}"] for k in self.params},
+                "v": {k: tensors[f"adam.v.{k}"] for k in self.params}, "t": tensors["adam.t"]})
+        self.step_index = int(meta["step"])
+        self.rng.bit_generator.state = meta["rng"]
+        self.strategy.load_state_tensors(tensors)
+        self.history = list(meta["history"])
+        self.seconds = float(meta.get("seconds", 0.0))
+        if "face_index" in tensors:
+            self.face_index = tensors["face_index"].numpy().astype(np.int64).copy()
+        if self.filter3d is not None and "filter3d" in tensors:
+            self.filter3d = tensors["filter3d"].clone()
