@@ -135,20 +135,11 @@ def _generate(args) -> int:
     from lsd3d_usd.pipeline import RunOptions, generate
 
     if args.list_options:
-        for row in ct.describe(C.GenerateConfig):
-            names = " / ".join(x for x in (row["flag"], row["alias"]) if x)
-            print(f"{row['key']:32s} {row['type']:6s} {row['default'] or '-':>14s}  "
-                  f"{row['help']}" + (f"  [{names}]" if names else ""))
+        ct.print_options(C.GenerateConfig)
         return 0
     if not args.output:
         raise InputError("generate: -o/--output SCENE is required")
-    layers = []
-    if args.config:
-        layers.append((f"{Path(args.config).name}: ", C.load_config_file(args.config)))
-    flags = C.resolve_paths(ct.from_args(args), Path.cwd())
-    layers.append(("", flags))
-    layers.append(("--set ", ct.parse_assignments(args.set, C.GenerateConfig)))
-    cfg = C.build(layers)
+    cfg, explicit = ct.from_command_line(args, C.GenerateConfig, C.FLAG_NAMES)
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers {args.workers}: must be >= 1")
     if args.address and args.executor != "ray":
@@ -161,7 +152,7 @@ def _generate(args) -> int:
                      workers=args.workers, executor=args.executor, address=args.address,
                      progress=not args.no_progress and sys.stderr.isatty(),
                      log=(lambda *a: print(*a, file=sys.stderr)),
-                     explicit=frozenset(k for _, values in layers for k in values))
+                     explicit=explicit)
     try:
         summary = generate(cfg, run)
     except KeyboardInterrupt:
@@ -189,14 +180,7 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
                     "scene that --resume continues. Every setting has a key (--list-options): "
                     "set it in a TOML file (--config) or with --set KEY=VALUE.")
     p.add_argument("-o", "--output", help="scene folder to create or update")
-    p.add_argument("--config", metavar="FILE.toml",
-                   help="settings from a TOML file: flat keys (steps = 100) or tables / dotted "
-                        "keys ([ggds.lr] sh_dc = 0.01); flags and --set win over it")
-    p.add_argument("--set", action="append", metavar="KEY=VALUE",
-                   help="set any setting by key, e.g. --set ggds.lr.sh_dc=0.01 (repeatable; "
-                        "wins over flags and --config)")
-    p.add_argument("--list-options", action="store_true",
-                   help="print every setting's key, type, default and flag, and exit")
+    ct.add_tree_options(p, "generate")
     p.add_argument("--resume", action="store_true",
                    help="continue the newest unfinished GGDS run with its recorded settings "
                         "(--steps N stops it at step N)")

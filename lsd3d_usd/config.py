@@ -8,15 +8,14 @@ run, not what to make, and lives in pipeline.RunOptions.
 """
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from lsd3d_usd import configtree as ct
 from lsd3d_usd.configtree import option
-from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.ggds.priors.registry import PriorConfig
+from lsd3d_usd.proxy.chunks import ProxyParams
 
 STYLES = ("urban", "suburban", "highway")
 WEATHERS = ("clear", "partly-cloudy", "overcast", "fog", "rain", "snow")   # env.params.WEATHERS
@@ -87,6 +86,7 @@ class GenerateConfig:
                                          metavar="WxH")
     style: str = option("urban", help="generated layout style (no --layout)", flag="--style",
                         alias="style", choices=STYLES)
+    proxy: ProxyParams = field(default_factory=ProxyParams)
     env: EnvConfig = field(default_factory=EnvConfig)
     surfels: SurfelConfig = field(default_factory=SurfelConfig)
     prior: PriorConfig = field(default_factory=PriorConfig)
@@ -94,41 +94,8 @@ class GenerateConfig:
     actors: ActorsConfig = field(default_factory=ActorsConfig)
 
 
-def load_config_file(path) -> dict:
-    """A TOML config file → {leaf key: value} (checked against the tree; relative paths are
-    relative to the file)."""
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"--config {path}: no such file")
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{p}: not valid TOML: {e}") from None
-    except UnicodeDecodeError as e:
-        raise InputError(f"{p}: not UTF-8 text: {e}") from None
-    values = ct.flatten(data, GenerateConfig, f"{p.name}: ")
-    return resolve_paths(values, p.parent.absolute())
-
-
-def resolve_paths(values: dict, base: Path) -> dict:
-    """Relative path values (layout, lpips, ...) made absolute against ``base``."""
-    paths = {lf.key for lf in ct.leaves(GenerateConfig) if lf.base is Path}
-    out = dict(values)
-    for k, v in values.items():
-        if k in paths and isinstance(v, str) and v and not Path(v).expanduser().is_absolute():
-            out[k] = str((base / Path(v).expanduser()).resolve())
-    return out
-
-
-def build(values_in_order: list[tuple[str, dict]]) -> GenerateConfig:
-    """Defaults updated by each (where, {key: value}) in turn: config file, flags, --set.
-    Values from flags (where "") are named by their flag in errors."""
-    cfg = GenerateConfig()
-    flags = ct.flag_names(GenerateConfig)
-    flags["ggds.weights.perceptual"] = "--perceptual-weight"
-    for where, values in values_in_order:
-        cfg = ct.apply(cfg, values, where, flags if where == "" else None)
-    return cfg
+# Values given by flags are named by their flag in errors; this one is a dict-leaf entry.
+FLAG_NAMES = {"ggds.weights.perceptual": "--perceptual-weight"}
 
 
 def generate_config(**settings) -> GenerateConfig:

@@ -458,15 +458,22 @@ def default_text(lf: Leaf) -> str:
     return _show(lf.default)
 
 
-def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = None) -> dict:
+def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = None,
+                  flags: dict | None = None) -> dict:
     """One argparse flag per leaf that has ``flag`` (and a ``--no-x`` for ``negate``), in one
     argument group per subtree (``titles`` names them). Defaults are suppressed so only flags
     given on the command line reach :func:`from_args`; --help shows each leaf's default.
-    Returns the groups by subtree name ("" = the parser itself)."""
+    ``flags`` ({key: "--flag" or "--no-flag"}) gives flags to leaves of a tree another command
+    also uses without them (a bool leaf's "--no-..." flag turns it off). Returns the groups by
+    subtree name ("" = the parser itself)."""
     import argparse
     groups: dict = {"": parser}
     for lf in leaves(cls):
         m = lf.meta
+        given = (flags or {}).get(lf.key)
+        if given:
+            m = {**m, "negate": given, "flag": None} if given.startswith("--no-") and \
+                lf.base is bool else {**m, "flag": given}
         if not (m["flag"] or m["negate"]):
             continue
         head = lf.path[0] if len(lf.path) > 1 else ""
@@ -475,7 +482,8 @@ def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = 
             groups[head] = parser.add_argument_group(title) if head and title else parser
         target = groups[head]
         dest = dest_prefix + lf.key
-        shown = default_text(lf)
+        shown = default_text(lf).replace("%", "%%")   # argparse formats help with %
+        m = {**m, "help": m["help"].replace("%", "%%")}
         if m["negate"]:
             target.add_argument(m["negate"], dest=dest, action="store_const", const="false",
                                 default=argparse.SUPPRESS, help=f"{m['help']}: off "
@@ -516,3 +524,82 @@ def describe(cls) -> list[dict]:
                      lf.meta["negate"], "type": _type_name(lf.type),
                      "default": default_text(lf), "help": lf.help})
     return rows
+
+
+# ------------------------------------------------------------------------------ a command's tree
+def load_file(path, cls, where: str = "--config") -> dict:
+    """A TOML file → {leaf key: value} of ``cls`` (keys checked; relative path values made
+    absolute against the file's folder)."""
+    import tomllib
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{where} {path}: no such file")
+    try:
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as e:
+        raise InputError(f"{p}: not valid TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise InputError(f"{p}: not UTF-8 text: {e}") from None
+    except RecursionError:
+        raise InputError(f"{p}: tables or arrays nested too deeply") from None
+    return resolve_paths(flatten(data, cls, f"{p.name}: "), cls, p.parent.absolute())
+
+
+def resolve_paths(values: dict, cls, base: Path) -> dict:
+    """Relative path values of ``cls``'s Path leaves made absolute against ``base``."""
+    paths = {lf.key for lf in leaves(cls) if lf.base is Path}
+    out = dict(values)
+    for k, v in values.items():
+        if k in paths and isinstance(v, str) and v and not Path(v).expanduser().is_absolute():
+            out[k] = str((base / Path(v).expanduser()).resolve())
+    return out
+
+
+def add_tree_options(parser, what: str) -> None:
+    """--config FILE.toml, --set KEY=VALUE and --list-options for a command whose settings are
+    a configuration tree."""
+    parser.add_argument("--config", metavar="FILE.toml",
+                        help=f"{what} settings from a TOML file: flat keys or tables / dotted "
+                             "keys; flags and --set win over it")
+    parser.add_argument("--set", action="append", metavar="KEY=VALUE",
+                        help="set any setting by key (repeatable; wins over flags and "
+                             "--config; --list-options lists the keys)")
+    parser.add_argument("--list-options", action="store_true",
+                        help="print every setting's key, type, default and flag, and exit")
+
+
+def print_options(cls, out=None) -> None:
+    """--list-options: one line per leaf (key, type, default, help, flag / alias)."""
+    import sys
+    out = out or sys.stdout
+    for row in describe(cls):
+        names = " / ".join(x for x in (row["flag"], row["alias"]) if x)
+        print(f"{row['key']:32s} {row['type']:6s} {row['default'] or '-':>14s}  "
+              f"{row['help']}" + (f"  [{names}]" if names else ""), file=out)
+
+
+def layers_from_args(args, cls, dest_prefix: str = "cfg:") -> list[tuple[str, dict]]:
+    """(where, {key: value}) of a command line in the order they apply: --config file, flags,
+    --set (each later one wins)."""
+    layers = []
+    if getattr(args, "config", None):
+        layers.append((f"{Path(args.config).name}: ", load_file(args.config, cls)))
+    layers.append(("", resolve_paths(from_args(args, dest_prefix), cls, Path.cwd())))
+    layers.append(("--set ", parse_assignments(getattr(args, "set", None), cls)))
+    return layers
+
+
+def build(cls, layers, display: dict | None = None):
+    """Defaults of ``cls`` updated by each (where, {key: value}) layer; values from flags
+    (where "") are named by their flag in errors."""
+    cfg = cls()
+    flags = {**flag_names(cls), **(display or {})}
+    for where, values in layers:
+        cfg = apply(cfg, values, where, flags if where == "" else None)
+    return cfg
+
+
+def from_command_line(args, cls, display: dict | None = None):
+    """(the tree of ``cls`` from a parsed command line, the keys given explicitly)."""
+    layers = layers_from_args(args, cls)
+    return build(cls, layers, display), frozenset(k for _, v in layers for k in v)

@@ -112,8 +112,7 @@ def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | N
 
 
 def _surfels_hash(layout_hash: str, env_hash: str, cfg: GenerateConfig) -> str:
-    from lsd3d_usd.proxy.chunks import ProxyParams
-    return content_hash(SURFELS_VERSION, layout_hash, ProxyParams().as_dict(), env_hash, cfg.seed,
+    return content_hash(SURFELS_VERSION, layout_hash, cfg.proxy.as_dict(), env_hash, cfg.seed,
                  ct.to_dict(cfg.surfels))
 
 
@@ -228,7 +227,8 @@ def _layout_step(sc: S.Scene, p: Plan) -> None:
 
 def _proxy_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     from lsd3d_usd.proxy.usdio import build_proxy_layer
-    rep = build_proxy_layer(p.layout, sc.layer_path("proxy"), progress=run.progress)
+    rep = build_proxy_layer(p.layout, sc.layer_path("proxy"), params=p.cfg.proxy,
+                            progress=run.progress)
     sc.add_layer("proxy")
     return {"built": len(rep.built), "skipped": len(rep.skipped), "seconds": round(rep.seconds, 2),
             "triangles": rep.triangles}

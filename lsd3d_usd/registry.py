@@ -43,6 +43,7 @@ class Registry:
         self._targets: dict[str, str] = dict(builtins)
         self._runtime: dict[str, str] = {}     # targets registered at run time (portable)
         self._loaded: dict[str, Any] = {}
+        self._order: list[str] = list(builtins)   # built-ins, entry points, then registrations
         self._scanned = False
         REGISTRIES[group] = self
 
@@ -54,23 +55,35 @@ class Registry:
             if ep.name in self._targets and self._targets[ep.name] != ep.value:
                 raise InputError(f"{self.what} {ep.name!r} is registered twice: {self._targets[ep.name]} "
                                  f"and the entry point {ep.value} ({self.group}); uninstall one")
+            if ep.name not in self._order:
+                self._order.append(ep.name)
             self._targets[ep.name] = ep.value
 
-    def register(self, name: str, obj: Any) -> None:
+    def register(self, name: str, obj: Any, *, before: str | None = None) -> None:
         """Register ``obj``: a ``"module:attribute"`` target (portable to worker processes)
-        or the object itself (this process only)."""
+        or the object itself (this process only); in ``ordered()`` last, or before ``before``."""
         self._scan()
         if name in self._targets or name in self._loaded:
             raise InputError(f"{self.what} {name!r} is already registered")
+        if before is not None and before not in self._order:
+            raise InputError(f"{self.what} {before!r} (register before it) is not registered")
         if _is_target(obj):
             self._targets[name] = self._runtime[name] = obj
         else:
             self._loaded[name] = obj
+        self._order.insert(self._order.index(before) if before else len(self._order), name)
 
     def unregister(self, name: str) -> None:
         self._loaded.pop(name, None)
         self._targets.pop(name, None)
         self._runtime.pop(name, None)
+        if name in self._order:
+            self._order.remove(name)
+
+    def ordered(self) -> list[str]:
+        """The names in registration order (built-ins first, as declared)."""
+        self._scan()
+        return list(self._order)
 
     def names(self) -> list[str]:
         self._scan()
@@ -99,8 +112,8 @@ class Registry:
         return obj
 
     def items(self):
-        """(name, entry) of every entry, loading each."""
-        return [(n, self.get(n)) for n in self.names()]
+        """(name, entry) of every entry in registration order, loading each."""
+        return [(n, self.get(n)) for n in self.ordered()]
 
 
 def portable() -> dict[str, dict[str, str]]:

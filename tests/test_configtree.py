@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from lsd3d_usd import configtree as ct
-from lsd3d_usd.config import GenerateConfig, generate_config, load_config_file
+from lsd3d_usd.config import GenerateConfig, generate_config
 from lsd3d_usd.configtree import option
 from lsd3d_usd.errors import InputError
 
@@ -118,15 +118,15 @@ def test_generate_config_knobs_are_all_reachable():
 def test_config_file_relative_paths_and_errors(tmp_path):
     f = tmp_path / "gen.toml"
     f.write_text('steps = 5\nlayout = "maps/l.usda"\n[ggds.lr]\nsh_dc = 0.02\n')
-    vals = load_config_file(f)
+    vals = ct.load_file(f, GenerateConfig)
     assert vals["layout"] == str((tmp_path / "maps" / "l.usda").resolve())
     assert vals["ggds.lr.sh_dc"] == 0.02 and vals["ggds.steps"] == 5
     f.write_text("[ggds.lrr]\nsh_dc = 1\n")
     with pytest.raises(InputError, match=r"gen.toml: unknown key 'ggds.lrr'"):
-        load_config_file(f)
+        ct.load_file(f, GenerateConfig)
     f.write_text("steps = \n")
     with pytest.raises(InputError, match="not valid TOML"):
-        load_config_file(f)
+        ct.load_file(f, GenerateConfig)
 
 
 def test_prior_seed_follows_the_scene_seed():

@@ -12,7 +12,7 @@ from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import models
 from lsd3d_usd.eval import views as V
-from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
+from lsd3d_usd.eval.evaluate import eval_options, evaluate
 from lsd3d_usd.conditioning.views import sample_views
 from lsd3d_usd.layout.usdio import read_layout
 from lsd3d_usd.config import generate_config
@@ -34,7 +34,7 @@ def _opts(scene, **kw):
     base = dict(scene=scene, n_seen=3, per_bin=2, bins=(0.5, 4.0), resolution=(64, 48), frames=4,
                 progress=False, log=lambda *a: None)
     base.update(kw)
-    return EvalOptions(**base)
+    return eval_options(**base)
 
 
 def _write_png(path, rgb):

@@ -57,21 +57,20 @@ def test_fd_ratios_are_seed_means(monkeypatch, tmp_path):
     """bench ggds's FD keys: each ratio is the mean over the eval seeds of FD / content, the
     prior's likewise, and fd_novel_over_prior the largest bin's quotient of the two means."""
     from lsd3d_usd.benchmarks import ggds as B
-    from lsd3d_usd.eval import evaluate as E
     canned = {0: ({"0.5": 10.0, "8": 120.0}, 100.0, {"0.5": 0.2, "8": 1.5}),
               1: ({"0.5": 30.0, "8": 80.0}, 50.0, {"0.5": 0.4, "8": 1.1})}
     seeds = []
 
     def fake(o):
-        seeds.append(o.seed)
-        per, content, prior = canned[o.seed]
+        seeds.append(o.cfg.seed)
+        per, content, prior = canned[o.cfg.seed]
         return {"fd_effnet_lite0": {
                     "seen_vs_novel": {"per_bin": {b: {"value": v} for b, v in per.items()}},
                     "seen_vs_heldout_lane": {"value": content},
                     "prior_baseline": {"prior_novel_over_content": prior}},
-                "geometry": {"seen": {"all": {"seed": o.seed}}}}
-    monkeypatch.setattr(E, "evaluate", fake)
-    res = B._fd(tmp_path, 2)
+                "geometry": {"seen": {"all": {"seed": o.cfg.seed}}}}
+    monkeypatch.setattr(B, "evaluate", fake)
+    res = B.fd_ratios(tmp_path, 2)
     assert seeds == [0, 1] and res["fd_seeds"] == 2
     assert res["fd_novel_over_content_per_seed"] == {"0.5": [0.1, 0.6], "8": [1.2, 1.6]}
     assert res["fd_novel_over_content_per_bin"] == {"0.5": 0.35, "8": 1.4}

@@ -359,14 +359,14 @@ def test_eval_seams_against_the_same_layout_without_chunk_seams(chunked, tmp_pat
     evaluated scene's held-out views, gives the part of the seam drop the chunking adds; a
     reference that is the scene itself, chunk-wise, or made with other targets is refused
     before anything is rendered or written."""
-    from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
+    from lsd3d_usd.eval.evaluate import eval_options, evaluate
     out, _ = chunked
     one = tmp_path / "one"
     gen(one, ggds={"regions": {"mode": "scene"}, "views": 6, "held_out": 1})
     before = {f: f.stat().st_mtime_ns for f in one.rglob("*") if f.is_file()}
 
     def ev(scene, ref, name):
-        return evaluate(EvalOptions(scene=scene, out_dir=tmp_path / name, n_seen=3, n_heldout=4,
+        return evaluate(eval_options(scene=scene, out_dir=tmp_path / name, n_seen=3, n_heldout=4,
                                     per_bin=1, bins=(1.0,), resolution=(64, 40), frames=2,
                                     progress=False, log=lambda *a: None, prior_baseline=False,
                                     seams_reference=ref))

@@ -8,7 +8,6 @@ from lsd3d_usd.ggds.optim import params as P
 from lsd3d_usd.ggds.optim.adam import SelectiveAdam
 from lsd3d_usd.conditioning.views import View, sample_views
 from lsd3d_usd.ggds.priors.base import Prior
-from lsd3d_usd.conditioning.light import PriorEnv
 from lsd3d_usd.ggds.settings import GGDSConfig, StrategyConfig
 from lsd3d_usd.conditioning.scene import Conditioning
 from lsd3d_usd.ggds.run.evaluate import point_triangle_distance

@@ -3,8 +3,9 @@ new block type added by registration alone."""
 import numpy as np
 import pytest
 import shapely
-from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry import Point, Polygon
 
+from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import blocks as B
 from lsd3d_usd.layout import blocktypes as BT
 from lsd3d_usd.layout import generator as G
@@ -53,7 +54,7 @@ def test_block_geometry_invariants(name):
     desc = single_block(block_id, angles, sections, params)
     ctx = G.Context(desc)
     blk = ctx.block_at(G.node_key(0, 0))
-    assert type(blk) is BT.BLOCK_TYPES[block_id]
+    assert type(blk) is BT.BLOCKS.get(block_id)
     L = G.build(desc)
 
     # sockets: on each arm at its cut, inside the block's reach; road lanes start on the socket line
@@ -123,7 +124,7 @@ def test_curve_tangent_capped_to_stay_in_its_chunk():
     assert t == R.MAX_BLOCK_REACH - 3 and radius < 60.0
 
 
-@pytest.mark.parametrize("cls", list(BT.BLOCK_TYPES.values()))
+@pytest.mark.parametrize("cls", [c for _, c in BT.BLOCKS.items()])
 @pytest.mark.parametrize("style", G.STYLES)
 def test_parameter_space_sampling(cls, style):
     sp = G.STYLE_PARAMS[style]
@@ -166,10 +167,10 @@ def test_claims_by_degree_and_sections():
     wide = B.Section(3, 3.5, median=4.0)                            # half width 12.5 m
     assert BT.choose(rng, [wide] * 4, sp) is BT.Junction
     assert BT.choose(rng, [SEC1] * 4, dict(sp, p_roundabout=0.0)) is BT.Junction
-    assert list(BT.BLOCK_TYPES)[-1] == "junction"
+    assert BT.BLOCKS.ordered()[-1] == "junction"
 
 
-def test_new_block_type_by_registration_only(monkeypatch):
+def test_new_block_type_by_registration_only():
     """A block type added with register() is chosen by plan() and built by build()."""
     class Plaza(BT.Junction):
         """A junction of four single-lane roads with crosswalks on every approach."""
@@ -184,21 +185,24 @@ def test_new_block_type_by_registration_only(monkeypatch):
             return {"corner_radius": BT.Uniform(4.0, 5.0), "crosswalks": BT.Chance(1.0),
                     "stop_signs": BT.Chance(0.0)}
 
-    monkeypatch.setattr(BT, "BLOCK_TYPES", dict(BT.BLOCK_TYPES))
-    BT.register(Plaza, before="junction")
-    with pytest.raises(ValueError, match="taken"):
-        BT.register(Plaza)
-    n_plazas = 0
-    for seed in range(12):
-        desc = G.plan(seed, (300.0, 300.0), "suburban")
-        plazas = [k for k, n in desc["nodes"].items() if n.get("block") == "plaza"]
-        n_plazas += len(plazas)
-        L = G.build(desc)
-        for k in plazas:
-            assert 4.0 <= desc["nodes"][k]["params"]["corner_radius"] <= 5.0
-            assert sum(cw.id.startswith(("h", "v")) for cw in L.crosswalks) >= 4
-            assert any(ln.road_id == f"n{k}" for ln in L.lanes)
-    assert n_plazas > 0
+    BT.register(Plaza)                       # before the catch-all junction
+    try:
+        assert BT.BLOCKS.ordered()[-2:] == ["plaza", "junction"]
+        with pytest.raises(InputError, match="already registered"):
+            BT.register(Plaza)
+        n_plazas = 0
+        for seed in range(12):
+            desc = G.plan(seed, (300.0, 300.0), "suburban")
+            plazas = [k for k, n in desc["nodes"].items() if n.get("block") == "plaza"]
+            n_plazas += len(plazas)
+            L = G.build(desc)
+            for k in plazas:
+                assert 4.0 <= desc["nodes"][k]["params"]["corner_radius"] <= 5.0
+                assert sum(cw.id.startswith(("h", "v")) for cw in L.crosswalks) >= 4
+                assert any(ln.road_id == f"n{k}" for ln in L.lanes)
+        assert n_plazas > 0
+    finally:
+        BT.BLOCKS.unregister("plaza")
 
 
 def test_unknown_block_in_description_is_an_input_error():

@@ -369,10 +369,10 @@ def test_render_camera_deferred(tiny_scene, tmp_path, run_cli):
 
 
 def test_eval_deferred(tiny_scene, tmp_path):
-    from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
-    res = evaluate(EvalOptions(scene=tiny_scene, out_dir=tmp_path / "ev", n_seen=3, per_bin=2,
+    from lsd3d_usd.eval.evaluate import eval_options, evaluate
+    res = evaluate(eval_options(scene=tiny_scene, out_dir=tmp_path / "ev", n_seen=3, per_bin=2,
                                bins=(0.5, 4.0), resolution=(64, 48), frames=4, progress=False,
-                               log=lambda *a: None, deferred=True, deferred_strength=0.3))
+                               log=lambda *a: None, deferred={"enabled": True, "strength": 0.3}))
     d = res["deferred"]
     assert (d["prior"], d["strength"], d["steps"]) == ("procedural", 0.3, D.DEFAULT_STEPS)
     fd = d["fd_effnet_lite0"]
@@ -384,6 +384,6 @@ def test_eval_deferred(tiny_scene, tmp_path):
     assert "Deferred rendering" in html and "eval_deferred.png" in html
     assert (tmp_path / "ev" / "eval_deferred.png").is_file()
     with pytest.raises(InputError, match="--deferred-strength"):
-        evaluate(EvalOptions(scene=tiny_scene, out_dir=tmp_path / "bad", deferred=True,
-                             deferred_strength=2.0, progress=False, log=lambda *a: None))
+        evaluate(eval_options(scene=tiny_scene, out_dir=tmp_path / "bad", deferred={"enabled": True, "strength": 2.0},
+                             progress=False, log=lambda *a: None))
     assert not (tmp_path / "bad").exists()

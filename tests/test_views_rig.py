@@ -10,6 +10,7 @@ import pytest
 import lsd3d_usd  # noqa: F401
 from pxr import Usd, UsdGeom
 
+from lsd3d_usd.views.options import RigOptions
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import from_usd
 from lsd3d_usd.views import ego, frame, rig, rig_stage, rigs
@@ -180,8 +181,8 @@ def test_rendering_is_stateless_and_writes_clips(rig_scene, tmp_path):
     roles = [a.role for a in reader.actors.actors]
     assert moved[roles.index("moving")] and not moved[roles.index("parked")]
 
-    res = rig.render_rig(sc.root, tmp_path / "clip", trajectory=traj, fps=2.0, seconds=1.0, width=64,
-                       use_env=False, progress=False, log=lambda *_: None)
+    res = rig.render_rig(sc.root, tmp_path / "clip", RigOptions(trajectory=traj, fps=2.0, seconds=1.0),
+                         width=64, use_env=False, progress=False, log=lambda *_: None)
     assert set(res.frames) == {c.name for c in rigs.WAYMO5} | {"Overview"}
     assert all(len(v) == 2 and all(p.is_file() for p in v) for v in res.frames.values())
     # an MP4 per camera (imageio-ffmpeg is a dependency): decoded, it has every frame at the
@@ -245,8 +246,9 @@ def test_camera_render_draws_actors_like_the_rig(rig_scene, tmp_path):
     from lsd3d_usd.cli import main
     from lsd3d_usd.views.images import read_image
     sc, _, traj = rig_scene
-    res = rig.render_rig(sc.root, tmp_path / "clip", trajectory=traj, fps=10.0, seconds=1.0, width=64,
-                         overview=False, video=False, progress=False, log=lambda *_: None)
+    res = rig.render_rig(sc.root, tmp_path / "clip",
+                         RigOptions(trajectory=traj, fps=10.0, seconds=1.0, overview=False,
+                                    video=False), width=64, progress=False, log=lambda *_: None)
     k, code = 9, 21.6                 # t = 0.9 s at 24 codes/s: the ego is past the building
     side = rigs.WAYMO5[3]
     out = tmp_path / "cam"
@@ -279,14 +281,16 @@ def test_rig_output_references_the_scene_not_the_checkout_and_is_quiet(rig_scene
         assert len(refs) == 1 and "samples" not in layer.ExportToString()
         return (Path(rig_file).parent / refs[0].assetPath).resolve()
 
-    res = rig.render_rig(sc.root, tmp_path / "a", trajectory=traj, fps=2.0, seconds=1.0, width=32,
-                         video=False, progress=False, log=lambda *_: None)
+    res = rig.render_rig(sc.root, tmp_path / "a",
+                         RigOptions(trajectory=traj, fps=2.0, seconds=1.0, video=False),
+                         width=32, progress=False, log=lambda *_: None)
     assert ego_reference(res.rig_layer) == (tmp_path / "a" / "assets" / "car.usda").resolve()
     err = capfd.readouterr().err
     assert "Warning" not in err and "Could not open asset" not in err, err
     own = write_vehicle_asset("car", sc.root / "assets" / "car.usda")   # as generate's actors step
-    res = rig.render_rig(sc.root, tmp_path / "b", trajectory=traj, fps=2.0, seconds=1.0, width=32,
-                         video=False, progress=False, log=lambda *_: None)
+    res = rig.render_rig(sc.root, tmp_path / "b",
+                         RigOptions(trajectory=traj, fps=2.0, seconds=1.0, video=False),
+                         width=32, progress=False, log=lambda *_: None)
     assert ego_reference(res.rig_layer) == own.resolve()
     assert not (tmp_path / "b" / "assets").exists()
     err = capfd.readouterr().err

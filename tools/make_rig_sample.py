@@ -94,9 +94,11 @@ def main(argv=None) -> int:
                                 fps=a.fps, env=not a.no_env)
     route = pick_route(layout)
     print("route:", ",".join(route))
+    from lsd3d_usd.views.options import RigOptions
     from lsd3d_usd.views.rig import render_rig
     t0 = time.perf_counter()
-    res = render_rig(scene.root, out / "clip", "waymo5", route=route, fps=a.fps, seconds=a.seconds,
+    res = render_rig(scene.root, out / "clip",
+                     RigOptions(name="waymo5", route=",".join(route), fps=a.fps, seconds=a.seconds),
                      width=a.width, progress=sys.stderr.isatty())
     n = sum(len(v) for v in res.frames.values())
     dt = time.perf_counter() - t0

@@ -170,12 +170,13 @@ def _settings(table: dict, where: str, base: Path, extra: dict) -> tuple[dict, d
     """Split a [defaults] / [[scene]] table into (generate settings checked against the
     configuration tree, {key: value} of the batch-only keys in ``extra``)."""
     from lsd3d_usd import configtree as ct
-    from lsd3d_usd.config import GenerateConfig, resolve_paths
+    from lsd3d_usd.config import GenerateConfig
+    from lsd3d_usd.configtree import resolve_paths
     own = _options({k: v for k, v in table.items() if k in extra}, where, base, extra)
     rest = {k: v for k, v in table.items() if k not in extra}
     try:
         settings = ct.check_table(GenerateConfig, rest, where,
-                                  base=lambda vals: resolve_paths(vals, base))
+                                  base=lambda vals: resolve_paths(vals, GenerateConfig, base))
     except ct.UnknownKey as e:   # name the batch-only keys too
         flat = {lf.meta["alias"] for lf in ct.leaves(GenerateConfig) if lf.meta["alias"]}
         every = flat | set(extra) | {lf.key for lf in ct.leaves(GenerateConfig)}

@@ -93,7 +93,7 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
     input is refused here, before any task runs."""
     import lsd3d_usd
     from lsd3d_usd.pipeline import check_config
-    from lsd3d_usd.proxy.chunks import ProxyBuilder, ProxyParams
+    from lsd3d_usd.proxy.chunks import ProxyBuilder
     from lsd3d_usd.proxy.usdio import layout_hash
 
     try:
@@ -111,7 +111,7 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
             "out": str(sc.output), "options": jopts, "force": sc.force,
             "region_workers": sc.region_workers, "executor": executor, "address": address,
             "test_crash": sc.test_crash, "marker_dir": str(logs_dir)}
-    builder = ProxyBuilder(layout, ProxyParams())
+    builder = ProxyBuilder(layout, cfg.proxy)
     keys = sorted(builder.chunks())
     split = sc.split_chunks == "always" or (sc.split_chunks == "auto"
                                                 and len(keys) >= AUTO_SPLIT_MIN_CHUNKS)
@@ -161,10 +161,10 @@ def finalize_chunks(plan: ScenePlan) -> None:
     """Driver side, after every chunk task of the scene: write the proxy root layer listing
     the chunks (one writer, no race) and put it in the scene's stack."""
     from lsd3d_usd import scene as S
-    from lsd3d_usd.proxy.chunks import ProxyParams
     from lsd3d_usd.proxy.usdio import write_root_layer
     sc = S.Scene.open(plan.scene.output)
-    write_root_layer(sc.layer_path("proxy"), dict(plan.chunk_hashes), ProxyParams().as_dict(),
+    write_root_layer(sc.layer_path("proxy"), dict(plan.chunk_hashes),
+                     plan.scene.config().proxy.as_dict(),
                      plan.layout_hash)
     sc.add_layer("proxy")
 
@@ -187,10 +187,11 @@ def _inject_crash(p: dict) -> None:
 
 
 def _run_chunk(p: dict, log) -> dict:
-    from lsd3d_usd.proxy.chunks import ProxyBuilder, ProxyParams
+    from lsd3d_usd.proxy.chunks import ProxyBuilder
     from lsd3d_usd.proxy.usdio import chunk_file_hash, write_chunk_layer
-    layout = read_layout_for(scene_config(p["options"]))
-    params = ProxyParams()
+    cfg = scene_config(p["options"])
+    layout = read_layout_for(cfg)
+    params = cfg.proxy
     builder = ProxyBuilder(layout, params)
     key = tuple(p["chunk"])
     inp = builder.inputs(key)

@@ -21,7 +21,7 @@ from lsd3d_usd.conditioning.views import sample_views
 from lsd3d_usd.config import generate_config
 from lsd3d_usd.env import build_params
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
+from lsd3d_usd.eval.evaluate import eval_options, evaluate
 from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
 from lsd3d_usd.ggds.priors.scene import load_scene_prior
 from lsd3d_usd.ggds.regions.plan import Region
@@ -38,6 +38,7 @@ from lsd3d_usd.semantics import CLASS_ID, CLASSES
 from lsd3d_usd.splats import chunkio
 from lsd3d_usd.splats.field import SurfelField
 from lsd3d_usd.splats.init import mesh_to_surfels
+from lsd3d_usd.views.stage_data import scene_surfels
 
 SAMPLES = Path(__file__).resolve().parents[2] / "samples" / "layouts"
 
@@ -114,7 +115,7 @@ def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt
         res["heldout_s"] = round(time.perf_counter() - t, 1)
         if fd:
             t = time.perf_counter()
-            res.update(_fd(target, fd_seeds))
+            res.update(fd_ratios(target, fd_seeds))
             res["eval_s"] = round(time.perf_counter() - t, 1)
         res["total_s"] = round(time.perf_counter() - t0, 1)
     log(f"quality after {res['steps']} steps ({res['surfels']:,} surfels): held-out PSNR "
@@ -181,7 +182,7 @@ def write_strip(path: Path, rows) -> None:
     fig.savefig(path, dpi=110)
 
 
-def _fd(scene_dir: Path, seeds: int = 1) -> dict:
+def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
     """`eval` with its defaults at eval seeds 0 .. seeds-1 (other seen views and novel
     offsets each): Fréchet distance seen vs novel per bin over the content-change baseline
     (seen vs fresh on-lane views), averaged over the seeds (one seed's ratio moves by ~0.15);
@@ -193,7 +194,7 @@ def _fd(scene_dir: Path, seeds: int = 1) -> dict:
     runs = []
     for seed in range(seeds):
         with tempfile.TemporaryDirectory() as tmp:
-            runs.append(evaluate(EvalOptions(scene=scene_dir, out_dir=Path(tmp), seed=seed,
+            runs.append(evaluate(eval_options(scene=scene_dir, out_dir=Path(tmp), seed=seed,
                                              progress=False, log=lambda *a: None)))
     fds = [r["fd_effnet_lite0"] for r in runs]
     bins = list(fds[0]["seen_vs_novel"]["per_bin"])

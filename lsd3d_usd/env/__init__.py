@@ -3,60 +3,37 @@
 Sun/moon position (NOAA), analytic sky (Preetham + CIE overcast + clouds, twilight, night),
 weather / season hints, prompt control, half-float EXR with a DomeLight_1 layer, order-2 SH
 irradiance and a torch lookup for the renderer. Direction convention: see `mapping`.
+
+The names below are importable from ``lsd3d_usd.env`` and load their module when first used,
+so reading environment parameters never imports the sky renderer (numba) or torch.
 """
 from __future__ import annotations
 
-import numpy as np
+import importlib
 
-from lsd3d_usd.env.mapping import (direction_to_uv, env_direction_to_uv, pixel_directions,
-                                   pixel_solid_angles, uv_to_direction)
-from lsd3d_usd.env.params import (COLOR_SPACES, SEASONS, VEGETATION, WEATHERS, EnvParams,
-                                  FogParams)
-from lsd3d_usd.env.prompt import CITIES, build_params, parse_prompt
-from lsd3d_usd.env.sh import eval_sh_irradiance, sh_basis, sh_irradiance
-from lsd3d_usd.env.sky import SkyModel, render_sky
-from lsd3d_usd.env.sun import lunar_position, solar_position
+_EXPORTS = {
+    "direction_to_uv": "mapping", "env_direction_to_uv": "mapping",
+    "pixel_directions": "mapping", "pixel_solid_angles": "mapping", "uv_to_direction": "mapping",
+    "COLOR_SPACES": "params", "SEASONS": "params", "VEGETATION": "params", "WEATHERS": "params",
+    "EnvParams": "params", "FogParams": "params",
+    "CITIES": "prompt", "build_params": "prompt", "parse_prompt": "prompt",
+    "eval_sh_irradiance": "sh", "sh_basis": "sh", "sh_irradiance": "sh",
+    "SkyModel": "sky", "render_sky": "sky",
+    "lunar_position": "sun", "solar_position": "sun", "sun_direction": "sun",
+    "write_env": "exr", "read_env": "exr",
+    "write_env_layer": "usdlayer", "read_env_prim": "usdlayer",
+    "EnvMap": "lookup", "env_lookup": "lookup",
+}
 
-
-def sun_direction(params: EnvParams) -> np.ndarray:
-    """Unit vector toward the sun (world, Z up, x east / y north unless north_deg is set);
-    below the horizon it points down."""
-    from lsd3d_usd.env.sun import azel_to_direction
-    p = solar_position(params.when, params.latitude, params.longitude)
-    return azel_to_direction(p.azimuth, p.elevation, params.north_deg)
-
-
-def write_env(params: EnvParams, out, width: int = 2048, height: int = 1024, **kw):
-    """Render + write the EXR (cached by parameter hash); returns its path."""
-    from lsd3d_usd.env.exr import write_env as _write
-    return _write(params, out, width, height, **kw)
+__all__ = sorted(_EXPORTS)
 
 
-def read_env(path):
-    from lsd3d_usd.env.exr import read_env as _read
-    return _read(path)
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'lsd3d_usd.env' has no attribute {name!r}")
+    return getattr(importlib.import_module(f"lsd3d_usd.env.{module}"), name)
 
 
-def write_env_layer(stage_or_path, envs, **kw):
-    from lsd3d_usd.env.usdlayer import write_env_layer as _w
-    return _w(stage_or_path, envs, **kw)
-
-
-def read_env_prim(stage):
-    from lsd3d_usd.env.usdlayer import read_env_prim as _r
-    return _r(stage)
-
-
-def __getattr__(name):  # torch only when asked for
-    if name in ("EnvMap", "env_lookup"):
-        from lsd3d_usd.env import lookup
-        return getattr(lookup, name)
-    raise AttributeError(name)
-
-
-__all__ = ["EnvParams", "FogParams", "WEATHERS", "SEASONS", "VEGETATION", "COLOR_SPACES",
-           "CITIES", "parse_prompt", "build_params", "sun_direction", "solar_position",
-           "lunar_position", "render_sky", "SkyModel", "write_env", "read_env", "sh_irradiance",
-           "eval_sh_irradiance", "sh_basis", "EnvMap", "env_lookup", "uv_to_direction",
-           "direction_to_uv", "env_direction_to_uv", "pixel_directions", "pixel_solid_angles",
-           "write_env_layer", "read_env_prim"]
+def __dir__():
+    return __all__

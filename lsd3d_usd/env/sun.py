@@ -182,3 +182,10 @@ def lunar_position(when: _dt.datetime, lat: float, lon: float) -> dict:
     illum = (1.0 - cos_psi) / 2.0
     alt += float(_refraction_deg(alt))
     return {"elevation": alt, "azimuth": az % 360.0, "illuminated_fraction": illum}
+
+
+def sun_direction(params) -> np.ndarray:
+    """Unit vector toward the sun of EnvParams ``params`` (world, Z up, x east / y north unless
+    north_deg is set); below the horizon it points down."""
+    p = solar_position(params.when, params.latitude, params.longitude)
+    return azel_to_direction(p.azimuth, p.elevation, params.north_deg)

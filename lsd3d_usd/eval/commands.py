@@ -3,42 +3,30 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
-from lsd3d_usd.cliutil import parse_size
-from lsd3d_usd.views.commands import add_deferred_arguments, check_deferred_args
-
-
-def _bins(text: str) -> tuple[float, ...]:
-    from lsd3d_usd.errors import InputError
-    try:
-        vals = tuple(float(v) for v in text.split(",") if v.strip())
-    except ValueError:
-        raise InputError(f"--bins {text!r}: expected comma-separated metres, e.g. 0.5,1,2,4,8") from None
-    if not vals:
-        raise InputError("--bins: give at least one distance")
-    return vals
+from lsd3d_usd import configtree as ct
+from lsd3d_usd.cliutil import check_output_path
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.eval.options import EvalConfig
+from lsd3d_usd.views.commands import check_deferred
 
 
 def _eval(args) -> int:
-    from pathlib import Path
-
+    if args.list_options:
+        ct.print_options(EvalConfig)
+        return 0
+    if not args.scene:
+        raise InputError("eval: give the SCENE folder")
+    cfg, explicit = ct.from_command_line(args, EvalConfig)
+    check_deferred(cfg.deferred, explicit)
+    if args.json:   # checked now, not after the whole evaluation
+        check_output_path(args.json, "--json", what="metrics file")
+    # heavy (torch, the renderer, EfficientNet): once an evaluation is asked for
     from lsd3d_usd.eval.evaluate import EvalOptions, evaluate
-    o = EvalOptions(
-        scene=Path(args.scene), out_dir=Path(args.out) if args.out else None, run=args.run,
-        reference=Path(args.reference) if args.reference else None,
-        weights=Path(args.weights) if args.weights else None, n_seen=args.seen, n_heldout=args.heldout,
-        per_bin=args.per_bin, bins=_bins(args.bins), resolution=parse_size(args.resolution),
-        seed=args.seed, frames=args.frames, step_m=args.step, tonemap=args.tonemap,
-        exposure=args.exposure, max_reference=args.max_reference,
-        progress=not args.no_progress and sys.stderr.isatty(),
-        log=lambda *a: print(*a, file=sys.stderr), deferred=args.deferred,
-        deferred_strength=args.deferred_strength, deferred_steps=args.deferred_steps,
-        deferred_prior=args.deferred_prior,
-        deferred_controlnet=Path(args.deferred_controlnet) if args.deferred_controlnet else None,
-        deferred_device=args.deferred_device, deferred_seed=args.deferred_seed,
-        prior_baseline=args.prior_baseline,
-        seams_reference=Path(args.seams_reference) if args.seams_reference else None)
-    check_deferred_args(args)
+    o = EvalOptions(scene=Path(args.scene), cfg=cfg, out_dir=Path(args.out) if args.out else None,
+                    progress=not args.no_progress and sys.stderr.isatty(),
+                    log=lambda *a: print(*a, file=sys.stderr))
     res = evaluate(o)
     if args.json:
         from lsd3d_usd.eval.report import write_json
@@ -101,44 +89,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "depth/normal agreement with the proxy per class, multi-view depth consistency, "
                     "and frame-to-frame warp error along a lane. Writes SCENE/eval/report.html with "
                     "PNGs and eval.json. Inception FID, FD-DINOv2, CLIP score and FVD need local weight"
-                    " files (--weights) and are otherwise reported as unavailable. See docs/eval.md.")
-    p.add_argument("scene", help="scene folder, or its root layer scene.usda")
+                    " files (--weights) and are otherwise reported as unavailable. Every setting "
+                    "has a key (--list-options) for --config FILE.toml and --set KEY=VALUE. See "
+                    "docs/eval.md.")
+    p.add_argument("scene", nargs="?", help="scene folder, or its root layer scene.usda")
     p.add_argument("--json", metavar="FILE", help="also write the metrics JSON here "
                                                    "(always written to SCENE/eval/eval.json)")
-    p.add_argument("--reference", metavar="DIR",
-                   help="folder of reference images (png/jpg/...; at least 2) to compare against")
-    p.add_argument("--weights", metavar="DIR",
-                   help="folder of local weight files for Inception FID / FD-DINOv2 / CLIP score / FVD "
-                        "(expected names in docs/eval.md); nothing is downloaded")
-    p.add_argument("--run", metavar="NAME", help="GGDS run whose training cameras are the seen views "
-                                                 "(default: the newest unmuted run)")
-    p.add_argument("--seen", type=int, default=16, help="seen views to render (default 16)")
-    p.add_argument("--heldout", type=int, default=None,
-                   help="fresh on-lane views (not trained on) rendered as the FD reference for a "
-                        "change of content (default: as many as --seen; 0 = none)")
-    p.add_argument("--per-bin", type=int, default=16, help="novel views per distance bin (default 16)")
-    p.add_argument("--bins", default="0.5,1,2,4,8",
-                   help="novel-view distances from the training cameras in metres (default 0.5,1,2,4,8)")
-    p.add_argument("--resolution", default="320x180", help="render size WxH (default 320x180)")
-    p.add_argument("--frames", type=int, default=24, help="trajectory frames for the temporal check "
-                                                          "(default 24)")
-    p.add_argument("--step", type=float, default=0.5, help="trajectory spacing in metres (default 0.5)")
-    p.add_argument("--seed", type=int, default=0, help="seed of view selection and novel offsets")
-    p.add_argument("--tonemap", default="clamp", choices=("clamp", "aces", "reinhard"),
-                   help="display encoding before features (default clamp: what GGDS's prior sees)")
-    p.add_argument("--exposure", type=float, default=0.0, help="exposure in stops before tone mapping")
-    p.add_argument("--max-reference", type=int, default=500, help="use at most this many reference images")
-    p.add_argument("--prior-baseline", action=argparse.BooleanOptionalAction, default=None,
-                   help="also render the scene's prior at t = 1 from the same seen, novel and "
-                        "held-out views: the Fréchet distances a scene reproducing its prior "
-                        "exactly would give (default: on for the procedural prior, off for a "
-                        "diffusion prior, which is slow on the CPU)")
-    p.add_argument("--seams-reference", metavar="SCENE",
-                   help="a scene of the same layout without chunk seams (generated with "
-                        "--regions scene and the same seed and settings): rendered from the "
-                        "held-out views, it gives what the chunk-wise optimisation adds to the "
-                        "seam drop (seams.vs_reference in the JSON)")
     p.add_argument("-o", "--out", metavar="DIR", help="report folder (default SCENE/eval)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_deferred_arguments(p, "the seen, novel and trajectory views (figures beside the raw ones)")
+    ct.add_tree_options(p, "eval")
+    ct.add_arguments(p, EvalConfig, titles={"deferred": "deferred rendering (docs/render.md): "
+                                                        "the seen, novel and trajectory views "
+                                                        "also deferred, figures beside the raw "
+                                                        "ones"})
     p.set_defaults(func=_eval, compiles_kernels=True)

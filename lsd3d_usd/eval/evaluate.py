@@ -12,14 +12,16 @@ from __future__ import annotations
 import itertools
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
+from lsd3d_usd import configtree as ct
 from lsd3d_usd.eval import views as V
+from lsd3d_usd.eval.options import EvalConfig
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 FEATURES = "effnet_lite0"
@@ -27,67 +29,30 @@ FEATURES = "effnet_lite0"
 
 @dataclass
 class EvalOptions:
+    """How to run `eval` on ``scene`` (what to measure is ``cfg``, eval.options.EvalConfig)."""
     scene: Path
+    cfg: EvalConfig = field(default_factory=EvalConfig)
     out_dir: Path | None = None          # default SCENE/eval
-    run: str | None = None
-    reference: Path | None = None
-    weights: Path | None = None
-    n_seen: int = 16
-    n_heldout: int | None = None         # default: n_seen
-    per_bin: int = 16
-    bins: tuple = V.DEFAULT_BINS
-    resolution: tuple = (320, 180)
-    seed: int = 0
-    frames: int = 24
-    step_m: float = 0.5
-    tonemap: str = "clamp"
-    exposure: float = 0.0
-    max_reference: int = 500
     progress: bool = True
     log: object = print
-    deferred: bool = False               # also measure deferred frames (views/deferred.py)
-    deferred_strength: float | None = None   # default views.deferred.DEFAULT_STRENGTH
-    deferred_steps: int | None = None
-    deferred_prior: str | None = None    # default: the prior the scene's GGDS run recorded
-    deferred_controlnet: Path | None = None
-    deferred_device: str | None = None
-    deferred_seed: int | None = None
-    prior_baseline: bool | None = None   # the prior's own images as FD baseline; None: auto
-    seams_reference: Path | None = None  # the same layout without chunk seams (seams_eval)
+
+
+def eval_options(scene, **settings) -> EvalOptions:
+    """EvalOptions with ``settings`` split between run control (out_dir, progress, log) and
+    the EvalConfig keys (n_seen=3, bins=(1, 4), deferred={"enabled": True}, ...)."""
+    run = {k: settings.pop(k) for k in ("out_dir", "progress", "log") if k in settings}
+    if isinstance(settings.get("bins"), (tuple, list)):
+        settings["bins"] = ",".join(f"{b:g}" for b in settings["bins"])
+    cfg = ct.apply(EvalConfig(), ct.flatten(settings, EvalConfig, ""), "",
+                   ct.flag_names(EvalConfig))
+    return EvalOptions(scene=Path(scene), cfg=cfg, **run)
 
 
 # ------------------------------------------------------------------ input checks
-def _check(o: EvalOptions) -> None:
-    from lsd3d_usd.views.images import TONEMAPS
-    w, h = o.resolution
-    if w < 16 or h < 16:
-        raise InputError(f"--resolution {w}x{h}: width and height must be at least 16")
-    if o.n_seen < 1:
-        raise InputError(f"--seen {o.n_seen}: must be >= 1")
-    if o.n_heldout is not None and o.n_heldout < 0:
-        raise InputError(f"--heldout {o.n_heldout}: must be >= 0")
-    if o.prior_baseline and o.n_heldout == 0:
+def _check(c: EvalConfig) -> None:
+    """Cross-key checks (each key's own are the tree's)."""
+    if c.prior_baseline and c.n_heldout == 0:
         raise InputError("--prior-baseline needs held-out lane views (--heldout > 0)")
-    if o.per_bin < 1:
-        raise InputError(f"--per-bin {o.per_bin}: must be >= 1")
-    if not o.bins or any(not b > 0 for b in o.bins):
-        raise InputError(f"--bins {','.join(f'{b:g}' for b in o.bins)}: need positive distances")
-    if o.frames < 2:
-        raise InputError(f"--frames {o.frames}: need at least 2 frames for the temporal check")
-    if not o.step_m > 0:
-        raise InputError(f"--step {o.step_m}: must be positive")
-    if o.tonemap not in TONEMAPS:
-        raise InputError(f"--tonemap {o.tonemap!r}: choose from {', '.join(TONEMAPS)}")
-    from lsd3d_usd.ggds.priors.registry import check_device, check_prior_name
-    from lsd3d_usd.views.deferred import check_steps, check_strength
-    if o.deferred_strength is not None:
-        check_strength(o.deferred_strength)
-    if o.deferred_steps is not None:
-        check_steps(o.deferred_steps)
-    if o.deferred_prior is not None:
-        check_prior_name(o.deferred_prior)
-    if o.deferred_device is not None:
-        check_device(o.deferred_device)
 
 
 def reference_images(ref, limit: int) -> list[Path]:
@@ -153,24 +118,24 @@ def _bar(total, desc, o: EvalOptions):
 # ------------------------------------------------------------------ the driver
 def evaluate(o: EvalOptions) -> dict:
     t_start = time.perf_counter()
-    _check(o)
+    _check(o.cfg)
     sc = S.Scene.open(o.scene)
     from lsd3d_usd.eval import models
-    weights = models.check_weights_dir(o.weights)
+    weights = models.check_weights_dir(o.cfg.weights)
     # Reference images are read before any rendering: a bad folder fails at once.
-    ref_imgs = (load_reference(reference_images(o.reference, o.max_reference))
-                if o.reference is not None else None)
+    ref_imgs = (load_reference(reference_images(o.cfg.reference, o.cfg.max_reference))
+                if o.cfg.reference is not None else None)
     layout_path = sc.layer_path("layout")
     if not layout_path.is_file():
         raise InputError(f"{layout_path}: the scene has no layout layer (needed for cameras)")
     if not sc.layer_path("proxy").is_file():
         raise InputError(f"{sc.layer_path('proxy')}: the scene has no proxy layer (needed for geometry)")
     out_dir = Path(o.out_dir) if o.out_dir else sc.root / "eval"
-    deferrer = _deferrer(o) if o.deferred else None
+    deferrer = _deferrer(o) if o.cfg.deferred.enabled else None
     from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
-    n_held = o.n_seen if o.n_heldout is None else o.n_heldout
-    base, base_why = open_baseline(o.scene, o.prior_baseline, n_held,
-                                   lambda rgb: display(rgb, o.tonemap, o.exposure), o.run)
+    n_held = o.cfg.n_seen if o.cfg.n_heldout is None else o.cfg.n_heldout
+    base, base_why = open_baseline(o.scene, o.cfg.prior_baseline, n_held,
+                                   lambda rgb: display(rgb, o.cfg.tonemap, o.cfg.exposure), o.cfg.run)
 
     from lsd3d_usd.eval import geometry as G
     from lsd3d_usd.eval import metrics as M
@@ -189,35 +154,35 @@ def evaluate(o: EvalOptions) -> dict:
     env = read_dome(stage)
     layout = read_layout(layout_path)
     PV, PF, PC = proxy_arrays(sc.layer_path("proxy"))
-    w, h = o.resolution
-    seen = V.seen_views(sc, layout, o.run, w, h)
-    pick = V.pick(len(seen.views), o.n_seen, o.seed)
+    w, h = o.cfg.resolution
+    seen = V.seen_views(sc, layout, o.cfg.run, w, h)
+    pick = V.pick(len(seen.views), o.cfg.n_seen, o.cfg.seed)
     seen_sel = [seen.views[i] for i in pick]
-    novel = V.novel_views(seen_sel, o.bins, o.per_bin, o.seed + 1, layout,
+    novel = V.novel_views(seen_sel, o.cfg.bin_values(), o.cfg.per_bin, o.cfg.seed + 1, layout,
                           train_centres=[v.camera.center for v in seen.views])
-    heldout = V.heldout_lane_views(layout, n_held, w, h, o.seed, seen_sel)
-    traj, traj_info = V.lane_trajectory(layout, o.frames, o.step_m, w, h)
+    heldout = V.heldout_lane_views(layout, n_held, w, h, o.cfg.seed, seen_sel)
+    traj, traj_info = V.lane_trajectory(layout, o.cfg.frames, o.cfg.step_m, w, h)
     seams_ref = None
-    if o.seams_reference is not None:   # checked before any rendering: a bad one fails at once
+    if o.cfg.seams_reference is not None:   # checked before any rendering: a bad one fails at once
         from lsd3d_usd.eval.seams_eval import seams_reference
-        seams_ref = seams_reference(o.seams_reference, sc, seen.run, (PV, PF, PC))
+        seams_ref = seams_reference(o.cfg.seams_reference, sc, seen.run, (PV, PF, PC))
     timings["load_s"] = time.perf_counter() - t
     o.log(f"eval: {surfels.n:,} surfels; seen: {seen.source}; {len(seen_sel)} seen + "
-          f"{len(novel)} novel views ({len(o.bins)} bins) + {len(traj)} trajectory frames at {w}x{h}")
+          f"{len(novel)} novel views ({len(o.cfg.bin_values())} bins) + {len(traj)} trajectory frames at {w}x{h}")
 
     # --- seen + novel renders, geometry against the proxy
     t = time.perf_counter()
-    agree = {"seen": G.ClassAgreement(o.seed), "novel": G.ClassAgreement(o.seed + 1)}
+    agree = {"seen": G.ClassAgreement(o.cfg.seed), "novel": G.ClassAgreement(o.cfg.seed + 1)}
     seen_img, seen_frames, seen_gb, novel_img = [], [], [], []
-    mv_err = {b: [] for b in o.bins}
-    mv_shared = {b: [] for b in o.bins}
+    mv_err = {b: [] for b in o.cfg.bin_values()}
+    mv_shared = {b: [] for b in o.cfg.bin_values()}
     bar = _bar(len(seen_sel) + len(novel) + len(heldout) + len(traj), "eval render", o)
     dfr = DeferredImages()
     for v in seen_sel:
         fr = render_view(surfels, env, v.camera)
         gb = render_gbuffer(PV, PF, v.camera, PC)
         agree["seen"].add(fr, gb, v.camera)
-        seen_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        seen_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
         seen_frames.append(fr)
         seen_gb.append(gb)
         if deferrer is not None:
@@ -229,7 +194,7 @@ def evaluate(o: EvalOptions) -> dict:
         fr = render_view(surfels, env, nv.view.camera)
         gb = render_gbuffer(PV, PF, nv.view.camera, PC)
         agree["novel"].add(fr, gb, nv.view.camera)
-        novel_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        novel_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
         if deferrer is not None:
             dfr.add("novel", deferrer, fr["rgb"], nv.view.camera, o)
         if base is not None:
@@ -244,7 +209,7 @@ def evaluate(o: EvalOptions) -> dict:
     for cam in heldout:
         fr = render_view(surfels, env, cam)
         heldout_frames.append(fr)
-        heldout_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        heldout_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
         if base is not None:
             base.add("heldout", fr["rgb"], cam)
         bar.update(1)
@@ -256,7 +221,7 @@ def evaluate(o: EvalOptions) -> dict:
     for cam in traj:
         fr = render_view(surfels, env, cam)
         traj_frames.append({k: fr[k] for k in ("alpha", "depth_median", "depth_expected")})
-        traj_img.append(display(fr["rgb"], o.tonemap, o.exposure))
+        traj_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
         if deferrer is not None:
             dfr.add("traj", deferrer, fr["rgb"], cam, o, target=False)
         bar.update(1)
@@ -297,11 +262,11 @@ def evaluate(o: EvalOptions) -> dict:
                           "bilinear resize of the sRGB display image",
               "seen_vs_novel": {"overall": fd(f_seen, f_novel).to_json(),
                                 "per_bin": {f"{b:g}": fd(f_seen, f_novel[bins_arr == b]).to_json()
-                                            for b in o.bins}}}
+                                            for b in o.cfg.bin_values()}}}
     if heldout_img:
         fd_out["seen_vs_heldout_lane"] = fd(f_seen, embed(heldout_img)).to_json()
     if base is not None:
-        fd_out["prior_baseline"] = baseline_fd(fd, embed, base.images, o.bins, bins_arr, fd_out,
+        fd_out["prior_baseline"] = baseline_fd(fd, embed, base.images, o.cfg.bin_values(), bins_arr, fd_out,
                                                base.sp)
     n_ref = 0
     if ref_imgs is not None:
@@ -309,7 +274,7 @@ def evaluate(o: EvalOptions) -> dict:
         n_ref = len(f_ref)
         fd_out["vs_reference"] = {
             "seen": fd(f_seen, f_ref).to_json(), "novel": fd(f_novel, f_ref).to_json(),
-            "novel_per_bin": {f"{b:g}": fd(f_novel[bins_arr == b], f_ref).to_json() for b in o.bins}}
+            "novel_per_bin": {f"{b:g}": fd(f_novel[bins_arr == b], f_ref).to_json() for b in o.cfg.bin_values()}}
     deferred = None
     if deferrer is not None:
         f_dseen, f_dnovel = embed(dfr.images["seen"]), embed(dfr.images["novel"])
@@ -322,7 +287,7 @@ def evaluate(o: EvalOptions) -> dict:
             "fd_effnet_lite0": {
                 "seen_vs_novel": {"overall": fd(f_dseen, f_dnovel).to_json(),
                                   "per_bin": {f"{b:g}": fd(f_dseen, f_dnovel[bins_arr == b]).to_json()
-                                              for b in o.bins}},
+                                              for b in o.cfg.bin_values()}},
                 "vs_prior_target": {
                     "views": "seen + novel views against the prior's own image of the same views "
                              "(t = 1)",
@@ -352,8 +317,8 @@ def evaluate(o: EvalOptions) -> dict:
         if seams is None:
             ref_why = f"no seam measure ({why})"
         else:
-            seams["vs_reference"] = {"scene": str(o.seams_reference), "run": seams_ref[1],
-                                     **paired_matched_drop(stats[1], stats[2], o.seed)}
+            seams["vs_reference"] = {"scene": str(o.cfg.seams_reference), "run": seams_ref[1],
+                                     **paired_matched_drop(stats[1], stats[2], o.cfg.seed)}
     timings["seams_s"] = time.perf_counter() - t
 
     # --- multi-view summary
@@ -361,7 +326,7 @@ def evaluate(o: EvalOptions) -> dict:
                           "reprojected into the novel view; proxy decides mutual visibility)",
                  "per_bin": {}}
     all_err = []
-    for b in o.bins:
+    for b in o.cfg.bin_values():
         e = np.concatenate(mv_err[b]) if mv_err[b] else np.zeros(0)
         all_err.append(e)
         multiview["per_bin"][f"{b:g}"] = {
@@ -397,13 +362,13 @@ def evaluate(o: EvalOptions) -> dict:
         "composed_layers": [li.name for li in sc.layers() if not li.muted and li.exists],
         "surfels": int(surfels.n),
         "resolution": [w, h],
-        "tonemap": o.tonemap,
-        "seed": o.seed,
-        "bins_m": [float(b) for b in o.bins],
+        "tonemap": o.cfg.tonemap,
+        "seed": o.cfg.seed,
+        "bins_m": [float(b) for b in o.cfg.bin_values()],
         "counts": {"train_views": len(seen.views), "seen": len(seen_sel), "novel": len(novel),
-                   "novel_per_bin": o.per_bin, "heldout_lane": len(heldout),
+                   "novel_per_bin": o.cfg.per_bin, "heldout_lane": len(heldout),
                    "trajectory_frames": len(traj), "reference": n_ref},
-        "novel_views": {f"{b:g}": _bin_stats([nv for nv in novel if nv.bin_m == b]) for b in o.bins},
+        "novel_views": {f"{b:g}": _bin_stats([nv for nv in novel if nv.bin_m == b]) for b in o.cfg.bin_values()},
         "fd_effnet_lite0": fd_out,
         "geometry": {"seen": agree["seen"].result(), "novel": agree["novel"].result()},
         "multiview_depth_err": multiview,
@@ -427,10 +392,10 @@ def evaluate(o: EvalOptions) -> dict:
 
 def _deferrer(o: EvalOptions):
     from lsd3d_usd.ggds.priors.scene import load_scene_prior
-    from lsd3d_usd.views.deferred import DEFAULT_STEPS, DEFAULT_STRENGTH, Deferrer
-    sp = load_scene_prior(o.scene, o.deferred_prior, o.deferred_controlnet, o.deferred_device)
-    d = Deferrer(sp, DEFAULT_STRENGTH if o.deferred_strength is None else o.deferred_strength,
-                 DEFAULT_STEPS if o.deferred_steps is None else o.deferred_steps, o.deferred_seed)
+    from lsd3d_usd.views.deferred import Deferrer
+    d = o.cfg.deferred
+    sp = load_scene_prior(o.scene, d.prior, d.controlnet, d.device)
+    d = Deferrer(sp, d.strength, d.steps, d.seed)
     o.log(f"eval: deferred with prior {sp.spec} ({sp.source}), T {d.strength}, N {d.steps}")
     if sp.note():
         o.log(f"eval: note: {sp.note()}")
@@ -450,9 +415,9 @@ class DeferredImages:
         t = time.perf_counter()
         levels = (deferrer.strength, 1.0) if target else (deferrer.strength,)
         outs = deferrer.images(rgb, camera, levels)
-        self.images[kind].append(display(outs[0], o.tonemap, o.exposure))
+        self.images[kind].append(display(outs[0], o.cfg.tonemap, o.cfg.exposure))
         if target:
-            self.targets[kind].append(display(outs[1], o.tonemap, o.exposure))
+            self.targets[kind].append(display(outs[1], o.cfg.tonemap, o.cfg.exposure))
         self.seconds += time.perf_counter() - t
 
 

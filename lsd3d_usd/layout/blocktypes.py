@@ -20,9 +20,11 @@ import numpy as np
 import shapely
 from shapely.geometry import LineString, Point, Polygon
 
+from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import blocks as B
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout import roadnet as R
+from lsd3d_usd.registry import Registry
 
 
 # ============================================================ parameter spaces
@@ -410,35 +412,31 @@ class Junction(Block):
 
 # ================================================================= registry
 
-BLOCK_TYPES: dict[str, type[Block]] = {}
+# Asked in this order whether they claim a node (Junction claims everything: keep it last);
+# a plugin's block type registers before "junction" (entry point group lsd3d_usd.layout_blocks,
+# or register()).
+BLOCKS = Registry("lsd3d_usd.layout_blocks", "layout block type", {
+    cls.ID: f"lsd3d_usd.layout.blocktypes:{cls.__name__}"
+    for cls in (NoBlock, DeadEnd, Curve, Roundabout, Junction)})
 
 
-def register(cls: type[Block], before: str | None = None) -> type[Block]:
-    """Add a block type to the table (asked before ``before``, else last)."""
-    if not cls.ID or cls.ID in BLOCK_TYPES:
-        raise ValueError(f"block type id {cls.ID!r} is empty or taken")
-    items = list(BLOCK_TYPES.items())
-    at = [k for k, _ in items].index(before) if before is not None else len(items)
-    items.insert(at, (cls.ID, cls))
-    BLOCK_TYPES.clear()
-    BLOCK_TYPES.update(items)
+def register(cls: type[Block], before: str | None = "junction") -> type[Block]:
+    """Add a block type (asked before ``before``; default: before the catch-all junction)."""
+    if not cls.ID:
+        raise InputError("a block type needs an ID")
+    BLOCKS.register(cls.ID, cls, before=before)
     return cls
-
-
-for _cls in (NoBlock, DeadEnd, Curve, Roundabout, Junction):
-    register(_cls)
 
 
 def choose(rng: np.random.Generator, sections: list[B.Section], sp: dict) -> type[Block]:
     """The first registered type that claims a node with these road sections."""
-    for cls in BLOCK_TYPES.values():
+    for _, cls in BLOCKS.items():
         if cls.claims(rng, sections, sp):
             return cls
     raise AssertionError("no block type claims the node")   # Junction claims everything
 
 
 def block_class(block_id: str) -> type[Block]:
-    try:
-        return BLOCK_TYPES[block_id]
-    except KeyError:
-        raise ValueError(f"unknown block type {block_id!r} (known: {', '.join(BLOCK_TYPES)})") from None
+    if block_id not in BLOCKS.names():
+        raise ValueError(f"unknown block type {block_id!r} (known: {', '.join(BLOCKS.ordered())})")
+    return BLOCKS.get(block_id)

@@ -15,6 +15,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from lsd3d_usd.configtree import option
 from .mesh import BUILDING, MeshPart, drop_degenerate
 from .planar import area_from_points, polygons_of
 
@@ -23,16 +24,19 @@ ROOFS = ("flat", "gable", "hip")
 
 @dataclass(frozen=True)
 class BuildingStyle:
-    floor_height: float = 3.2     # m, used when the layout gives no floor count
-    window_width: float = 1.2
-    window_height: float = 1.5
-    window_spacing: float = 3.0   # centre to centre along a façade
-    window_depth: float = 0.25    # recess depth
-    window_margin: float = 0.8    # keep windows this far from façade corners
-    parapet_height: float = 0.6
-    parapet_width: float = 0.3
-    max_roof_height: float = 4.0
-    windows: bool = True
+    floor_height: float = option(3.2, help="floor height where the layout gives no floor "
+                                           "count (m)", lo=1.0, hi=50.0)
+    window_width: float = option(1.2, help="window width (m)", lo=0.0)
+    window_height: float = option(1.5, help="window height (m)", lo=0.0)
+    window_spacing: float = option(3.0,
+                                   help="window spacing, centre to centre along a façade (m)", lo=0.0)
+    window_depth: float = option(0.25, help="window recess depth (m)", lo=0.0)
+    window_margin: float = option(0.8,
+                                  help="windows keep this far from façade corners (m)", lo=0.0)
+    parapet_height: float = option(0.6, help="parapet height of flat roofs (m)", lo=0.0)
+    parapet_width: float = option(0.3, help="parapet width (m)", lo=0.0)
+    max_roof_height: float = option(4.0, help="largest gable / hip roof height (m)", lo=0.0)
+    windows: bool = option(True, help="window recesses in the façades (off: plain blocks, faster)")
 
 
 def stable_unit(key: str, salt: str = "") -> float:

@@ -26,6 +26,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon, box
 
+from lsd3d_usd.configtree import option
 from .buildings import BuildingStyle, building_mesh
 from .furniture import stop_sign_parts, street_light_parts, traffic_light_parts
 from .ground import GroundStyle, ground_areas, ground_parts
@@ -41,9 +42,12 @@ PROXY_VERSION = "1"
 
 @dataclass(frozen=True)
 class ProxyParams:
-    margin: float = 12.0              # m around a chunk whose features it reads
-    street_light_spacing: float = 35.0  # along road edges; 0 disables
-    traffic_lights: bool = True
+    """How the proxy is built from a layout (`proxy build`'s flags, generate's proxy.*)."""
+    margin: float = option(12.0, help="metres around a chunk whose features it reads", lo=0.0,
+                           hi=1000.0)
+    street_light_spacing: float = option(35.0, help="street lights along road edges every this "
+                                                    "many metres (0 = none)", lo=0.0)
+    traffic_lights: bool = option(True, help="traffic lights at junction approaches")
     ground: GroundStyle = field(default_factory=GroundStyle)
     markings: MarkingStyle = field(default_factory=MarkingStyle)
     building: BuildingStyle = field(default_factory=BuildingStyle)

@@ -4,9 +4,16 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lsd3d_usd import configtree as ct
 from lsd3d_usd import limits
 from lsd3d_usd.cliutil import accept_negative_values, add_limit_option, check_output_path, size_type
 from lsd3d_usd.errors import InputError
+
+from .chunks import ProxyParams
+
+# the flags `proxy build` gives the proxy tree's leaves (generate reaches them by --set proxy.*)
+PROXY_FLAGS = {"margin": "--margin", "street_light_spacing": "--street-light-spacing",
+               "traffic_lights": "--no-traffic-lights", "building.windows": "--no-windows"}
 
 USD_SUFFIXES = (".usdc", ".usda", ".usd")
 
@@ -24,19 +31,18 @@ def _progress() -> bool:
 
 
 def _build(args) -> int:
-    from dataclasses import replace
-
     from lsd3d_usd.layout.usdio import read_layout
 
-    from .buildings import BuildingStyle
-    from .chunks import ProxyParams
     from .usdio import build_proxy_layer
 
+    if args.list_options:
+        ct.print_options(ProxyParams)
+        return 0
+    if not args.layout or not args.output:
+        raise InputError("proxy build: --layout LAYOUT and -o PROXY.usdc are required")
+    params, _ = ct.from_command_line(args, ProxyParams)
     check_output_path(args.output, "-o", suffixes=USD_SUFFIXES, what="proxy layer")
     layout = read_layout(args.layout)
-    params = ProxyParams(margin=args.margin, street_light_spacing=args.street_light_spacing,
-                         traffic_lights=not args.no_traffic_lights,
-                         building=replace(BuildingStyle(), windows=not args.no_windows))
     if args.chunk:
         ri, rj = layout.chunk_range()
         outside = [k for k in args.chunk if k[0] not in ri or k[1] not in rj]
@@ -91,22 +97,16 @@ def register(subparsers) -> None:
         description="Build proxy meshes from a layout layer. Writes OUT (root layer with a "
                     "payload per chunk) and OUT_STEM_chunks/chunk_<i>_<j>.usdc beside it. A chunk "
                     "whose layout inputs did not change (content hash) is not rebuilt.")
-    b.add_argument("--layout", required=True, metavar="LAYOUT.usda",
+    b.add_argument("--layout", metavar="LAYOUT.usda",
                    help="the layout layer (as written by the layout tools)")
-    b.add_argument("-o", "--output", required=True, metavar="PROXY.usdc",
+    b.add_argument("-o", "--output", metavar="PROXY.usdc",
                    help="proxy root layer to write (.usdc recommended)")
     b.add_argument("--chunk", type=parse_chunk, action="append", metavar="I,J",
                    help="build only this chunk (repeatable); default: every chunk of the layout")
     b.add_argument("--force", action="store_true", help="rebuild chunks even if unchanged")
     add_limit_option(b, limits.CHUNKS)
-    b.add_argument("--margin", type=float, default=12.0, metavar="M",
-                   help="metres around a chunk whose features it reads (default 12)")
-    b.add_argument("--street-light-spacing", type=float, default=35.0, metavar="M",
-                   help="street lights along road edges every M metres; 0 disables (default 35)")
-    b.add_argument("--no-traffic-lights", action="store_true",
-                   help="no traffic lights at junction approaches")
-    b.add_argument("--no-windows", action="store_true",
-                   help="plain building blocks without window recesses (faster)")
+    ct.add_tree_options(b, "proxy (generate: --set proxy.KEY=VALUE)")
+    ct.add_arguments(b, ProxyParams, flags=PROXY_FLAGS)
     b.set_defaults(func=_build)
     accept_negative_values(b)
 

@@ -17,6 +17,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon, box
 
+from lsd3d_usd.configtree import option
 from .mesh import CURB, ROAD, SIDEWALK, TERRAIN, VEGETATION, MeshPart
 from .planar import area_from_points, as_area, flat_mesh, polygons_of, prism, ribbon
 
@@ -25,12 +26,16 @@ NOT_ROAD_LANES = ("sidewalk", "border")
 
 @dataclass(frozen=True)
 class GroundStyle:
-    road_z: float = 0.02          # road surface height above terrain
-    curb_height: float = 0.15     # curb / sidewalk top above the road surface
-    curb_width: float = 0.3
-    sidewalk_width: float = 3.0   # derived sidewalks (when the layout has none)
-    derive_sidewalks: bool = True
-    terrain_cell: float = 10.0    # terrain is cut into cells (a ground grid) for even triangles
+    road_z: float = option(0.02, help="road surface height above the terrain (m)", lo=0.0)
+    curb_height: float = option(0.15,
+                                help="curb / sidewalk top above the road surface (m)", lo=0.0)
+    curb_width: float = option(0.3, help="curb width (m)", lo=0.0)
+    sidewalk_width: float = option(3.0, help="width of the sidewalks derived where the layout "
+                                             "has none (m)", lo=0.0)
+    derive_sidewalks: bool = option(True,
+                                    help="derive sidewalks along roads where the layout has none")
+    terrain_cell: float = option(10.0, help="terrain cell size: the ground grid that keeps "
+                                            "triangles even (m)", lo=0.5, hi=1000.0)
 
 
 def _union(geoms) -> Polygon:

@@ -8,6 +8,7 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
+from lsd3d_usd.configtree import option
 from .mesh import CROSSWALK, LANE_MARKING, MeshPart
 from .planar import area_from_points, as_area, dashes, flat_mesh, offset_polyline, ribbon
 
@@ -16,14 +17,14 @@ PAINT = {"white": (0.80, 0.80, 0.78), "yellow": (0.75, 0.55, 0.08)}
 
 @dataclass(frozen=True)
 class MarkingStyle:
-    line_width: float = 0.15
-    double_gap: float = 0.12       # between the two lines of a double line
-    dash: float = 3.0
-    gap: float = 6.0
-    stop_line_width: float = 0.4
-    stripe_width: float = 0.5      # crosswalk bars
-    stripe_gap: float = 0.6
-    lift: float = 0.01             # above the road surface
+    line_width: float = option(0.15, help="road line width (m)", lo=0.0)
+    double_gap: float = option(0.12, help="gap between the two lines of a double line (m)", lo=0.0)
+    dash: float = option(3.0, help="dash length of broken lines (m)", lo=0.1)
+    gap: float = option(6.0, help="gap between dashes (m)", lo=0.0)
+    stop_line_width: float = option(0.4, help="stop line width (m)", lo=0.0)
+    stripe_width: float = option(0.5, help="crosswalk bar width (m)", lo=0.0)
+    stripe_gap: float = option(0.6, help="gap between crosswalk bars (m)", lo=0.0)
+    lift: float = option(0.01, help="markings' height above the road surface (m)", lo=0.0)
 
 
 def road_line_area(points: np.ndarray, kind: str, double: bool,

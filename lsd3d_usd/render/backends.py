@@ -14,9 +14,13 @@ workers resolve it too.
 """
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.registry import Registry
-from lsd3d_usd.render.raster_types import Backend
+
+if TYPE_CHECKING:   # annotations only: listing the backends needs no torch
+    from lsd3d_usd.render.raster_types import Backend
 
 BACKENDS = Registry("lsd3d_usd.render_backends", "renderer backend", {
     "numba": "lsd3d_usd.render.numba_backend:NUMBA",

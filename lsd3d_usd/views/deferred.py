@@ -31,7 +31,10 @@ from pathlib import Path
 import numpy as np
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.ggds.priors.scene import ScenePrior
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:   # annotations only: the render command's flags need no torch
+    from lsd3d_usd.ggds.priors.scene import ScenePrior
 
 # Chosen by the strength sweep on the README sample's rig route (docs/render.md, "Deferred").
 DEFAULT_STRENGTH = 0.3

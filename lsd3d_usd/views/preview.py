@@ -7,11 +7,35 @@ written as PNG (tone-mapped, sRGB, 8 bit) or EXR (scene-linear RGBA + Z).
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
+
+import numpy as np
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.views.deferred import deferred_name, write_provenance
 from lsd3d_usd.views.images import TONEMAPS
+
+
+MAX_FRAMES = 100_000   # frames of one `render --frames` range
+
+
+def parse_times(frames: str | None, time: float | None, where: str = "--frames") -> list:
+    """The time codes of a render: ``frames`` START:END[:STEP] (inclusive), else [``time``]
+    (None: the stage's earliest time). One InputError line naming ``where`` otherwise."""
+    if frames is None:
+        return [time]
+    m = re.fullmatch(r"\s*(-?[\d.]+)\s*:\s*(-?[\d.]+)\s*(?::\s*([\d.]+))?\s*", frames)
+    if not m:
+        raise InputError(f"{where} {frames!r}: use START:END or START:END:STEP (inclusive)")
+    a, b = float(m.group(1)), float(m.group(2))
+    step = float(m.group(3)) if m.group(3) else 1.0
+    if step <= 0 or b < a:
+        raise InputError(f"{where} {frames!r}: need END >= START and STEP > 0")
+    n = int(np.floor((b - a) / step + 1e-9)) + 1
+    if n > MAX_FRAMES:
+        raise InputError(f"{where} {frames!r}: {n} frames exceed the limit of {MAX_FRAMES}")
+    return [a + i * step for i in range(n)]
 
 
 def frame_name(camera_path: str, time, fmt: str, multiple: bool) -> str:

@@ -15,10 +15,7 @@ from lsd3d_usd.views.deferred import deferred_name, write_provenance
 from lsd3d_usd.views.rig_stage import build_rig_stage
 from lsd3d_usd.views.rigs import OVERVIEW, RIGS
 
-DEFAULT_WIDTH = 480  # rig frames: five cameras x frames add up; `render --camera` uses 960
-# Chunks within this distance of a camera are loaded (views.stage_data.ChunkStreamer): well
-# beyond where 100 m chunks of surfels still cover more than a few pixels at rig resolutions.
-DEFAULT_STREAM_RADIUS = 300.0
+from lsd3d_usd.views.options import RIG_WIDTH as DEFAULT_WIDTH, RigOptions
 
 
 @dataclass
@@ -33,16 +30,16 @@ class RigResult:
     route: list | None = None   # lane ids driven (given or default), None for a trajectory
 
 
-def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajectory=None,
-               fps: float = 10.0, seconds: float = 8.0, width: int = DEFAULT_WIDTH, speed=None,
-               seed: int = 0, overview: bool = True, video: bool = True, use_env: bool = True,
-               exposure: float = 0.0, tonemap_method: str = "aces", progress: bool = True,
-               stream_radius: float = DEFAULT_STREAM_RADIUS, log=print,
+def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
+               width: int = DEFAULT_WIDTH, use_env: bool = True, exposure: float = 0.0,
+               tonemap_method: str = "aces", progress: bool = True, log=print,
                deferrer=None) -> RigResult:
-    """Render every rig camera (and the overview) at every frame; PNGs under OUT/<camera>/,
-    and an MP4 per camera unless ``video`` is False. ``stream_radius`` > 0: only the chunks
-    within that distance of the cameras are loaded (memory independent of the route's
-    length); 0 loads the whole scene. With ``deferrer`` (a views.deferred.Deferrer of this
+    """Render every camera of the rig ``rig.name`` (default waymo5; and the overview) at
+    every frame of ``rig`` (views.options.RigOptions: route or trajectory, fps, seconds,
+    speed, streaming, video, overview); PNGs under OUT/<camera>/, and an MP4 per camera
+    unless ``rig.video`` is False. ``rig.stream_radius`` > 0: only the chunks within that
+    distance of the cameras are loaded (memory independent of the route's length); 0 loads
+    the whole scene. With ``deferrer`` (a views.deferred.Deferrer of this
     scene) every frame is also deferred through the scene's prior: *_deferred.png beside each
     PNG, *_deferred.mp4 beside each MP4, and the deferral's provenance in rig.usda and
     OUT/deferred.json."""
@@ -54,6 +51,9 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
     from lsd3d_usd.views.stage_data import SceneReader
     from lsd3d_usd.views.video import ffmpeg_exe, write_mp4
 
+    rig = rig or RigOptions()
+    rig_name = rig.name or "waymo5"
+    fps, seconds, video, stream_radius = rig.fps, rig.seconds, rig.video, rig.stream_radius
     if int(width) < 8:
         raise InputError(f"--resolution: rig frames need a width >= 8, got {width}")
     if not stream_radius >= 0:
@@ -61,9 +61,9 @@ def render_rig(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajec
     if video:
         ffmpeg_exe()   # checked before minutes of rendering
     stage, paths, track, tcps, notes, route_ids = build_rig_stage(
-        scene_path, out_dir, rig_name, route, trajectory, fps, seconds, speed, seed,
-        load_all=not stream_radius)
-    if not overview:
+        scene_path, out_dir, rig_name, rig.route, rig.trajectory, fps, seconds, rig.speed,
+        rig.seed, load_all=not stream_radius)
+    if not rig.overview:
         paths = [p for p in paths if not p.endswith("/" + OVERVIEW.name)]
     reader = SceneReader(stage, use_env=use_env, stream_radius=stream_radius or None)
     if not (reader.stream.chunks if reader.stream else reader.surfels() is not None):

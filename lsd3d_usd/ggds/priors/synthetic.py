@@ -8,7 +8,7 @@ Sun visibility comes from shadow rays against the boxes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 
