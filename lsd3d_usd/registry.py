@@ -36,8 +36,6 @@ class Registry:
     """Entries of one kind: ``names()``, ``get(name)``; ``what`` names the kind in errors."""
 
     def __init__(self, group: str, what: str, builtins: dict[str, str]):
-        if group in REGISTRIES:
-            raise ValueError(f"a registry for {group} exists already")
         self.group = group
         self.what = what
         self._targets: dict[str, str] = dict(builtins)
@@ -45,7 +43,7 @@ class Registry:
         self._loaded: dict[str, Any] = {}
         self._order: list[str] = list(builtins)   # built-ins, entry points, then registrations
         self._scanned = False
-        REGISTRIES[group] = self
+        REGISTRIES.setdefault(group, self)   # the project's own (the first made)
 
     def _scan(self) -> None:
         if self._scanned:

@@ -177,7 +177,7 @@ def test_frame_size_must_match_the_camera():
     (["--deferred", "--deferred-strength", "1.5"], "--deferred-strength 1.5: must be in"),
     (["--deferred", "--deferred-strength", "0"], "--deferred-strength 0.0: must be in"),
     (["--deferred-strength", "0.3"], "--deferred-strength needs --deferred"),
-    (["--deferred", "--deferred-prior", "nosuch"], "--deferred-prior 'nosuch': unknown prior"),
+    (["--deferred", "--deferred-prior", "nosuch"], "--deferred-prior 'nosuch': use 'procedural'"),
     (["--deferred", "--deferred-steps", "0"], "--deferred-steps 0"),
     (["--deferred", "--deferred-device", "gpu"], "--deferred-device 'gpu': expected cpu"),
 ])

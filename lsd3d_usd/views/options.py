@@ -90,7 +90,7 @@ class RigOptions:
                                                              "within M metres of the cameras "
                                                              "and unload those left behind "
                                                              "(0 = load the whole scene)",
-                                  flag="--stream-radius", metavar="M", lo=0.0)
+                                  flag="--stream-radius", metavar="M")   # checked by render_rig
     video: bool = option(True, help="an MP4 per camera", negate="--no-video")
     overview: bool = option(True, help="the third-person overview camera",
                             negate="--no-overview")

@@ -26,7 +26,7 @@ def check_prior_name(v: str, where: str = "--prior") -> str:
     if name not in PRIORS.names():
         names = sorted(PRIORS.names(), key=lambda n: (n != "procedural", n))
         known = " or ".join(f"'{n}:DIR'" if PRIORS.get(n).takes_arg else f"'{n}'" for n in names)
-        raise InputError(f"{where} {v!r}: unknown prior; use {known}")
+        raise InputError(f"{where} {v!r}: use {known} (unknown prior)")
     return str(v)
 
 
