@@ -420,7 +420,9 @@ def from_dict(cls, data: dict):
                 out[f.name] = options_only(t, d[f.name])
             elif _META in f.metadata:
                 out[f.name] = d[f.name]
-        out.update({k: v for k, v in d.items() if k not in {f.name for f in fields(c)}})
+        retired = set(getattr(c, "RETIRED", ()))   # keys that are no longer options: dropped
+        out.update({k: v for k, v in d.items()
+                    if k not in {f.name for f in fields(c)} and k not in retired})
         return out
     return from_table(cls, options_only(cls, data), "stored configuration: ")
 

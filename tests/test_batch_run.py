@@ -3,10 +3,13 @@ valid scenes; crashing tasks (exception or dead worker) are retried, reported an
 the others; an interrupted batch re-run redoes nothing that finished."""
 import io
 import json
+import os
 from contextlib import redirect_stderr, redirect_stdout
+from pathlib import Path
 
 import pytest
 
+import batch_faults
 from conftest import ROOT
 from lsd3d_usd import validation
 from lsd3d_usd.execution import LocalExecutor
@@ -49,7 +52,8 @@ def mtimes(folder):
     return {p.relative_to(folder): p.stat().st_mtime_ns for p in folder.rglob("*") if p.is_file()}
 
 
-def test_local_pool_split_scene_crashes_retries_and_rerun(tmp_path):
+def test_local_pool_split_scene_crashes_retries_and_rerun(tmp_path, monkeypatch):
+    batch_faults.inject(monkeypatch, {"dies-once": "exit-once", "always-raises": "raise"})
     p = spec_file(tmp_path, """
 [[scene]]
 name = "split"
@@ -57,10 +61,8 @@ split_chunks = true
 [[scene]]
 name = "dies-once"
 seed = 1
-test_crash = "exit-once"
 [[scene]]
 name = "always-raises"
-test_crash = "raise"
 """)
     code, out, err = cli("batch", p, "--workers", "2")
     assert code == 1, (out, err)
@@ -93,8 +95,9 @@ test_crash = "raise"
     assert mtimes(tmp_path / "out" / "split") == before
 
 
-def test_dead_worker_every_time_is_reported_not_hung(tmp_path):
-    p = spec_file(tmp_path, '[[scene]]\nname = "dies"\ntest_crash = "exit"\n')
+def test_dead_worker_every_time_is_reported_not_hung(tmp_path, monkeypatch):
+    batch_faults.inject(monkeypatch, {"dies": "exit"})
+    p = spec_file(tmp_path, '[[scene]]\nname = "dies"\n')
     spec = load_spec(p)
     events = []
     rep = run_batch(spec, LocalExecutor(2), retries=1, on_event=lambda *e: events.append(e[:2]))
@@ -134,19 +137,21 @@ def test_interrupted_batch_rerun_redoes_nothing_finished(tmp_path):
             if e.severity == "error"] == []
 
 
-def test_ray_local_two_cpus(tmp_path):
+def test_ray_local_two_cpus(tmp_path, monkeypatch):
     ray = pytest.importorskip("ray", reason="ray is not installed (optional extra [ray])")
     from lsd3d_usd.execution import RayExecutor
+    batch_faults.inject(monkeypatch, {"raises-once": "raise-once", "dies": "exit"})
+    # Ray's workers import the fault module from the tests folder (they inherit PYTHONPATH)
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join(
+        [str(Path(batch_faults.__file__).parent)] + [v for v in [os.environ.get("PYTHONPATH")] if v]))
     p = spec_file(tmp_path, """
 [[scene]]
 name = "split"
 split_chunks = true
 [[scene]]
 name = "raises-once"
-test_crash = "raise-once"
 [[scene]]
 name = "dies"
-test_crash = "exit"
 """)
     spec = load_spec(p)
     ex = RayExecutor(num_cpus=2)

@@ -142,9 +142,9 @@ def test_stored_configuration_without_a_newer_leaf_keeps_its_old_behaviour():
     assert old.supersample == 1 and PriorConfig().supersample == 2
     assert ct.from_dict(PriorConfig, {"name": "procedural", "supersample": 3}).supersample == 3
     from lsd3d_usd.ggds.settings import RegionConfig
-    # chunk regions' colour start fitted to no views inside their margin before fit_inner_frac
-    assert ct.from_dict(RegionConfig, {"mode": "chunk"}).fit_inner_frac == 0.0
-    assert RegionConfig().fit_inner_frac == 1.0
+    # a retired key (one knob under two names, now ggds.world_init_views) reads back dropped
+    assert ct.from_dict(RegionConfig, {"mode": "chunk", "fit_inner_frac": 0.0}) == \
+        RegionConfig(mode="chunk", fit_context=False, share_views=False)
     # options a stored configuration predates read back as off, whatever the default
     stored = ct.from_dict(RegionConfig, {"mode": "chunk"})
     assert stored.fit_context is False and stored.share_views is False

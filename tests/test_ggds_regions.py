@@ -235,8 +235,8 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     from dataclasses import replace
     layout = read_layout(LAYOUT)
     g = GGDSConfig(resolution=(48, 32))
-    g = replace(g, regions=replace(g.regions, views_per_chunk=40, fit_view_frac=1.0,
-                                   fit_inner_frac=0.0))
+    g = replace(g, world_init_views=0.0,
+                regions=replace(g.regions, views_per_chunk=40, fit_view_frac=1.0))
     region = Region(((0, 0),), "chunk_0_0")
     views = region_fit_views(layout, g, 0, region)
     assert 0 < len(views) <= 40
@@ -248,14 +248,13 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     assert [v.camera.center.tolist() for v in region_fit_views(layout, g, 0, region)] == \
         [v.camera.center.tolist() for v in views]                       # deterministic
     whole = Region(((0, 0),), "")          # a whole-scene region: ggds.world_init_views
-    assert region_fit_views(layout, replace(g, world_init_views=0), 0, whole) == []
+    assert region_fit_views(layout, g, 0, whole) == []
     assert len(region_fit_views(layout, replace(g, world_init_views=0.5), 0, whole)) == 64
     off = replace(g, regions=replace(g.regions, fit_margin_m=20.0))
     assert region_fit_views(layout, off, 0, region) == []
-    # fit_inner_frac: as many views again sampled like the training views (inside the
+    # world_init_views: as many views again sampled like the training views (inside the
     # training margin), ahead of the ones beyond it, which stay as they were
-    both = region_fit_views(layout, replace(g, regions=replace(g.regions, fit_inner_frac=1.0)),
-                            0, region)
+    both = region_fit_views(layout, replace(g, world_init_views=1.0), 0, region)
     assert len(both) == 40 + len(views)
     assert [v.camera.center.tolist() for v in both[40:]] == \
         [v.camera.center.tolist() for v in views]

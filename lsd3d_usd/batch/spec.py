@@ -36,7 +36,6 @@ from lsd3d_usd.errors import InputError
 
 SPLIT_CHOICES = ("auto", "always", "never")
 # Injected failures, for tests of retry and reporting only (documented as such).
-TEST_CRASH_MODES = ("raise-once", "exit-once", "raise", "exit")
 NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.-]*$")
 
 
@@ -101,8 +100,7 @@ def _split(v, where, base):
 # configuration tree (lsd3d_usd.config.GenerateConfig: flat keys such as steps, tables).
 RUN_KEYS = {"force": _bool, "region_workers": _int(1)}
 # batch-only keys of a scene (and of [defaults], except name/output)
-SCENE_KEYS = {"name": _str, "output": _path, "split_chunks": _split,
-              "test_crash": _choice(TEST_CRASH_MODES)}
+SCENE_KEYS = {"name": _str, "output": _path, "split_chunks": _split}
 BATCH_KEYS = {"output": _path, "workers": _int(1), "retries": _int(0)}
 TOP_KEYS = ("batch", "defaults", "scene")
 
@@ -115,7 +113,6 @@ class SceneSpec:
     force: bool = False
     region_workers: int = 1          # GGDS regions of this scene in parallel (docs/batch.md)
     split_chunks: str = "auto"       # auto: split large layouts (tasks.AUTO_SPLIT_MIN_CHUNKS)
-    test_crash: str | None = None
     index: int = 0
 
     def config(self):
@@ -199,7 +196,7 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
             raise _unknown(key, TOP_KEYS, w)
     batch = _options(_table(data.get("batch", {}), f"{w}: [batch]"), f"{w}: batch", base, BATCH_KEYS)
     output = batch.get("output", base / f"{path.stem}_out")
-    default_keys = {**RUN_KEYS, "split_chunks": _split, "test_crash": SCENE_KEYS["test_crash"]}
+    default_keys = {**RUN_KEYS, "split_chunks": _split}
     defaults, default_own = _settings(_table(data.get("defaults", {}), f"{w}: [defaults]"),
                                       f"{w}: defaults", base, default_keys)
     scenes_raw = data.get("scene", [])
@@ -239,12 +236,11 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
             raise InputError(f"{where}.output: a scene cannot be written into the batch output "
                              f"folder itself ({output}); use a subfolder")
         split = own.pop("split_chunks", "auto")
-        crash = own.pop("test_crash", None)
         force = own.pop("force", False)
         region_workers = own.pop("region_workers", 1)
         if "layout" in merged and not Path(merged["layout"]).is_file():
             raise InputError(f"{where}.layout: no such file: {merged['layout']}")
-        spec.scenes.append(SceneSpec(name, out_dir, merged, force, region_workers, split, crash, i))
+        spec.scenes.append(SceneSpec(name, out_dir, merged, force, region_workers, split, i))
     return spec
 
 

@@ -17,7 +17,6 @@ returns plain dicts, so it pickles anywhere.
 from __future__ import annotations
 
 import json
-import os
 import time
 import traceback
 from dataclasses import asdict, dataclass, field
@@ -109,8 +108,7 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
     layout_id = file_hash(layout_file) if layout_file else None
     base = {"target": "lsd3d_usd.batch.tasks:run_task", "scene": sc.name,
             "out": str(sc.output), "options": jopts, "force": sc.force,
-            "region_workers": sc.region_workers, "executor": executor, "address": address,
-            "test_crash": sc.test_crash, "marker_dir": str(logs_dir)}
+            "region_workers": sc.region_workers, "executor": executor, "address": address}
     builder = ProxyBuilder(layout, cfg.proxy)
     keys = sorted(builder.chunks())
     split = sc.split_chunks == "always" or (sc.split_chunks == "auto"
@@ -170,22 +168,6 @@ def finalize_chunks(plan: ScenePlan) -> None:
 
 
 # ----------------------------------------------------------------------- on workers
-def _inject_crash(p: dict) -> None:
-    """Test-only failure injection (spec key ``test_crash``), applied to scene tasks."""
-    mode = p.get("test_crash")
-    if not mode or p["kind"] != "scene":
-        return
-    if mode.endswith("-once"):
-        marker = Path(p["marker_dir"]) / f"crashed.{p['scene']}"
-        if marker.exists():
-            return
-        marker.parent.mkdir(parents=True, exist_ok=True)
-        marker.write_text(str(os.getpid()))
-    if mode.startswith("exit"):
-        os._exit(17)  # the worker process dies, as on a segfault or OOM kill
-    raise RuntimeError(f"injected test crash ({mode})")
-
-
 def _run_chunk(p: dict, log) -> dict:
     from lsd3d_usd.proxy.chunks import ProxyBuilder
     from lsd3d_usd.proxy.usdio import chunk_file_hash, write_chunk_layer
@@ -221,7 +203,6 @@ def run_task(payload: dict) -> dict:
     from lsd3d_usd.execution import task_log
     with task_log(payload["log"], payload["id"]) as log:
         try:
-            _inject_crash(payload)
             run = _run_chunk if payload["kind"] == "chunk" else _run_scene
             result = run(payload, log)
         except BaseException:

@@ -54,7 +54,7 @@ def _chunk_proxy(layout, chunk):
     return np.concatenate(vs), np.concatenate(fs), np.concatenate(ids)
 
 
-def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions=((480, 270),),
+def time_steps(layout_path, *, chunk=(0, 0), counts=(100_000, 500_000), resolutions=((480, 270),),
                steps=5, warmup=2, prompt="sunny afternoon in Madrid", log=print) -> list[dict]:
 
     layout = read_layout(layout_path)
@@ -89,7 +89,7 @@ def time_steps(layout_path, chunk=(0, 0), counts=(100_000, 500_000), resolutions
     return out
 
 
-def quality(layout_path, steps=None, surfels=None, resolution=(480, 270), prompt="sunny afternoon in Madrid",
+def quality(layout_path, *, steps=None, surfels=None, resolution=(480, 270), prompt="sunny afternoon in Madrid",
             out=None, fd=True, strip=None, log=print, fd_seeds=1) -> dict:
     """A `generate` with its defaults (or the given steps / surfels / resolution) on
     ``layout_path``, then: held-out PSNR against the prior at 1× and at 2× the training
@@ -221,7 +221,7 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
     return out
 
 
-def main(json_path=None, quick=False, layout=None, steps=None, fd=True, strip=None,
+def main(json_path=None, *, quick=False, layout=None, steps=None, fd=True, strip=None,
          log=print, fd_seeds=None) -> dict:
     """Timing on a 100 m chunk of `layout` (default the generated 200 m sample); quality with
     `generate`'s defaults on `layout`, or by default on the README sample (hand_crossing, whose

@@ -349,7 +349,7 @@ def _mean(vals):
     return round(float(np.mean(vals)), 3) if vals else None
 
 
-def main(json_path=None, full=False, steps=30, workers=None, seed=11, views_per_chunk=24,
+def main(json_path=None, *, full=False, steps=30, workers=None, seed=11, views_per_chunk=24,
          work=None, png_path=None, seam_views=48, same_views=32, repeats=1, log=print) -> dict:
     workers = workers or os.cpu_count() or 1
     same = same_view_cameras(seed, same_views) if same_views else []

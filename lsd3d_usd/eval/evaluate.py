@@ -394,7 +394,7 @@ def _deferrer(o: EvalOptions):
     from lsd3d_usd.ggds.priors.scene import load_scene_prior
     from lsd3d_usd.views.deferred import Deferrer
     d = o.cfg.deferred
-    sp = load_scene_prior(o.scene, d.prior, d.controlnet, d.device)
+    sp = load_scene_prior(o.scene, d.prior, d.controlnet, device=d.device)
     d = Deferrer(sp, d.strength, d.steps, d.seed)
     o.log(f"eval: deferred with prior {sp.spec} ({sp.source}), T {d.strength}, N {d.steps}")
     if sp.note():

@@ -5,6 +5,7 @@ Defaults were chosen by measured held-out PSNR on the README sample (docs/ggds.m
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 from pathlib import Path
 
 from lsd3d_usd.configtree import option
@@ -67,7 +68,10 @@ REGION_MODES = ("auto", "scene", "chunk")
 
 @dataclass
 class RegionConfig:
-    """How GGDS splits a scene into regions optimised one after another (ggds/regions.py)."""
+    """How GGDS splits a scene into regions optimised one after another (ggds/regions/)."""
+    # keys stored configurations may hold that are no longer options: fit_inner_frac is
+    # ggds.world_init_views for every region now (a stored value is dropped)
+    RETIRED: ClassVar[tuple] = ("fit_inner_frac",)
     mode: str = option("auto", help="'scene' (one region), 'chunk' (one region per chunk, in "
                                     "parallel phases, each conditioned on its neighbours) or "
                                     "'auto' (scene when it spans at most max_scene_chunks "
@@ -96,11 +100,6 @@ class RegionConfig:
                                             "fraction of views_per_chunk; those beyond "
                                             "view_margin_m that see the region's surfels are "
                                             "used", lo=0.0, hi=10.0)
-    fit_inner_frac: float = option(1.0, help="the colour start of a chunk region also fits "
-                                             "to this many views per training view, sampled "
-                                             "like them (never trained on), as "
-                                             "ggds.world_init_views does for a whole-scene "
-                                             "region", lo=0.0, hi=100.0, recorded=0.0)
     fit_context: bool = option(False, help="the colour start of a chunk region also "
                                            "colours its unfinished neighbours' frozen band "
                                            "surfels (initial surfels carry flat class "
@@ -155,10 +154,10 @@ class GGDSConfig:
                                          "each disk is convolved with σ = this × the pixel "
                                          "footprint of the finest training view that sees it "
                                          "(0 = off)", lo=0.0, hi=10.0)
-    world_init_views: float = option(1.0, help="world-space start of a whole-scene region: "
-                                               "its colour fit also uses this many views per "
-                                               "training view, sampled like them (never "
-                                               "trained on; chunk regions use "
+    world_init_views: float = option(1.0, help="world-space start: the colour fit also uses "
+                                               "this many views per training view, sampled "
+                                               "like them (never trained on; a chunk region "
+                                               "also fits to views beyond its margin, "
                                                "ggds.regions.fit_*)", lo=0.0, hi=100.0)
     world_init_samples: int = option(16, help="world-space start: points per surfel, each seen "
                                              "from a training camera that has it in view, to "

@@ -29,7 +29,7 @@ def make_deferrer(scene, d: DeferredConfig, log=None):
     # heavy (torch, the prior): only once deferral is asked for
     from lsd3d_usd.ggds.priors.scene import load_scene_prior
     from lsd3d_usd.views.deferred import Deferrer
-    sp = load_scene_prior(scene, d.prior, d.controlnet, d.device)
+    sp = load_scene_prior(scene, d.prior, d.controlnet, device=d.device)
     if log is not None:
         log(f"deferred: prior {sp.spec} ({sp.source}), T {d.strength}, N {d.steps}")
         if sp.note():

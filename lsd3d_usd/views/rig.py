@@ -61,8 +61,8 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
     if video:
         ffmpeg_exe()   # checked before minutes of rendering
     stage, paths, track, tcps, notes, route_ids = build_rig_stage(
-        scene_path, out_dir, rig_name, rig.route, rig.trajectory, fps, seconds, rig.speed,
-        rig.seed, load_all=not stream_radius)
+        scene_path, out_dir, rig_name, route=rig.route, trajectory=rig.trajectory, fps=fps,
+        seconds=seconds, speed=rig.speed, seed=rig.seed, load_all=not stream_radius)
     if not rig.overview:
         paths = [p for p in paths if not p.endswith("/" + OVERVIEW.name)]
     reader = SceneReader(stage, use_env=use_env, stream_radius=stream_radius or None)

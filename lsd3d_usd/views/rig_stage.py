@@ -87,7 +87,7 @@ def default_route(layout, seconds: float, speed: float | None = None) -> tuple[l
     return longest_route(layout, max_length=float(seconds) * float(v))
 
 
-def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", route=None, trajectory=None,
+def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None, trajectory=None,
                     fps: float = 10.0, seconds: float = 8.0, speed: float | None = None,
                     seed: int = 0, ego_body: bool = True, load_all: bool = True):
     """Write OUT/rig.usda (sublayering the scene) and return (composed stage, camera paths,

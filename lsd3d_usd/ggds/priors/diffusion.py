@@ -103,7 +103,7 @@ def disparity_condition(gb: GBuffer, height: int, width: int) -> torch.Tensor:
 class DiffusersPrior(Prior):
     name = "diffusers"
 
-    def __init__(self, unet, vae, text_encoder, tokenizer, controlnet=None, schedule=None,
+    def __init__(self, unet, vae, text_encoder, tokenizer, controlnet=None, *, schedule=None,
                  prediction_type="epsilon", guidance_scale: float = 7.5,
                  controlnet_scale: float = 1.0, max_side: int | None = 512,
                  device="cpu", dtype=torch.float32, source: str = ""):
@@ -149,7 +149,8 @@ class DiffusersPrior(Prior):
         for m in (unet, vae, text_encoder, controlnet):
             if m is not None:
                 m.to(device).eval().requires_grad_(False)
-        return cls(unet, vae, text_encoder, tokenizer, controlnet, schedule, pred, device=device,
+        return cls(unet, vae, text_encoder, tokenizer, controlnet, schedule=schedule,
+                   prediction_type=pred, device=device,
                    dtype=dtype, source=str(root), **kwargs)
 
     def describe(self) -> dict:

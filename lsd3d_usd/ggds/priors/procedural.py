@@ -43,7 +43,7 @@ class ProceduralPrior(Prior):
     # (README sample, 150 steps: 23.88 dB with it, 24.43 dB without).
     default_weights = {"perceptual": 0.0}
 
-    def __init__(self, seed: int = 0, floor_height: float = 3.2, ground_z: float = 0.0,
+    def __init__(self, seed: int = 0, *, floor_height: float = 3.2, ground_z: float = 0.0,
                  window_spacing: float = 2.6, t_keep: float = 0.05, t_full: float = 0.6,
                  gf_radius: int = 8, gf_eps0: float = 1e-4, gf_eps1: float = 4e-3,
                  supersample: int = 1):

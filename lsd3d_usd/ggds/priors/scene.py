@@ -131,7 +131,7 @@ def _scene_seed(sc: S.Scene) -> int:
     return int(prov.get("seed", 0))
 
 
-def load_scene_prior(scene_path, prior: str | None = None, controlnet=None,
+def load_scene_prior(scene_path, prior: str | None = None, controlnet=None, *,
                      device: str | None = None, run: str | None = None, proxy=None,
                      purpose: str = "deferral", override: str = "--deferred-prior") -> ScenePrior:
     """The prior the scene's GGDS run ``run`` (default: the newest unmuted one) was made with

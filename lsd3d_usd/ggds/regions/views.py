@@ -72,8 +72,7 @@ def neighbour_views(layout, g, seed: int, region: Region, chunks) -> list:
 def region_fit_views(layout, g, seed: int, region: Region) -> list:
     """Extra views for a region's world-space colour start (never trained on). A whole-scene
     region: ``world_init_views`` × its training views, sampled like them (more directions per
-    surfel for the fit). A chunk region: ``fit_inner_frac`` × its training views, sampled like
-    them, and of ``fit_view_frac × views_per_chunk`` per chunk sampled on lanes up to
+    surfel for the fit). A chunk region: the same, and of ``fit_view_frac × views_per_chunk`` per chunk sampled on lanes up to
     ``fit_margin_m`` outside it, those standing beyond the training views' margin (a surfel
     near a border is seen by a whole-scene fit from both sides and from afar; the region's
     training views reach only ``view_margin_m`` across, so without these its colour would be
@@ -95,7 +94,7 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
         return sample(int(round(g.world_init_views * g.views)), rseed + 104729)
     x0, y0, x1, y1 = region.bounds(float(layout.chunk_size))
     m, inner = r.fit_margin_m, r.view_margin_m
-    views = sample(int(round(r.fit_inner_frac * r.views_per_chunk * len(region.keys))),
+    views = sample(int(round(g.world_init_views * r.views_per_chunk * len(region.keys))),
                    rseed + 15485863, (x0 - inner, y0 - inner, x1 + inner, y1 + inner))
     if m <= inner:
         return views
