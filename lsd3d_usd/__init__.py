@@ -10,6 +10,8 @@ from __future__ import annotations
 import os
 import warnings
 
+from pxr import Plug, Usd
+
 # torch's and numba's OpenMP pools spin after each parallel section and take the cores from
 # each other: a GGDS step measured 13.95 s spinning vs 1.25 s passive on 2 cores. Must be set
 # before torch loads; an explicit user setting wins.
@@ -34,7 +36,6 @@ FALLBACK_PRIM_TYPES = {SURFEL_TYPE: ("ParticleField",)}
 
 
 def _register_schema() -> bool:
-    from pxr import Plug, Usd
 
     Plug.Registry().RegisterPlugins(str(SCHEMA_DIR))
     if Usd.SchemaRegistry().FindConcretePrimDefinition(SURFEL_TYPE) is None:

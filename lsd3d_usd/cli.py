@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import sys
 
 import lsd3d_usd
@@ -57,10 +58,12 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    # local import: not loaded for --help
     from lsd3d_usd.memtune import reuse_large_buffers
     reuse_large_buffers()  # per-frame render buffers reused, not page-faulted in again
     notice = None
     if getattr(args, "compiles_kernels", False):   # numba is imported by these anyway
+        # local import: not loaded for --help
         from lsd3d_usd.diagnostics import KernelCompileNotice
         notice = KernelCompileNotice(lambda m: print(f"lsd3d-usd: {m}", file=sys.stderr, flush=True))
     try:
@@ -82,7 +85,6 @@ def run() -> None:
     """Console entry point. Exits with os._exit after flushing: OpenImageIO's nanobind module
     otherwise prints spurious "leaked instances" warnings at interpreter teardown once torch
     is also loaded, which would bury our one-line messages."""
-    import os
     code = main()
     sys.stdout.flush()
     sys.stderr.flush()

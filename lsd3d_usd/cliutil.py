@@ -1,11 +1,13 @@
 """Small parsers and checks shared by the command modules."""
 from __future__ import annotations
 
+import argparse
 import os
 import re
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import check_image_size
 
 _SIZE = re.compile(r"\s*(\d+)\s*(?:[xX]\s*(\d+))?\s*")
 
@@ -29,7 +31,6 @@ def parse_size(text: str | None, flag: str = "--resolution", *, width_only: bool
     Raises InputError naming the flag; sizes above ``max_pixels`` (default
     limits.IMAGE_PIXELS; a width alone counts as one row) are refused before anything
     is allocated."""
-    from lsd3d_usd.limits import check_image_size
 
     if text is None:
         return None
@@ -41,7 +42,6 @@ def parse_size(text: str | None, flag: str = "--resolution", *, width_only: bool
 def size_type(flag: str, minimum: int = 1):
     """argparse `type=` for WxH values: a malformed value is argparse's usual error. The
     pixel limit is left to the command (limits.check_image_size), whose error is one line."""
-    import argparse
 
     def parse(text):
         try:
@@ -84,7 +84,6 @@ def accept_negative_values(parser) -> None:
 def add_limit_option(parser, limit, type=int) -> None:
     """A ``limit.flag`` option (e.g. --max-chunks N) that raises one limits.Limit for this
     command; ``args.<dest>`` is None unless given (the library then uses the default)."""
-    import argparse
 
     def positive(text):
         try:

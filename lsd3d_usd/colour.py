@@ -3,15 +3,17 @@ one definition used for display images, network inputs and previews. Inputs are 
 [0, 1]; the power branch never sees values below its threshold, so its gradient stays finite."""
 from __future__ import annotations
 
+import numpy as np
+
 ENCODE_BREAK = 0.0031308
 DECODE_BREAK = 0.04045
 
 
 def _ops(x):
     if hasattr(x, "detach"):
+        # local import: torch only for tensors
         import torch
         return torch.where, (lambda a, lo, hi: a.clamp(lo, hi))
-    import numpy as np
     return np.where, np.clip
 
 

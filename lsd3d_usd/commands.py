@@ -2,10 +2,21 @@
 from __future__ import annotations
 
 import argparse
+import json
 import sys
+from pathlib import Path
+
+import lsd3d_usd
+from lsd3d_usd import config as C
+from lsd3d_usd import configtree as ct
+from lsd3d_usd.cliutil import check_output_path
+from lsd3d_usd.config import GenerateConfig
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import Scene, atomic_write_text
 
 
 def _validate(args) -> int:
+    # local import: not loaded for --help
     from lsd3d_usd import validation
 
     problems = validation.validate(args.path)
@@ -14,6 +25,7 @@ def _validate(args) -> int:
 
 
 def _inspect(args) -> int:
+    # local import: not loaded for --help
     from lsd3d_usd import inspection
 
     if args.flatten:
@@ -28,7 +40,6 @@ def plugin_path(usdview: bool = False) -> str:
     """The folder to put on PXR_PLUGINPATH_NAME for this install (the package's own folder:
     site-packages for a wheel, the checkout for an editable install): the surfel schema's, or
     the usdview plugin's (which includes the schema)."""
-    import lsd3d_usd
     return str(lsd3d_usd.USDVIEW_PLUGIN_DIR if usdview else lsd3d_usd.SCHEMA_DIR)
 
 
@@ -42,8 +53,6 @@ def _plugin_path(args) -> int:
 
 
 def _scene(args) -> int:
-    from lsd3d_usd.errors import InputError
-    from lsd3d_usd.scene import Scene
 
     sc = Scene.open(args.scene)
     if args.action == "layers":
@@ -126,12 +135,8 @@ GROUP_TITLES = {"env": "environment (docs/env.md)", "surfels": "initial surfels"
 
 
 def _generate(args) -> int:
-    import json
-    from pathlib import Path
 
-    from lsd3d_usd import config as C
-    from lsd3d_usd import configtree as ct
-    from lsd3d_usd.errors import InputError
+    # local import: not loaded for --help
     from lsd3d_usd.pipeline import RunOptions, generate
 
     if args.list_options:
@@ -145,7 +150,6 @@ def _generate(args) -> int:
     if args.address and args.executor != "ray":
         raise InputError("--address is for --executor ray")
     if args.json:   # checked now, not after the whole run
-        from lsd3d_usd.cliutil import check_output_path
         check_output_path(args.json, "--json", what="summary file")
     run = RunOptions(out=Path(args.output), resume=args.resume, force=args.force,
                      retire_runs=args.retire_runs, keep_checkpoint=args.keep_checkpoint,
@@ -160,15 +164,12 @@ def _generate(args) -> int:
         return 130
     text = json.dumps(summary, indent=2, default=str)
     if args.json:
-        from lsd3d_usd.scene import atomic_write_text
         atomic_write_text(args.json, text)
     print(text)
     return 0
 
 
 def register_generate(sub: argparse._SubParsersAction) -> None:
-    from lsd3d_usd import configtree as ct
-    from lsd3d_usd.config import GenerateConfig
 
     p = sub.add_parser(
         "generate", help="build a scene: layout → proxy → environment → surfels → GGDS",

@@ -19,14 +19,18 @@ are parsed by the leaf's type. Every error is one line naming the key and where 
 """
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import difflib
 import math
+import sys
 import types
 import typing
 from dataclasses import MISSING, dataclass, fields, is_dataclass
 from pathlib import Path
 from typing import Any, Callable
+
+import tomllib
 
 from lsd3d_usd.errors import InputError
 
@@ -468,7 +472,6 @@ def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = 
     ``flags`` ({key: "--flag" or "--no-flag"}) gives flags to leaves of a tree another command
     also uses without them (a bool leaf's "--no-..." flag turns it off). Returns the groups by
     subtree name ("" = the parser itself)."""
-    import argparse
     groups: dict = {"": parser}
     for lf in leaves(cls):
         m = lf.meta
@@ -508,7 +511,6 @@ def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = 
 def add_entry_flag(parser, flag: str, key: str, help: str, metavar: str = "W",
                    dest_prefix: str = "cfg:") -> None:
     """A flag for one entry of a dict leaf (e.g. --perceptual-weight → ggds.weights.perceptual)."""
-    import argparse
     parser.add_argument(flag, dest=dest_prefix + key, default=argparse.SUPPRESS, metavar=metavar,
                         help=help)
 
@@ -532,7 +534,6 @@ def describe(cls) -> list[dict]:
 def load_file(path, cls, where: str = "--config") -> dict:
     """A TOML file → {leaf key: value} of ``cls`` (keys checked; relative path values made
     absolute against the file's folder)."""
-    import tomllib
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{where} {path}: no such file")
@@ -572,7 +573,6 @@ def add_tree_options(parser, what: str) -> None:
 
 def print_options(cls, out=None) -> None:
     """--list-options: one line per leaf (key, type, default, help, flag / alias)."""
-    import sys
     out = out or sys.stdout
     for row in describe(cls):
         names = " / ".join(x for x in (row["flag"], row["alias"]) if x)

@@ -6,6 +6,9 @@ import contextlib
 import os
 import sys
 import tempfile
+import time
+
+from numba.core import event
 
 
 @contextlib.contextmanager
@@ -35,9 +38,7 @@ class KernelCompileNotice:
     kernel; nested events (kernels calling kernels) count once."""
 
     def __init__(self, log):
-        import time
 
-        from numba.core import event
 
         self._log, self._clock, self._event = log, time.perf_counter, event
         self.seconds, self.kernels, self._depth, self._t0 = 0.0, 0, 0, 0.0

@@ -18,14 +18,21 @@ automatic retries are turned off so the driver's retry count holds for both exec
 from __future__ import annotations
 
 import atexit
+import importlib
 import multiprocessing as mp
 import os
 import signal
+import socket
 import sys
+import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
 from concurrent.futures import wait as futures_wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
+from pathlib import Path
+
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.memtune import peak_rss_mb
 
 OK, ERROR, LOST, SUSPECT = "ok", "error", "lost", "suspect"
 
@@ -35,8 +42,6 @@ def task_log(path, label: str):
     """A worker task's log: appends to ``path`` (folders made), a header line with the time,
     pid and ``label``; yields log(*args), which writes a line and flushes (the driver and
     `tail -f` see it at once)."""
-    import time
-    from pathlib import Path
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     with open(p, "a", encoding="utf-8") as fh:
@@ -50,9 +55,7 @@ def task_log(path, label: str):
 def probe(payload: dict) -> dict:
     """A task that reports where it ran: the worker's host, pid and peak memory (checks a pool
     or a cluster before sending it real work)."""
-    import socket
 
-    from lsd3d_usd.memtune import peak_rss_mb
     return {"host": socket.gethostname(), "pid": os.getpid(), "peak_rss_mb": peak_rss_mb(),
             "threads": int(os.environ.get("OMP_NUM_THREADS", "0") or 0)}
 
@@ -83,7 +86,6 @@ def _quiet_exit() -> None:
 
 
 def _call(payload: dict) -> dict:
-    import importlib
     module, _, name = payload["target"].partition(":")
     return getattr(importlib.import_module(module), name)(payload)
 
@@ -206,8 +208,10 @@ class RayExecutor:
     def __init__(self, address: str | None = None, workers: int | None = None,
                  num_cpus: int | None = None, tasks_per_worker: int | None = None):
         try:
+            # local import: optional dependency
             import ray
         except ImportError:
+            # local import: heavy, or only on this path
             from lsd3d_usd.errors import InputError
             raise InputError("--executor ray: Ray is not installed (pip install 'lsd3d-usd[ray]' "
                              "or pip install ray)") from None
@@ -223,6 +227,7 @@ class RayExecutor:
                 else:
                     ray.init(num_cpus=num_cpus or os.cpu_count() or 1, **kw)
             except Exception as e:  # unreachable address, version mismatch, ...
+                # local import: heavy, or only on this path
                 from lsd3d_usd.errors import InputError
                 where = f"--address {address}" if address else "local Ray instance"
                 raise InputError(f"--executor ray: {where}: cannot start or connect: "
@@ -282,9 +287,7 @@ class RayExecutor:
 def _check_reachable(address: str, timeout: float = 5.0) -> None:
     """Fail fast (one line) when a Ray address's host:port does not answer: ray.init itself
     keeps retrying for a minute or more."""
-    import socket
 
-    from lsd3d_usd.errors import InputError
     hostport = address.split("://", 1)[-1].rsplit("/", 1)[0]
     host, _, port = hostport.rpartition(":")
     if not host or not port.isdigit():
@@ -301,7 +304,6 @@ def make_executor(kind: str, workers: int | None = None, address: str | None = N
     """``tasks_per_worker``: a worker process is replaced after this many tasks (None: never).
     1 gives every task the memory of a fresh process: an allocator keeps the arenas a large
     task grew, so a long-lived worker's footprint is the largest of all its tasks and more."""
-    from lsd3d_usd.errors import InputError
     if kind == "local":
         if address:
             raise InputError("--address is for --executor ray")

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdVol
 
+import lsd3d_usd
 from lsd3d_usd import scene
 from lsd3d_usd.diagnostics import captured_stderr
 from lsd3d_usd.errors import InputError
@@ -159,7 +160,6 @@ def schema_note(stage: Usd.Stage) -> dict | None:
     """How a USD tool that does not import lsd3d_usd reads the stage's Lsd3dSurfelField
     prims: the plugin path that registers the schema, and whether the root layer names a
     fallback type for it. None when the stage has none of our prims."""
-    import lsd3d_usd
     if not any(p.GetTypeName() == lsd3d_usd.SURFEL_TYPE for p in stage.Traverse()):
         return None
     root = stage.GetRootLayer()

@@ -14,6 +14,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import os
+import resource
 
 _M_TRIM_THRESHOLD = -1
 _M_MMAP_THRESHOLD = -3
@@ -67,5 +68,4 @@ def peak_rss_mb() -> float:
                     return round(int(line.split()[1]) / 1024.0, 1)
     except OSError:
         pass
-    import resource
     return round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1)

@@ -11,16 +11,37 @@ with its own recorded configuration.
 """
 from __future__ import annotations
 
+import math
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+from pxr import UsdLux
+
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
+from lsd3d_usd.actors import assets as A
+from lsd3d_usd.actors.compose import add_actors
+from lsd3d_usd.conditioning.light import colour_by_light, env_params, scene_light
 from lsd3d_usd.config import GenerateConfig
+from lsd3d_usd.env import write_env, write_env_layer
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.ggds.losses.terms import LOSSES
+from lsd3d_usd.ggds.priors.registry import PRIORS, check_prior
+from lsd3d_usd.ggds.regions.driver import run_regions
+from lsd3d_usd.ggds.regions.plan import phases_from_plan, plan_regions
+from lsd3d_usd.ggds.run.store import read_plan, region_progress, write_plan
 from lsd3d_usd.hashing import content_hash
+from lsd3d_usd.layout import generator
+from lsd3d_usd.layout.model import DRIVABLE_TYPES
+from lsd3d_usd.layout.usdio import read_layout, write_layout
+from lsd3d_usd.memtune import peak_rss_mb, release_free_memory
+from lsd3d_usd.proxy.usdio import build_proxy_layer, layout_hash
+from lsd3d_usd.splats import chunkio
+from lsd3d_usd.splats.chunkio import read_chunk_map
+from lsd3d_usd.splats.initial import write_initial_surfels
 from lsd3d_usd.views.scene_cameras import write_scene_cameras
 
 SURFELS_VERSION = "surfels-v6"   # v6: density weights on faces split to 2 m² (ggds.initial); v5: drivable lanes only
@@ -63,8 +84,6 @@ class Plan:
 # ------------------------------------------------------------------ checks before writing
 def read_layout_for(cfg: GenerateConfig):
     """The layout the configuration names (read) or describes (generated)."""
-    from lsd3d_usd.layout import generator
-    from lsd3d_usd.layout.usdio import read_layout
     if cfg.layout is not None:
         if not Path(cfg.layout).is_file():
             raise InputError(f"--layout {cfg.layout}: no such file")
@@ -72,7 +91,6 @@ def read_layout_for(cfg: GenerateConfig):
     else:
         layout, source = generator.generate(cfg.seed, cfg.extent, cfg.style), None
     if not layout.drivable_lanes():
-        from lsd3d_usd.layout.model import DRIVABLE_TYPES
         where = cfg.layout or "generated layout"
         raise InputError(f"{where}: the layout has no drivable lanes (of type "
                          f"{', '.join(DRIVABLE_TYPES)}; GGDS places its cameras along them, and "
@@ -83,7 +101,6 @@ def read_layout_for(cfg: GenerateConfig):
 def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | None:
     """Cross-key checks and the prior / loss files, before anything is written. Returns the
     loss terms' prepared state (e.g. LPIPS weights read once), or None without GGDS."""
-    from lsd3d_usd.ggds.priors.registry import check_prior
     g = cfg.ggds
     if run is not None and run.resume and run.force:
         raise InputError("--resume and --force exclude each other")
@@ -96,8 +113,6 @@ def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | N
     if g.steps == 0 and not (run and run.resume):
         return None
     check_prior(cfg.prior)
-    from lsd3d_usd.ggds.priors.registry import PRIORS
-    from lsd3d_usd.ggds.losses.terms import LOSSES
     weight = g.weights.get("perceptual")
     if weight is None:   # the prior's default, known without loading it
         weight = PRIORS.get(cfg.prior.kind).default_weight("perceptual")
@@ -126,9 +141,7 @@ def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
         cfg, resume_run, stop_at = _resume_config(sc, cfg, run)
     term_state = check_config(cfg, run)
     layout, source = read_layout_for(cfg)
-    from lsd3d_usd.proxy.usdio import layout_hash
     lhash = layout_hash(layout)
-    from lsd3d_usd.conditioning.light import env_params
     params = env_params(ct.to_dict(cfg.env), cfg.seed, run.log)
     w, h = cfg.env.resolution
     ehash = params.content_hash(w, h)
@@ -138,7 +151,6 @@ def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
 
 def _resume_config(sc: S.Scene, cfg: GenerateConfig, run: RunOptions):
     """The newest unfinished run's recorded configuration; explicit conflicting keys refused."""
-    from lsd3d_usd.ggds.run.store import read_plan, region_progress
     names = sc.unfinished_runs()
     if not names:
         raise InputError(f"{sc.root}: no unfinished GGDS run to resume")
@@ -209,7 +221,6 @@ def _check_dependents(sc: S.Scene, p: Plan, run: RunOptions) -> None:
 # ------------------------------------------------------------------------- the steps
 def _layout_step(sc: S.Scene, p: Plan) -> None:
     """The layout layer is the input exactly as given (bytes copied when it is usda)."""
-    from lsd3d_usd.layout.usdio import write_layout
     dst = sc.layer_path("layout")
     if p.source is not None and p.source.suffix.lower() == ".usda":
         data = p.source.read_bytes()
@@ -226,7 +237,6 @@ def _layout_step(sc: S.Scene, p: Plan) -> None:
 
 
 def _proxy_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
-    from lsd3d_usd.proxy.usdio import build_proxy_layer
     rep = build_proxy_layer(p.layout, sc.layer_path("proxy"), params=p.cfg.proxy,
                             progress=run.progress)
     sc.add_layer("proxy")
@@ -236,12 +246,8 @@ def _proxy_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
 
 def _env_step(sc: S.Scene, p: Plan):
     """The EXR (cached by parameter hash) and the env layer, and the light GGDS sees."""
-    import math
 
-    from pxr import UsdLux
 
-    from lsd3d_usd.env import write_env, write_env_layer
-    from lsd3d_usd.conditioning.light import scene_light
     w, h = p.cfg.env.resolution
     exr = write_env(p.env_params, sc.textures_dir, w, h)
     light = scene_light(p.env_params, exr)
@@ -266,10 +272,6 @@ def _env_step(sc: S.Scene, p: Plan):
 
 def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
     """The initial surfels, chunk by chunk (ggds.initial), unless they are up to date."""
-    from lsd3d_usd.conditioning.light import colour_by_light
-    from lsd3d_usd.splats.initial import write_initial_surfels
-    from lsd3d_usd.memtune import release_free_memory
-    from lsd3d_usd.splats import chunkio
     path = sc.layer_path("surfels")
     chunks = chunkio.read_chunk_map(path) if path.is_file() else {}
     folder = chunkio.chunk_folder(path) if chunks else None
@@ -295,8 +297,6 @@ def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
 def _actors_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     """Parked and moving actors as references to the scene's own procedural vehicle assets
     (written once into assets/, so the scene folder is self-contained)."""
-    from lsd3d_usd.actors import assets as A
-    from lsd3d_usd.actors.compose import add_actors
     folder = sc.assets_dir
     missing = [k for k in A.LIBRARY_KINDS if not (folder / f"{k}.usda").is_file()]
     if missing:
@@ -311,12 +311,7 @@ def _actors_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
 
 def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     """GGDS region by region (ggds.regions): a new run, or the unfinished one resumed."""
-    import os
 
-    from lsd3d_usd.ggds.regions.driver import run_regions
-    from lsd3d_usd.ggds.regions.plan import phases_from_plan, plan_regions
-    from lsd3d_usd.ggds.run.store import read_plan, write_plan
-    from lsd3d_usd.splats.chunkio import read_chunk_map
     cfg = p.cfg
     if p.resume_run:
         name = p.resume_run
@@ -385,6 +380,5 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
                     f"{100 * g['off_surface_frac']:.2f} %")
     timings["total_s"] = time.perf_counter() - t0
     summary["timings"] = {k: round(v, 2) for k, v in timings.items()}
-    from lsd3d_usd.memtune import peak_rss_mb
     summary["peak_rss_mb"] = peak_rss_mb()
     return summary

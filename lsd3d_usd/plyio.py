@@ -16,6 +16,7 @@ import numpy as np
 
 from lsd3d_usd.errors import InputError, excerpt
 from lsd3d_usd.limits import PLY_VERTICES
+from lsd3d_usd.scene import atomic_write_bytes
 
 PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -159,7 +160,6 @@ def read_ply_vertices(path, max_vertices: int | None = None) -> np.ndarray:
 
 def write_ply_vertices(path, arr: np.ndarray, comments=()) -> Path:
     """Write a structured array as the binary little-endian ``vertex`` element, atomically."""
-    from lsd3d_usd.scene import atomic_write_bytes
 
     inv = {v: k for k, v in PLY_TYPES.items() if k in ("char", "uchar", "short", "ushort", "int",
                                                          "uint", "float", "double")}

@@ -30,15 +30,16 @@ import json
 import os
 import platform
 import re
+import shutil
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable
 
+from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402  (lsd3d_usd registered the schema first)
+
 import lsd3d_usd
 from lsd3d_usd.errors import InputError
-
-from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402  (lsd3d_usd registered the schema first)
 
 WORLD = "/World"
 LAYOUT_PATH = "/World/Layout"
@@ -534,7 +535,6 @@ class Scene:
             if f.startswith(GGDS_PREFIX):
                 rf = self.run_files(f)
                 if rf.dir.is_dir():
-                    import shutil
                     shutil.rmtree(self.inside(rf.dir, "run folder"))
 
     # ---- GGDS runs and what they depend on

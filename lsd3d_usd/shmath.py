@@ -3,6 +3,9 @@ definition of their constants and of the order-2 basis, for numpy arrays and tor
 alike. colour(d) = 0.5 + sum_k c_k Y_k(d) for surfels; E(n) = sum_k c_k Y_k(n) for irradiance."""
 from __future__ import annotations
 
+import numpy as np
+import torch
+
 C0 = 0.28209479177387814
 C1 = 0.4886025119029199
 C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005,
@@ -19,7 +22,5 @@ def sh_basis9(d):
              C2[0] * x * y, C2[1] * y * z, C2[2] * (2 * z * z - x * x - y * y),
              C2[3] * x * z, C2[4] * (x * x - y * y)]
     if hasattr(d, "detach"):
-        import torch
         return torch.stack(terms, dim=-1)
-    import numpy as np
     return np.stack(terms, axis=-1)

@@ -80,7 +80,7 @@ def _write_exr(path, value):
 
 
 def test_texture_cache_decodes_once_and_sees_file_changes(tmp_path, monkeypatch):
-    from lsd3d_usd.views import images
+    from lsd3d_usd.views import stage_data
     exr = tmp_path / "sky.exr"
     _write_exr(exr, 0.5)
     stage = S.new_stage()
@@ -88,8 +88,8 @@ def test_texture_cache_decodes_once_and_sees_file_changes(tmp_path, monkeypatch)
     dome = UsdLux.DomeLight.Define(stage, "/World/Env/Sky")
     dome.GetTextureFileAttr().Set(Sdf.AssetPath(str(exr)))
     reads = []
-    real = images.read_image
-    monkeypatch.setattr(images, "read_image", lambda p: reads.append(p) or real(p))
+    real = stage_data.read_image
+    monkeypatch.setattr(stage_data, "read_image", lambda p: reads.append(p) or real(p))
     cache = TextureCache()
     a, b = read_dome(stage, None, cache), read_dome(stage, None, cache)
     assert len(reads) == 1 and np.allclose(a.image, 0.5) and np.allclose(b.image, 0.5)

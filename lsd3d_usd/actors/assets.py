@@ -17,13 +17,19 @@ defaultPrim (meshes and/or ParticleField surfels), or a 3DGS/2DGS .ply that
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
+from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdSemantics, Vt
 
 import lsd3d_usd  # noqa: F401  (schema registration before any stage)
+from lsd3d_usd import semantics
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.proxy.shapes import cylinder, profile_prism
+from lsd3d_usd.scene import provenance, save_stage
+from lsd3d_usd.splats.ply import read_ply
+from lsd3d_usd.splats.usdio import is_particle_field, write_surfels
 
 KIND_ATTR = "lsd3d:actor:kind"
 DIMS_ATTR = "lsd3d:actor:dimensions"
@@ -93,12 +99,10 @@ class AssetInfo:
 
 # ------------------------------------------------------------------ geometry
 def _profile_solid(profile, width: float):
-    from lsd3d_usd.proxy.shapes import profile_prism
     return profile_prism(np.asarray(profile, np.float64), width)
 
 
 def _wheels(spec: VehicleSpec):
-    from lsd3d_usd.proxy.shapes import cylinder
     vs, fs, n = [], [], 0
     r, tw = spec.wheel_radius, 0.24
     for x in spec.axles:
@@ -139,12 +143,10 @@ def _prim_name(kind: str) -> str:
 
 
 def _label(prim, cls: str = VEHICLE_CLASS) -> None:
-    from pxr import UsdSemantics, Vt
     UsdSemantics.LabelsAPI.Apply(prim, "class").CreateLabelsAttr(Vt.TokenArray([cls]))
 
 
 def _root_attrs(prim, kind: str, dims) -> None:
-    from pxr import Gf, Sdf
     prim.CreateAttribute(KIND_ATTR, Sdf.ValueTypeNames.Token, variability=Sdf.VariabilityUniform).Set(kind)
     prim.CreateAttribute(DIMS_ATTR, Sdf.ValueTypeNames.Float3, variability=Sdf.VariabilityUniform).Set(
         Gf.Vec3f(*map(float, dims)))
@@ -152,7 +154,6 @@ def _root_attrs(prim, kind: str, dims) -> None:
 
 
 def _new_asset_stage(name: str, kind: str):
-    from pxr import Kind, Usd, UsdGeom
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -163,7 +164,6 @@ def _new_asset_stage(name: str, kind: str):
 
 
 def author_mesh(stage, path: str, m: MeshData):
-    from pxr import UsdGeom, Vt
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = np.ascontiguousarray(m.vertices, np.float32)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
@@ -182,9 +182,7 @@ def author_mesh(stage, path: str, m: MeshData):
 
 def write_vehicle_asset(kind: str, path) -> Path:
     """Write the procedural vehicle ``kind`` as a standalone asset file (atomic)."""
-    from pxr import UsdGeom
 
-    from lsd3d_usd.scene import provenance, save_stage
     meshes = vehicle_meshes(kind)
     name = _prim_name(kind)
     stage, root = _new_asset_stage(name, kind)
@@ -208,17 +206,11 @@ def ply_to_asset(ply_path, out_path, kind: str = "user", semantic: str = VEHICLE
     """Convert a 3DGS/2DGS .ply into a surfel asset (our Lsd3dSurfelField schema), atomic.
 
     The splats are taken as given: Z up, metres, +X forward, origin on the ground."""
-    from pxr import UsdGeom
 
-    from lsd3d_usd import semantics
-    from lsd3d_usd.scene import provenance, save_stage
-    from lsd3d_usd.splats.ply import read_ply
-    from lsd3d_usd.splats.usdio import write_surfels
 
     field_ = read_ply(ply_path)
     if field_.n == 0:
         raise InputError(f"{ply_path}: no splats in the file")
-    from dataclasses import replace
     field_ = replace(field_, semantic_ids=np.full(field_.n, semantics.class_id(semantic), np.int32),
                      semantic_classes=tuple(semantics.CLASSES))
     name = "Asset"
@@ -240,7 +232,6 @@ def relative_asset_path(asset, layer_dir) -> str:
 
 def check_asset(path) -> Path:
     """The asset file, validated: exists, opens as USD, has a defaultPrim. InputError otherwise."""
-    from pxr import Sdf
     p = Path(path)
     if not p.is_file():
         raise InputError(f"actor asset {path}: no such file")
@@ -258,7 +249,6 @@ def check_asset(path) -> Path:
 def mesh_data_from_prim(prim, M: np.ndarray | None = None) -> MeshData:
     """A UsdGeom.Mesh (triangulated fans for n-gons) with per-face displayColor,
     transformed by the 4x4 column-vector matrix ``M`` if given."""
-    from pxr import UsdGeom
     mesh = UsdGeom.Mesh(prim)
     pts = np.asarray(mesh.GetPointsAttr().Get() or [], np.float64).reshape(-1, 3)
     counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get() or [], np.int64)
@@ -296,9 +286,7 @@ def mesh_data_from_prim(prim, M: np.ndarray | None = None) -> MeshData:
 
 def read_asset(path) -> AssetInfo:
     """Open an asset file and describe it (kind, dimensions, meshes in the asset frame)."""
-    from pxr import Usd, UsdGeom
 
-    from lsd3d_usd.splats.usdio import is_particle_field
     p = check_asset(path)
     stage = Usd.Stage.Open(str(p))
     root = stage.GetDefaultPrim()

@@ -3,10 +3,12 @@ from __future__ import annotations
 
 import argparse
 
+from lsd3d_usd.scene import Scene
+
 
 def _add(args) -> int:
+    # local import: not loaded for --help
     from lsd3d_usd.actors.compose import add_actors, layout_of_scene
-    from lsd3d_usd.scene import Scene
 
     scene = Scene.open(args.scene)
     layout = layout_of_scene(scene)
@@ -21,6 +23,7 @@ def _add(args) -> int:
 
 
 def _assets(args) -> int:
+    # local import: not loaded for --help
     from lsd3d_usd.actors.assets import ply_to_asset, write_library
     if args.ply:
         print(ply_to_asset(args.ply, args.output))

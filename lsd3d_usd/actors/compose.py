@@ -7,7 +7,19 @@ from pathlib import Path
 
 import numpy as np
 
+from lsd3d_usd import scene as S
+from lsd3d_usd.actors import assets as A
+from lsd3d_usd.actors.placement import KIND_WEIGHTS, parked_placements, parking_slots
+from lsd3d_usd.actors.traffic import simulate
+from lsd3d_usd.actors.usdio import (
+    ActorSpec,
+    actors_layer,
+    extend_root_time_range,
+    scene_time_codes_per_second,
+)
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.layout.usdio import layout_from_stage
+from lsd3d_usd.scene import LAYOUT_PATH
 
 
 @dataclass
@@ -26,7 +38,6 @@ def resolve_library(scene, assets_dir=None) -> dict[str, Path]:
     """kind -> asset file: ``assets_dir`` if given, else the scene's own assets/ folder, the
     procedural library written into it where missing (so the scene folder is
     self-contained: it never references a source checkout)."""
-    from lsd3d_usd.actors import assets as A
     if assets_dir is not None:
         return A.library_assets(assets_dir)
     folder = Path(scene.root) / "assets"
@@ -43,12 +54,6 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
     ``moving`` actors driven by the seeded IDM traffic model for ``seconds`` (samples at
     ``fps``, written at the scene's timeCodesPerSecond). Deterministic per seed.
     Replaces any previous actors layer (a step owns its layer)."""
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.actors import assets as A
-    from lsd3d_usd.actors.placement import KIND_WEIGHTS, parked_placements, parking_slots
-    from lsd3d_usd.actors.traffic import simulate
-    from lsd3d_usd.actors.usdio import (ActorSpec, actors_layer, extend_root_time_range,
-                                        scene_time_codes_per_second)
 
     if parked < 0 or moving < 0:
         raise InputError(f"actors: counts must be >= 0 (parked={parked}, moving={moving})")
@@ -110,9 +115,7 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
 
 def layout_of_scene(scene):
     """The scene's layout (from its composed stage)."""
-    from lsd3d_usd.layout.usdio import layout_from_stage
     stage = scene.open_stage(load=False)
-    from lsd3d_usd.scene import LAYOUT_PATH
     if not stage.GetPrimAtPath(LAYOUT_PATH):
         raise InputError(f"{scene.root}: the scene has no layout ({LAYOUT_PATH}); actors are placed "
                          "on its lanes and parking slots")

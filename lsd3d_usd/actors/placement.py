@@ -13,6 +13,8 @@ import numpy as np
 from shapely import STRtree
 from shapely.geometry import Polygon
 
+from lsd3d_usd.actors.traffic import LaneGeom
+
 KIND_WEIGHTS = {"car": 0.72, "van": 0.18, "truck": 0.05, "bus": 0.05}
 CLEARANCE = 0.3          # m kept free around every parked footprint
 
@@ -40,7 +42,6 @@ def parking_slots(layout, pitch: float = 6.0):
     for sp in layout.parking_spots:
         if not sp.occupied:
             out.append((sp.id, sp.center, sp.heading, sp.length, sp.width))
-    from lsd3d_usd.actors.traffic import LaneGeom
     for ln in layout.lanes:
         if ln.lane_type != "parking":
             continue

@@ -20,6 +20,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from pxr import Usd, UsdGeom, UsdLux
+
+from lsd3d_usd.actors.assets import mesh_data_from_prim
+from lsd3d_usd.env.sh import C0, eval_sh_irradiance
+from lsd3d_usd.scene import ENV_PATH, PROXY_PATH
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
 
@@ -33,7 +38,6 @@ class Lighting:
 
     def irradiance(self, normals, visibility) -> np.ndarray:
         """(..., 3) irradiance for unit normals (..., 3) and visibility (...) or scalar."""
-        from lsd3d_usd.env.sh import eval_sh_irradiance
         n = np.asarray(normals, np.float64)
         V = np.asarray(visibility, np.float64)[..., None] if np.ndim(visibility) else float(visibility)
         cos = np.maximum(n @ self.sun_dir, 0.0)[..., None] if self.sun_dir[2] > 0 else np.zeros(n.shape[:-1] + (1,))
@@ -52,7 +56,6 @@ class Lighting:
 
 def default_lighting() -> Lighting:
     """Without an env layer: a uniform sky (E = 1) plus a sun 50 degrees up (E = 2.5 at normal incidence)."""
-    from lsd3d_usd.env.sh import C0
     s = np.array([np.cos(np.radians(50)) * 0.6, np.cos(np.radians(50)) * 0.8, np.sin(np.radians(50))])
     sh = np.zeros((9, 3))
     sh[0] = 1.0 / C0          # uniform sky: E(n) = 1 for every normal
@@ -61,11 +64,11 @@ def default_lighting() -> Lighting:
 
 def lighting_from_stage(stage) -> Lighting:
     """The selected environment's lighting (env layer), or `default_lighting()` without one."""
-    from lsd3d_usd.scene import ENV_PATH
     env = stage.GetPrimAtPath(ENV_PATH)
     if not env:
         return default_lighting()
     try:
+        # local import: heavy, or only on this path
         from lsd3d_usd.env.usdlayer import read_env_prim
         info = read_env_prim(stage)
     except Exception:
@@ -79,7 +82,6 @@ def lighting_from_stage(stage) -> Lighting:
     resid = np.zeros(3)
     sun = env.GetChild("Sun")
     if sun:
-        from pxr import UsdGeom, UsdLux
         if UsdGeom.Imageable(sun).ComputeVisibility() != UsdGeom.Tokens.invisible:
             lx = UsdLux.LightAPI(sun)
             resid = float(lx.GetIntensityAttr().Get() or 0.0) * \
@@ -164,10 +166,7 @@ def actor_sample_points(M: np.ndarray, dims) -> np.ndarray:
 
 def proxy_occluder(stage) -> Occluder:
     """All proxy meshes (/World/Proxy, payloads loaded) as one occluder."""
-    from pxr import Usd, UsdGeom
 
-    from lsd3d_usd.actors.assets import mesh_data_from_prim
-    from lsd3d_usd.scene import PROXY_PATH
     root = stage.GetPrimAtPath(PROXY_PATH)
     if not root:
         return Occluder(np.zeros((0, 3)), np.zeros((0, 3), np.int64))

@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.layout.lanes import route_hint
 
 
 @dataclass(frozen=True)
@@ -139,7 +140,6 @@ class LaneGraph:
         idx = []
         for k, lid in enumerate(lane_ids):
             if lid not in self.index:
-                from lsd3d_usd.layout.lanes import route_hint
                 raise InputError(f"route: {route_hint(self.layout, lid)}")
             i = self.index[lid]
             if idx and i not in self.succ[idx[-1]]:

@@ -18,12 +18,17 @@ from __future__ import annotations
 
 import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 import lsd3d_usd  # noqa: F401
+from lsd3d_usd.actors.assets import DIMS_ATTR, mesh_data_from_prim
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import ACTORS_PATH, new_stage, save_layer
+from lsd3d_usd.splats.field import SurfelField
+from lsd3d_usd.splats.init import transform_surfels
+from lsd3d_usd.splats.usdio import is_particle_field, read_surfels
 
 ROLE_ATTR = "lsd3d:actor:role"
 ASSET_ATTR = "lsd3d:actor:asset"
@@ -48,7 +53,6 @@ class ActorSpec:
 
 
 def _spec_attr(prim_spec, name: str, type_name, value=None, uniform=False, custom=True):
-    from pxr import Sdf
     a = Sdf.AttributeSpec(prim_spec, name, type_name,
                           Sdf.VariabilityUniform if uniform else Sdf.VariabilityVarying, custom)
     if value is not None:
@@ -58,7 +62,6 @@ def _spec_attr(prim_spec, name: str, type_name, value=None, uniform=False, custo
 
 def author_actor(layer, parent_path: str, a: ActorSpec, tcps: float):
     """Author one actor prim spec under ``parent_path`` in ``layer`` (Sdf level)."""
-    from pxr import Gf, Sdf, Vt
     T = Sdf.ValueTypeNames
     path = Sdf.Path(parent_path).AppendChild(a.name)
     spec = Sdf.CreatePrimInLayer(layer, path)
@@ -98,16 +101,13 @@ def author_actor(layer, parent_path: str, a: ActorSpec, tcps: float):
 
 def scene_time_codes_per_second(scene) -> float:
     """The scene root layer's timeCodesPerSecond (USD's default, 24, when unauthored)."""
-    from pxr import Sdf
     root = Sdf.Layer.FindOrOpen(str(scene.root_layer_path))
     return float(root.timeCodesPerSecond) if root.HasTimeCodesPerSecond() else DEFAULT_TCPS
 
 
 def actors_layer(actors: list[ActorSpec], tcps: float, seconds: float, info: dict):
     """An anonymous layer holding /World/Actors with ``actors`` (keep a reference to it)."""
-    from pxr import Sdf
 
-    from lsd3d_usd.scene import ACTORS_PATH, new_stage
     # A detached layer: on a stage, each reference would try to resolve while we author.
     stage = new_stage()
     layer = Sdf.Layer.CreateAnonymous(".usda")
@@ -138,9 +138,7 @@ def actors_layer(actors: list[ActorSpec], tcps: float, seconds: float, info: dic
 def extend_root_time_range(scene, end_code: float, tcps: float) -> None:
     """Make the scene root's playback range cover [0, end_code] at ``tcps`` (usdview and
     other tools read start/endTimeCode from the root layer only)."""
-    from pxr import Sdf
 
-    from lsd3d_usd.scene import save_layer
     root = Sdf.Layer.FindOrOpen(str(scene.root_layer_path))
     root.Reload()
     changed = False
@@ -162,7 +160,6 @@ def extend_root_time_range(scene, end_code: float, tcps: float) -> None:
 def check_references(stage, root_path: str) -> None:
     """Every reference under ``root_path`` points at an existing file (InputError naming the
     actor prim, the asset path as written and the layer it was written in otherwise)."""
-    from pxr import Usd
     start = stage.GetPrimAtPath(root_path)
     if not start:
         return
@@ -192,13 +189,7 @@ class ActorSet:
     `transforms(t)` / `visible(t)` place and show them at time t. Stateless per call."""
 
     def __init__(self, stage, root_path: str | None = None):
-        from pxr import Usd, UsdGeom
 
-        from lsd3d_usd.actors.assets import DIMS_ATTR, mesh_data_from_prim
-        from lsd3d_usd.scene import ACTORS_PATH
-        from lsd3d_usd.splats.field import SurfelField
-        from lsd3d_usd.splats.init import transform_surfels
-        from lsd3d_usd.splats.usdio import is_particle_field, read_surfels
 
         self.stage = stage
         root_path = root_path or ACTORS_PATH
@@ -228,19 +219,16 @@ class ActorSet:
 
     @staticmethod
     def _world(prim, t) -> np.ndarray:
-        from pxr import UsdGeom
         return np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t), np.float64).T
 
     def __len__(self) -> int:
         return len(self.actors)
 
     def transforms(self, time_code) -> list[np.ndarray]:
-        from pxr import Usd
         t = Usd.TimeCode(time_code)
         return [self._world(self.stage.GetPrimAtPath(a.path), t) for a in self.actors]
 
     def visible(self, time_code) -> list[bool]:
-        from pxr import Usd, UsdGeom
         t = Usd.TimeCode(time_code)
         return [UsdGeom.Imageable(self.stage.GetPrimAtPath(a.path)).ComputeVisibility(t)
                 != UsdGeom.Tokens.invisible for a in self.actors]

@@ -4,13 +4,18 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lsd3d_usd.errors import InputError
+
 
 def _batch(args) -> int:
-    from lsd3d_usd.errors import InputError
 
+    # local import: not loaded for --help
     from lsd3d_usd.execution import make_executor
+
+    # local import: not loaded for --help
     from .runner import DEFAULT_RETRIES, format_report, run_batch
     from .spec import load_spec
+    # local import: not loaded for --help
     from .tasks import plan_batch
 
     spec = load_spec(args.spec)

@@ -4,7 +4,10 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
-from lsd3d_usd.execution import ERROR, LOST, OK, SUSPECT
+from tqdm import tqdm
+
+from lsd3d_usd.execution import OK, SUSPECT
+
 from .spec import BatchSpec
 from .state import BatchLock, BatchState
 from .tasks import ScenePlan, finalize_chunks, plan_batch, prepare_scene
@@ -66,7 +69,6 @@ def run_batch(spec: BatchSpec, executor, retries: int = DEFAULT_RETRIES, progres
                 prepared.add(plan.scene.name)
         bar = None
         if progress:
-            from tqdm import tqdm
             bar = tqdm(total=len(tasks), initial=len(finished), desc="batch", unit="task")
         attempts = {tid: 0 for tid in todo}
         errors: dict[str, list[str]] = {tid: [] for tid in todo}

@@ -28,10 +28,14 @@ from __future__ import annotations
 
 import difflib
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import tomllib
+
+from lsd3d_usd import configtree as ct
+from lsd3d_usd.config import GenerateConfig
+from lsd3d_usd.configtree import resolve_paths
 from lsd3d_usd.errors import InputError
 
 SPLIT_CHOICES = ("auto", "always", "never")
@@ -117,8 +121,6 @@ class SceneSpec:
 
     def config(self):
         """The scene's GenerateConfig (defaults + the spec's settings)."""
-        from lsd3d_usd import configtree as ct
-        from lsd3d_usd.config import GenerateConfig
         return ct.apply(GenerateConfig(), self.options, f"{self.where}.")
 
     @property
@@ -166,9 +168,6 @@ def _options(table: dict, where: str, base: Path, allowed: dict) -> dict:
 def _settings(table: dict, where: str, base: Path, extra: dict) -> tuple[dict, dict]:
     """Split a [defaults] / [[scene]] table into (generate settings checked against the
     configuration tree, {key: value} of the batch-only keys in ``extra``)."""
-    from lsd3d_usd import configtree as ct
-    from lsd3d_usd.config import GenerateConfig
-    from lsd3d_usd.configtree import resolve_paths
     own = _options({k: v for k, v in table.items() if k in extra}, where, base, extra)
     rest = {k: v for k, v in table.items() if k not in extra}
     try:

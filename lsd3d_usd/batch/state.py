@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.scene import process_alive
+from lsd3d_usd.scene import atomic_write_bytes, process_alive
 
 STATE_VERSION = 1
 
@@ -47,7 +47,6 @@ class BatchState:
         self.save()
 
     def save(self) -> None:
-        from lsd3d_usd.scene import atomic_write_bytes
         self.path.parent.mkdir(parents=True, exist_ok=True)
         data = {"version": STATE_VERSION, "tasks": self.tasks}
         atomic_write_bytes(self.path, json.dumps(data, indent=1, sort_keys=True,

@@ -22,8 +22,24 @@ import traceback
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import lsd3d_usd
+from lsd3d_usd import configtree as ct
+from lsd3d_usd import scene as S
+from lsd3d_usd.config import GenerateConfig
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.execution import task_log
 from lsd3d_usd.hashing import content_hash, file_hash
+from lsd3d_usd.pipeline import RunOptions, check_config, generate
+from lsd3d_usd.proxy.chunks import ProxyBuilder
+from lsd3d_usd.proxy.usdio import (
+    chunk_file_hash,
+    chunk_file_name,
+    chunks_dir,
+    layout_hash,
+    write_chunk_layer,
+    write_root_layer,
+)
+from lsd3d_usd.scene import chunk_prim_name
 
 from .spec import BatchSpec, SceneSpec
 
@@ -58,14 +74,11 @@ class ScenePlan:
 
 def scene_config(options: dict):
     """The GenerateConfig of a scene's settings ({key: value}, JSON-able or checked)."""
-    from lsd3d_usd import configtree as ct
-    from lsd3d_usd.config import GenerateConfig
     return ct.apply(GenerateConfig(), options, "")
 
 
 def run_options(out, force: bool = False, log=None, workers: int = 1, executor: str = "local",
                 address: str | None = None):
-    from lsd3d_usd.pipeline import RunOptions
     return RunOptions(out=Path(out), force=force, progress=False, log=log or (lambda *a: None),
                       workers=workers, executor=executor, address=address)
 
@@ -76,13 +89,12 @@ def _json_options(options: dict) -> dict:
 
 
 def read_layout_for(cfg):
+    # local import: heavy, or only on this path
     from lsd3d_usd.pipeline import read_layout_for
     return read_layout_for(cfg)[0]
 
 
 def chunk_file(scene_out: Path, key) -> Path:
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.proxy.usdio import chunk_file_name, chunks_dir
     return chunks_dir(Path(scene_out) / S.LAYERS_DIR / S.STEP_LAYERS["proxy"]) / chunk_file_name(*key)
 
 
@@ -90,10 +102,6 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
                address: str | None = None) -> ScenePlan:
     """Tasks of one scene. Reads (or generates) the layout and checks the options, so bad
     input is refused here, before any task runs."""
-    import lsd3d_usd
-    from lsd3d_usd.pipeline import check_config
-    from lsd3d_usd.proxy.chunks import ProxyBuilder
-    from lsd3d_usd.proxy.usdio import layout_hash
 
     try:
         cfg = sc.config()
@@ -115,7 +123,6 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
                                                 and len(keys) >= AUTO_SPLIT_MIN_CHUNKS)
     deps = []
     if split:
-        from lsd3d_usd.scene import chunk_prim_name
         for key in keys:
             h = builder.inputs(key).hash
             plan.chunk_keys.append(key)
@@ -129,7 +136,6 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
                 outputs=(str(cfile),)))
             deps.append(cid)
     sid = f"{sc.name}/scene"
-    from lsd3d_usd import scene as S
     plan.tasks.append(Task(
         sid, "scene", sc.name,
         content_hash(TASK_VERSION, "scene", jopts, sc.force, layout_id, lhash, str(sc.output),
@@ -147,6 +153,7 @@ def plan_batch(spec: BatchSpec) -> list[ScenePlan]:
 def prepare_scene(plan: ScenePlan) -> None:
     """Create (or check) the scene folder before its tasks run: a split scene's chunk tasks
     write into it, and generate refuses a non-empty folder that is not a scene."""
+    # local import: heavy, or only on this path
     from lsd3d_usd.pipeline import prepare_scene
     sc = plan.scene
     try:
@@ -158,8 +165,6 @@ def prepare_scene(plan: ScenePlan) -> None:
 def finalize_chunks(plan: ScenePlan) -> None:
     """Driver side, after every chunk task of the scene: write the proxy root layer listing
     the chunks (one writer, no race) and put it in the scene's stack."""
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.proxy.usdio import write_root_layer
     sc = S.Scene.open(plan.scene.output)
     write_root_layer(sc.layer_path("proxy"), dict(plan.chunk_hashes),
                      plan.scene.config().proxy.as_dict(),
@@ -169,8 +174,6 @@ def finalize_chunks(plan: ScenePlan) -> None:
 
 # ----------------------------------------------------------------------- on workers
 def _run_chunk(p: dict, log) -> dict:
-    from lsd3d_usd.proxy.chunks import ProxyBuilder
-    from lsd3d_usd.proxy.usdio import chunk_file_hash, write_chunk_layer
     cfg = scene_config(p["options"])
     layout = read_layout_for(cfg)
     params = cfg.proxy
@@ -189,7 +192,6 @@ def _run_chunk(p: dict, log) -> dict:
 
 
 def _run_scene(p: dict, log) -> dict:
-    from lsd3d_usd.pipeline import generate
     return generate(scene_config(p["options"]),
                     run_options(p["out"], p.get("force", False), log, p.get("region_workers", 1),
                                 p.get("executor", "local"), p.get("address")))
@@ -198,9 +200,7 @@ def _run_scene(p: dict, log) -> dict:
 def run_task(payload: dict) -> dict:
     """Execute one task (on a worker). Returns {"result": ..., "seconds": ...}; raises on
     failure with the error as the exception's message."""
-    import lsd3d_usd  # noqa: F401  registers the schema before any stage is opened
     t0 = time.perf_counter()
-    from lsd3d_usd.execution import task_log
     with task_log(payload["log"], payload["id"]) as log:
         try:
             run = _run_chunk if payload["kind"] == "chunk" else _run_scene

@@ -20,9 +20,20 @@ import tempfile
 import time
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
-from lsd3d_usd.eval.seams_eval import pooled_psnr
+from lsd3d_usd import scene as S
+from lsd3d_usd.conditioning.views import sample_views
+from lsd3d_usd.eval.render import render_view
+from lsd3d_usd.eval.seams import paired_matched_drop
+from lsd3d_usd.eval.seams_eval import pooled_psnr, seam_stats, view_errors
+from lsd3d_usd.layout import generator
+from lsd3d_usd.layout.usdio import read_layout, write_layout
+from lsd3d_usd.proxy.usdio import proxy_arrays
+from lsd3d_usd.scene import atomic_write_text
+from lsd3d_usd.views.stage_data import SceneReader
 
 CONFIGS = [("corridor", 1), ("corridor", 4), ("grid", 4)]
 FULL_CONFIGS = [("corridor", 16), ("grid", 16)]
@@ -82,8 +93,6 @@ def _cli(*args) -> list:
 
 
 def _layout(path: Path, extent, seed: int) -> Path:
-    from lsd3d_usd.layout import generator
-    from lsd3d_usd.layout.usdio import write_layout
     write_layout(generator.generate(seed, extent, "urban"), path)
     return path
 
@@ -94,13 +103,6 @@ def _view_measures(scene: Path, views: int, same_cameras, size=(240, 135),
     ``same_cameras`` over the pixels showing chunk 0_0: views from the same positions in
     every configuration, scored on the same surface; the seam views' eval.seams.SeamStats,
     for pairing with another scene of the same layout, or None)."""
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.eval.evaluate import render_view
-    from lsd3d_usd.eval.seams_eval import seam_stats, view_errors
-    from lsd3d_usd.conditioning.views import sample_views
-    from lsd3d_usd.layout.usdio import read_layout
-    from lsd3d_usd.proxy.usdio import proxy_arrays
-    from lsd3d_usd.views.stage_data import SceneReader
     sc = S.Scene.open(scene)
     layout = read_layout(sc.layer_path("layout"))
     proxy = proxy_arrays(sc.layer_path("proxy"))
@@ -126,8 +128,6 @@ def same_view_cameras(seed: int, views: int, size=(240, 135)) -> list:
     """Held-out-style cameras on the lanes of chunk 0_0 alone (the one-chunk corridor's
     layout; the generator makes a chunk's content the same at every extent), so that every
     configuration's PSNR is measured from the same positions."""
-    from lsd3d_usd.conditioning.views import sample_views
-    from lsd3d_usd.layout import generator
     layout = generator.generate(seed, _extent("corridor", 1), "urban")
     return [v.camera for v in sample_views(layout, views, *size, seed=seed + 777,
                                            novel_frac=0.25)]
@@ -257,7 +257,6 @@ def _trajectory(layout, length_m: float, path: Path, speed: float = 10.0) -> Pat
 
 def stream_test(work: Path, seed: int, log=print) -> dict:
     """Rig render peak memory along a 200 m and a 2 km route of a 2 km corridor."""
-    from lsd3d_usd.layout import generator
     lay = _layout(work / "stream.usda", (2100, 100), seed)
     out = work / "stream"
     code, wall, rss = _child(_cli("generate", "--layout", lay, "-o", out, "--steps", 0,
@@ -300,9 +299,7 @@ def corridor_10km(work: Path, seed: int, log=print) -> dict:
 
 
 def plot(rows: list, path) -> None:
-    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     fig, ax = plt.subplots(1, 2, figsize=(10, 3.4))
     for shape, marker in (("corridor", "o"), ("grid", "s")):
         r = sorted((x for x in rows if x["shape"] == shape and x["mode"] == "chunk"),
@@ -323,7 +320,6 @@ def plot(rows: list, path) -> None:
 def _seams_vs_one_region(stats: dict, seed: int, seeds: list) -> dict:
     """Per GGDS seed and baseline layout: the chunk-wise scene's matched seam drop against the
     same layout's one-region scene from the same views (eval.seams.paired_matched_drop)."""
-    from lsd3d_usd.eval.seams import paired_matched_drop
     out = {}
     for s_ in seeds:
         tag = "" if s_ == seed else f"_s{s_}"
@@ -427,7 +423,6 @@ def main(json_path=None, *, full=False, steps=30, workers=None, seed=11, views_p
         result["plot"] = str(png)
     log(json.dumps(result["summary"], indent=1))
     if json_path:
-        from lsd3d_usd.scene import atomic_write_text
         atomic_write_text(json_path, json.dumps(result, indent=2))
         log(f"wrote {json_path}")
     return result

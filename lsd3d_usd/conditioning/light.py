@@ -16,11 +16,17 @@ from typing import Callable, Optional
 import numpy as np
 import torch
 
-from lsd3d_usd.env import EnvParams
+from lsd3d_usd.conditioning.shadow import shadow_map
+from lsd3d_usd.env import EnvParams, build_params
+from lsd3d_usd.env.lookup import EnvMap
 from lsd3d_usd.env.sh import eval_sh_irradiance, sh_irradiance
 from lsd3d_usd.env.sky import SkyModel, render_sky
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.shmath import C0 as _SH_C0, C1 as _SH_C1
+from lsd3d_usd.render.camera import pixel_rays
+from lsd3d_usd.semantics import CLASS_COLORS
+from lsd3d_usd.shmath import C0 as _SH_C0
+from lsd3d_usd.shmath import C1 as _SH_C1
+from lsd3d_usd.splats.field import rgb_to_sh_dc
 
 VEGETATION_HINTS = ("green", "autumn", "bare", "snow")
 EXPOSURE_KEY = 0.8
@@ -103,7 +109,6 @@ class SceneLight:
 
     def background(self, camera) -> torch.Tensor:
         """(H,W,3) display-scaled env radiance behind every pixel of `camera`."""
-        from lsd3d_usd.render.camera import pixel_rays
         _, d = pixel_rays(camera)
         if self.envmap is None:
             return torch.zeros(camera.height, camera.width, 3)
@@ -131,7 +136,6 @@ def scene_light(params: EnvParams, exr_path=None, sh_resolution: int = 128) -> S
     exposure = EXPOSURE_KEY / max(lum, MIN_UP_LUMINANCE)
     envmap = None
     if exr_path is not None:
-        from lsd3d_usd.env.lookup import EnvMap
         envmap = EnvMap.from_exr(exr_path)
     fog_rgb = np.asarray(model.fog_rgb, np.float64) * exposure
     # The prior applies env.exposure itself: hand it the map in its own units.
@@ -151,7 +155,6 @@ def scene_light(params: EnvParams, exr_path=None, sh_resolution: int = 128) -> S
 def env_params(env_settings: dict, seed: int = 0, log=None) -> EnvParams:
     """EnvParams from a configuration's env settings (prompt, when, lat, lon, weather,
     season), the prompt kept for text-conditioned priors. Unknown prompt words go to ``log``."""
-    from lsd3d_usd.env import build_params
     e = env_settings
     params, unknown = build_params(e.get("prompt"), when=e.get("when"), lat=e.get("lat"),
                                    lon=e.get("lon"), weather=e.get("weather"),
@@ -166,10 +169,7 @@ def env_params(env_settings: dict, seed: int = 0, log=None) -> EnvParams:
 def colour_by_light(field, light: "SceneLight", vertices: np.ndarray, faces: np.ndarray) -> None:
     """Initial DC colours of a SurfelField in place: class albedo × (sky + sun where the proxy
     ``vertices``/``faces`` do not shadow it) irradiance of ``light``."""
-    from lsd3d_usd.conditioning.shadow import shadow_map
     shadow = shadow_map(vertices, faces, light.sun_direction)
-    from lsd3d_usd.semantics import CLASS_COLORS
-    from lsd3d_usd.splats.field import rgb_to_sh_dc
     vis = shadow.visibility(field.positions.astype(np.float64) + 0.05 * field.normals()) \
         if shadow is not None else None
     albedo = CLASS_COLORS[np.clip(field.semantic_ids, 0, None)]

@@ -13,13 +13,19 @@ from pathlib import Path
 from typing import Callable, Hashable
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.conditioning.gbuffer import (FaceTable, GBuffer, PackedGBuffer, finer,
-                                            pack_view_gbuffer)
+from lsd3d_usd.conditioning.gbuffer import (
+    FaceTable,
+    GBuffer,
+    PackedGBuffer,
+    finer,
+    pack_view_gbuffer,
+)
 from lsd3d_usd.conditioning.light import PriorEnv, SceneLight, scene_light
 from lsd3d_usd.conditioning.shadow import ShadowMap, shadow_map
 from lsd3d_usd.env.params import EnvParams
 from lsd3d_usd.env.usdlayer import read_env_prim
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.proxy.usdio import proxy_arrays
 
 
 @dataclass
@@ -61,7 +67,6 @@ class Conditioning:
         params, texture = scene_env(sc, purpose)
         params.extras["prompt"] = prompt
         if proxy is None:
-            from lsd3d_usd.proxy.usdio import proxy_arrays
             path = sc.layer_path("proxy")
             if not path.is_file():
                 raise InputError(f"{path}: {purpose} needs the scene's proxy layer (the prior's "

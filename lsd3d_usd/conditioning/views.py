@@ -109,6 +109,7 @@ def _strata(rng: np.random.Generator, n: int, lengths: np.ndarray) -> list[tuple
 
 
 def _building_paths(layout):
+    # local import: not loaded for --help
     from matplotlib.path import Path as MPath
     out = []
     for b in getattr(layout, "buildings", None) or []:

@@ -6,18 +6,18 @@ matrix from Rec.709, so Rec.709 white stays ACES white. Names follow USD's
 """
 from __future__ import annotations
 
+import warnings
 from functools import lru_cache
 
+import colour
 import numpy as np
 
 USD_NAMES = {"lin_rec709": "lin_rec709_scene", "acescg": "lin_ap1_scene"}
 
 
 def _colour():
-    import warnings
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        import colour
     return colour
 
 

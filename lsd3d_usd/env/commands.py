@@ -3,19 +3,20 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
-from lsd3d_usd.cliutil import size_type
+from lsd3d_usd.cliutil import check_output_path, size_type
 
 WEATHERS = ("clear", "partly-cloudy", "overcast", "fog", "rain", "snow")
 SEASONS = ("spring", "summer", "autumn", "winter")
 
 
 def _env(args) -> int:
-    import time
 
-    from lsd3d_usd.cliutil import check_output_path
+    # local import: not loaded for --help
     from lsd3d_usd.env.exr import write_env
     from lsd3d_usd.env.mapping import check_resolution
+    # local import: not loaded for --help
     from lsd3d_usd.env.prompt import build_params
 
     w, h = args.resolution
@@ -41,6 +42,7 @@ def _env(args) -> int:
           f"{r.when.isoformat()} at {where}, {r.color_space})"
           + ("" if cached else f" in {time.perf_counter() - t0:.2f} s"))
     if args.usd:
+        # local import: not loaded for --help
         from lsd3d_usd.env.usdlayer import write_env_layer
         item = (args.variant, path) if args.variant else path
         layer = write_env_layer(args.usd, [item], append=not args.replace)

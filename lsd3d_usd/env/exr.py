@@ -14,9 +14,12 @@ import time
 from pathlib import Path
 
 import numpy as np
+import OpenImageIO as oiio
 
 from lsd3d_usd.env import colorspace as cs
 from lsd3d_usd.env.params import EnvParams
+from lsd3d_usd.env.sh import sh_irradiance
+from lsd3d_usd.env.sky import SkyModel, render_sky
 from lsd3d_usd.errors import InputError
 
 UNITS = "kcd/m^2 (1.0 = 1000 cd/m^2)"
@@ -28,7 +31,6 @@ def env_filename(params: EnvParams, width: int, height: int) -> str:
 
 
 def _stored_hash(path: Path) -> str | None:
-    import OpenImageIO as oiio
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         return None
@@ -40,7 +42,6 @@ def _stored_hash(path: Path) -> str | None:
 
 def write_exr(path, image: np.ndarray, attributes: dict) -> Path:
     """Atomically write a (H, W, 3) float image as a half-float zip EXR with attributes."""
-    import OpenImageIO as oiio
     path = Path(path)
     H, W, C = image.shape
     if not np.all(np.isfinite(image)):
@@ -74,7 +75,6 @@ def write_exr(path, image: np.ndarray, attributes: dict) -> Path:
 
 def read_env(path) -> tuple[np.ndarray, dict]:
     """(H, W, 3) float32 image and a dict of the lsd3d / colour attributes."""
-    import OpenImageIO as oiio
     path = Path(path)
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
@@ -100,8 +100,6 @@ def write_env(params: EnvParams, out, width: int = 2048, height: int = 1024,
               force: bool = False, timings: dict | None = None) -> Path:
     """Render and write the environment EXR; reuse the existing file if its stored parameter
     hash matches. `out` is a directory (file named env_<hash>.exr) or an .exr path."""
-    from lsd3d_usd.env.sh import sh_irradiance
-    from lsd3d_usd.env.sky import SkyModel, render_sky
     out = Path(out)
     digest = params.content_hash(width, height)
     path = out if out.suffix.lower() == ".exr" else out / env_filename(params, width, height)

@@ -16,6 +16,8 @@ import numpy as np
 import torch
 from numba import njit, prange
 
+from lsd3d_usd.env.exr import read_env
+
 
 def directions_to_pixel(directions: torch.Tensor, width: int, height: int):
     """(..., 3) -> continuous pixel coordinates (x, y), pixel centres at integer + 0.5."""
@@ -106,7 +108,6 @@ class EnvMap:
 
     @classmethod
     def from_exr(cls, path) -> "EnvMap":
-        from lsd3d_usd.env.exr import read_env
         img, meta = read_env(path)
         return cls(img, color_space=meta.get("lsd3d:colorSpace", "lin_rec709"))
 

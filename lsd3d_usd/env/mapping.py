@@ -22,6 +22,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import check_image_size
+
 
 def uv_to_direction(uv: np.ndarray) -> np.ndarray:
     """(..., 2) uv in [0, 1] (v = 0 top row) -> (..., 3) unit directions, Z up."""
@@ -71,11 +74,9 @@ def pixel_solid_angles(width: int, height: int) -> np.ndarray:
 
 
 def check_resolution(width: int, height: int) -> None:
-    from lsd3d_usd.errors import InputError
     if int(width) != width or int(height) != height or width < 8 or height < 4:
         raise InputError(f"environment resolution {width}x{height}: need integers, at least 8x4")
     if width != 2 * height:
         raise InputError(f"environment resolution {width}x{height}: a latlong map must be 2:1 "
                          f"(width = 2 x height), e.g. 2048x1024")
-    from lsd3d_usd.limits import check_image_size
     check_image_size(width, height, "environment resolution")

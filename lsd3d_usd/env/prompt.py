@@ -12,8 +12,15 @@ import datetime as _dt
 import re
 import warnings
 
-from lsd3d_usd.env.params import (DEFAULT_WHEN, EnvParams, SEASONS, WEATHERS, season_date,
-                                  season_of)
+from lsd3d_usd.env.params import (
+    DEFAULT_WHEN,
+    SEASONS,
+    WEATHERS,
+    EnvParams,
+    season_date,
+    season_of,
+)
+from lsd3d_usd.env.sun import find_time_for_elevation, solar_noon
 from lsd3d_usd.errors import InputError
 
 # name: (latitude, longitude, standard UTC offset in hours)
@@ -192,7 +199,6 @@ def build_params(prompt: str | None = None, *, when: _dt.datetime | str | None =
         label = tword
         tword = tword or "default"
     if tword is not None:
-        from lsd3d_usd.env.sun import find_time_for_elevation, solar_noon
         date = t.date() if t is not None else date
         tzinfo = t.tzinfo if t is not None else tz
         spec = TIME_WORDS.get(tword, ("solar", 1.0))

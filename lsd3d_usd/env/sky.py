@@ -26,6 +26,7 @@ import time
 import numpy as np
 
 from lsd3d_usd.env import colorspace as cs
+from lsd3d_usd.env.mapping import check_resolution, pixel_directions, pixel_solid_angles
 from lsd3d_usd.env.params import EnvParams
 from lsd3d_usd.env.sun import azel_to_direction, lunar_position, solar_position
 
@@ -249,7 +250,6 @@ class SkyModel:
         return a, n
 
     def _init_ground_and_fog(self):
-        from lsd3d_usd.env.mapping import pixel_directions, pixel_solid_angles
         W, H = 96, 48
         d = pixel_directions(W, H)[: H // 2].reshape(-1, 3)
         L = self._sky(d)
@@ -395,7 +395,6 @@ def render_sky(params: EnvParams, width: int = 2048, height: int = 1024,
                model: SkyModel | None = None) -> np.ndarray:
     """The equirectangular environment map: float32 (H, W, 3), top row = zenith, in
     `params.color_space`, kcd/m^2. See `mapping` for the direction convention."""
-    from lsd3d_usd.env.mapping import check_resolution, pixel_directions
     check_resolution(width, height)
     model = model or SkyModel(params)
     t0 = time.perf_counter()

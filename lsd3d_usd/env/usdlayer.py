@@ -20,8 +20,12 @@ import os
 from pathlib import Path
 
 import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdLux, Vt
 
 import lsd3d_usd  # noqa: F401  (schema registration before any stage)
+from lsd3d_usd import scene
+from lsd3d_usd.env import colorspace as cs
+from lsd3d_usd.env.exr import read_env, write_env
 from lsd3d_usd.env.params import EnvParams
 from lsd3d_usd.errors import InputError
 
@@ -31,7 +35,6 @@ NS = "lsd3d:env:"
 
 def _quat_z_to(direction) -> "Gf.Quatf":
     """Rotation taking +Z to `direction` (a DistantLight shines along its -Z)."""
-    from pxr import Gf
     d = np.asarray(direction, np.float64)
     d = d / np.linalg.norm(d)
     z = np.array([0.0, 0.0, 1.0])
@@ -52,14 +55,11 @@ def _relative_asset(texture: Path, layer_dir: Path) -> str:
 
 
 def _default_texture_dir(layer_path: Path) -> Path:
-    from lsd3d_usd import scene
     d = layer_path.absolute().parent
     return d.parent / scene.TEXTURES_DIR if d.name == scene.LAYERS_DIR else d / scene.TEXTURES_DIR
 
 
 def _author_variant(stage, env_path, name: str, exr: Path, meta: dict, layer_dir: Path):
-    from pxr import Gf, Sdf, UsdGeom, UsdLux, Vt
-    from lsd3d_usd.env import colorspace as cs
     env = stage.GetPrimAtPath(env_path)
     vset = env.GetVariantSets().AddVariantSet(VARIANT_SET)
     vset.AddVariant(name)
@@ -130,9 +130,6 @@ def write_env_layer(stage_or_path, envs, selected: str | None = None,
     written atomically with scene.save_stage (an existing env layer there gets the new
     variants added when `append`). `selected`: variant to select (default: the first given).
     """
-    from pxr import Usd, UsdGeom
-    from lsd3d_usd import scene
-    from lsd3d_usd.env.exr import read_env, write_env
 
     if isinstance(envs, (EnvParams, str, Path, tuple)):
         envs = [envs]
@@ -194,8 +191,6 @@ def write_env_layer(stage_or_path, envs, selected: str | None = None,
 
 def read_env_prim(stage) -> dict:
     """What the selected environment says: SH (9,3), sun direction, fog, hints, texture."""
-    from lsd3d_usd import scene
-    from pxr import UsdLux
     env = stage.GetPrimAtPath(scene.ENV_PATH)
     if not env:
         raise InputError(f"no {scene.ENV_PATH} prim in the stage")

@@ -29,6 +29,7 @@ def _eval(args) -> int:
                     log=lambda *a: print(*a, file=sys.stderr))
     res = evaluate(o)
     if args.json:
+        # local import: not loaded for --help
         from lsd3d_usd.eval.report import write_json
         write_json(Path(args.json), res)
     fd = res["fd_effnet_lite0"]["seen_vs_novel"]

@@ -16,12 +16,32 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
 
+from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd import configtree as ct
+from lsd3d_usd.eval import geometry as G
+from lsd3d_usd.eval import metrics as M
+from lsd3d_usd.eval import models, report
+from lsd3d_usd.eval import temporal as T
 from lsd3d_usd.eval import views as V
 from lsd3d_usd.eval.options import EvalConfig
+from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
+from lsd3d_usd.eval.render import render_view
+from lsd3d_usd.eval.seams import paired_matched_drop
+from lsd3d_usd.eval.seams_eval import reference_frames, seam_stats, seams_reference
+from lsd3d_usd.ggds.losses.effnet import EffNetFeatureExtractor
+from lsd3d_usd.ggds.priors.scene import load_scene_prior
+from lsd3d_usd.layout.usdio import read_layout
+from lsd3d_usd.proxy.usdio import proxy_arrays
+from lsd3d_usd.render.gbuffer import render_gbuffer
+from lsd3d_usd.views.deferred import Deferrer
+from lsd3d_usd.views.images import read_image, srgb_encode
+from lsd3d_usd.views.images import tonemap as tm
+from lsd3d_usd.views.stage_data import read_dome, scene_surfels
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 FEATURES = "effnet_lite0"
@@ -71,10 +91,7 @@ def load_reference(files: list[Path], size: int = 224) -> list[np.ndarray]:
     """sRGB images in [0, 1] (grey expanded, alpha dropped), each resized at once to the
     feature extractor's size×size exactly as it would resize them (bilinear, antialiased),
     so hundreds of large photos never sit in memory at full size."""
-    import torch
-    import torch.nn.functional as F
 
-    from lsd3d_usd.views.images import read_image
     out = []
     for f in files:
         try:
@@ -93,25 +110,11 @@ def load_reference(files: list[Path], size: int = 224) -> list[np.ndarray]:
 
 
 # ------------------------------------------------------------------ rendering
-def render_view(field, env, camera) -> dict:
-    """The scene's surfels + env background for one camera (no actors: eval measures the
-    generated scene): numpy dict with rgb (linear), alpha, depth_median, depth_expected,
-    normal_world (un-normalised)."""
-    from lsd3d_usd.views.frame import env_background, render_surfels
-    out = render_surfels(field, camera, background=env_background(env, camera), normal_space="world")
-    return {"rgb": out.rgb.numpy(), "alpha": out.alpha.numpy(),
-            "depth_median": out.depth_median.numpy(), "depth_expected": out.depth_expected.numpy(),
-            "normal_world": out.normal.numpy()}
-
-
 def display(rgb: np.ndarray, tonemap: str, exposure: float) -> np.ndarray:
-    from lsd3d_usd.views.images import srgb_encode
-    from lsd3d_usd.views.images import tonemap as tm
     return srgb_encode(tm(rgb, exposure, tonemap)).astype(np.float32)
 
 
 def _bar(total, desc, o: EvalOptions):
-    from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit="view", disable=not o.progress)
 
 
@@ -120,7 +123,6 @@ def evaluate(o: EvalOptions) -> dict:
     t_start = time.perf_counter()
     _check(o.cfg)
     sc = S.Scene.open(o.scene)
-    from lsd3d_usd.eval import models
     weights = models.check_weights_dir(o.cfg.weights)
     # Reference images are read before any rendering: a bad folder fails at once.
     ref_imgs = (load_reference(reference_images(o.cfg.reference, o.cfg.max_reference))
@@ -132,18 +134,10 @@ def evaluate(o: EvalOptions) -> dict:
         raise InputError(f"{sc.layer_path('proxy')}: the scene has no proxy layer (needed for geometry)")
     out_dir = Path(o.out_dir) if o.out_dir else sc.root / "eval"
     deferrer = _deferrer(o) if o.cfg.deferred.enabled else None
-    from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
     n_held = o.cfg.n_seen if o.cfg.n_heldout is None else o.cfg.n_heldout
     base, base_why = open_baseline(o.scene, o.cfg.prior_baseline, n_held,
                                    lambda rgb: display(rgb, o.cfg.tonemap, o.cfg.exposure), o.cfg.run)
 
-    from lsd3d_usd.eval import geometry as G
-    from lsd3d_usd.eval import metrics as M
-    from lsd3d_usd.eval import temporal as T
-    from lsd3d_usd.layout.usdio import read_layout
-    from lsd3d_usd.proxy.usdio import proxy_arrays
-    from lsd3d_usd.render.gbuffer import render_gbuffer
-    from lsd3d_usd.views.stage_data import read_dome, scene_surfels
 
     timings = {}
     t = time.perf_counter()
@@ -164,7 +158,6 @@ def evaluate(o: EvalOptions) -> dict:
     traj, traj_info = V.lane_trajectory(layout, o.cfg.frames, o.cfg.step_m, w, h)
     seams_ref = None
     if o.cfg.seams_reference is not None:   # checked before any rendering: a bad one fails at once
-        from lsd3d_usd.eval.seams_eval import seams_reference
         seams_ref = seams_reference(o.cfg.seams_reference, sc, seen.run, (PV, PF, PC))
     timings["load_s"] = time.perf_counter() - t
     o.log(f"eval: {surfels.n:,} surfels; seen: {seen.source}; {len(seen_sel)} seen + "
@@ -236,9 +229,7 @@ def evaluate(o: EvalOptions) -> dict:
 
     # --- features and Fréchet distances
     t = time.perf_counter()
-    import torch
 
-    from lsd3d_usd.ggds.losses.effnet import EffNetFeatureExtractor
     ext = EffNetFeatureExtractor()
 
     def embed(imgs):
@@ -298,8 +289,6 @@ def evaluate(o: EvalOptions) -> dict:
 
     # --- seams between chunks
     t = time.perf_counter()
-    from lsd3d_usd.eval.seams import paired_matched_drop
-    from lsd3d_usd.eval.seams_eval import reference_frames, seam_stats
     frame_sets = [seen_frames + heldout_frames]
     ref_why = None
     if seams_ref is not None and len(heldout) < 2:
@@ -379,7 +368,6 @@ def evaluate(o: EvalOptions) -> dict:
         "warnings": fd_warnings,
         "timings": {k: round(v, 2) for k, v in timings.items()},
     }
-    from lsd3d_usd.eval import report
     t = time.perf_counter()
     files = report.write_report(out_dir, result, sc, seen_img, novel_img, novel, traj_img,
                                 seen_frames=seen_frames, seen_gb=seen_gb,
@@ -391,8 +379,6 @@ def evaluate(o: EvalOptions) -> dict:
 
 
 def _deferrer(o: EvalOptions):
-    from lsd3d_usd.ggds.priors.scene import load_scene_prior
-    from lsd3d_usd.views.deferred import Deferrer
     d = o.cfg.deferred
     sp = load_scene_prior(o.scene, d.prior, d.controlnet, device=d.device)
     d = Deferrer(sp, d.strength, d.steps, d.seed)

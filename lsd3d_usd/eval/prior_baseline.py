@@ -19,13 +19,15 @@ import time
 import numpy as np
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.ggds.priors.scene import load_scene_prior, recorded_prior_is_cheap
+from lsd3d_usd.views.deferred import DEFAULT_STEPS, Deferrer
+
 
 def open_baseline(scene_path, mode: bool | None, n_heldout: int, display, run: str | None = None):
     """(PriorImages or None, why not or None) for the prior GGDS run ``run`` (default: the
     newest unmuted one) recorded. ``mode`` True forces it (an unusable scene prior is then
     an error), False turns it off, None (auto) runs it for a cheap prior when the scene has
     what it needs. ``n_heldout`` > 0 when forced is checked by eval's option checks."""
-    from lsd3d_usd.ggds.priors.scene import recorded_prior_is_cheap
     if mode is False:
         return None, "turned off (--no-prior-baseline)"
     if n_heldout <= 0:
@@ -48,8 +50,6 @@ class PriorImages:
     GGDS's training targets are (the prior's pixel supersampling included)."""
 
     def __init__(self, scene_path, display, run: str | None = None):
-        from lsd3d_usd.ggds.priors.scene import load_scene_prior
-        from lsd3d_usd.views.deferred import DEFAULT_STEPS, Deferrer
         t = time.perf_counter()
         self.sp = load_scene_prior(scene_path, run=run, purpose="the prior baseline",
                                    override="--no-prior-baseline")

@@ -10,13 +10,15 @@ import io
 import json
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from lsd3d_usd import scene as S
+from lsd3d_usd.eval.geometry import surfel_depth, unit
 
 
 def _save_fig(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=100)
     plt.close(fig)
@@ -28,9 +30,7 @@ def write_json(path: Path, data: dict) -> Path:
 
 
 def _plt():
-    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     return plt
 
 
@@ -89,7 +89,6 @@ def fd_plot(path: Path, result: dict) -> Path:
 
 
 def geometry_panel(path: Path, img, frame, gbuf) -> Path:
-    from lsd3d_usd.eval.geometry import surfel_depth, unit
     plt = _plt()
     d_s = surfel_depth(frame)
     ok = gbuf.mask & (frame["alpha"] > 0.5)

@@ -28,6 +28,8 @@ import math
 
 import numpy as np
 
+from lsd3d_usd.semantics import CLASSES
+
 BAND_M = 5.0
 ALPHA_MIN = 0.5
 DEPTH_BINS_M = (10.0, 20.0, 40.0, 80.0)   # upper edges; the last bin is open
@@ -169,7 +171,6 @@ class SeamStats:
 
     def _class_table(self) -> dict:
         """Per semantic class name: pixels and PSNR in the border band and the interiors."""
-        from lsd3d_usd.semantics import CLASSES
         table = {}
         for c in sorted(set(self.by_class["border"]) | set(self.by_class["interior"])):
             name = CLASSES[c] if 0 <= c < len(CLASSES) else "unlabelled"

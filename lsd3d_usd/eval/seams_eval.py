@@ -4,13 +4,23 @@ from __future__ import annotations
 
 import numpy as np
 
+from lsd3d_usd import scene as S
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.eval.geometry import surfel_depth
+from lsd3d_usd.eval.render import render_view
+from lsd3d_usd.eval.seams import SeamStats
+from lsd3d_usd.ggds.priors.registry import PRIORS
+from lsd3d_usd.ggds.priors.scene import load_scene_prior, recorded_config
+from lsd3d_usd.ggds.run.store import read_plan
+from lsd3d_usd.proxy.usdio import proxy_arrays
+from lsd3d_usd.render.gbuffer import render_gbuffer
+from lsd3d_usd.splats.chunkio import read_chunk_map
+from lsd3d_usd.views.stage_data import read_dome, scene_surfels
+
 
 def run_prior(sc, run: str | None, proxy):
     """(the ScenePrior of the scene's GGDS run ``run`` over ``proxy``, None), or (None, why
     not): its held-out targets are what the seam measure scores views against."""
-    from lsd3d_usd.errors import InputError
-    from lsd3d_usd.ggds.priors.registry import PRIORS
-    from lsd3d_usd.ggds.priors.scene import load_scene_prior, recorded_config
     if run is None:
         return None, "no GGDS run: the prior and light of its targets are unknown"
     recorded, _ = recorded_config(sc, run)
@@ -73,10 +83,6 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
     targets (at t = 1 the procedural prior's target is its own render, whatever the frame:
     made once per view), for comparing scenes view by view (eval.seams.paired_matched_drop).
     A set's frame may be None: that set leaves the view out (its first set has them all)."""
-    from lsd3d_usd.eval.geometry import surfel_depth
-    from lsd3d_usd.eval.seams import SeamStats
-    from lsd3d_usd.render.gbuffer import render_gbuffer
-    from lsd3d_usd.splats.chunkio import read_chunk_map
     chunks = read_chunk_map(sc.layer_path("surfels"))
     keys = set(chunks)
     if len(keys) < 2:
@@ -105,12 +111,7 @@ def seams_reference(path, sc, run: str | None, proxy) -> tuple:
     proxy geometry whose newest active GGDS run optimised the whole scene as one region with
     the same prior, environment and seed as ``run``. Reads only; reference_frames
     loads its surfels when they are needed."""
-    import numpy as np
 
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.errors import InputError
-    from lsd3d_usd.ggds.run.store import read_plan
-    from lsd3d_usd.proxy.usdio import proxy_arrays
     what = f"--seams-reference {path}"
     ref = S.Scene.open(path)
     if ref.root.resolve() == sc.root.resolve():
@@ -152,9 +153,6 @@ def seams_reference(path, sc, run: str | None, proxy) -> tuple:
 def reference_frames(ref, cameras):
     """Frames of a reference scene checked by seams_reference, rendered lazily: its surfels are
     loaded only when the first frame is asked for (never when there is no seam measure)."""
-    from lsd3d_usd.errors import InputError
-    from lsd3d_usd.eval.evaluate import render_view
-    from lsd3d_usd.views.stage_data import read_dome, scene_surfels
     stage = ref.open_stage()
     surfels = scene_surfels(stage)
     if surfels is None:

@@ -17,10 +17,11 @@ import json
 from dataclasses import dataclass
 
 import numpy as np
+from pxr import Sdf
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.errors import InputError
 from lsd3d_usd.conditioning.views import View, sample_views
+from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.render.camera import Camera, look_at
 
@@ -74,6 +75,7 @@ def seen_views(sc: S.Scene, layout, run: str | None, width: int, height: int) ->
                                     f"(sample_views, scene seed {seed}, fov {GGDS_FOV_DEG:g} deg)")
     if not info.exists:
         raise InputError(f"{info.path}: GGDS run layer file is missing")
+    # local import: not loaded for --help
     from lsd3d_usd.ggds.run.store import run_views
     raw = run_views(sc, info.name)      # ggds/<run>/**/views.json
     if raw is None:                     # older runs: in the layer's provenance
@@ -95,7 +97,6 @@ def seen_views(sc: S.Scene, layout, run: str | None, width: int, height: int) ->
 
 
 def scene_seed(sc: S.Scene) -> int:
-    from pxr import Sdf
     layer = Sdf.Layer.FindOrOpen(str(sc.root_layer_path))
     prim = layer.GetPrimAtPath(S.WORLD) if layer else None
     attr = prim.attributes.get("lsd3d:scene:seed") if prim else None
@@ -110,6 +111,7 @@ def pick(n_total: int, n: int, seed: int) -> np.ndarray:
 
 
 def _footprints(layout):
+    # local import: not loaded for --help
     from matplotlib.path import Path as MPath
     out = []
     for b in getattr(layout, "buildings", []) or []:

@@ -5,10 +5,11 @@ Defaults were chosen by measured held-out PSNR on the README sample (docs/ggds.m
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import ClassVar
 from pathlib import Path
+from typing import ClassVar
 
 from lsd3d_usd.configtree import option
+from lsd3d_usd.ggds.losses.terms import LOSSES
 from lsd3d_usd.render.backends import check_backend_name
 
 OMEGA_KINDS = ("uniform", "sds", "signal")   # ggds/losses.py: omega(t)
@@ -16,7 +17,6 @@ MAX_RESOLUTION = 8192                        # GGDS render side limit (pixels)
 
 
 def _loss_weights() -> dict:
-    from lsd3d_usd.ggds.losses.terms import LOSSES
     return {name: LOSSES.get(name).default_weight for name in LOSSES.names()}
 
 

@@ -3,8 +3,15 @@ OpenStreetMap, or a registered importer), export OpenDRIVE, show a summary."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
+import warnings
+
+from lsd3d_usd.cliutil import check_output_path
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.layout import importers
+from lsd3d_usd.scene import provenance
 
 
 def register(subparsers) -> None:
@@ -29,7 +36,6 @@ def register(subparsers) -> None:
     g.add_argument("-o", "--output", required=True, help="output layer (.usda or .usdc)")
     g.set_defaults(func=_generate)
 
-    from lsd3d_usd.layout import importers
     i = sub.add_parser(
         "import", help="import a map (OpenDRIVE, Lanelet2, OpenStreetMap, ...)",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -84,13 +90,14 @@ def register(subparsers) -> None:
 
 
 def _tqdm(total, desc):
+    # local import: not loaded for --help
     from tqdm import tqdm
     return tqdm(total=total, desc=desc, unit="chunk", disable=not sys.stderr.isatty(), leave=False)
 
 
 def _generate(args) -> int:
+    # local import: not loaded for --help
     from lsd3d_usd.layout import generator, usdio
-    from lsd3d_usd.scene import provenance
 
     _check_output(args.output)
     t0 = time.perf_counter()
@@ -108,7 +115,6 @@ def _generate(args) -> int:
 
 
 def _parse_floats(text: str | None, n: int, flag: str, example: str) -> tuple | None:
-    from lsd3d_usd.errors import InputError
     if text is None:
         return None
     try:
@@ -121,10 +127,9 @@ def _parse_floats(text: str | None, n: int, flag: str, example: str) -> tuple | 
 
 
 def _import(args) -> int:
-    import warnings
 
-    from lsd3d_usd.layout import importers, usdio
-    from lsd3d_usd.scene import provenance
+    # local import: not loaded for --help
+    from lsd3d_usd.layout import usdio
 
     _check_output(args.output)
     origin = _parse_floats(args.origin, 2, "--origin", "LAT,LON in degrees, e.g. 48.137,11.575")
@@ -150,10 +155,8 @@ def _import(args) -> int:
 
 
 def _export(args) -> int:
-    import warnings
 
-    from lsd3d_usd.errors import InputError
-    from lsd3d_usd.cliutil import check_output_path
+    # local import: not loaded for --help
     from lsd3d_usd.layout import opendrive_export, usdio
 
     check_output_path(args.output, "-o", suffixes=(".xodr",), what="OpenDRIVE file")
@@ -180,11 +183,11 @@ def _export(args) -> int:
 
 def _check_output(path) -> None:
     """Before any work: -o names a USD file that can be written (not a folder, not below a file)."""
-    from lsd3d_usd.cliutil import check_output_path
     check_output_path(path, "-o", suffixes=(".usda", ".usdc", ".usd"), what="layout layer")
 
 
 def _info(args) -> int:
+    # local import: not loaded for --help
     from lsd3d_usd.layout import usdio
     layout = usdio.read_layout(args.input)
     _print_summary(layout, args.input)
@@ -192,9 +195,8 @@ def _info(args) -> int:
 
 
 def _lanes(args) -> int:
-    import json
 
-    from lsd3d_usd.cliutil import check_output_path
+    # local import: not loaded for --help
     from lsd3d_usd.layout import lanes, usdio
     if args.png:
         check_output_path(args.png, "--png", suffixes=(".png",), what="PNG file")
@@ -215,6 +217,7 @@ def _lanes(args) -> int:
 
 
 def _print_summary(layout, path) -> None:
+    # local import: not loaded for --help
     from lsd3d_usd.layout.lanes import lane_graph
     (x0, y0), (x1, y1) = layout.bounds()
     counts = ", ".join(f"{v} {k}" for k, v in layout.counts().items() if v)

@@ -83,26 +83,31 @@ def _sniff_opendrive(path: Path, head: bytes) -> bool:
 
 
 def _read_opendrive(path: Path, options: ImportOptions) -> m.Layout:
+    # local import: not loaded for --help
     from lsd3d_usd.layout import opendrive
     return opendrive.read_opendrive(path, tolerance=options.tolerance, strict=options.strict)
 
 
 def _sniff_lanelet2(path: Path, head: bytes) -> bool:
+    # local import: not loaded for --help
     from lsd3d_usd.layout import lanelet2_import
     return lanelet2_import.sniff(path, head)
 
 
 def _read_lanelet2(path: Path, options: ImportOptions) -> m.Layout:
+    # local import: not loaded for --help
     from lsd3d_usd.layout import lanelet2_import
     return lanelet2_import.read_lanelet2(path, options)
 
 
 def _sniff_osm(path: Path, head: bytes) -> bool:
+    # local import: not loaded for --help
     from lsd3d_usd.layout import osm_import
     return osm_import.sniff(path, head)
 
 
 def _read_osm(path: Path, options: ImportOptions) -> m.Layout:
+    # local import: not loaded for --help
     from lsd3d_usd.layout import osm_import
     return osm_import.read_osm(path, options)
 

@@ -30,10 +30,24 @@ import re
 import warnings
 from pathlib import Path
 
+import lanelet2
 import numpy as np
+import osmium
+from lanelet2 import routing, traffic_rules
+from lanelet2.core import (
+    AllWayStop,
+    RightOfWay,
+    TrafficLight,
+    TrafficSign,
+    createMapFromLanelets,
+)
+from lanelet2.io import Origin
+from lanelet2.projection import LocalCartesianProjector
+from shapely.geometry import Polygon
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import model as m
+from lsd3d_usd.layout.fitting import _dist_to_segments
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
 
 MAX_FILE_BYTES = 256 * 1024 * 1024
@@ -66,7 +80,6 @@ def sniff(path: Path, head: bytes) -> bool:
 def file_origin(path: Path) -> tuple[tuple[float, float], str]:
     """(lat, lon) of the file's own origin and where it came from: the header's bounds, else the
     centre of the nodes' extent (read with osmium)."""
-    import osmium
     reader = osmium.io.Reader(str(path), osmium.osm.osm_entity_bits.NOTHING)
     try:
         box = reader.header().box()
@@ -98,7 +111,6 @@ def _arr(ls) -> np.ndarray:
 
 
 def _dist_to_polyline(q: np.ndarray, line: np.ndarray) -> np.ndarray:
-    from lsd3d_usd.layout.fitting import _dist_to_segments
     if len(line) == 1:
         return np.hypot(*(q[:, :2] - line[0, :2]).T)
     return _dist_to_segments(q[:, :2], line[:-1, :2], line[1:, :2])
@@ -122,10 +134,6 @@ def _clean_ring(poly: np.ndarray) -> np.ndarray | None:
 
 def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.Layout:
     """Import a Lanelet2 map; see the module doc for the mapping."""
-    import lanelet2
-    from lanelet2 import routing, traffic_rules
-    from lanelet2.io import Origin
-    from lanelet2.projection import LocalCartesianProjector
 
     options = options or ImportOptions()
     p = Path(path)
@@ -174,7 +182,6 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
             and _attr(ll, "subtype") == "bicycle_lane"}
     # lanelet2's RoutingGraph crashes the process on lanelets with broken bounds: it gets a
     # map of the usable lanelets only
-    from lanelet2.core import createMapFromLanelets
     graph_map = createMapFromLanelets([ll for ll in lanelets if ll.id in drive or ll.id in bike]) \
         if (drive or bike) else None
     graphs = {}
@@ -280,7 +287,6 @@ def _line_strings(path, lmap, lanelets, drive, layout, options) -> None:
 
 
 def _regulatory(lmap, layout) -> None:
-    from lanelet2.core import AllWayStop, RightOfWay, TrafficLight, TrafficSign
     have = {f.id for f in layout.features()}
     users: dict[int, list[str]] = {}
     lanes = {ln.id for ln in layout.lanes}
@@ -316,7 +322,6 @@ def _regulatory(lmap, layout) -> None:
 
 
 def _areas(path, lmap, layout, options, far) -> None:
-    from shapely.geometry import Polygon
     for ar in lmap.areaLayer:
         a = ar.attributes
         sub = a["subtype"] if "subtype" in a else ""

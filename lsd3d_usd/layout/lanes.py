@@ -7,12 +7,16 @@ A route is a list of lane ids, each a successor of the one before (what `render 
 from __future__ import annotations
 
 import difflib
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 
 from lsd3d_usd.layout.model import DRIVABLE_TYPES, Layout
+from lsd3d_usd.scene import atomic_write_bytes
 
 ROUTE_SEARCH_BUDGET = 20_000   # lane expansions of the route search (large maps stay < 1 s)
 
@@ -124,11 +128,8 @@ def format_lanes(rows: list[LaneRow], route: tuple[list[str], float], where: str
 def draw_lanes(layout: Layout, path, title: str = "", max_px: int = 2400) -> Path:
     """Top view PNG: drivable lanes coloured with an arrow at their end and their id at the
     middle (junction lanes dashed), other lanes grey, road edges and buildings faint."""
-    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
-    from lsd3d_usd.scene import atomic_write_bytes
 
     (x0, y0), (x1, y1) = layout.bounds()
     span = max(x1 - x0, y1 - y0, 1.0)
@@ -175,7 +176,6 @@ def draw_lanes(layout: Layout, path, title: str = "", max_px: int = 2400) -> Pat
     ax.set_ylabel("y (m)")
     ax.set_title(title or "drivable lanes (arrow: direction of travel; dashed: junction)", fontsize=9)
     fig.tight_layout()
-    import io
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     plt.close(fig)

@@ -32,6 +32,9 @@ from typing import Iterator
 
 import numpy as np
 
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import COORDINATE, LAYOUT_EXTENT
+
 DEFAULT_LANE_WIDTH = 3.5          # m, used when a lane has no widths
 DEFAULT_SPEED_LIMIT = 13.89       # m/s (50 km/h)
 DEFAULT_CHUNK_SIZE = 100.0        # m, the paper's chunk size
@@ -546,8 +549,6 @@ def check_size(layout: Layout, where: str) -> None:
     limits.LAYOUT_EXTENT on a side (chunk-wise consumers would start that many chunks, and
     USD's float32 points lose precision beyond) or lie farther than limits.COORDINATE from
     the origin. Readers and importers call it before they return a layout."""
-    from lsd3d_usd.errors import InputError
-    from lsd3d_usd.limits import COORDINATE, LAYOUT_EXTENT
 
     (x0, y0), (x1, y1) = layout.bounds()
     size = max(x1 - x0, y1 - y0)

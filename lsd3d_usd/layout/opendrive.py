@@ -24,10 +24,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from lxml import etree
 from scipy.special import fresnel
 
-from lsd3d_usd.errors import InputError
+from lsd3d_usd.errors import InputError, excerpt
 from lsd3d_usd.layout import model as m
+from lsd3d_usd.limits import OPENDRIVE_FILE_BYTES
 
 DEFAULT_TOLERANCE = 0.02
 MAX_FILE_BYTES = 512 * 1024 * 1024   # = limits.OPENDRIVE_FILE_BYTES
@@ -53,7 +55,6 @@ NON_LANE_TYPES = {"sidewalk", "walking", "border", "median", "none", "curb", "ra
 # ================================================================ XML
 
 def _local(el) -> str:
-    from lxml import etree
     return etree.QName(el).localname if isinstance(el.tag, str) else ""
 
 
@@ -82,11 +83,9 @@ def _f(el, name, default=None, road=None) -> float:
 
 
 def parse_xml(path: str | Path):
-    from lxml import etree
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{path}: no such file")
-    from lsd3d_usd.limits import OPENDRIVE_FILE_BYTES
     OPENDRIVE_FILE_BYTES.check(p.stat().st_size, f"{path}", what="OpenDRIVE file size")
     parser = etree.XMLParser(resolve_entities=False, no_network=True, huge_tree=False,
                              load_dtd=False, dtd_validation=False, remove_comments=True)
@@ -102,8 +101,15 @@ def parse_xml(path: str | Path):
     return root
 
 
-from lsd3d_usd.limits import (COORDINATE, LANE_WIDTH, LATERAL_OFFSET,  # noqa: E402
-                               LAYOUT_EXTENT, ROAD_LENGTH, ROAD_POINTS, TOTAL_ROAD_LENGTH)
+from lsd3d_usd.limits import (  # noqa: E402
+    COORDINATE,
+    LANE_WIDTH,
+    LATERAL_OFFSET,
+    LAYOUT_EXTENT,
+    ROAD_LENGTH,
+    ROAD_POINTS,
+    TOTAL_ROAD_LENGTH,
+)
 
 # Floating-point faults inside a road make that road bad (skipped), never a stray warning;
 # underflow to zero is harmless.
@@ -111,7 +117,6 @@ _FP = dict(over="raise", divide="raise", invalid="raise", under="ignore")
 
 
 def _one_line(e: Exception) -> str:
-    from lsd3d_usd.errors import excerpt
     text = " ".join(str(e).split())
     return text if len(text) <= 200 else excerpt(text, 200)
 

@@ -27,14 +27,17 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
+from lxml import etree
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import fitting
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout.importers import MapWarning
+from lsd3d_usd.scene import atomic_write_bytes
 
 DEFAULT_TOLERANCE = 0.02
 REV_MAJOR, REV_MINOR = 1, 7
@@ -241,7 +244,6 @@ def _pieces(layout: m.Layout, rep: ExportReport) -> tuple[dict, list]:
 def layout_to_opendrive(layout: m.Layout, tolerance: float = DEFAULT_TOLERANCE,
                         name: str = "lsd3d-usd layout"):
     """(lxml root element of the OpenDRIVE document, ExportReport)."""
-    from lxml import etree
     if not (tolerance > 0):
         raise InputError(f"export tolerance must be > 0, got {tolerance}")
     if len(layout.lanes) > MAX_LANES:
@@ -275,7 +277,6 @@ def layout_to_opendrive(layout: m.Layout, tolerance: float = DEFAULT_TOLERANCE,
 
 
 def _road(root, pc: _Piece, tol: float, rep: ExportReport) -> None:
-    from lxml import etree
     ln = pc.lane
     prims, s_v, length = _fit_piece(pc, tol, rep)
     r = etree.SubElement(root, "road", name=ln.id, length=_lf(length), id=pc.road_id,
@@ -331,8 +332,6 @@ def _road(root, pc: _Piece, tol: float, rep: ExportReport) -> None:
 def write_opendrive(layout: m.Layout, path: str | Path, tolerance: float = DEFAULT_TOLERANCE,
                     name: str | None = None) -> ExportReport:
     """Write ``layout`` as an OpenDRIVE 1.7 file (atomic: temp file + rename)."""
-    from lxml import etree
-    from lsd3d_usd.scene import atomic_write_bytes
     root, rep = layout_to_opendrive(layout, tolerance, name or Path(path).stem)
     data = etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True)
     atomic_write_bytes(Path(path), data)
@@ -342,7 +341,6 @@ def write_opendrive(layout: m.Layout, path: str | Path, tolerance: float = DEFAU
 def opendrive_xsd() -> Path | None:
     """The ASAM OpenDRIVE 1.7 core schema shipped in the ``scenariogeneration`` package, if
     installed (it is a test dependency); None otherwise."""
-    from importlib import metadata
     try:
         files = metadata.files("scenariogeneration") or []
     except metadata.PackageNotFoundError:
@@ -357,7 +355,6 @@ def opendrive_xsd() -> Path | None:
 def validate(path: str | Path) -> list[str]:
     """Errors of the file against the ASAM OpenDRIVE 1.7 XSD (empty: valid). Raises
     InputError when no copy of the schema is installed."""
-    from lxml import etree
     xsd = opendrive_xsd()
     if xsd is None:
         raise InputError("no ASAM OpenDRIVE XSD installed (it ships with the scenariogeneration "

@@ -38,8 +38,13 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import osmium
 import shapely
-from shapely.geometry import LineString, Point, Polygon, box as shp_box
+from lanelet2.core import GPSPoint
+from lanelet2.io import Origin
+from lanelet2.projection import LocalCartesianProjector
+from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry import box as shp_box
 from shapely.geometry.polygon import orient
 from shapely.ops import substring
 
@@ -48,7 +53,7 @@ from lsd3d_usd.layout import blocks as B
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout import roadnet as R
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
-from lsd3d_usd.layout.lanelet2_import import check_origin
+from lsd3d_usd.layout.lanelet2_import import FAR_ERROR_M, FAR_WARN_M, check_origin
 
 MAX_FILE_BYTES = 4 * 1024**3
 MAX_NODES = 2_000_000       # nodes inside the area (ids held in memory)
@@ -98,7 +103,6 @@ def _warn(msg: str, options: ImportOptions) -> None:
 def _read(path: Path, options: ImportOptions):
     """(point features [(id, tags, lat, lon)], ways [(id, tags, [node ids])], locations
     {node id: (lat, lon)}, nodes' extent) of the area."""
-    import osmium
     bbox = options.bbox
     if bbox is not None:
         x0, y0, x1, y1 = bbox
@@ -148,9 +152,6 @@ def _read(path: Path, options: ImportOptions):
 
 def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout:
     """Import an OpenStreetMap file; see the module doc for the mapping."""
-    from lanelet2.core import GPSPoint
-    from lanelet2.io import Origin
-    from lanelet2.projection import LocalCartesianProjector
 
     options = options or ImportOptions()
     p = Path(path)
@@ -165,7 +166,6 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
         b = options.bbox
         origin, origin_from = ((b[1] + b[3]) / 2, (b[0] + b[2]) / 2), "bbox"
     else:
-        import osmium
         reader = osmium.io.Reader(str(p), osmium.osm.osm_entity_bits.NOTHING)
         try:
             box = reader.header().box()
@@ -224,7 +224,6 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
 
 
 def _far_check(path, xy_of) -> str | None:
-    from lsd3d_usd.layout.lanelet2_import import FAR_ERROR_M, FAR_WARN_M
     if not xy_of:
         return None
     ids = np.fromiter(xy_of.keys(), dtype=np.int64, count=len(xy_of))

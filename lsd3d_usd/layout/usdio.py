@@ -27,12 +27,13 @@ import json
 from pathlib import Path
 
 import numpy as np
+from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
 import lsd3d_usd  # noqa: F401  (schema registration before any stage opens)
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import model as m
+from lsd3d_usd.limits import CHUNK_SIZE_MAX, CHUNK_SIZE_MIN, COORDINATE, LAYOUT_EXTENT
 from lsd3d_usd.scene import LAYOUT_PATH, WORLD, new_stage, open_stage, save_stage
-from pxr import Sdf, Tf, Usd, Vt
 
 NS = "lsd3d:"
 LAYER_DATA_KEY = "lsd3dLayout"
@@ -331,7 +332,6 @@ class _Units:
 def _stage_units(stage: Usd.Stage, where: str) -> _Units:
     """upAxis and metersPerUnit as authored on the stage's root layer. Unauthored means the
     layout convention (Z up, metres), not USD's fallbacks (Y, centimetres)."""
-    from pxr import UsdGeom
 
     y_up = False
     if stage.HasAuthoredMetadata(UsdGeom.Tokens.upAxis):
@@ -352,7 +352,6 @@ def _read_layer_data(stage: Usd.Stage, layout: m.Layout, where: str,
     """Extent, chunk size and metadata from customLayerData, checked against the limits
     (limits.LAYOUT_EXTENT, CHUNK_SIZE_MIN/MAX) before any consumer sizes work by them.
     Lengths are in the layer's units (scaled by metersPerUnit)."""
-    from lsd3d_usd.limits import CHUNK_SIZE_MAX, CHUNK_SIZE_MIN, COORDINATE, LAYOUT_EXTENT
 
     info = None
     for layer in stage.GetLayerStack(includeSessionLayers=False):

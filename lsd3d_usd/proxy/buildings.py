@@ -13,9 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
+from shapely import affinity
 from shapely.geometry import Polygon
 
 from lsd3d_usd.configtree import option
+
 from .mesh import BUILDING, MeshPart, drop_degenerate
 from .planar import area_from_points, polygons_of
 
@@ -60,6 +62,7 @@ def is_rectangle(poly: Polygon, tol: float = 0.01) -> bool:
 
 
 def _cross_section(poly: Polygon):
+    # local import: not loaded for --help
     import manifold3d as m
     poly = shapely.orient_polygons(poly, exterior_cw=False)
     contours = [np.asarray(poly.exterior.coords)[:-1, :2]]
@@ -69,6 +72,7 @@ def _cross_section(poly: Polygon):
 
 
 def _extrude(cs, z0: float, z1: float):
+    # local import: not loaded for --help
     import manifold3d as m
     return m.Manifold.extrude(cs, z1 - z0).translate((0.0, 0.0, z0))
 
@@ -85,6 +89,7 @@ def _rect_frame(poly: Polygon):
 
 def _box(center, axis_u, size_u, size_v, z0, z1):
     """Box with its u side along unit 2D ``axis_u``."""
+    # local import: not loaded for --help
     import manifold3d as m
     ang = np.degrees(np.arctan2(axis_u[1], axis_u[0]))
     return (m.Manifold.cube((size_u, size_v, z1 - z0), center=True)
@@ -94,6 +99,7 @@ def _box(center, axis_u, size_u, size_v, z0, z1):
 
 def _windows(poly: Polygon, floors: int, floor_h: float, st: BuildingStyle):
     """One manifold holding every window recess box (unioned in one batch)."""
+    # local import: not loaded for --help
     import manifold3d as m
     boxes = []
     wh = min(st.window_height, 0.55 * floor_h)
@@ -122,6 +128,7 @@ def _windows(poly: Polygon, floors: int, floor_h: float, st: BuildingStyle):
 def _pitched_body(poly: Polygon, kind: str, h: float, st: BuildingStyle):
     """Walls + gable/hip roof of a rectangular footprint as one convex hull (no boolean:
     a hull of the exact corner points is cleaner than intersecting a roof with a prism)."""
+    # local import: not loaded for --help
     import manifold3d as m
     c, u, a, b = _rect_frame(poly)
     v = np.array([-u[1], u[0]])
@@ -182,5 +189,4 @@ def _to_arrays(solid):
 
 
 def _translate(poly: Polygon, d) -> Polygon:
-    from shapely import affinity
     return affinity.translate(poly, float(d[0]), float(d[1]))

@@ -27,6 +27,9 @@ import shapely
 from shapely.geometry import Polygon, box
 
 from lsd3d_usd.configtree import option
+from lsd3d_usd.limits import CHUNKS
+from lsd3d_usd.scene import chunk_prim_name
+
 from .buildings import BuildingStyle, building_mesh
 from .furniture import stop_sign_parts, street_light_parts, traffic_light_parts
 from .ground import GroundStyle, ground_areas, ground_parts
@@ -69,7 +72,6 @@ def chunk_bounds(i: int, j: int, size: float) -> tuple[float, float, float, floa
 
 def chunk_label(i: int, j: int) -> str:
     """Chunk name used in part ids (same as the USD prim name)."""
-    from lsd3d_usd.scene import chunk_prim_name
     return chunk_prim_name(i, j)
 
 
@@ -82,7 +84,6 @@ def chunk_count(layout) -> int:
 def check_chunk_count(layout, n: int | None = None, max_chunks: int | None = None) -> None:
     """Refuse (InputError, one line) to build more than limits.CHUNKS chunks (or
     ``max_chunks``); ``n`` defaults to every chunk of the layout's area."""
-    from lsd3d_usd.limits import CHUNKS
     n = chunk_count(layout) if n is None else n
     if not CHUNKS.ok(n, max_chunks):
         (x0, y0), (x1, y1) = layout.area_box()
@@ -330,6 +331,7 @@ def build_proxy(layout, chunks=None, params: ProxyParams | None = None,
     keys = chunks if chunks is not None else builder.chunks(max_chunks)
     it = keys
     if progress:
+        # local import: not loaded for --help
         from tqdm import tqdm
         it = tqdm(keys, desc="proxy chunks", unit="chunk")
     return {k: builder.build(k) for k in it}

@@ -6,10 +6,16 @@ import sys
 
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import limits
-from lsd3d_usd.cliutil import accept_negative_values, add_limit_option, check_output_path, size_type
+from lsd3d_usd.cliutil import (
+    accept_negative_values,
+    add_limit_option,
+    check_output_path,
+    size_type,
+)
 from lsd3d_usd.errors import InputError
 
 from .chunks import ProxyParams
+from .usdio import build_proxy_layer
 
 # the flags `proxy build` gives the proxy tree's leaves (generate reaches them by --set proxy.*)
 PROXY_FLAGS = {"margin": "--margin", "street_light_spacing": "--street-light-spacing",
@@ -31,9 +37,9 @@ def _progress() -> bool:
 
 
 def _build(args) -> int:
+    # local import: not loaded for --help
     from lsd3d_usd.layout.usdio import read_layout
 
-    from .usdio import build_proxy_layer
 
     if args.list_options:
         ct.print_options(ProxyParams)
@@ -60,6 +66,7 @@ def _build(args) -> int:
 
 
 def _from_points(args) -> int:
+    # local import: not loaded for --help
     from .pointcloud import PointProxyParams, proxy_from_points
 
     params = PointProxyParams(voxel=args.voxel, closing=args.closing,
@@ -73,6 +80,7 @@ def _from_points(args) -> int:
 
 
 def _preview(args) -> int:
+    # local import: not loaded for --help
     from .preview import render_proxy_file
 
     w, h = args.size

@@ -128,6 +128,7 @@ def check_part(part: MeshPart) -> list[str]:
     if (area <= MIN_FACE_AREA).any():
         errs.append(f"{where}: {int((area <= MIN_FACE_AREA).sum())} degenerate faces")
     if part.solid:
+        # local import: not loaded for --help
         import trimesh
         tm = trimesh.Trimesh(v, f, process=False, validate=False)
         if not tm.is_watertight:

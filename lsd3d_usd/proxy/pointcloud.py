@@ -26,15 +26,28 @@ because it is not local and would differ between chunks.
 """
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+from skimage.measure import marching_cubes
+from tqdm import tqdm
 
+from lsd3d_usd import limits
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import CHUNK_VOXELS, PLY_VERTICES
+from lsd3d_usd.plyio import read_ply_vertices
+from lsd3d_usd.scene import chunk_prim_name
+from lsd3d_usd.semantics import CLASS_ID, CLASSES
 
 from .mesh import BUILDING, ROAD, VEHICLE, MeshPart
+from .usdio import write_proxy
 
 LABEL_PROPS = ("label", "class", "semantic", "semantic_id", "scalar_label", "labels")
 
@@ -63,7 +76,6 @@ def read_ply_points(path: str | Path, max_vertices: int | None = None
     vertex element must have fixed-size properties; more than limits.PLY_VERTICES
     points, or ``max_vertices``, are refused before the body is read).
     """
-    from lsd3d_usd.plyio import read_ply_vertices
 
     arr = read_ply_vertices(path, max_vertices)
     names = arr.dtype.names
@@ -90,8 +102,6 @@ def read_npz_points(path: str | Path, max_vertices: int | None = None
     """NPZ with 'points' (N, 3) and optional 'labels' (N,) ids; optional 'classes'
     (names the ids index, mapped onto lsd3d_usd.semantics.CLASSES). More than
     limits.PLY_VERTICES points (or ``max_vertices``) are refused before decompressing."""
-    from lsd3d_usd.limits import PLY_VERTICES
-    from lsd3d_usd.semantics import CLASS_ID
     path = Path(path)
     try:
         z = np.load(path, allow_pickle=False)
@@ -130,7 +140,6 @@ def read_npz_points(path: str | Path, max_vertices: int | None = None
 
 def read_cloud(path: str | Path, max_vertices: int | None = None
                ) -> tuple[np.ndarray, np.ndarray | None]:
-    from lsd3d_usd.semantics import CLASSES
     p = Path(path)
     if not p.is_file():
         raise InputError(f"{path}: no such file")
@@ -237,8 +246,6 @@ def cluster_vertices(vertices: np.ndarray, faces: np.ndarray, cell: float,
 # ------------------------------------------------------------------- reconstruction
 def _chunk_surface(pts: np.ndarray, key, prm: PointProxyParams, plane: np.ndarray):
     """Marching-cubes surface of one chunk (padded), simplified, cut to the chunk."""
-    from scipy import ndimage
-    from skimage.measure import marching_cubes
 
     v = prm.voxel
     S = prm.chunk_size
@@ -259,7 +266,6 @@ def _chunk_surface(pts: np.ndarray, key, prm: PointProxyParams, plane: np.ndarra
     z_hi = np.ceil((p[:, 2].max() + pad) / v) * v
     origin = np.array([lo_xy[0], lo_xy[1], z_lo])
     shape = np.round((np.array([hi_xy[0], hi_xy[1], z_hi]) - origin) / v).astype(np.int64) + 1
-    from lsd3d_usd.limits import CHUNK_VOXELS
     CHUNK_VOXELS.check(int(np.prod(shape, dtype=object)),
                        f"chunk {key[0]},{key[1]} ({shape[0]}x{shape[1]}x{shape[2]} voxels of "
                        f"{v:g} m; use a larger --voxel)")
@@ -324,10 +330,7 @@ def _plane_min(plane, lo_xy, hi_xy) -> float:
 def label_faces(verts: np.ndarray, faces: np.ndarray, plane: np.ndarray,
                 prm: PointProxyParams, tree=None, labels: np.ndarray | None = None) -> np.ndarray:
     """Class id per face: nearest labelled point, else the height rule."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
 
-    from lsd3d_usd.semantics import CLASS_ID
 
     c = verts[faces].mean(1)
     if tree is not None and labels is not None:
@@ -354,12 +357,8 @@ def points_to_parts(points: np.ndarray, labels: np.ndarray | None = None,
                     max_chunks: int | None = None) -> dict[tuple[int, int], list[MeshPart]]:
     """Mesh parts per chunk (one open part per class) reconstructed from points. More than
     limits.CHUNKS chunks (or ``max_chunks``) are refused before the first is built."""
-    from scipy.spatial import cKDTree
 
-    from lsd3d_usd.scene import chunk_prim_name
-    from lsd3d_usd.semantics import CLASSES
 
-    from lsd3d_usd import limits
 
     if not params.voxel > 0:
         raise InputError(f"--voxel {params.voxel}: must be > 0")
@@ -374,7 +373,6 @@ def points_to_parts(points: np.ndarray, labels: np.ndarray | None = None,
     tree = cKDTree(points) if labels is not None else None
     it = keys
     if progress:
-        from tqdm import tqdm
         it = tqdm(keys, desc="point-cloud chunks", unit="chunk")
     out = {}
     for key in it:
@@ -400,9 +398,7 @@ def proxy_from_points(cloud_path, output, params: PointProxyParams = PointProxyP
                       progress: bool = False, max_chunks: int | None = None,
                       max_vertices: int | None = None) -> dict:
     """Read a cloud, reconstruct, write a proxy layer (same layout as the layout path)."""
-    import hashlib
 
-    from .usdio import write_proxy
 
     t0 = time.perf_counter()
     out = Path(output)

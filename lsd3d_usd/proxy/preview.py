@@ -7,18 +7,24 @@ few hundred thousand triangles; the real renderer lives in render/.
 """
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
+import imageio.v3 as iio
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.collections import PolyCollection
 
 from lsd3d_usd.colour import srgb_encode as _srgb
+from lsd3d_usd.scene import atomic_write_bytes
+from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
 
 from .mesh import ClassMesh
-
+from .usdio import read_proxy
 
 
 def _face_colors(cm: ClassMesh) -> np.ndarray:
-    from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
     base = np.asarray(CLASS_COLORS[CLASS_ID[cm.cls]] if cm.cls in CLASS_ID else (0.5, 0.5, 0.5),
                       dtype=np.float64)
     cols = np.tile(base, (len(cm.faces), 1))
@@ -42,10 +48,7 @@ def render(meshes: list[ClassMesh], width: int = 1600, height: int = 1000,
            view: str = "perspective", eye=None, target=None, fov_deg: float = 50.0,
            sun=(0.35, -0.45, 0.82), background=(0.72, 0.80, 0.90)) -> np.ndarray:
     """RGB image (H, W, 3) float in [0, 1]."""
-    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.collections import PolyCollection
 
     meshes = [m for m in meshes if m.n_faces]
     if not meshes:
@@ -110,7 +113,6 @@ def render(meshes: list[ClassMesh], width: int = 1600, height: int = 1000,
 
 def render_proxy_file(path, output, view: str = "perspective", width: int = 1600,
                       height: int = 1000, chunks=None) -> Path:
-    from .usdio import read_proxy
 
     data = read_proxy(path, chunks)
     meshes = [cm for by_cls in data.values() for cm in by_cls.values()]
@@ -119,11 +121,8 @@ def render_proxy_file(path, output, view: str = "perspective", width: int = 1600
 
 
 def save_png(img: np.ndarray, output) -> Path:
-    import io
 
-    import imageio.v3 as iio
 
-    from lsd3d_usd.scene import atomic_write_bytes
 
     buf = io.BytesIO()
     iio.imwrite(buf, (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8), extension=".png")

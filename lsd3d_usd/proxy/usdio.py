@@ -24,14 +24,26 @@ not rewritten either. All writes are atomic (scene.save_layer).
 """
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdSemantics, Vt
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import (
+    PROXY_PATH,
+    WORLD,
+    chunk_prim_name,
+    open_stage,
+    parse_chunk_prim_name,
+    provenance,
+    save_layer,
+)
 
+from .chunks import ProxyBuilder, ProxyParams, _feature_bytes, check_chunk_count
 from .mesh import ClassMesh, MeshPart, merge_parts
 
 ID_ATTR = "lsd3d:proxy:id"
@@ -41,7 +53,6 @@ SOLID_ATTR = "lsd3d:proxy:solid"
 
 
 def chunk_file_name(i: int, j: int) -> str:
-    from lsd3d_usd.scene import chunk_prim_name
     return chunk_prim_name(i, j).lower() + ".usdc"
 
 
@@ -51,13 +62,13 @@ def chunks_dir(root_path: str | Path) -> Path:
 
 
 def _class_color(cls: str) -> np.ndarray:
+    # local import: not loaded for --help
     from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
     k = CLASS_ID.get(cls)
     return np.asarray(CLASS_COLORS[k] if k is not None else (0.5, 0.5, 0.5), dtype=np.float32)
 
 
 def _author_mesh(stage, path: str, cm: ClassMesh, solid: bool):
-    from pxr import Sdf, UsdGeom, UsdSemantics, Vt
 
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = np.ascontiguousarray(cm.vertices, dtype=np.float32)
@@ -95,9 +106,7 @@ def _author_mesh(stage, path: str, cm: ClassMesh, solid: bool):
 def write_chunk_layer(parts: list[MeshPart], key: tuple[int, int], path: str | Path,
                       inputs_hash: str = "", params: dict | None = None) -> Path:
     """Write one chunk's meshes (merged per class) to its own layer, atomically."""
-    from pxr import Usd, UsdGeom
 
-    from lsd3d_usd.scene import chunk_prim_name, provenance, save_layer
 
     name = chunk_prim_name(*key)
     stage = Usd.Stage.CreateInMemory()
@@ -123,9 +132,7 @@ def write_chunk_layer(parts: list[MeshPart], key: tuple[int, int], path: str | P
 
 def _root_layer(keys: list[tuple[int, int]], folder_name: str):
     """Root proxy layer built with Sdf (no composition, so payload files need not exist yet)."""
-    from pxr import Sdf, UsdGeom
 
-    from lsd3d_usd.scene import PROXY_PATH, WORLD, chunk_prim_name
 
     layer = Sdf.Layer.CreateAnonymous(".usdc")
     layer.defaultPrim = WORLD.strip("/")
@@ -145,7 +152,6 @@ def _root_layer(keys: list[tuple[int, int]], folder_name: str):
 
 def read_chunk_map(path: str | Path) -> dict[str, str]:
     """Chunk name -> inputs hash stored in a proxy root layer ({} if none or unreadable)."""
-    from pxr import Sdf
     p = Path(path)
     if not p.is_file():
         return {}
@@ -160,7 +166,6 @@ def read_chunk_map(path: str | Path) -> dict[str, str]:
 
 
 def chunk_file_hash(path: Path) -> str | None:
-    from pxr import Sdf
     if not path.is_file():
         return None
     try:
@@ -175,7 +180,6 @@ def chunk_file_hash(path: Path) -> str | None:
 def write_root_layer(path: str | Path, chunk_hashes: dict[tuple[int, int], str],
                      params: dict | None = None, layout_hash: str = "",
                      extra: dict | None = None) -> Path:
-    from lsd3d_usd.scene import chunk_prim_name, provenance, save_layer
 
     path = Path(path)
     layer = _root_layer(list(chunk_hashes), chunks_dir(path).name)
@@ -208,9 +212,7 @@ class BuildReport:
 
 
 def layout_hash(layout) -> str:
-    import hashlib
 
-    from .chunks import _feature_bytes
     h = hashlib.sha256()
     for f in sorted(layout.features(), key=lambda f: (type(f).__name__, f.id)):
         h.update(_feature_bytes(f))
@@ -229,9 +231,7 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
     layer stay listed; without it the root lists exactly the layout's chunks
     (files of chunks no longer in the layout are removed).
     """
-    from lsd3d_usd.scene import chunk_prim_name, parse_chunk_prim_name
 
-    from .chunks import ProxyBuilder, ProxyParams, check_chunk_count
 
     t0 = time.perf_counter()
     path = Path(path)
@@ -258,6 +258,7 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
     pdict = params.as_dict()
     it = keys
     if progress:
+        # local import: not loaded for --help
         from tqdm import tqdm
         it = tqdm(keys, desc="proxy chunks", unit="chunk")
     for key in it:
@@ -287,7 +288,6 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
 
 
 def _root_layout_hash(path: Path) -> str | None:
-    from pxr import Sdf
     try:
         layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
     except Exception:
@@ -301,9 +301,7 @@ def read_proxy(path: str | Path, chunks=None) -> dict[tuple[int, int], dict[str,
 
     Only the requested chunks' payloads are loaded (default: all).
     """
-    from pxr import Usd, UsdGeom
 
-    from lsd3d_usd.scene import PROXY_PATH, open_stage, parse_chunk_prim_name
 
     stage = open_stage(path, load=False)
     root = stage.GetPrimAtPath(PROXY_PATH)
@@ -331,7 +329,6 @@ def read_proxy(path: str | Path, chunks=None) -> dict[tuple[int, int], dict[str,
 
 
 def class_mesh_from_prim(prim) -> ClassMesh:
-    from pxr import UsdGeom, UsdSemantics
 
     mesh = UsdGeom.Mesh(prim)
     where = str(prim.GetPath())
@@ -354,6 +351,7 @@ def class_mesh_from_prim(prim) -> ClassMesh:
 def proxy_arrays(path: str | Path, chunks=None):
     """All proxy meshes of a proxy layer concatenated (chunks and classes in sorted order):
     vertices (n,3), faces (m,3) int64, face class ids (m,) int32 (lsd3d_usd.semantics)."""
+    # local import: not loaded for --help
     from lsd3d_usd.semantics import CLASS_ID
     vs, fs, ids, base = [], [], [], 0
     for key, meshes in sorted(read_proxy(path, chunks).items()):

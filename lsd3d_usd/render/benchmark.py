@@ -18,8 +18,16 @@ import os
 import threading
 import time
 
+import matplotlib
+import matplotlib.pyplot as plt
 import numpy as np
 import torch
+
+from lsd3d_usd.render import kernels_prep as kprep
+from lsd3d_usd.render import projection as proj
+from lsd3d_usd.render.raster_types import RasterSettings
+from lsd3d_usd.render.rasterize import rasterize
+from lsd3d_usd.render.reference import render_reference
 
 FLOPS_PER_EVAL = 50
 
@@ -141,9 +149,6 @@ def reference_on_crops(arrays, vm, K, width, height, *, sh_degree, near=0.05, fa
                        alpha_min=1.0 / 255.0, alpha_max=0.99):
     """float64 reference (no early stop) on the crop pixels; surfels pre-selected by their exact
     conservative bound touching the crops' bounding rectangles."""
-    from lsd3d_usd.render import kernels_prep as kprep
-    from lsd3d_usd.render import projection as proj
-    from lsd3d_usd.render.reference import render_reference
 
     means, quats, scales, opac, sh = (torch.from_numpy(a) for a in arrays)
     vm_t, K_t = torch.from_numpy(vm), torch.from_numpy(K)
@@ -174,8 +179,6 @@ def run_config(n, width, height, *, seed=0, sh_degree=1, bound_sigma=None, t_min
     """One configuration: forward + backward `repeats` times (timings are medians, with the
     minimum and the list kept: shared cores are noisy), peak RSS over all of them, then the
     error against the float64 reference."""
-    from lsd3d_usd.render.raster_types import RasterSettings
-    from lsd3d_usd.render.rasterize import rasterize
 
     arrays = driving_scene(n, seed=seed, sh_degree=max(sh_degree, 1) if sh_degree else 0)
     vm, K = driving_camera(width, height)
@@ -254,9 +257,7 @@ def configs(quick: bool):
 
 
 def plot(records, path):
-    import matplotlib
     matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(1, 2, figsize=(12, 4.5))
     for r in records:
@@ -282,7 +283,6 @@ def plot(records, path):
 
 
 def main(json_path=None, quick=False, png_path=None, seed=0, log=print):
-    from lsd3d_usd.render.rasterize import rasterize
 
     torch.set_num_threads(max(1, os.cpu_count() or 1))
     log(f"cores: {os.cpu_count()}, numba threads: {__import__('numba').get_num_threads()}, "

@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom
 
 from lsd3d_usd.errors import InputError
 
@@ -143,7 +144,6 @@ def pixel_directions(camera: Camera) -> np.ndarray:
 
 def _tenth_unit_mm(stage) -> float:
     """Millimetres per 'tenth of a scene unit' on this stage."""
-    from pxr import UsdGeom
     return 100.0 * UsdGeom.GetStageMetersPerUnit(stage)
 
 
@@ -156,7 +156,6 @@ def from_usd(prim, time=None, width: int | None = None, height: int | None = Non
     the horizontal field of view (square pixels), "vertical" keeps the vertical
     one, "stretch" keeps both (non-square pixels).
     """
-    from pxr import Gf, Usd, UsdGeom
 
     if conform not in CONFORM_POLICIES:
         raise InputError(f"camera: conform must be one of {CONFORM_POLICIES}, got {conform!r}")
@@ -217,7 +216,6 @@ def to_usd(stage, path: str, camera: Camera, time=None, horizontal_aperture_mm: 
     The filmback is ``horizontal_aperture_mm`` wide; the vertical aperture and the
     focal length follow from the intrinsics, so ``from_usd(..., conform="stretch")``
     gives back the same K at the same resolution."""
-    from pxr import Gf, Sdf, Usd, UsdGeom
 
     t = Usd.TimeCode.Default() if time is None else Usd.TimeCode(time)
     cam = UsdGeom.Camera.Define(stage, Sdf.Path(path))

@@ -25,13 +25,25 @@ payload. Per-chunk bookkeeping (surfel count, bounds, inputs hash) is in the roo
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 from typing import Iterable
 
 import numpy as np
+from pxr import Sdf, Usd, UsdGeom, Vt
 
+import lsd3d_usd
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import (
+    SURFELS_PATH,
+    WORLD,
+    author_fallback_prim_types,
+    chunk_prim_name,
+    parse_chunk_prim_name,
+    save_layer,
+)
 from lsd3d_usd.splats.field import SurfelField
+from lsd3d_usd.splats.usdio import read_surfels, write_surfels
 
 SEED_CHUNK_ATTR = "lsd3d:seedChunk"
 SEED_FACE_ATTR = "lsd3d:seedFace"
@@ -56,7 +68,6 @@ def split_by_chunk(positions: np.ndarray, chunk_size: float) -> dict[tuple[int, 
 
 
 def chunk_file_name(key) -> str:
-    from lsd3d_usd.scene import chunk_prim_name
     return chunk_prim_name(*key).lower() + ".usdc"
 
 
@@ -69,7 +80,6 @@ def chunks_base(root_path) -> Path:
 def chunk_folder(root_path) -> Path:
     """The folder a root layer's chunk payloads point into (recorded in it), or the plain
     ``<stem>_chunks`` folder of a run layer."""
-    from pxr import Sdf
     p = Path(root_path)
     if p.is_file():
         layer = Sdf.Layer.OpenAsAnonymous(str(p), metadataOnly=True)
@@ -83,7 +93,6 @@ def chunk_folder(root_path) -> Path:
 
 
 def _stage():
-    from pxr import Usd, UsdGeom
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
@@ -94,10 +103,7 @@ def write_chunk(folder, key, field: SurfelField, provenance: dict | None = None,
                 seed_faces: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
     """The initial surfels of one chunk to ``folder`` (atomic), defaultPrim Chunk_<i>_<j>.
     ``seed_faces``: (proxy chunk (n, 2), face index (n,)) each surfel was seeded on."""
-    from pxr import Sdf, Vt
 
-    from lsd3d_usd.scene import chunk_prim_name, save_layer
-    from lsd3d_usd.splats.usdio import write_surfels
     name = chunk_prim_name(*key)
     stage = _stage()
     prim = write_surfels(stage, f"/{name}", field)   # + the official APIs and type fallback
@@ -116,8 +122,6 @@ def write_chunk(folder, key, field: SurfelField, provenance: dict | None = None,
 def write_run_chunk(folder, key, field: SurfelField, attributes: tuple[str, ...],
                     provenance: dict | None = None) -> Path:
     """One chunk's optimised attributes of a GGDS run: overs only (atomic)."""
-    from lsd3d_usd.scene import chunk_prim_name, save_layer
-    from lsd3d_usd.splats.usdio import write_surfels
     name = chunk_prim_name(*key)
     stage = _stage()
     prim = write_surfels(stage, f"/{name}", field, over=True, attributes=attributes)
@@ -128,14 +132,10 @@ def write_run_chunk(folder, key, field: SurfelField, attributes: tuple[str, ...]
 def _root(chunks: Iterable, folder_rel: str, *, define: bool):
     """Root layer (Sdf, no composition): /World/Surfels with a payload per chunk; ``define``
     for the initial surfels (defs), else overs (a run layer)."""
-    from pxr import Sdf, UsdGeom
 
-    import lsd3d_usd
-    from lsd3d_usd.scene import SURFELS_PATH, WORLD, chunk_prim_name
     layer = Sdf.Layer.CreateAnonymous(".usdc")
     spec_kind = Sdf.SpecifierDef if define else Sdf.SpecifierOver
     if define:
-        from lsd3d_usd.scene import author_fallback_prim_types
         author_fallback_prim_types(layer)   # its chunk prims are ours, typed by this layer
         layer.defaultPrim = WORLD.strip("/")
         layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.z)
@@ -164,7 +164,6 @@ def write_root(root_path, folder, chunks: dict, provenance: dict | None = None, 
                define: bool = True) -> Path:
     """The root layer listing ``chunks`` ({key: chunk_info}) with payloads into ``folder``
     (beside or below the root), atomically."""
-    from lsd3d_usd.scene import chunk_prim_name, save_layer
     path = Path(root_path).absolute()
     rel = Path(folder).absolute().relative_to(path.parent).as_posix()
     layer = _root(chunks, rel, define=define)
@@ -176,7 +175,6 @@ def write_root(root_path, folder, chunks: dict, provenance: dict | None = None, 
 
 def prune_chunk_folders(root_path) -> list[Path]:
     """Remove the versioned chunk folders under ``<stem>_chunks`` the root no longer uses."""
-    import shutil
     keep = chunk_folder(root_path)
     base = chunks_base(root_path)
     removed = []
@@ -190,9 +188,7 @@ def prune_chunk_folders(root_path) -> list[Path]:
 
 def read_chunk_map(root_path) -> dict[tuple[int, int], dict]:
     """{key: chunk_info} recorded in a root layer ({} for none, or a monolithic layer)."""
-    from pxr import Sdf
 
-    from lsd3d_usd.scene import parse_chunk_prim_name
     p = Path(root_path)
     if not p.is_file():
         return {}
@@ -210,10 +206,7 @@ def read_chunk_map(root_path) -> dict[tuple[int, int], dict]:
 def read_chunk(root_path, key, run_roots: Iterable = ()) -> SurfelField:
     """One chunk's surfels: the initial file with the given run chunk files (strongest first,
     those that exist) composed over it — without opening the scene."""
-    from pxr import Sdf, Usd
 
-    from lsd3d_usd.scene import chunk_prim_name
-    from lsd3d_usd.splats.usdio import read_surfels
     base = chunk_folder(root_path) / chunk_file_name(key)
     if not base.is_file():
         raise InputError(f"{base}: no such surfel chunk file")
@@ -230,9 +223,7 @@ def read_chunk(root_path, key, run_roots: Iterable = ()) -> SurfelField:
 
 def read_seed_faces(root_path, key) -> tuple[np.ndarray, np.ndarray] | None:
     """(proxy chunk (n, 2), face (n,)) of a chunk's initial surfels, or None if not recorded."""
-    from pxr import Usd
 
-    from lsd3d_usd.scene import chunk_prim_name
     path = chunk_folder(root_path) / chunk_file_name(key)
     stage = Usd.Stage.Open(str(path))
     prim = stage.GetPrimAtPath(f"/{chunk_prim_name(*key)}")

@@ -5,8 +5,12 @@ import argparse
 import time
 from pathlib import Path
 
-from lsd3d_usd import limits
-from lsd3d_usd.cliutil import add_limit_option
+import numpy as np
+from pxr import Usd, UsdGeom, UsdSemantics
+
+from lsd3d_usd import limits, scene
+from lsd3d_usd.cliutil import add_limit_option, check_output_path
+from lsd3d_usd.errors import InputError
 
 SCENE_ROOT = "scene.usda"
 
@@ -19,13 +23,11 @@ def _is_scene(path) -> bool:
 def _read_stage_surfels(path, prim_path=None, time_code=None):
     """The surfels of a USD file or scene folder (composed, so GGDS edits apply), in world
     space: the prim at ``prim_path`` or all ParticleField prims concatenated."""
-    import numpy as np
-    from pxr import Usd, UsdGeom
 
-    from lsd3d_usd import scene
-    from lsd3d_usd.errors import InputError
+    # local import: not loaded for --help
     from lsd3d_usd.splats.field import SurfelField
     from lsd3d_usd.splats.init import transform_surfels
+    # local import: not loaded for --help
     from lsd3d_usd.splats.usdio import read_surfels, surfel_prims
 
     stage = scene.open_stage(path)
@@ -53,7 +55,6 @@ USD_SUFFIXES = (".usdc", ".usda", ".usd")
 def _check_output(out, suffixes=USD_SUFFIXES, scene_ok: bool = True) -> None:
     """Before any work: the output is a scene folder (where allowed) or a file path that can
     be written (not a folder, not below a file, a known extension)."""
-    from lsd3d_usd.cliutil import check_output_path
 
     if scene_ok and _is_scene(out):
         return
@@ -64,7 +65,7 @@ def _check_output(out, suffixes=USD_SUFFIXES, scene_ok: bool = True) -> None:
 def _write_surfels(field, out, prim_path, prov, retire_runs=False):
     """To a stand-alone USD file, or as the surfels layer of a scene folder (refused when GGDS
     runs were optimised on the scene's current surfels, unless retire_runs)."""
-    from lsd3d_usd import scene
+    # local import: not loaded for --help
     from lsd3d_usd.splats.usdio import write_surfel_file, write_surfels
 
     if _is_scene(out):
@@ -79,9 +80,8 @@ def _write_surfels(field, out, prim_path, prov, retire_runs=False):
 
 def _stage_meshes(stage, root, t):
     """Triangulated world-space meshes under ``root``: (vertices, faces, face class ids)."""
-    import numpy as np
-    from pxr import Usd, UsdGeom, UsdSemantics
 
+    # local import: not loaded for --help
     from lsd3d_usd import semantics
 
     def label_id(prim):
@@ -133,11 +133,8 @@ def _stage_meshes(stage, root, t):
 
 
 def _init(args) -> int:
-    import numpy as np
-    from pxr import Usd
 
-    from lsd3d_usd import scene
-    from lsd3d_usd.errors import InputError
+    # local import: not loaded for --help
     from lsd3d_usd.splats.init import mesh_to_surfels
 
     if args.output is not None:
@@ -177,7 +174,7 @@ def _init(args) -> int:
 # --- interchange ----------------------------------------------------------------------------
 
 def _import_ply(args) -> int:
-    from lsd3d_usd import scene
+    # local import: not loaded for --help
     from lsd3d_usd.hashing import file_hash
     from lsd3d_usd.splats.ply import read_ply
 
@@ -192,6 +189,7 @@ def _import_ply(args) -> int:
 
 
 def _export_ply(args) -> int:
+    # local import: not loaded for --help
     from lsd3d_usd.splats.ply import write_ply
 
     _check_output(args.output, (".ply",), scene_ok=False)
@@ -202,7 +200,7 @@ def _export_ply(args) -> int:
 
 
 def _export_3dgs(args) -> int:
-    from lsd3d_usd import scene
+    # local import: not loaded for --help
     from lsd3d_usd.splats.ply import write_gaussian_splat_file
 
     _check_output(args.output, scene_ok=False)

@@ -26,10 +26,18 @@ Everything is vectorised numpy; deterministic for a given seed.
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
+from lsd3d_usd import semantics
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.splats.field import SurfelField, matrix_to_quat, rgb_to_sh_dc
+from lsd3d_usd.splats.field import (
+    SurfelField,
+    matrix_to_quat,
+    quat_to_matrix,
+    rgb_to_sh_dc,
+)
 
 MAX_SURFELS = 4_000_000  # the paper's upper bound per scene
 _PLASTIC = 1.32471795724474602596  # R2 sequence generator (root of x^3 = x + 1)
@@ -117,7 +125,6 @@ def mesh_to_surfels(vertices, faces, face_semantic_ids=None, *, count: int = 2_0
     sizes follow, so the disks still tile every face. Returns a SurfelField (and
     the source face index per surfel if ``return_face_index``).
     """
-    from lsd3d_usd import semantics
 
     V, F, ids = _check_mesh(vertices, faces, face_semantic_ids)
     count = int(count)
@@ -255,9 +262,7 @@ def split_faces(vertices, faces, max_area: float, max_faces: int = 20_000_000):
 def transform_surfels(field, M: np.ndarray):
     """Apply a 4x4 (column-vector) world transform to a SurfelField: positions, disk axes
     and scales (the scaled axes are re-orthonormalised around the transformed normal)."""
-    from dataclasses import replace
 
-    from lsd3d_usd.splats.field import quat_to_matrix
 
     if np.allclose(M, np.eye(4), atol=0, rtol=0):
         return field

@@ -19,8 +19,16 @@ from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.proxy.usdio import proxy_arrays, read_chunk_map
+from lsd3d_usd.scene import parse_chunk_prim_name
+from lsd3d_usd.semantics import CLASSES
+from lsd3d_usd.splats import chunkio
 from lsd3d_usd.splats.field import SurfelField
+from lsd3d_usd.splats.importance import face_weights
+from lsd3d_usd.splats.init import mesh_to_surfels, split_faces
 
 # Faces are split to at most this area (m²) before the density weights are evaluated, so the
 # density follows the distance to the lanes within large proxy faces (terrain, road).
@@ -29,8 +37,6 @@ WEIGHT_FACE_AREA = 2.0
 
 def _weighted_mesh(vertices, faces, layout):
     """(V', F', parent, weights) of the mesh split to WEIGHT_FACE_AREA with its density weights."""
-    from lsd3d_usd.splats.importance import face_weights
-    from lsd3d_usd.splats.init import split_faces
     V, F, parent = split_faces(vertices, faces, WEIGHT_FACE_AREA)
     return V, F, parent, face_weights(V, F, layout)
 
@@ -52,7 +58,6 @@ def _owners(positions: np.ndarray, seed_key, chunk_size: float, tol: float = 1e-
     """{chunk: indices} of surfels seeded on chunk ``seed_key``'s proxy: the chunk holding each
     centre, except that centres within ``tol`` of the seed chunk stay in it (a float32 centre
     on the chunk's edge rounds across it; a true overhang is farther)."""
-    from lsd3d_usd.splats import chunkio
     p = np.asarray(positions, np.float64)
     lo = np.asarray(seed_key, np.float64) * chunk_size
     near = np.all((p[:, :2] >= lo - tol) & (p[:, :2] <= lo + chunk_size + tol), axis=1)
@@ -76,7 +81,6 @@ class _ProxyCache:
         self._cache: OrderedDict = OrderedDict()
 
     def get(self, key):
-        from lsd3d_usd.proxy.usdio import proxy_arrays
         if key not in self._cache:
             self._cache[key] = proxy_arrays(self.path, [key])
             if len(self._cache) > self.size:
@@ -145,7 +149,6 @@ def _counts(keys, cache, layout, count, density, max_count) -> tuple[dict, dict]
             counts[k] += 1
         over = [k for k, c in counts.items() if c > max_count]
         if over:
-            from lsd3d_usd.errors import InputError
             raise InputError(f"--surfels {count}: chunk {over[0]} would get {counts[over[0]]:,} "
                              f"surfels, above the per-chunk limit {max_count:,}")
     return counts, {"proxyArea_m2": round(total_area, 1),
@@ -161,11 +164,6 @@ def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | 
     remove the folders of earlier versions. ``colour(field, vertices, faces)`` sets a chunk's
     surfel colours in place, given the proxy of its 3×3 neighbourhood (what can shadow it).
     Returns a summary."""
-    from lsd3d_usd.proxy.usdio import read_chunk_map
-    from lsd3d_usd.scene import parse_chunk_prim_name
-    from lsd3d_usd.semantics import CLASSES
-    from lsd3d_usd.splats import chunkio
-    from lsd3d_usd.splats.init import mesh_to_surfels
 
     keys = sorted(parse_chunk_prim_name(n) for n in read_chunk_map(proxy_path))
     cache = _ProxyCache(proxy_path, keys)
@@ -195,7 +193,6 @@ def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | 
         infos[target] = chunkio.chunk_info(target, field)
         written_total += field.n
 
-    from tqdm import tqdm
     try:
         for key in tqdm(keys, desc="surfels", unit="chunk", disable=not progress):
             V, F, ids = cache.get(key)

@@ -24,10 +24,18 @@ import re
 from pathlib import Path
 
 import numpy as np
+from pxr import Sdf, UsdVol, Vt
 
+from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.plyio import read_header_comments, read_ply_vertices, write_ply_vertices  # noqa: F401
-from lsd3d_usd.splats.field import SurfelField, flatten_3d_gaussians, kernel_bounds, sh_degree_for
+from lsd3d_usd.splats.field import (
+    SurfelField,
+    flatten_3d_gaussians,
+    kernel_bounds,
+    sh_degree_for,
+)
+from lsd3d_usd.splats.usdio import check_bulk_target
 
 THIN_AXIS = 1e-3
 _OPACITY_EPS = 1e-7  # logit of exactly 0 or 1 is infinite: clamp before the logit
@@ -159,7 +167,6 @@ def read_ply_semantic_classes(path) -> tuple[str, ...]:
 def write_gaussian_splat_prim(stage, path: str, field: SurfelField, thin: float = THIN_AXIS):
     """Author ``field`` as an official UsdVol ParticleField3DGaussianSplat at ``path``
     (third axis = ``thin`` x the smaller disk scale), for 3DGS-only renderers."""
-    from pxr import Sdf, UsdVol, Vt
 
     probs = field.problems()
     if probs:
@@ -191,8 +198,6 @@ def write_gaussian_splat_file(path, field: SurfelField, prim_path: str = "/World
                               thin: float = THIN_AXIS, provenance: dict | None = None) -> Path:
     """Stand-alone USD file holding one ParticleField3DGaussianSplat, written atomically.
     A .usda path is refused above limits.USDA_PARTICLES particles (bulk data)."""
-    from lsd3d_usd import scene
-    from lsd3d_usd.splats.usdio import check_bulk_target
 
     check_bulk_target(path, field.n)
     stage = scene.new_stage()

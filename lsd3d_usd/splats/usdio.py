@@ -5,13 +5,22 @@ with numpy views, which for .usdc files are backed by the memory-mapped crate.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt
+from pxr import Sdf, Usd, UsdVol, Vt
 
 import lsd3d_usd
+from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import USDA_PARTICLES
 from lsd3d_usd.scene import author_fallback_prim_types
-from lsd3d_usd.splats.field import SurfelField, flatten_3d_gaussians, sh_coeff_count, sh_degree_for
+from lsd3d_usd.splats.field import (
+    SurfelField,
+    flatten_3d_gaussians,
+    kernel_bounds,
+    sh_coeff_count,
+)
 
 SH_DEGREE_ATTR = "radiance:sphericalHarmonicsDegree"
 SH_COEFFS_ATTR = "radiance:sphericalHarmonicsCoefficients"
@@ -36,7 +45,6 @@ def particle_bounds(prim: Usd.Prim, time: Usd.TimeCode = Usd.TimeCode.Default())
     """(2,3) bounds of the prim's kernels (field.kernel_bounds on its own arrays: a 3D
     Gaussian keeps its third axis), or None without particles or with arrays that do not
     fit the positions (validate names those)."""
-    from lsd3d_usd.splats.field import kernel_bounds
 
     pos = _get(prim, "positions", time)
     if pos is None or pos.size == 0 or pos.size % 3:
@@ -197,9 +205,7 @@ def check_bulk_target(path, n: int) -> None:
     """Bulk data belongs in crate files: refuse a text (.usda) output for more than
     limits.USDA_PARTICLES particles, before anything is written (validate would report
     BulkDataInUsda on the result)."""
-    from pathlib import Path
 
-    from lsd3d_usd.limits import USDA_PARTICLES
     if Path(str(path)).suffix.lower() == ".usda" and not USDA_PARTICLES.ok(n):
         raise InputError(f"{path}: {n} particles exceed the limit of {USDA_PARTICLES.value} "
                          "for a text .usda layer (bulk data belongs in crate files); "
@@ -210,7 +216,6 @@ def write_surfel_file(path: str, field: SurfelField, prim_path: str = "/World/Su
                       provenance: dict | None = None) -> None:
     """Write a stand-alone surfel layer (Z up, metres, defaultPrim /World), atomically.
     A .usda path is refused above limits.USDA_PARTICLES particles (check_bulk_target)."""
-    from lsd3d_usd import scene
 
     check_bulk_target(path, field.n)
     stage = scene.new_stage()
@@ -220,7 +225,6 @@ def write_surfel_file(path: str, field: SurfelField, prim_path: str = "/World/Su
 
 def read_surfel_file(path: str, prim_path: str | None = None) -> SurfelField:
     """Read the surfel prim at `prim_path` (default: the only/first ParticleField) of a file."""
-    from lsd3d_usd import scene
 
     stage = scene.open_stage(path)
     if prim_path:

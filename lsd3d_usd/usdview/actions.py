@@ -45,8 +45,10 @@ def view_camera(camera_prim=None, gf_camera=None, time=None, size=None,
                 max_width: int | None = DEFAULT_MAX_WIDTH):
     """Our Camera for usdview's view: its camera prim if one is chosen, else the free camera
     (a Gf.Camera). ``size`` is the viewport in pixels (aspect kept, width capped)."""
+    # local import: usdview loads the plugin at start: kept lazy
     from pxr import Usd, UsdGeom
 
+    # local import: usdview loads the plugin at start: kept lazy
     from lsd3d_usd.render.camera import from_usd
 
     t = _time_value(time)
@@ -83,8 +85,10 @@ def render_view(stage, camera, time=None, use_env: bool = True, exposure: float 
     behind) with our CPU rasteriser. Muted layers are respected: the stage is read as
     composed now. textures: a views.stage_data.TextureCache kept across calls (the env
     texture is then decoded once)."""
+    # local import: usdview loads the plugin at start: kept lazy
     from lsd3d_usd.views.frame import render_scene
     from lsd3d_usd.views.images import display_uint8
+    # local import: usdview loads the plugin at start: kept lazy
     from lsd3d_usd.views.stage_data import SceneReader
 
     t = _time_value(time)
@@ -101,6 +105,7 @@ def render_view(stage, camera, time=None, use_env: bool = True, exposure: float 
 
 def save_png(result: RenderResult, path, exposure: float = 0.0) -> Path:
     """The rendered frame as an 8-bit sRGB PNG (atomic write)."""
+    # local import: usdview loads the plugin at start: kept lazy
     from lsd3d_usd.views.images import write_frame
     return write_frame(Path(path), result.frame, "png", exposure)
 
@@ -139,6 +144,7 @@ def _run_info(layer) -> tuple[int | None, bool | None]:
 def ggds_runs(stage) -> list[RunLayer]:
     """GGDS run layers of the stage, newest first: those in its layer stack (muted or not)
     and those a scene's root layer lists as persistently muted."""
+    # local import: usdview loads the plugin at start: kept lazy
     from pxr import Sdf
 
     runs: dict[str, RunLayer] = {}
@@ -168,6 +174,7 @@ def ggds_runs(stage) -> list[RunLayer]:
 def _scene_runs(root) -> list:
     """The runs a scene folder lists (persistently muted ones included), when the stage's
     root layer is a scene's scene.usda; [] for any other file."""
+    # local import: usdview loads the plugin at start: kept lazy
     from lsd3d_usd import scene as S
     if not root.realPath or Path(root.realPath).name != S.ROOT_FILE:
         return []
@@ -186,6 +193,7 @@ def _sublayer_identifiers(layer, seen=None) -> list[str]:
             continue
         seen.add(ident)
         out.append(ident)
+        # local import: usdview loads the plugin at start: kept lazy
         from pxr import Sdf
         sub = Sdf.Layer.FindOrOpen(ident) if Path(ident).is_file() else None
         if sub is not None:
@@ -258,6 +266,7 @@ def solo_next_run(stage) -> str:
 def surfel_prims_for(stage, prims) -> list:
     """The surfel (ParticleField) prims among ``prims`` and beneath them; with nothing
     selected, every surfel prim of the stage."""
+    # local import: usdview loads the plugin at start: kept lazy
     from lsd3d_usd.splats.usdio import is_particle_field, surfel_prims
 
     prims = [p for p in (prims or []) if p is not None and p.IsValid()]
@@ -274,6 +283,7 @@ def surfel_prims_for(stage, prims) -> list:
 
 
 def selection_stats(stage, prims) -> list[dict]:
+    # local import: usdview loads the plugin at start: kept lazy
     from lsd3d_usd.inspection import surfel_stats
     found = surfel_prims_for(stage, prims)
     if not found:

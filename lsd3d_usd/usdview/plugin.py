@@ -40,6 +40,7 @@ PREFIX = "Lsd3dPluginContainer."
 def qt():
     """(QtWidgets, QtGui, QtCore) as usdview uses them, or None without Qt."""
     try:
+        # local import: usdview loads the plugin at start: kept lazy
         from pxr.Usdviewq.qt import QtCore, QtGui, QtWidgets
         return QtWidgets, QtGui, QtCore
     except ImportError:
@@ -69,6 +70,7 @@ def _output_dir(api) -> Path:
 def _guard(fn):
     """Menu callbacks report errors in the status bar instead of raising into Qt's loop."""
     def wrapped(api, **kw):
+        # local import: usdview loads the plugin at start: kept lazy
         from lsd3d_usd.errors import Lsd3dError
         try:
             return fn(api, **kw)
@@ -113,6 +115,7 @@ def _show_text(api, title: str, text: str) -> bool:
 
 # -------------------------------------------------------------------------- commands
 def _camera(api):
+    # local import: usdview loads the plugin at start: kept lazy
     from . import actions
     return actions.view_camera(getattr(api, "cameraPrim", None),
                                getattr(api, "currentGfCamera", None),
@@ -124,6 +127,7 @@ def _camera(api):
 def render_surfels(api, textures=None):
     """Render the scene from usdview's current camera with the CPU rasteriser; show the
     image in a dialog (with Qt), and always write it as a PNG."""
+    # local import: usdview loads the plugin at start: kept lazy
     from . import actions
     cam = _camera(api)
     res = actions.render_view(api.stage, cam, getattr(api, "frame", None), textures=textures)
@@ -137,6 +141,7 @@ def render_surfels(api, textures=None):
 @_guard
 def cycle_ggds_runs(api):
     """Solo the next GGDS run (all -> newest -> ... -> none -> all) to compare runs."""
+    # local import: usdview loads the plugin at start: kept lazy
     from . import actions
     msg = actions.solo_next_run(api.stage)
     _status(api, msg)
@@ -146,6 +151,7 @@ def cycle_ggds_runs(api):
 @_guard
 def unmute_all_ggds_runs(api):
     """Unmute every GGDS run muted from this menu."""
+    # local import: usdview loads the plugin at start: kept lazy
     from . import actions
     n = actions.unmute_all_runs(api.stage)
     _status(api, f"unmuted {n} GGDS run(s)")
@@ -155,6 +161,7 @@ def unmute_all_ggds_runs(api):
 @_guard
 def choose_ggds_runs(api):
     """A dialog with one checkbox per GGDS run (checked = active); without Qt, print them."""
+    # local import: usdview loads the plugin at start: kept lazy
     from . import actions
     runs = actions.ggds_runs(api.stage)
     if not runs:
@@ -185,6 +192,7 @@ def choose_ggds_runs(api):
 @_guard
 def selection_statistics(api):
     """Statistics of the selected surfel prims (or all surfel prims when none is selected)."""
+    # local import: usdview loads the plugin at start: kept lazy
     from . import actions
     stats = actions.selection_stats(api.stage, list(getattr(api, "selectedPrims", None) or []))
     text = actions.format_stats(stats)
@@ -207,6 +215,7 @@ class Lsd3dPluginContainer(PluginContainer):
 
     def registerPlugins(self, plugRegistry, usdviewApi):
         import lsd3d_usd  # noqa: F401  the surfel schema (see docs/usdview.md on ordering)
+        # local import: usdview loads the plugin at start: kept lazy
         from lsd3d_usd.views.stage_data import TextureCache
         textures = TextureCache()  # env textures decoded once per usdview session
         self._commands = []

@@ -3,12 +3,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
+import webbrowser
+
+from lsd3d_usd.errors import InputError
 
 
 def _view(args) -> int:
-    import time
 
-    from lsd3d_usd.errors import InputError
+    # local import: not loaded for --help
     from lsd3d_usd.viewer.server import is_loopback, make_server
     from lsd3d_usd.viewer.service import ViewerService
 
@@ -40,7 +43,6 @@ def _view(args) -> int:
     url = f"http://{shown}:{port}/"
     print(url, flush=True)
     if args.open:
-        import webbrowser
         webbrowser.open(url)
     try:
         server.serve_forever(poll_interval=0.25)

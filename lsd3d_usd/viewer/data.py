@@ -10,13 +10,25 @@ and the environment variant is selected in the stage's session layer.
 """
 from __future__ import annotations
 
+import json
 import os
+import subprocess
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pxr import Sdf, Usd, UsdGeom, UsdLux
 
+from lsd3d_usd import scene as S
+from lsd3d_usd.actors.relight import lighting_from_stage
+from lsd3d_usd.actors.usdio import ActorSet
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.layout.usdio import layout_from_stage
+from lsd3d_usd.proxy.usdio import read_proxy
+from lsd3d_usd.render.camera import from_usd
+from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
+from lsd3d_usd.views.stage_data import read_dome, scene_surfels
 
 GGDS = "ggds"
 ENV_VARIANT_SET = "environment"
@@ -85,7 +97,6 @@ class SceneSource:
     """A scene folder opened for viewing (read-only)."""
 
     def __init__(self, root: str | os.PathLike):
-        from lsd3d_usd import scene as S
 
         self.root = Path(root).absolute()
         if self.root.name == S.ROOT_FILE and self.root.is_file():
@@ -103,7 +114,6 @@ class SceneSource:
 
     # ---------------------------------------------------------------- layer stack
     def layers(self) -> list[LayerEntry]:
-        from lsd3d_usd import scene as S
 
         out = []
         for info in self._scene.layers():
@@ -114,7 +124,6 @@ class SceneSource:
 
     def run_files(self, name: str) -> list[str]:
         """Scene-relative paths of a GGDS run's plots and summary (those that exist)."""
-        from lsd3d_usd import scene as S
 
         folder = self.root / "ggds" / name
         if not name.startswith(S.GGDS_PREFIX) or not folder.is_dir():
@@ -125,9 +134,7 @@ class SceneSource:
     def open_stage(self, layer_files: list[str], env_variant: str | None = None, load: bool = True):
         """The scene composed from ``layer_files`` (names under layers/, strongest first) on an
         in-memory copy of the root layer, with ``env_variant`` selected in the session layer."""
-        from pxr import Sdf, Usd
 
-        from lsd3d_usd import scene as S
 
         try:
             root = Sdf.Layer.FindOrOpen(str(self.root_file))
@@ -156,7 +163,6 @@ class SceneSource:
     def _readable(self, path: Path) -> bool:
         """Open a layer on its own first: a damaged one is left out of the composition (USD would
         skip it with a warning on stderr) and remembered in ``unreadable`` for the problem list."""
-        from pxr import Sdf
 
         try:
             ok = Sdf.Layer.FindOrOpen(str(path)) is not None
@@ -169,7 +175,6 @@ class SceneSource:
 
     def surfel_stage(self, layer_files: list[str]):
         """Like open_stage, with only the surfel prims' payloads loaded (not the proxy's)."""
-        from lsd3d_usd import scene as S
 
         stage = self.open_stage(layer_files, None, load=False)
         if stage.GetPrimAtPath(S.SURFELS_PATH):
@@ -187,7 +192,6 @@ class SceneSource:
 
     # --------------------------------------------------------------------- metadata
     def chunk_size(self, stage) -> float:
-        from lsd3d_usd import scene as S
 
         world = stage.GetPrimAtPath(S.WORLD)
         attr = world.GetAttribute("lsd3d:scene:chunkSize") if world else None
@@ -204,7 +208,6 @@ class SceneSource:
     def surfel_fields(self, stage):
         """Static surfels in world space (not actors' or cameras'), one SurfelField per read.
         Today the scene holds one monolithic prim, so this yields one field (or nothing)."""
-        from lsd3d_usd.views.stage_data import scene_surfels
 
         f = scene_surfels(stage)
         if f is not None and f.n:
@@ -212,7 +215,6 @@ class SceneSource:
 
     # ---------------------------------------------------------------------------- env
     def env_variants(self, stage) -> tuple[list[str], str | None]:
-        from lsd3d_usd import scene as S
 
         env = stage.GetPrimAtPath(S.ENV_PATH)
         if not env or not env.GetVariantSets().HasVariantSet(ENV_VARIANT_SET):
@@ -221,9 +223,7 @@ class SceneSource:
         return list(vs.GetVariantNames()), vs.GetVariantSelection() or None
 
     def _select_env(self, stage, name: str) -> None:
-        from pxr import Usd
 
-        from lsd3d_usd import scene as S
 
         names, _ = self.env_variants(stage)
         if name not in names:
@@ -234,7 +234,6 @@ class SceneSource:
 
     def env(self, stage) -> EnvData | None:
         """The first visible DomeLight's map, or None. The texture must lie in the scene folder."""
-        from pxr import Usd, UsdLux
 
         for prim in Usd.PrimRange(stage.GetPseudoRoot()):
             if not (prim.IsA(UsdLux.DomeLight) or prim.IsA(UsdLux.DomeLight_1)):
@@ -245,7 +244,6 @@ class SceneSource:
             if path and not self.inside(path):
                 raise InputError(f"{prim.GetPath()}.inputs:texture:file: {asset.path!r} resolves outside "
                                  f"the scene folder; the viewer reads files inside {self.root} only")
-        from lsd3d_usd.views.stage_data import read_dome
 
         env = read_dome(stage)
         if env is None:
@@ -253,7 +251,6 @@ class SceneSource:
         return EnvData(env.image, np.asarray(env.world_from_dome, np.float64), env.pole_axis, env.source)
 
     def lighting(self, stage) -> Lighting:
-        from lsd3d_usd.actors.relight import lighting_from_stage
 
         light = lighting_from_stage(stage)
         return Lighting(np.asarray(light.sh, np.float64), np.asarray(light.sun_dir, np.float64),
@@ -263,8 +260,6 @@ class SceneSource:
     # -------------------------------------------------------------------------- layout
     def layout(self, stage):
         """The scene's Layout (layout.model), or None without /World/Layout."""
-        from lsd3d_usd import scene as S
-        from lsd3d_usd.layout.usdio import layout_from_stage
 
         if not stage.GetPrimAtPath(S.LAYOUT_PATH):
             return None
@@ -277,8 +272,6 @@ class SceneSource:
 
     def proxy_chunk(self, key: tuple[int, int]) -> list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]:
         """The proxy meshes of one chunk: [(class, vertices (V,3), faces (F,3), rgb (3,))]."""
-        from lsd3d_usd.proxy.usdio import read_proxy
-        from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
 
         path = self.proxy_file()
         if path is None:
@@ -292,9 +285,7 @@ class SceneSource:
 
     def proxy_chunk_keys(self) -> list[tuple[int, int]]:
         """Chunks present in the proxy layer (their payloads are not loaded)."""
-        from pxr import Usd
 
-        from lsd3d_usd import scene as S
 
         path = self.proxy_file()
         if path is None:
@@ -313,9 +304,7 @@ class SceneSource:
     # -------------------------------------------------------------------------- actors
     def actors(self, stage, max_samples: int = 2000) -> tuple[list[float], list[ActorData]]:
         """Actors with their meshes (actor frame) and world transforms at shared time codes."""
-        from pxr import Usd
 
-        from lsd3d_usd.actors.usdio import ActorSet
 
         aset = ActorSet(stage)
         if not len(aset):
@@ -336,9 +325,7 @@ class SceneSource:
 
     # ------------------------------------------------------------------------- cameras
     def cameras(self, stage, max_samples: int = 2000) -> list[CameraData]:
-        from pxr import Usd, UsdGeom
 
-        from lsd3d_usd.render.camera import from_usd
 
         out = []
         for prim in Usd.PrimRange(stage.GetPseudoRoot()):
@@ -364,9 +351,6 @@ class SceneSource:
         """The scene's validation problems as dicts (severity, where, message), from
         `lsd3d-usd validate --json` in a child process: validation captures the process's fd 2
         while it runs, which in the server's own process would swallow its log."""
-        import json
-        import subprocess
-        import sys
 
         try:
             r = subprocess.run([sys.executable, "-m", "lsd3d_usd", "validate", str(self.root), "--json"],
@@ -394,7 +378,6 @@ class SceneSource:
 
 def _xform_times(prim) -> set[float]:
     """Time samples of the transforms of ``prim`` and its ancestors (what moves it)."""
-    from pxr import UsdGeom
 
     times: set[float] = set()
     p = prim

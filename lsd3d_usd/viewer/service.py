@@ -20,10 +20,13 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from urllib.parse import quote
 
 import numpy as np
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import atomic_write_bytes
+from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
 from lsd3d_usd.viewer import pack
 from lsd3d_usd.viewer.data import GGDS, SceneSource
 
@@ -223,7 +226,6 @@ class ViewerService:
         return True
 
     def _build(self, cfg: Config, stage, size: float) -> None:
-        from lsd3d_usd.scene import atomic_write_bytes
 
         t0 = time.perf_counter()
         groups: dict = {}
@@ -404,7 +406,6 @@ class ViewerService:
 
 
 def _class_colors(classes) -> list:
-    from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
     return [[float(v) for v in (CLASS_COLORS[CLASS_ID[c]] if c in CLASS_ID else (0.5, 0.5, 0.5))]
             for c in classes]
 
@@ -424,7 +425,6 @@ def _mat(m) -> list:
 
 
 def _quote(s: str) -> str:
-    from urllib.parse import quote
     return quote(s, safe="")
 
 

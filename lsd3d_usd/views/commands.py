@@ -7,8 +7,10 @@ import argparse
 import sys
 
 from lsd3d_usd import configtree as ct
+from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.views.options import DeferredConfig, RenderConfig, RIG_WIDTH
+from lsd3d_usd.views.deferred import Deferrer
+from lsd3d_usd.views.options import RIG_WIDTH, DeferredConfig, RenderConfig
 
 GROUP_TITLES = {"rig": "sensor rig (instead of --camera)",
                 "deferred": "deferred rendering (docs/render.md)"}
@@ -28,7 +30,6 @@ def make_deferrer(scene, d: DeferredConfig, log=None):
         return None
     # heavy (torch, the prior): only once deferral is asked for
     from lsd3d_usd.ggds.priors.scene import load_scene_prior
-    from lsd3d_usd.views.deferred import Deferrer
     sp = load_scene_prior(scene, d.prior, d.controlnet, device=d.device)
     if log is not None:
         log(f"deferred: prior {sp.spec} ({sp.source}), T {d.strength}, N {d.steps}")
@@ -50,6 +51,7 @@ def _render(args) -> int:
     log = (lambda m: print(m, file=sys.stderr))
     # heavy (torch, numba): the renderer only once a render is asked for
     if cfg.rig.name:
+        # local import: not loaded for --help
         from lsd3d_usd.views.rig import render_rig
         res = render_rig(args.scene, args.output, cfg.rig, width=size[0] if size else RIG_WIDTH,
                          use_env=cfg.env, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
@@ -69,7 +71,7 @@ def _render(args) -> int:
     if not cfg.camera:
         raise InputError("render: give --camera PRIM_PATH, or --rig (driving --route, --trajectory "
                          "or by default the longest drivable route)")
-    from lsd3d_usd import scene
+    # local import: not loaded for --help
     from lsd3d_usd.views.preview import parse_times, render_preview
     from lsd3d_usd.views.stage_data import camera_prim
     if cfg.deferred.enabled:   # a wrong camera fails before the prior is loaded

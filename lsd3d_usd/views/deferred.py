@@ -26,12 +26,14 @@ from __future__ import annotations
 import json
 import math
 import time
+from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
+from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:   # annotations only: the render command's flags need no torch
     from lsd3d_usd.ggds.priors.scene import ScenePrior
@@ -70,8 +72,10 @@ def deferred_name(path) -> Path:
 def _overlay_actors(gb, camera, actor_mask: np.ndarray, depth: np.ndarray):
     """G-buffer pixels where an actor is in front take the actor's depth, the vehicle class,
     a camera-facing normal and the matching world position."""
+    # local import: not loaded for --help
     import torch
 
+    # local import: not loaded for --help
     from lsd3d_usd.semantics import class_id
     m = torch.from_numpy(np.asarray(actor_mask, bool))
     if not bool(m.any()):
@@ -113,6 +117,7 @@ class Deferrer:
         """The prior's images of one frame at each noise level in ``levels`` (one G-buffer for
         all): ``defer`` is levels = (strength,); eval adds t = 1, the prior's own image of the
         view, as the reference distribution."""
+        # local import: not loaded for --help
         import torch
 
         rgb = np.asarray(rgb, np.float32)
@@ -146,7 +151,6 @@ class Deferrer:
     def defer_frame(self, frame, camera):
         """A views.frame.Frame with its colour deferred (alpha and depths are the raw frame's:
         deferral changes colours, not geometry)."""
-        from dataclasses import replace
         return replace(frame, rgb=self.defer(frame.rgb, camera, frame.actor_mask, frame.depth))
 
     def describe(self) -> dict:
@@ -164,6 +168,7 @@ def defer_frames(frames, cameras, scene_prior: ScenePrior, strength: float = DEF
                  steps: int = DEFAULT_STEPS, seed: int | None = None, progress: bool = False) -> list:
     """Deferred images of rendered frames (views.frame.Frame, or (H, W, 3) arrays) seen by
     ``cameras``, in order: a list of (H, W, 3) float32 arrays."""
+    # local import: not loaded for --help
     from tqdm import tqdm
     frames, cameras = list(frames), list(cameras)
     if len(frames) != len(cameras):
@@ -181,6 +186,5 @@ def defer_frames(frames, cameras, scene_prior: ScenePrior, strength: float = DEF
 
 def write_provenance(path, deferrer: Deferrer, **extra) -> Path:
     """OUT/deferred.json: how the deferred frames were made (atomic)."""
-    from lsd3d_usd import scene as S
     prov = {**S.provenance("deferred"), **deferrer.describe(), **extra}
     return S.atomic_write_bytes(Path(path), (json.dumps(prov, indent=2, default=str) + "\n").encode())

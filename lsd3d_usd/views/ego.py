@@ -7,7 +7,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
+from lsd3d_usd.actors import traffic as T
 from lsd3d_usd.errors import InputError
 
 
@@ -46,7 +48,6 @@ def track_from_route(layout, lane_ids, times, speed: float | None = None, seed: 
     """Drive ``lane_ids`` from the start of the first lane: at constant ``speed`` (m/s), or
     (default) with IDM on an empty road (accelerates towards the lanes' speed limits, yields at
     junctions, stops at the end of the route)."""
-    from lsd3d_usd.actors import traffic as T
     times = np.asarray(times, np.float64)
     if speed is not None:
         pos, yaw = T.constant_speed_route(layout, lane_ids, speed, times)
@@ -105,7 +106,6 @@ def load_trajectory(path) -> EgoTrack:
 def resample(track: EgoTrack, times) -> tuple[EgoTrack, int]:
     """The track at ``times`` (linear positions, slerped rotations); times outside the track
     hold its first/last pose. Returns (track, number of clamped times)."""
-    from scipy.spatial.transform import Rotation, Slerp
     times = np.asarray(times, np.float64)
     tc = np.clip(times, track.times[0], track.times[-1])
     clamped = int(np.sum(tc != times))

@@ -10,8 +10,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from lsd3d_usd.render.camera import Camera, pixel_rays
+from lsd3d_usd.render.gbuffer import render_gbuffer
+from lsd3d_usd.render.raster_types import RasterSettings
+from lsd3d_usd.render.rasterize import rasterize
+from lsd3d_usd.splats.field import SurfelField
 
 
 @dataclass
@@ -43,10 +48,7 @@ def render_surfels(field, camera: Camera, *, background=None, normal_space: str 
                    sh_degree=None, semantic: bool = False, backend: str = "numba"):
     """Rasterise a SurfelField for ``camera`` (no autograd): a render.RasterResult.
     background: None or (H, W, 3) / (3,) numpy radiance behind the surfels."""
-    import torch
 
-    from lsd3d_usd.render.raster_types import RasterSettings
-    from lsd3d_usd.render.rasterize import rasterize
 
     def t(a):
         return torch.from_numpy(np.ascontiguousarray(a))
@@ -71,8 +73,6 @@ def composite(surfels, actors, camera: Camera, env=None, sh_degree=None) -> Fram
     Mesh actors are opaque: where an actor is nearer than the surfels' depth (the median
     depth, or the expected depth where the surfels' alpha stays below 0.5) the actor wins;
     elsewhere the surfels' premultiplied colour goes over the actor (or over the env)."""
-    from lsd3d_usd.render.gbuffer import render_gbuffer
-    from lsd3d_usd.splats.field import SurfelField
 
     H, W = camera.height, camera.width
     fields = [f for f in (surfels, actors.surfels) if f is not None and f.n]

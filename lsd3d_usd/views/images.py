@@ -35,6 +35,7 @@ def display_uint8(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") 
 
 def read_image(path) -> np.ndarray:
     """Float32 (h, w, c) pixels of an image file (OpenImageIO)."""
+    # local import: not loaded for --help
     import OpenImageIO as oiio
 
     inp = oiio.ImageInput.open(str(path))
@@ -53,6 +54,7 @@ def write_frame(path, frame, fmt: str = "png", exposure: float = 0.0,
                 tonemap_method: str = "aces") -> Path:
     """Write a rendered frame (views.frame.Frame) atomically: PNG (8-bit sRGB, tone-mapped) or
     EXR (float RGBA + Z = frame.depth_expected, scene-linear, exposure applied)."""
+    # local import: not loaded for --help
     import OpenImageIO as oiio
 
     path = Path(path)

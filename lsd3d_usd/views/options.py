@@ -58,6 +58,7 @@ def _check_resolution(v: str, where: str) -> str:
 
 
 def _check_frames(v: str, where: str) -> str:
+    # local import: not loaded for --help
     from lsd3d_usd.views.preview import parse_times
     parse_times(v, None, where)
     return v

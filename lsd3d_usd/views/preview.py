@@ -11,11 +11,15 @@ import re
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
+from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.render.camera import from_usd
 from lsd3d_usd.views.deferred import deferred_name, write_provenance
-from lsd3d_usd.views.images import TONEMAPS
-
+from lsd3d_usd.views.frame import render_scene
+from lsd3d_usd.views.images import TONEMAPS, write_frame
+from lsd3d_usd.views.stage_data import SceneReader, camera_prim, usd_time
 
 MAX_FRAMES = 100_000   # frames of one `render --frames` range
 
@@ -56,13 +60,7 @@ def render_preview(scene_path, camera_path: str, out_dir, *, times=(None,), reso
     ``times`` (time codes; None = the stage's earliest time). Returns the written files.
     With ``deferrer`` (views.deferred.Deferrer) each frame is also deferred through the
     scene's prior: <name>_deferred.<fmt> beside it, provenance in OUT/deferred.json."""
-    from tqdm import tqdm
 
-    from lsd3d_usd import scene
-    from lsd3d_usd.render.camera import from_usd
-    from lsd3d_usd.views.frame import render_scene
-    from lsd3d_usd.views.images import write_frame
-    from lsd3d_usd.views.stage_data import SceneReader, camera_prim, usd_time
 
     if fmt not in ("png", "exr"):
         raise InputError(f"--format {fmt!r}: choose png or exr")

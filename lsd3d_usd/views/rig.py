@@ -10,12 +10,21 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from pxr import Sdf
+from tqdm import tqdm
+
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.render.camera import from_usd
+from lsd3d_usd.scene import save_layer
 from lsd3d_usd.views.deferred import deferred_name, write_provenance
+from lsd3d_usd.views.frame import render_scene
+from lsd3d_usd.views.images import display_uint8, write_frame
+from lsd3d_usd.views.options import RIG_WIDTH as DEFAULT_WIDTH
+from lsd3d_usd.views.options import RigOptions
 from lsd3d_usd.views.rig_stage import build_rig_stage
 from lsd3d_usd.views.rigs import OVERVIEW, RIGS
-
-from lsd3d_usd.views.options import RIG_WIDTH as DEFAULT_WIDTH, RigOptions
+from lsd3d_usd.views.stage_data import SceneReader
+from lsd3d_usd.views.video import ffmpeg_exe, write_mp4
 
 
 @dataclass
@@ -43,13 +52,7 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
     scene) every frame is also deferred through the scene's prior: *_deferred.png beside each
     PNG, *_deferred.mp4 beside each MP4, and the deferral's provenance in rig.usda and
     OUT/deferred.json."""
-    from tqdm import tqdm
 
-    from lsd3d_usd.render.camera import from_usd
-    from lsd3d_usd.views.frame import render_scene
-    from lsd3d_usd.views.images import display_uint8, write_frame
-    from lsd3d_usd.views.stage_data import SceneReader
-    from lsd3d_usd.views.video import ffmpeg_exe, write_mp4
 
     rig = rig or RigOptions()
     rig_name = rig.name or "waymo5"
@@ -113,8 +116,6 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
 
 def record_deferral(rig_file: Path, described: dict) -> Path:
     """Add the deferral's provenance to rig.usda (customLayerData lsd3d.deferred)."""
-    from pxr import Sdf
 
-    from lsd3d_usd.scene import save_layer
     layer = Sdf.Layer.FindOrOpen(str(rig_file))
     return save_layer(layer, rig_file, {"deferred": json.dumps(described, default=str)})

@@ -12,9 +12,24 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from pxr import Gf, Sdf, Usd, UsdGeom
+from scipy.spatial.transform import Rotation
 
+from lsd3d_usd import scene as S
+from lsd3d_usd.actors.assets import relative_asset_path, write_vehicle_asset
+from lsd3d_usd.actors.usdio import ActorSpec, author_actor
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.views.ego import EgoTrack, frame_times, load_trajectory, resample, track_from_route
+from lsd3d_usd.layout.lanes import longest_route
+from lsd3d_usd.layout.usdio import layout_from_stage
+from lsd3d_usd.render.camera import to_usd
+from lsd3d_usd.scene import ACTORS_PATH, ASSETS_DIR, CAMERAS_PATH, new_stage
+from lsd3d_usd.views.ego import (
+    EgoTrack,
+    frame_times,
+    load_trajectory,
+    resample,
+    track_from_route,
+)
 from lsd3d_usd.views.rigs import OVERVIEW, RIGS, rig_camera
 
 EGO_PATH = "/World/Cameras/Ego"
@@ -24,8 +39,6 @@ EGO_ASSET = "car.usda"
 def ego_car_asset(scene_root_file: Path, out_dir: Path) -> Path:
     """The car the ego drives: the scene's assets/car.usda, else the procedural car written
     to OUT/assets/car.usda."""
-    from lsd3d_usd.actors.assets import write_vehicle_asset
-    from lsd3d_usd.scene import ASSETS_DIR
     own = Path(scene_root_file).parent / ASSETS_DIR / EGO_ASSET
     if own.is_file():
         return own
@@ -36,12 +49,7 @@ def rig_layer(rig, track: EgoTrack, tcps: float, ego_asset: str | None = None):
     """(anonymous Sdf layer, camera prim paths): /World/Cameras/Ego with its cameras following
     ``track``, and /World/Actors/Ego/Ego_000 referencing ``ego_asset`` (a path relative to
     where the layer will be saved) if given."""
-    from pxr import Gf, Sdf, UsdGeom
-    from scipy.spatial.transform import Rotation
 
-    from lsd3d_usd.actors.usdio import ActorSpec, author_actor
-    from lsd3d_usd.render.camera import to_usd
-    from lsd3d_usd.scene import ACTORS_PATH, CAMERAS_PATH, new_stage
 
     # Cameras and xform ops on an in-memory stage (nothing there references a file) ...
     stage = new_stage()
@@ -79,7 +87,6 @@ def default_route(layout, seconds: float, speed: float | None = None) -> tuple[l
     """(lane ids, length) the rig drives when no route is given: the longest drivable
     successor path, cut once it covers the clip at ``speed`` (default: the fastest lane
     limit, which IDM does not exceed). Empty without drivable lanes."""
-    from lsd3d_usd.layout.lanes import longest_route
     lanes = layout.drivable_lanes()
     if not lanes:
         return [], 0.0
@@ -93,10 +100,7 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None
     """Write OUT/rig.usda (sublayering the scene) and return (composed stage, camera paths,
     track, timeCodesPerSecond, notes, route lane ids or None). Without ``route`` and
     ``trajectory`` the ego drives :func:`default_route` (said in a note, to be reused)."""
-    from pxr import Usd
 
-    from lsd3d_usd import scene as S
-    from lsd3d_usd.actors.assets import relative_asset_path
 
     if rig_name not in RIGS:
         raise InputError(f"--rig {rig_name!r}: known rigs: {', '.join(RIGS)}")
@@ -111,7 +115,6 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None
     notes = []
     ids = None
     if trajectory is None:
-        from lsd3d_usd.layout.usdio import layout_from_stage
         if not scene_stage.GetPrimAtPath(S.LAYOUT_PATH):
             raise InputError(f"{scene_path}: {'--route' if route is not None else 'a rig without --trajectory'} "
                              f"needs the scene's layout ({S.LAYOUT_PATH}); give --trajectory poses.json")

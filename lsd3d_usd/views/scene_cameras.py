@@ -19,8 +19,15 @@ region: "" for the whole scene, else chunk_<i>_<j>).
 from __future__ import annotations
 
 import numpy as np
+from pxr import Sdf, UsdGeom
 
 from lsd3d_usd import scene as S
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.ggds.regions.plan import plan_regions
+from lsd3d_usd.ggds.regions.views import region_views
+from lsd3d_usd.hashing import content_hash
+from lsd3d_usd.render.camera import Camera, look_at, to_usd
+from lsd3d_usd.splats.chunkio import read_chunk_map
 
 OVERVIEW_SIZE = (960, 540)
 OVERVIEW_FOV_DEG = 60.0
@@ -29,7 +36,6 @@ OVERVIEW_ELEVATION_DEG = 35.0
 
 def overview_cameras(layout) -> dict:
     """name -> Camera: a top view and four corner obliques framing the layout's bounds."""
-    from lsd3d_usd.render.camera import Camera, look_at
     (x0, y0), (x1, y1) = layout.bounds()
     lanes = layout.drivable_lanes() or layout.lanes
     z = float(np.median(np.concatenate([ln.points[:, 2] for ln in lanes]))) if lanes else 0.0
@@ -56,10 +62,6 @@ def ggds_views(sc: S.Scene, layout, cfg) -> tuple[list, list]:
     scene's surfel chunks: its regions (ggds.regions.plan_regions) in name order, each
     sampled by ggds.regions.region_views; a region without lanes inside has none (GGDS
     keeps its surfels as they are)."""
-    from lsd3d_usd.errors import InputError
-    from lsd3d_usd.ggds.regions.plan import plan_regions
-    from lsd3d_usd.ggds.regions.views import region_views
-    from lsd3d_usd.splats.chunkio import read_chunk_map
     regions = sorted((r for phase in plan_regions(read_chunk_map(sc.layer_path("surfels")),
                                                   cfg.ggds.regions) for r in phase),
                      key=lambda r: r.name)
@@ -80,10 +82,7 @@ def write_scene_cameras(sc: S.Scene, layout, cfg, log=print) -> dict:
     """Write (or keep, when unchanged) the scene's cameras layer for a `generate`
     configuration ``cfg`` (GenerateConfig) on the scene's surfels: the views GGDS trains and
     evaluates on, and the overviews. Returns a summary for generate's."""
-    from pxr import Sdf, UsdGeom
 
-    from lsd3d_usd.hashing import content_hash
-    from lsd3d_usd.render.camera import to_usd
 
     train, held_out = ggds_views(sc, layout, cfg)
     overview = overview_cameras(layout)

@@ -25,18 +25,37 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+import torch
+from pxr import Sdf, Usd, UsdGeom, UsdLux
 
+from lsd3d_usd.actors.relight import (
+    actor_sample_points,
+    lighting_from_stage,
+    proxy_occluder,
+)
+from lsd3d_usd.actors.usdio import ActorSet
+from lsd3d_usd.env.lookup import env_lookup
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import (
+    ACTORS_PATH,
+    CAMERAS_PATH,
+    PROXY_PATH,
+    SURFELS_PATH,
+    WORLD,
+    parse_chunk_prim_name,
+)
+from lsd3d_usd.splats.field import SH_C0, SurfelField
+from lsd3d_usd.splats.init import transform_surfels
+from lsd3d_usd.splats.usdio import is_particle_field, read_surfels, surfel_prims
+from lsd3d_usd.views.images import read_image
 
 
 def usd_time(time):
     """A Usd.TimeCode for a time code (float) or None (the earliest time)."""
-    from pxr import Usd
     return Usd.TimeCode.EarliestTime() if time is None else Usd.TimeCode(time)
 
 
 def _world(prim, t) -> np.ndarray:
-    from pxr import UsdGeom
     return np.array(UsdGeom.Xformable(prim).ComputeLocalToWorldTransform(t), np.float64).T
 
 
@@ -44,8 +63,6 @@ def _world(prim, t) -> np.ndarray:
 def scene_surfel_prims(stage) -> list:
     """ParticleField prims of the scene itself: outside /World/Actors (actors are drawn, relit,
     from their assets) and /World/Cameras."""
-    from lsd3d_usd.scene import ACTORS_PATH, CAMERAS_PATH
-    from lsd3d_usd.splats.usdio import surfel_prims
     skip = (ACTORS_PATH + "/", CAMERAS_PATH + "/")
     return [p for p in surfel_prims(stage) if not str(p.GetPath()).startswith(skip)]
 
@@ -53,11 +70,7 @@ def scene_surfel_prims(stage) -> list:
 def scene_surfels(stage, time=None, prims=None):
     """The scene's visible surfels in world space as one SurfelField (semantics dropped when
     the prims' class tables differ), or None when there are none."""
-    from pxr import UsdGeom
 
-    from lsd3d_usd.splats.field import SurfelField
-    from lsd3d_usd.splats.init import transform_surfels
-    from lsd3d_usd.splats.usdio import read_surfels
 
     t = usd_time(time)
     fields = []
@@ -73,7 +86,6 @@ def scene_surfels(stage, time=None, prims=None):
 def _might_vary(prim) -> bool:
     """Whether anything that places or shows ``prim``'s surfels may change with time: its own
     attributes, or an ancestor's transform or visibility."""
-    from pxr import UsdGeom
     if any(a.ValueMightBeTimeVarying() for a in prim.GetAttributes()):
         return True
     p = prim.GetParent()
@@ -101,9 +113,7 @@ class EnvMap:
         """Radiance (…,3) for world directions (…,3): into the dome's frame (and from a Y pole
         axis to ours), then env.lookup.env_lookup — the one latlong lookup of the project
         (bilinear, wrapping in longitude, continuous at the poles)."""
-        import torch
 
-        from lsd3d_usd.env.lookup import env_lookup
         d = np.asarray(dirs, np.float64) @ self.world_from_dome  # = R^T d: into the dome frame
         if self.pole_axis == "Y":
             d = np.stack([d[..., 0], -d[..., 2], d[..., 1]], axis=-1)
@@ -120,7 +130,6 @@ class TextureCache:
         self._images: dict = {}
 
     def image(self, path: str) -> np.ndarray:
-        from lsd3d_usd.views.images import read_image
         key = (path, os.path.getmtime(path))
         img = self._images.pop(key, None)
         if img is None:
@@ -134,7 +143,6 @@ class TextureCache:
 def read_dome(stage, time=None, textures: TextureCache | None = None) -> EnvMap | None:
     """The first visible DomeLight with a texture (intensity, exposure and colour applied),
     or None (black background). ``textures`` caches decoded images across calls."""
-    from pxr import Usd, UsdGeom, UsdLux
 
     t = usd_time(time)
     textures = TextureCache() if textures is None else textures
@@ -172,7 +180,6 @@ def read_dome(stage, time=None, textures: TextureCache | None = None) -> EnvMap 
 def camera_prim(stage, camera_path: str):
     """The UsdGeom.Camera prim at ``camera_path``; one InputError naming the cameras the stage
     has otherwise."""
-    from pxr import Sdf, Usd, UsdGeom
 
     if not Sdf.Path.IsValidPathString(camera_path) or not camera_path.startswith("/"):
         raise InputError(f"--camera {camera_path!r}: not an absolute prim path (e.g. /World/Cameras/Front)")
@@ -206,7 +213,6 @@ class ChunkStreamer:
     [j s, (j+1) s) with s the scene's chunk size. Surfels of a loaded chunk are read once."""
 
     def __init__(self, stage, radius: float, chunk_size: float | None = None):
-        from lsd3d_usd.scene import PROXY_PATH, SURFELS_PATH, parse_chunk_prim_name
         self.stage = stage
         self.radius = float(radius)
         self.size = float(chunk_size or _scene_chunk_size(stage))
@@ -249,13 +255,11 @@ class ChunkStreamer:
 
     def surfels(self, time=None):
         """Surfels of the loaded chunks (in scene order), or None."""
-        from lsd3d_usd.splats.field import SurfelField
         parts = []
         for key in sorted(self.loaded, key=lambda k: str(self.chunks[k][0])):
             if key not in self._fields:
                 prims = [self.stage.GetPrimAtPath(p) for p in self.chunks[key]]
                 prims = [p for p in prims if p and p.IsLoaded()]
-                from lsd3d_usd.splats.usdio import is_particle_field
                 self._fields[key] = scene_surfels(self.stage, time,
                                                   [p for p in prims if is_particle_field(p)])
             if self._fields[key] is not None:
@@ -264,7 +268,6 @@ class ChunkStreamer:
 
 
 def _scene_chunk_size(stage) -> float:
-    from lsd3d_usd.scene import WORLD
     world = stage.GetPrimAtPath(WORLD)
     attr = world.GetAttribute("lsd3d:scene:chunkSize") if world else None
     v = attr.Get() if attr and attr.HasValue() else None
@@ -272,7 +275,6 @@ def _scene_chunk_size(stage) -> float:
 
 
 def _all_defined():
-    from pxr import Usd
     return Usd.PrimIsActive & Usd.PrimIsDefined & ~Usd.PrimIsAbstract
 
 
@@ -288,7 +290,6 @@ class SceneReader:
 
     def __init__(self, stage, *, use_env: bool = True, actors: bool = True,
                  textures: TextureCache | None = None, stream_radius: float | None = None):
-        from lsd3d_usd.actors.usdio import ActorSet
         self.stage = stage
         self.use_env = use_env
         self.textures = TextureCache() if textures is None else textures
@@ -334,9 +335,6 @@ class SceneReader:
         return self._memo("actors", time, self._place_actors)
 
     def _place_actors(self, time) -> ActorFrame:
-        from lsd3d_usd.actors.relight import actor_sample_points, lighting_from_stage, proxy_occluder
-        from lsd3d_usd.splats.field import SH_C0, SurfelField
-        from lsd3d_usd.splats.init import transform_surfels
 
         if self.actors is None or not len(self.actors):
             return ActorFrame.empty()

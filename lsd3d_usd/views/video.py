@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import imageio_ffmpeg
 import numpy as np
 
 from lsd3d_usd.errors import Lsd3dError
@@ -18,7 +19,6 @@ from lsd3d_usd.errors import Lsd3dError
 def ffmpeg_exe() -> str:
     """The bundled ffmpeg binary (or IMAGEIO_FFMPEG_EXE); one clear error when there is none,
     e.g. on a platform imageio-ffmpeg ships no binary for."""
-    import imageio_ffmpeg
     try:
         exe = imageio_ffmpeg.get_ffmpeg_exe()
     except RuntimeError as e:
@@ -37,7 +37,6 @@ def _pad(frame: np.ndarray, block: int) -> np.ndarray:
 
 def write_mp4(path, frames, fps: float, block: int = 2) -> Path:
     """Write uint8 RGB frames (iterable of (H,W,3), all the same size) as an H.264 MP4."""
-    import imageio_ffmpeg
 
     ffmpeg_exe()   # a missing binary is one line before any frame is encoded
     path = Path(path)
@@ -75,7 +74,6 @@ def write_mp4(path, frames, fps: float, block: int = 2) -> Path:
 
 def read_mp4(path) -> tuple[np.ndarray, float]:
     """Decode an MP4 back to uint8 RGB frames (n, H, W, 3) and its frame rate."""
-    import imageio_ffmpeg
     gen = imageio_ffmpeg.read_frames(str(path))
     meta = gen.__next__()
     w, h = meta["size"]

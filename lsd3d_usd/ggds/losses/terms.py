@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
+import numpy as np
+
 from lsd3d_usd.registry import Registry
 
 # torch and the loss functions are imported inside the terms: the registry (and with it the
@@ -47,6 +49,7 @@ class LossTerm:
 
 # ----------------------------------------------------------------------------- built-ins
 def _l1(ctx: StepContext):
+    # local import: the registry loads without torch (module note)
     from lsd3d_usd.ggds.losses import image as losses
     return losses.l1_loss(ctx.x, ctx.target)
 
@@ -61,16 +64,19 @@ def _perceptual(ctx: StepContext):
 
 def _perceptual_setup(cfg, prior):
     if cfg.lpips is not None:
+        # local import: the registry loads without torch (module note)
         from lsd3d_usd.ggds.losses.lpips import LPIPSLoss
         return LPIPSLoss.from_files(cfg.lpips, cfg.lpips_lin, linear=True)  # renders are linear
+    # local import: the registry loads without torch (module note)
     from lsd3d_usd.ggds.losses.perceptual import EffNetPerceptualLoss
     return EffNetPerceptualLoss()
 
 
 def _normal(ctx: StepContext):
-    import numpy as np
+    # local import: the registry loads without torch (module note)
     import torch
 
+    # local import: the registry loads without torch (module note)
     from lsd3d_usd.ggds.losses import image as losses
     R = torch.from_numpy(ctx.camera.viewmat[:3, :3].astype(np.float32))
     proxy_n_cam = ctx.gbuffer.normal @ R.T
@@ -78,13 +84,16 @@ def _normal(ctx: StepContext):
 
 
 def _disparity(ctx: StepContext):
+    # local import: the registry loads without torch (module note)
     from lsd3d_usd.ggds.losses import image as losses
     return losses.disparity_loss(ctx.render.depth_expected, ctx.gbuffer.depth, ctx.covered())
 
 
 def _normal_consistency(ctx: StepContext):
+    # local import: the registry loads without torch (module note)
     import torch
 
+    # local import: the registry loads without torch (module note)
     from lsd3d_usd.ggds.losses.regularizers import normal_consistency
     r = ctx.render
     return normal_consistency(r.normal, r.depth_expected, r.alpha,
@@ -92,6 +101,7 @@ def _normal_consistency(ctx: StepContext):
 
 
 def _tv(ctx: StepContext):
+    # local import: the registry loads without torch (module note)
     from lsd3d_usd.ggds.losses import image as losses
     return losses.tv_loss(ctx.x)
 

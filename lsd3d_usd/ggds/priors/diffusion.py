@@ -80,6 +80,7 @@ def _import_diffusers():
     os.environ.setdefault("TRANSFORMERS_OFFLINE", "1")
     os.environ.setdefault("HF_HUB_DISABLE_TELEMETRY", "1")
     try:
+        # local import: optional dependency
         import diffusers
         import transformers
     except ImportError:

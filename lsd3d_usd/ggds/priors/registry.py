@@ -89,6 +89,7 @@ class PriorEntry:
 
 def _check_device_available(cfg: PriorConfig) -> None:
     if cfg.device.startswith("cuda"):
+        # local import: not loaded for --help
         import torch
         if not torch.cuda.is_available():
             raise InputError(f"--device {cfg.device}: torch sees no CUDA device here "
@@ -103,6 +104,7 @@ def _procedural_check(arg, cfg):
 
 
 def _procedural_make(arg, cfg, seed):
+    # local import: not loaded for --help
     from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
     return ProceduralPrior(seed=seed, supersample=cfg.supersample)
 
@@ -113,12 +115,14 @@ def _diffusers_check(arg, cfg):
     if not Path(arg).is_dir():
         raise InputError(f"--prior diffusers:{arg}: no such directory (the diffusion prior "
                          "loads local weights only; nothing is downloaded)")
+    # local import: not loaded for --help
     from lsd3d_usd.ggds.priors.diffusion import check_model_dir
     check_model_dir(arg, cfg.controlnet)
     _check_device_available(cfg)
 
 
 def _diffusers_make(arg, cfg, seed):
+    # local import: not loaded for --help
     from lsd3d_usd.ggds.priors.diffusion import DiffusersPrior
     return DiffusersPrior.from_pretrained(arg, cfg.controlnet, device=cfg.device,
                                           guidance_scale=cfg.guidance)

@@ -22,9 +22,14 @@ import json
 from pathlib import Path
 
 import numpy as np
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.scene import parse_chunk_prim_name
+from lsd3d_usd.splats import chunkio
+from lsd3d_usd.splats.chunkio import chunks_base
 
 RUN_ATTRIBUTES = ("positions", "orientations", "scales", "opacities", "sh")
 CHECKPOINT_VERSION = 1
@@ -57,7 +62,6 @@ def run_layer_path(sc: S.Scene, run: str) -> Path:
 
 
 def run_chunk_folder(sc: S.Scene, run: str) -> Path:
-    from lsd3d_usd.splats.chunkio import chunks_base
     return chunks_base(run_layer_path(sc, run))
 
 
@@ -108,8 +112,6 @@ def refresh_run_layer(sc: S.Scene, run: str) -> Path:
     """(Re)write the run layer from what is on disk: an over with a payload for every chunk
     file the run has written, and provenance gathered from the plan and the regions'
     progress. Atomic; the layer joins the stack if it is not there yet."""
-    from lsd3d_usd.scene import parse_chunk_prim_name
-    from lsd3d_usd.splats import chunkio
     plan = read_plan(sc, run)
     folder = run_chunk_folder(sc, run)
     infos = {}
@@ -221,8 +223,6 @@ class RegionRunStore:
         if not name.startswith("state-") or "/" in name or not name.endswith(".safetensors"):
             raise InputError(f"{self._meta}: bad tensor file name {name!r}")
         path = self.scene.inside(self.dir / name, "checkpoint file")
-        from safetensors import SafetensorError
-        from safetensors.torch import load_file
         try:
             tensors = load_file(str(path))
         except (SafetensorError, OSError, ValueError) as e:
@@ -233,7 +233,6 @@ class RegionRunStore:
         """Crash-consistent: the tensors go to a new file named by step, then the JSON that
         names it replaces the old JSON (atomic), then older tensor files are removed. A crash
         at any point leaves a JSON whose tensor file exists."""
-        from safetensors.torch import save
         self.dir.mkdir(parents=True, exist_ok=True)
         name = f"state-{int(meta['step']):08d}.safetensors"
         S.atomic_write_bytes(self.dir / name, save(tensors))
@@ -252,7 +251,6 @@ class RegionRunStore:
     def write_layer(self, field, provenance: dict) -> None:
         """The region's surfels into the run's chunk files, its progress beside them, then
         (single process) the run layer."""
-        from lsd3d_usd.splats import chunkio
         folder = run_chunk_folder(self.scene, self.run)
         for key, a, b in self.owners:
             chunkio.write_run_chunk(folder, key, field.rows(a, b), RUN_ATTRIBUTES)
