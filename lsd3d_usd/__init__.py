@@ -36,7 +36,6 @@ FALLBACK_PRIM_TYPES = {SURFEL_TYPE: ("ParticleField",)}
 
 
 def _register_schema() -> bool:
-
     Plug.Registry().RegisterPlugins(str(SCHEMA_DIR))
     if Usd.SchemaRegistry().FindConcretePrimDefinition(SURFEL_TYPE) is None:
         warnings.warn(

@@ -145,11 +145,8 @@ BENCHMARKS = Registry("lsd3d_usd.benchmarks", "benchmark", {
 
 def _runner(bench: Benchmark):
     def run(args) -> int:
-        if args.list_options:
-            ct.print_options(bench.config)
-            return 0
-        cfg, _ = ct.from_command_line(args, bench.config)
-        return bench.run(cfg)
+        got = ct.command_config(args, bench.config)
+        return 0 if got is None else bench.run(got[0])
     return run
 
 

@@ -53,7 +53,6 @@ def _plugin_path(args) -> int:
 
 
 def _scene(args) -> int:
-
     sc = Scene.open(args.scene)
     if args.action == "layers":
         for info in sc.layers():
@@ -135,16 +134,14 @@ GROUP_TITLES = {"env": "environment (docs/env.md)", "surfels": "initial surfels"
 
 
 def _generate(args) -> int:
-
     # local import: not loaded for --help
     from lsd3d_usd.pipeline import RunOptions, generate
 
-    if args.list_options:
-        ct.print_options(C.GenerateConfig)
+    got = ct.command_config(args, C.GenerateConfig, display=C.FLAG_NAMES,
+                            needs={"output": "generate: -o/--output SCENE is required"})
+    if got is None:
         return 0
-    if not args.output:
-        raise InputError("generate: -o/--output SCENE is required")
-    cfg, explicit = ct.from_command_line(args, C.GenerateConfig, C.FLAG_NAMES)
+    cfg, explicit = got
     if args.workers is not None and args.workers < 1:
         raise InputError(f"--workers {args.workers}: must be >= 1")
     if args.address and args.executor != "ray":
@@ -170,7 +167,6 @@ def _generate(args) -> int:
 
 
 def register_generate(sub: argparse._SubParsersAction) -> None:
-
     p = sub.add_parser(
         "generate", help="build a scene: layout → proxy → environment → surfels → GGDS",
         description="Generate a driving scene as a USD stage folder. Builds (or reuses, when "

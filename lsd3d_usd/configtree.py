@@ -531,20 +531,26 @@ def describe(cls) -> list[dict]:
 
 
 # ------------------------------------------------------------------------------ a command's tree
-def load_file(path, cls, where: str = "--config") -> dict:
-    """A TOML file → {leaf key: value} of ``cls`` (keys checked; relative path values made
-    absolute against the file's folder)."""
+def read_toml(path, missing: str) -> dict:
+    """The table of a TOML file; one InputError line (``missing`` when there is no file)."""
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"{where} {path}: no such file")
+        raise InputError(missing)
     try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8"))
     except tomllib.TOMLDecodeError as e:
         raise InputError(f"{p}: not valid TOML: {e}") from None
     except UnicodeDecodeError as e:
         raise InputError(f"{p}: not UTF-8 text: {e}") from None
     except RecursionError:
         raise InputError(f"{p}: tables or arrays nested too deeply") from None
+
+
+def load_file(path, cls, where: str = "--config") -> dict:
+    """A TOML file → {leaf key: value} of ``cls`` (keys checked; relative path values made
+    absolute against the file's folder)."""
+    p = Path(path)
+    data = read_toml(p, f"{where} {path}: no such file")
     return resolve_paths(flatten(data, cls, f"{p.name}: "), cls, p.parent.absolute())
 
 
@@ -599,6 +605,19 @@ def build(cls, layers, display: dict | None = None):
     for where, values in layers:
         cfg = apply(cfg, values, where, flags if where == "" else None)
     return cfg
+
+
+def command_config(args, cls, *, needs: dict | None = None, display: dict | None = None):
+    """A command's tree from its parsed command line: None after printing it for
+    --list-options; else InputError for the first of ``needs`` ({argument: message}) that is
+    missing, else (the tree, the keys given explicitly)."""
+    if getattr(args, "list_options", False):
+        print_options(cls)
+        return None
+    for name, message in (needs or {}).items():
+        if not getattr(args, name, None):
+            raise InputError(message)
+    return from_command_line(args, cls, display)
 
 
 def from_command_line(args, cls, display: dict | None = None):

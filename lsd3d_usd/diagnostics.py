@@ -38,8 +38,6 @@ class KernelCompileNotice:
     kernel; nested events (kernels calling kernels) count once."""
 
     def __init__(self, log):
-
-
         self._log, self._clock, self._event = log, time.perf_counter, event
         self.seconds, self.kernels, self._depth, self._t0 = 0.0, 0, 0, 0.0
         notice = self

@@ -247,7 +247,6 @@ def _proxy_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
 def _env_step(sc: S.Scene, p: Plan):
     """The EXR (cached by parameter hash) and the env layer, and the light GGDS sees."""
 
-
     w, h = p.cfg.env.resolution
     exr = write_env(p.env_params, sc.textures_dir, w, h)
     light = scene_light(p.env_params, exr)

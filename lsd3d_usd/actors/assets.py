@@ -207,7 +207,6 @@ def ply_to_asset(ply_path, out_path, kind: str = "user", semantic: str = VEHICLE
 
     The splats are taken as given: Z up, metres, +X forward, origin on the ground."""
 
-
     field_ = read_ply(ply_path)
     if field_.n == 0:
         raise InputError(f"{ply_path}: no splats in the file")

@@ -189,8 +189,6 @@ class ActorSet:
     `transforms(t)` / `visible(t)` place and show them at time t. Stateless per call."""
 
     def __init__(self, stage, root_path: str | None = None):
-
-
         self.stage = stage
         root_path = root_path or ACTORS_PATH
         check_references(stage, root_path)

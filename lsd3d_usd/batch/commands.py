@@ -8,7 +8,6 @@ from lsd3d_usd.errors import InputError
 
 
 def _batch(args) -> int:
-
     # local import: not loaded for --help
     from lsd3d_usd.execution import make_executor
 

@@ -31,11 +31,10 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import tomllib
 
 from lsd3d_usd import configtree as ct
 from lsd3d_usd.config import GenerateConfig
-from lsd3d_usd.configtree import resolve_paths
+from lsd3d_usd.configtree import read_toml, resolve_paths
 from lsd3d_usd.errors import InputError
 
 SPLIT_CHOICES = ("auto", "always", "never")
@@ -245,12 +244,4 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
 
 def load_spec(path: str | Path) -> BatchSpec:
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such batch spec file")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"{path}: not valid TOML: {e}") from None
-    except UnicodeDecodeError as e:
-        raise InputError(f"{path}: not UTF-8 text: {e}") from None
-    return parse_spec(data, path)
+    return parse_spec(read_toml(path, f"{path}: no such batch spec file"), path)

@@ -76,7 +76,6 @@ class GBuffer:
                 raise InputError(f"GBuffer.{name} must be {shape}, got {got}")
 
 
-
 def view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray, face_ids: np.ndarray | None,
                  shadow: ShadowMap | None = None, fine: bool = True) -> GBuffer:
     """The proxy G-buffer of ``camera``; with ``fine``, GBuffer.fine makes it again at k× the

@@ -12,7 +12,6 @@ SEASONS = ("spring", "summer", "autumn", "winter")
 
 
 def _env(args) -> int:
-
     # local import: not loaded for --help
     from lsd3d_usd.env.exr import write_env
     from lsd3d_usd.env.mapping import check_resolution

@@ -7,18 +7,15 @@ from pathlib import Path
 
 from lsd3d_usd import configtree as ct
 from lsd3d_usd.cliutil import check_output_path
-from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval.options import EvalConfig
 from lsd3d_usd.views.commands import check_deferred
 
 
 def _eval(args) -> int:
-    if args.list_options:
-        ct.print_options(EvalConfig)
+    got = ct.command_config(args, EvalConfig, needs={"scene": "eval: give the SCENE folder"})
+    if got is None:
         return 0
-    if not args.scene:
-        raise InputError("eval: give the SCENE folder")
-    cfg, explicit = ct.from_command_line(args, EvalConfig)
+    cfg, explicit = got
     check_deferred(cfg.deferred, explicit)
     if args.json:   # checked now, not after the whole evaluation
         check_output_path(args.json, "--json", what="metrics file")

@@ -138,7 +138,6 @@ def evaluate(o: EvalOptions) -> dict:
     base, base_why = open_baseline(o.scene, o.cfg.prior_baseline, n_held,
                                    lambda rgb: display(rgb, o.cfg.tonemap, o.cfg.exposure), o.cfg.run)
 
-
     timings = {}
     t = time.perf_counter()
     stage = sc.open_stage()

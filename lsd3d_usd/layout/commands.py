@@ -127,7 +127,6 @@ def _parse_floats(text: str | None, n: int, flag: str, example: str) -> tuple | 
 
 
 def _import(args) -> int:
-
     # local import: not loaded for --help
     from lsd3d_usd.layout import usdio
 
@@ -155,7 +154,6 @@ def _import(args) -> int:
 
 
 def _export(args) -> int:
-
     # local import: not loaded for --help
     from lsd3d_usd.layout import opendrive_export, usdio
 
@@ -195,7 +193,6 @@ def _info(args) -> int:
 
 
 def _lanes(args) -> int:
-
     # local import: not loaded for --help
     from lsd3d_usd.layout import lanes, usdio
     if args.png:

@@ -130,7 +130,6 @@ def draw_lanes(layout: Layout, path, title: str = "", max_px: int = 2400) -> Pat
     middle (junction lanes dashed), other lanes grey, road edges and buildings faint."""
     matplotlib.use("Agg")
 
-
     (x0, y0), (x1, y1) = layout.bounds()
     span = max(x1 - x0, y1 - y0, 1.0)
     # ~8 px per metre, so ids of neighbouring lanes stay apart; at most max_px on a side

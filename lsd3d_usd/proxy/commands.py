@@ -40,13 +40,12 @@ def _build(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.layout.usdio import read_layout
 
-
-    if args.list_options:
-        ct.print_options(ProxyParams)
+    got = ct.command_config(args, ProxyParams, needs={
+        "layout": "proxy build: --layout LAYOUT is required",
+        "output": "proxy build: -o PROXY.usdc is required"})
+    if got is None:
         return 0
-    if not args.layout or not args.output:
-        raise InputError("proxy build: --layout LAYOUT and -o PROXY.usdc are required")
-    params, _ = ct.from_command_line(args, ProxyParams)
+    params, _ = got
     check_output_path(args.output, "-o", suffixes=USD_SUFFIXES, what="proxy layer")
     layout = read_layout(args.layout)
     if args.chunk:

@@ -331,7 +331,6 @@ def label_faces(verts: np.ndarray, faces: np.ndarray, plane: np.ndarray,
                 prm: PointProxyParams, tree=None, labels: np.ndarray | None = None) -> np.ndarray:
     """Class id per face: nearest labelled point, else the height rule."""
 
-
     c = verts[faces].mean(1)
     if tree is not None and labels is not None:
         _, nn = tree.query(c, k=1)
@@ -357,8 +356,6 @@ def points_to_parts(points: np.ndarray, labels: np.ndarray | None = None,
                     max_chunks: int | None = None) -> dict[tuple[int, int], list[MeshPart]]:
     """Mesh parts per chunk (one open part per class) reconstructed from points. More than
     limits.CHUNKS chunks (or ``max_chunks``) are refused before the first is built."""
-
-
 
     if not params.voxel > 0:
         raise InputError(f"--voxel {params.voxel}: must be > 0")
@@ -398,7 +395,6 @@ def proxy_from_points(cloud_path, output, params: PointProxyParams = PointProxyP
                       progress: bool = False, max_chunks: int | None = None,
                       max_vertices: int | None = None) -> dict:
     """Read a cloud, reconstruct, write a proxy layer (same layout as the layout path)."""
-
 
     t0 = time.perf_counter()
     out = Path(output)

@@ -121,9 +121,6 @@ def render_proxy_file(path, output, view: str = "perspective", width: int = 1600
 
 
 def save_png(img: np.ndarray, output) -> Path:
-
-
-
     buf = io.BytesIO()
     iio.imwrite(buf, (np.clip(img, 0, 1) * 255 + 0.5).astype(np.uint8), extension=".png")
     return atomic_write_bytes(output, buf.getvalue())

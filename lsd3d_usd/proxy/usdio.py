@@ -69,7 +69,6 @@ def _class_color(cls: str) -> np.ndarray:
 
 
 def _author_mesh(stage, path: str, cm: ClassMesh, solid: bool):
-
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = np.ascontiguousarray(cm.vertices, dtype=np.float32)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
@@ -107,7 +106,6 @@ def write_chunk_layer(parts: list[MeshPart], key: tuple[int, int], path: str | P
                       inputs_hash: str = "", params: dict | None = None) -> Path:
     """Write one chunk's meshes (merged per class) to its own layer, atomically."""
 
-
     name = chunk_prim_name(*key)
     stage = Usd.Stage.CreateInMemory()
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
@@ -132,7 +130,6 @@ def write_chunk_layer(parts: list[MeshPart], key: tuple[int, int], path: str | P
 
 def _root_layer(keys: list[tuple[int, int]], folder_name: str):
     """Root proxy layer built with Sdf (no composition, so payload files need not exist yet)."""
-
 
     layer = Sdf.Layer.CreateAnonymous(".usdc")
     layer.defaultPrim = WORLD.strip("/")
@@ -212,7 +209,6 @@ class BuildReport:
 
 
 def layout_hash(layout) -> str:
-
     h = hashlib.sha256()
     for f in sorted(layout.features(), key=lambda f: (type(f).__name__, f.id)):
         h.update(_feature_bytes(f))
@@ -231,7 +227,6 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
     layer stay listed; without it the root lists exactly the layout's chunks
     (files of chunks no longer in the layout are removed).
     """
-
 
     t0 = time.perf_counter()
     path = Path(path)
@@ -302,7 +297,6 @@ def read_proxy(path: str | Path, chunks=None) -> dict[tuple[int, int], dict[str,
     Only the requested chunks' payloads are loaded (default: all).
     """
 
-
     stage = open_stage(path, load=False)
     root = stage.GetPrimAtPath(PROXY_PATH)
     if not root or not root.IsValid():
@@ -329,7 +323,6 @@ def read_proxy(path: str | Path, chunks=None) -> dict[tuple[int, int], dict[str,
 
 
 def class_mesh_from_prim(prim) -> ClassMesh:
-
     mesh = UsdGeom.Mesh(prim)
     where = str(prim.GetPath())
     pts = np.asarray(mesh.GetPointsAttr().Get() or [], dtype=np.float64).reshape(-1, 3)

@@ -283,7 +283,6 @@ def plot(records, path):
 
 
 def main(json_path=None, quick=False, png_path=None, seed=0, log=print):
-
     torch.set_num_threads(max(1, os.cpu_count() or 1))
     log(f"cores: {os.cpu_count()}, numba threads: {__import__('numba').get_num_threads()}, "
         f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}, "

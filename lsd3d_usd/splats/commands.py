@@ -133,7 +133,6 @@ def _stage_meshes(stage, root, t):
 
 
 def _init(args) -> int:
-
     # local import: not loaded for --help
     from lsd3d_usd.splats.init import mesh_to_surfels
 

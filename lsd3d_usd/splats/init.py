@@ -263,7 +263,6 @@ def transform_surfels(field, M: np.ndarray):
     """Apply a 4x4 (column-vector) world transform to a SurfelField: positions, disk axes
     and scales (the scaled axes are re-orthonormalised around the transformed normal)."""
 
-
     if np.allclose(M, np.eye(4), atol=0, rtol=0):
         return field
     A = M[:3, :3]

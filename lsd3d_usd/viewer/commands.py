@@ -10,7 +10,6 @@ from lsd3d_usd.errors import InputError
 
 
 def _view(args) -> int:
-
     # local import: not loaded for --help
     from lsd3d_usd.viewer.server import is_loopback, make_server
     from lsd3d_usd.viewer.service import ViewerService

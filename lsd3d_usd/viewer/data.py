@@ -97,7 +97,6 @@ class SceneSource:
     """A scene folder opened for viewing (read-only)."""
 
     def __init__(self, root: str | os.PathLike):
-
         self.root = Path(root).absolute()
         if self.root.name == S.ROOT_FILE and self.root.is_file():
             self.root = self.root.parent          # the scene's root layer names its folder
@@ -114,7 +113,6 @@ class SceneSource:
 
     # ---------------------------------------------------------------- layer stack
     def layers(self) -> list[LayerEntry]:
-
         out = []
         for info in self._scene.layers():
             kind = GGDS if info.name.startswith(S.GGDS_PREFIX) else "step"
@@ -134,7 +132,6 @@ class SceneSource:
     def open_stage(self, layer_files: list[str], env_variant: str | None = None, load: bool = True):
         """The scene composed from ``layer_files`` (names under layers/, strongest first) on an
         in-memory copy of the root layer, with ``env_variant`` selected in the session layer."""
-
 
         try:
             root = Sdf.Layer.FindOrOpen(str(self.root_file))
@@ -192,7 +189,6 @@ class SceneSource:
 
     # --------------------------------------------------------------------- metadata
     def chunk_size(self, stage) -> float:
-
         world = stage.GetPrimAtPath(S.WORLD)
         attr = world.GetAttribute("lsd3d:scene:chunkSize") if world else None
         size = float(attr.Get()) if attr and attr.HasValue() else 100.0
@@ -215,7 +211,6 @@ class SceneSource:
 
     # ---------------------------------------------------------------------------- env
     def env_variants(self, stage) -> tuple[list[str], str | None]:
-
         env = stage.GetPrimAtPath(S.ENV_PATH)
         if not env or not env.GetVariantSets().HasVariantSet(ENV_VARIANT_SET):
             return [], None
@@ -223,8 +218,6 @@ class SceneSource:
         return list(vs.GetVariantNames()), vs.GetVariantSelection() or None
 
     def _select_env(self, stage, name: str) -> None:
-
-
         names, _ = self.env_variants(stage)
         if name not in names:
             raise InputError(f"environment variant {name!r} is not among {names or 'none'}")
@@ -251,7 +244,6 @@ class SceneSource:
         return EnvData(env.image, np.asarray(env.world_from_dome, np.float64), env.pole_axis, env.source)
 
     def lighting(self, stage) -> Lighting:
-
         light = lighting_from_stage(stage)
         return Lighting(np.asarray(light.sh, np.float64), np.asarray(light.sun_dir, np.float64),
                         np.asarray(light.sun_map, np.float64), np.asarray(light.sun_residual, np.float64),
@@ -286,7 +278,6 @@ class SceneSource:
     def proxy_chunk_keys(self) -> list[tuple[int, int]]:
         """Chunks present in the proxy layer (their payloads are not loaded)."""
 
-
         path = self.proxy_file()
         if path is None:
             return []
@@ -304,7 +295,6 @@ class SceneSource:
     # -------------------------------------------------------------------------- actors
     def actors(self, stage, max_samples: int = 2000) -> tuple[list[float], list[ActorData]]:
         """Actors with their meshes (actor frame) and world transforms at shared time codes."""
-
 
         aset = ActorSet(stage)
         if not len(aset):
@@ -325,8 +315,6 @@ class SceneSource:
 
     # ------------------------------------------------------------------------- cameras
     def cameras(self, stage, max_samples: int = 2000) -> list[CameraData]:
-
-
         out = []
         for prim in Usd.PrimRange(stage.GetPseudoRoot()):
             if not prim.IsA(UsdGeom.Camera):

@@ -226,7 +226,6 @@ class ViewerService:
         return True
 
     def _build(self, cfg: Config, stage, size: float) -> None:
-
         t0 = time.perf_counter()
         groups: dict = {}
         classes: list = []

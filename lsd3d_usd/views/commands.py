@@ -39,12 +39,11 @@ def make_deferrer(scene, d: DeferredConfig, log=None):
 
 
 def _render(args) -> int:
-    if args.list_options:
-        ct.print_options(RenderConfig)
+    got = ct.command_config(args, RenderConfig, needs={"scene": "render: give the SCENE",
+                                                         "output": "render: give -o OUT"})
+    if got is None:
         return 0
-    if not args.scene or not args.output:
-        raise InputError("render: give SCENE and -o OUT")
-    cfg, explicit = ct.from_command_line(args, RenderConfig)
+    cfg, explicit = got
     progress = not args.no_progress and sys.stderr.isatty()
     size = cfg.width_height()
     check_deferred(cfg.deferred, explicit)

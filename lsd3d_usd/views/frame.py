@@ -49,7 +49,6 @@ def render_surfels(field, camera: Camera, *, background=None, normal_space: str 
     """Rasterise a SurfelField for ``camera`` (no autograd): a render.RasterResult.
     background: None or (H, W, 3) / (3,) numpy radiance behind the surfels."""
 
-
     def t(a):
         return torch.from_numpy(np.ascontiguousarray(a))
 

@@ -27,7 +27,6 @@ def tonemap(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.
     return np.clip(y, 0.0, 1.0)
 
 
-
 def display_uint8(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.ndarray:
     """Scene-linear RGB -> what a screen shows: tone-mapped, sRGB-encoded, 8 bit."""
     return np.round(srgb_encode(tonemap(rgb, exposure, method)) * 255.0).astype(np.uint8)

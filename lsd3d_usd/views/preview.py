@@ -61,7 +61,6 @@ def render_preview(scene_path, camera_path: str, out_dir, *, times=(None,), reso
     With ``deferrer`` (views.deferred.Deferrer) each frame is also deferred through the
     scene's prior: <name>_deferred.<fmt> beside it, provenance in OUT/deferred.json."""
 
-
     if fmt not in ("png", "exr"):
         raise InputError(f"--format {fmt!r}: choose png or exr")
     if tonemap_method not in TONEMAPS:

@@ -53,7 +53,6 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
     PNG, *_deferred.mp4 beside each MP4, and the deferral's provenance in rig.usda and
     OUT/deferred.json."""
 
-
     rig = rig or RigOptions()
     rig_name = rig.name or "waymo5"
     fps, seconds, video, stream_radius = rig.fps, rig.seconds, rig.video, rig.stream_radius

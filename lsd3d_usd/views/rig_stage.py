@@ -50,7 +50,6 @@ def rig_layer(rig, track: EgoTrack, tcps: float, ego_asset: str | None = None):
     ``track``, and /World/Actors/Ego/Ego_000 referencing ``ego_asset`` (a path relative to
     where the layer will be saved) if given."""
 
-
     # Cameras and xform ops on an in-memory stage (nothing there references a file) ...
     stage = new_stage()
     UsdGeom.Xform.Define(stage, CAMERAS_PATH)
@@ -100,7 +99,6 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None
     """Write OUT/rig.usda (sublayering the scene) and return (composed stage, camera paths,
     track, timeCodesPerSecond, notes, route lane ids or None). Without ``route`` and
     ``trajectory`` the ego drives :func:`default_route` (said in a note, to be reused)."""
-
 
     if rig_name not in RIGS:
         raise InputError(f"--rig {rig_name!r}: known rigs: {', '.join(RIGS)}")

@@ -83,7 +83,6 @@ def write_scene_cameras(sc: S.Scene, layout, cfg, log=print) -> dict:
     configuration ``cfg`` (GenerateConfig) on the scene's surfels: the views GGDS trains and
     evaluates on, and the overviews. Returns a summary for generate's."""
 
-
     train, held_out = ggds_views(sc, layout, cfg)
     overview = overview_cameras(layout)
     groups = [("Train", [(f"Train_{k:03d}", v.camera, v.kind, v.lane_id, r)

@@ -71,7 +71,6 @@ def scene_surfels(stage, time=None, prims=None):
     """The scene's visible surfels in world space as one SurfelField (semantics dropped when
     the prims' class tables differ), or None when there are none."""
 
-
     t = usd_time(time)
     fields = []
     for prim in scene_surfel_prims(stage) if prims is None else prims:
@@ -335,7 +334,6 @@ class SceneReader:
         return self._memo("actors", time, self._place_actors)
 
     def _place_actors(self, time) -> ActorFrame:
-
         if self.actors is None or not len(self.actors):
             return ActorFrame.empty()
         t = usd_time(time)

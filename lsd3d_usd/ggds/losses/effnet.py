@@ -171,7 +171,6 @@ def load_efficientnet_lite0(path: str | Path | None = None, device="cpu") -> Eff
     return model
 
 
-
 def to_batch(images: torch.Tensor) -> torch.Tensor:
     """(H, W, 3) or (B, H, W, 3) or (B, 3, H, W) -> (B, 3, H, W) float32."""
     x = images

@@ -45,7 +45,6 @@ _MODEL_WEIGHTS = ("diffusion_pytorch_model.safetensors", "diffusion_pytorch_mode
 _TEXT_WEIGHTS = ("model.safetensors", "pytorch_model.bin")
 
 
-
 def _need_dir(root: Path, sub: str, files_any: tuple[str, ...], what: str, config="config.json") -> Path:
     d = root / sub if sub else root
     if not d.is_dir():
