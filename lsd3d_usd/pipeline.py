@@ -44,7 +44,7 @@ from lsd3d_usd.splats.chunkio import read_chunk_map
 from lsd3d_usd.splats.initial import write_initial_surfels
 from lsd3d_usd.views.scene_cameras import write_scene_cameras
 
-SURFELS_VERSION = "surfels-v6"   # v6: density weights on faces split to 2 m² (ggds.initial); v5: drivable lanes only
+SURFELS_VERSION = "surfels-v6"   # v6: density weights on faces split to 2 m² (splats.initial); v5: drivable lanes only
 
 
 @dataclass
@@ -270,7 +270,7 @@ def _env_step(sc: S.Scene, p: Plan):
 
 
 def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
-    """The initial surfels, chunk by chunk (ggds.initial), unless they are up to date."""
+    """The initial surfels, chunk by chunk (splats.initial), unless they are up to date."""
     path = sc.layer_path("surfels")
     chunks = chunkio.read_chunk_map(path) if path.is_file() else {}
     folder = chunkio.chunk_folder(path) if chunks else None
@@ -309,7 +309,7 @@ def _actors_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
 
 
 def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
-    """GGDS region by region (ggds.regions): a new run, or the unfinished one resumed."""
+    """GGDS region by region (ggds.regions.driver): a new run, or the unfinished one resumed."""
 
     cfg = p.cfg
     if p.resume_run:

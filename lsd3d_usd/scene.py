@@ -300,7 +300,7 @@ class LayerInfo:
 
 @dataclass(frozen=True)
 class RunFiles:
-    """Where one GGDS run keeps its files beside its layer: ggds/<run>/ (see ggds/store.py)."""
+    """Where one GGDS run keeps its files beside its layer: ggds/<run>/ (see ggds/run/store.py)."""
     dir: Path
     summary: Path           # summary.json of the run
     legacy_state: Path      # state.pt of older versions (pickle: never loaded)

@@ -2,9 +2,9 @@
 and so how finely the views sample it (the pixel footprint, metres per pixel).
 
 The footprint of the finest view is the sampling rate the 3D smoothing filter
-(ggds/antialias.py) is built from (as Mip-Splatting's: a primitive cannot hold detail finer
+(ggds/optim/antialias.py) is built from (as Mip-Splatting's: a primitive cannot hold detail finer
 than the finest view that trained it); the views that see a surfel are the directions its
-view-dependent colour is fitted for (ggds/worldfit.py).
+view-dependent colour is fitted for (ggds/colour_start/worldfit.py).
 
 Visibility here is the frustum test only (centre in front of the camera between near and
 far, projected inside the image grown by ``margin`` pixels): occlusion is ignored. That is
@@ -162,7 +162,7 @@ def pick_views(points: np.ndarray, cameras, k: int, rng: np.random.Generator, *,
 
 
 def views_seeing(views: list, positions: np.ndarray, sample: int = 20_000) -> list:
-    """The views (ggds.cameras.View) that have at least one of ``positions`` (N,3) in view
+    """The views (conditioning.views.View) that have at least one of ``positions`` (N,3) in view
     (``project``'s frustum test); up to ``sample`` evenly spaced points are tested. A region's
     views that see none of its surfels would give them no gradient: a step there, its
     G-buffer and its prior target are wasted (a region of a few hundred surfels on a building

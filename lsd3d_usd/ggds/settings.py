@@ -12,7 +12,7 @@ from lsd3d_usd.configtree import option
 from lsd3d_usd.ggds.losses.terms import LOSSES
 from lsd3d_usd.render.backends import check_backend_name
 
-OMEGA_KINDS = ("uniform", "sds", "signal")   # ggds/losses.py: omega(t)
+OMEGA_KINDS = ("uniform", "sds", "signal")   # ggds/losses/image.py: omega(t)
 MAX_RESOLUTION = 8192                        # GGDS render side limit (pixels)
 
 
@@ -39,7 +39,7 @@ class LearningRates:
 
 @dataclass
 class StrategyConfig:
-    """MCMC strategy (ggds/strategy.py): tangent-plane SGLD noise and dead-surfel relocation."""
+    """MCMC strategy (ggds/optim/strategy.py): tangent-plane SGLD noise and dead-surfel relocation."""
     noise_scale: float = option(0.5, help="SGLD noise in units of the surfel's std-dev (0 = off)",
                                 lo=0.0)
     gate_sharpness: float = option(100.0, help="k of the noise gate sigmoid(-k (opacity - t))",
@@ -143,7 +143,7 @@ class GGDSConfig:
     t_min_end: float = option(0.2, help="... to this at the last step", lo=0.0, hi=1.0)
     n_denoise: int = option(5, help="prior denoising steps per target (the paper's N)",
                             lo=1, hi=1000)
-    omega: str = option("uniform", help="weighting ω(t) of the image terms (ggds/losses.py; "
+    omega: str = option("uniform", help="weighting ω(t) of the image terms (ggds/losses/image.py; "
                                         "'sds' suits a diffusion prior)", choices=OMEGA_KINDS,
                         flag="--omega")
     checkpoint_every: int = option(50, help="steps between checkpoints",
@@ -187,7 +187,7 @@ class GGDSConfig:
                                                "installed lpips package)",
                                     flag="--lpips-lin", alias="lpips_lin", metavar="LIN.pth")
     weights: dict[str, float | None] = option(
-        help="loss term weights by name (ggds/terms.py; perceptual: none = the prior's "
+        help="loss term weights by name (ggds/losses/terms.py; perceptual: none = the prior's "
              "default)", default_factory=_loss_weights, keys=_loss_weights, lo=0.0)
     lr: LearningRates = field(default_factory=LearningRates)
     strategy: StrategyConfig = field(default_factory=StrategyConfig)

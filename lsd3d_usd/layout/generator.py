@@ -6,7 +6,7 @@ Two steps, so a layout is replayable from its description:
    100 m chunk (position jittered around the chunk centre), which grid edges
    carry a road, each row's / column's cross-section, and per node the block
    that joins its roads with its parameters. Block types are classes in
-   ``blocktypes.BLOCK_TYPES`` (``junction`` = 4-way/T intersection with corner
+   ``blocktypes.BLOCKS`` (``junction`` = 4-way/T intersection with corner
    radii, ``roundabout``, ``curve`` = fillet arc, ``deadend``, ``none``); the
    generator asks that table which type claims a node, and asks the node's
    block for its sockets' cut-backs, its geometry and its approach markings. Every decision comes from a seed hashed from the master

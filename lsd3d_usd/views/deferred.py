@@ -5,7 +5,7 @@ same camera, and the result is the frame shown ("deferred", after deferred neura
     sp = load_scene_prior("out/crossing")            # ggds.priors.scene: the prior GGDS used
     out = defer_frames(frames, cameras, sp, strength=0.3, steps=5)
 
-What the prior does at T is the prior's own `target` (ggds/prior_base.py), exactly as GGDS
+What the prior does at T is the prior's own `target` (ggds/priors/base.py), exactly as GGDS
 asks it: the diffusion prior VAE-encodes the frame, inverts it with deterministic DDIM to T,
 takes N guided DDIM steps back with the disparity ControlNet and decodes; the procedural prior
 blends its world-space shading of the G-buffer into a guided filter of the frame.
@@ -13,7 +13,7 @@ blends its world-space shading of the G-buffer into a guided filter of the frame
 Temporal consistency: a frame's result is a pure function of (frame, camera, scene). Nothing
 random is drawn per frame: the diffusion prior's inversion is deterministic (DDIM, eta 0, the
 VAE's posterior mean), and the procedural prior's noise is world-space lattice noise seeded per
-surface point (ggds/noise.py), so it is fixed in the world and moves with the surfaces. The
+surface point (ggds/priors/noise.py), so it is fixed in the world and moves with the surfaces. The
 `seed` is handed unchanged to every frame's `target` (priors that draw noise from it get the
 same draw each frame); the built-in priors do not use it.
 

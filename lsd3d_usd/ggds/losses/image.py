@@ -24,7 +24,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.settings import OMEGA_KINDS
 from lsd3d_usd.ggds.priors.ddim import DDIMSchedule
 
-DEFAULT_SCHEDULE = DDIMSchedule()   # SD 1.x/2.x scaled-linear betas (ggds/ddim.py)
+DEFAULT_SCHEDULE = DDIMSchedule()   # SD 1.x/2.x scaled-linear betas (ggds/priors/ddim.py)
 
 
 def omega(t: float, kind: str = "uniform", schedule: DDIMSchedule | None = None) -> float:

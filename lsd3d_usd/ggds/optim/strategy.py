@@ -6,7 +6,7 @@ Error-driven densification within the budget (the count never changes): every su
 the mean image residual |render − target| seen at its centre over the views that showed it
 (``observe``). At each relocation, besides the dead surfels, the most redundant live ones —
 those far smaller than the finest training view's pixel there, i.e. whose 3D smoothing filter
-(ggds/antialias.py) keeps less than ``redundant_coef`` of their opacity: several of them share
+(ggds/optim/antialias.py) keeps less than ``redundant_coef`` of their opacity: several of them share
 one pixel of every view — are moved (at most ``densify_frac`` of the count at a time) onto
 live surfels drawn in proportion to residual × opacity, and each such target is split: it and
 the surfels placed on it share its disk, scales shrunk by 1/sqrt(k+1) (the same area in all),

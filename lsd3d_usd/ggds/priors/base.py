@@ -35,7 +35,7 @@ class Prior:
     """Base class: subclasses implement `target`; `name` goes into provenance."""
 
     name = "prior"
-    # Weights of loss terms configured as None (ggds/terms.py): a diffusion prior's loose
+    # Weights of loss terms configured as None (ggds/losses/terms.py): a diffusion prior's loose
     # targets are where the perceptual term earns its place.
     default_weights = {"perceptual": 0.05}
 
@@ -64,15 +64,11 @@ class Prior:
         return {"prior": self.name}
 
 
-# The prior's seed of held-out view j's target: disjoint from the training steps' seeds
-# (seed * 100003 + step), the same wherever a held-out view is scored.
-HELDOUT_SEED = 10_000
-
-
 def heldout_target(prior: Prior, x: torch.Tensor, gbuffer: GBuffer, env: PriorEnv, j: int, *,
                    t: float = 1.0, n_steps: int = 5) -> torch.Tensor:
     """The target held-out view ``j`` is scored against: the prior at noise level ``t`` from
-    the render ``x`` (negative radiance clamped), with the held-out seed of view ``j``."""
+    the render ``x`` (negative radiance clamped), with the held-out seed of view ``j`` (the
+    one place it is set: disjoint from the training steps' seeds, seed * 100003 + step)."""
     with torch.no_grad():
         return prior.target(x.clamp(0, None), gbuffer, env, t, n_steps=n_steps,
-                            seed=HELDOUT_SEED + int(j))
+                            seed=10_000 + int(j))

@@ -3,7 +3,7 @@ with a depth/disparity ControlNet, loaded only from local directories (never the
 
 target(x, gbuffer, env, t, n_steps):
   1. x (scene-linear) -> sRGB -> [-1, 1] -> VAE encoder mean * scaling_factor = z_0
-  2. DDIM inversion of z_0 up to level k(t) (ggds/ddim.py), with the conditional noise
+  2. DDIM inversion of z_0 up to level k(t) (ggds/priors/ddim.py), with the conditional noise
      prediction (guidance 1: inverting with classifier-free guidance is unstable)
   3. n_steps deterministic DDIM steps back to level 0 with classifier-free guidance on the
      prompt (env.prompt / env.negative_prompt), every UNet call given the ControlNet

@@ -1,7 +1,7 @@
 """The procedural prior: a deterministic, G-buffer-conditioned image prior (no learned model).
 
 It renders the proxy G-buffer of a view with world-space procedural materials per semantic
-class (ggds/materials.py), lit by the environment: sun (with the caller's per-pixel
+class (ggds/priors/materials.py), lit by the environment: sun (with the caller's per-pixel
 visibility, i.e. shadows ray-cast against the proxy), sky irradiance from SH, a Fresnel
 reflection of the sky on glossy / wet surfaces, a sun highlight, and fog by distance.
 Background pixels take the env sky lookup (or an SH sky gradient). Materials depend only on
