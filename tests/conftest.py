@@ -19,6 +19,55 @@ import torch  # noqa: E402,F401
 import lsd3d_usd  # registers the schema before any stage is opened  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
+LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"   # the README sample
+
+# A small scene: what most tests that need a generated scene can live with (seconds to make).
+SMALL_SCENE = dict(layout=LAYOUT, steps=2, surfels=3000, env_resolution=(128, 64),
+                   resolution=(64, 48), views=4, perceptual=False, actors=False, seed=5)
+
+
+def generate_small(out, run=None, **settings):
+    """`generate` a small scene of the README sample into ``out`` (SMALL_SCENE updated by
+    ``settings``; ``run``: RunOptions fields). Returns generate's summary."""
+    from lsd3d_usd.config import generate_config
+    from lsd3d_usd.pipeline import RunOptions, generate
+    return generate(generate_config(**{**SMALL_SCENE, **settings}),
+                    RunOptions(out=Path(out), progress=False, log=lambda *a: None,
+                               **(run or {})))
+
+
+@pytest.fixture(scope="session")
+def small_scene(tmp_path_factory):
+    """One small generated scene (SMALL_SCENE) shared by the tests that only read it."""
+    out = tmp_path_factory.mktemp("small") / "scene"
+    generate_small(out)
+    return out
+
+
+def error_line(result, *needles) -> str:
+    """The one error line of a failed command: ``result`` a CompletedProcess, or (exit code,
+    stderr). Exit 1, exactly one "lsd3d-usd: error: " line and it is the last line printed
+    (progress lines before it are fine), no traceback, every needle in it."""
+    code, err = (result.returncode, result.stderr) if hasattr(result, "returncode") else result
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    errors = [ln for ln in lines if ln.startswith("lsd3d-usd: error: ")]
+    assert code == 1 and len(errors) == 1 and lines[-1] == errors[0], err
+    assert "Traceback" not in err, err
+    for n in needles:
+        assert n in errors[0], (n, errors[0])
+    return errors[0]
+
+
+@pytest.fixture
+def cli_error(capsys):
+    """cli_error(argv, *needles): run the CLI in this process; its one error line."""
+    from lsd3d_usd.cli import main
+
+    def run(argv, *needles):
+        capsys.readouterr()
+        code = main([str(a) for a in argv])
+        return error_line((code, capsys.readouterr().err), *needles)
+    return run
 
 
 def random_field(n=1000, sh_degree=1, seed=0, semantic=True):

@@ -1,7 +1,7 @@
 """bench scale's quality-against-extent measure: the same views in chunk 0_0, paired per view."""
 import numpy as np
 
-from lsd3d_usd.benchmarks.scale import _paired, same_view_cameras
+from lsd3d_usd.benchmarks.scale import paired, same_view_cameras
 
 
 def test_same_view_cameras_are_fixed_and_inside_chunk_0_0():
@@ -22,11 +22,11 @@ def _errs(psnrs, n=1000):
 
 def test_paired_difference_and_its_interval():
     base = np.linspace(15, 30, 40)   # views differ a lot; their paired difference does not
-    mean, (lo, hi) = _paired(_errs(base - 0.3), _errs(base))
+    mean, (lo, hi) = paired(_errs(base - 0.3), _errs(base))
     assert abs(mean + 0.3) < 1e-3 and abs(lo + 0.3) < 1e-3 and abs(hi + 0.3) < 1e-3
     rng = np.random.default_rng(1)
     noisy = base + rng.normal(0, 1.0, base.size)
-    mean, (lo, hi) = _paired(_errs(noisy), _errs(base))
+    mean, (lo, hi) = paired(_errs(noisy), _errs(base))
     assert lo < mean < hi and hi - lo < 1.5
 
 
@@ -36,7 +36,7 @@ def test_views_count_by_their_pixels():
     big = _errs([20.0] * 10, n=10_000)
     a = big + _errs([10.0], n=10)
     b = big + _errs([20.0], n=10)
-    mean, _ = _paired(a, b)
+    mean, _ = paired(a, b)
     assert -0.05 < mean < 0
     from lsd3d_usd.eval.seams_eval import pooled_psnr
     assert pooled_psnr(big + [(0.0, 0)]) == pooled_psnr(big)   # a view without pixels: nothing
@@ -46,12 +46,12 @@ def test_views_count_by_their_pixels():
 def test_paired_over_seeds():
     """Several GGDS seeds: the mean of the per-seed differences, an interval that holds the
     seeds' spread (one seed alone is the per-view interval, draw for draw)."""
-    from lsd3d_usd.benchmarks.scale import _paired_seeds
+    from lsd3d_usd.benchmarks.scale import paired_seeds
     base = np.linspace(15, 30, 40)
-    one = _paired(_errs(base - 0.3), _errs(base))
-    assert _paired_seeds([(_errs(base - 0.3), _errs(base))]) == one
+    one = paired(_errs(base - 0.3), _errs(base))
+    assert paired_seeds([(_errs(base - 0.3), _errs(base))]) == one
     pairs = [(_errs(base + d), _errs(base)) for d in (-1.0, 0.0, 1.0, 0.4)]
-    mean, (lo, hi) = _paired_seeds(pairs)
+    mean, (lo, hi) = paired_seeds(pairs)
     assert abs(mean - 0.1) < 1e-3
     assert lo < -0.5 and hi > 0.5          # the spread between seeds, not 0 width
 
@@ -80,12 +80,12 @@ def _seam_stats(border_factor, views=6):
 def test_seams_against_the_one_region_scene_pair_configs_by_name_and_seed():
     """bench scale pairs each chunk-wise 4-chunk scene with its one-region run of the same
     GGDS seed (run_config's names), and reports nothing for a pair it does not have."""
-    from lsd3d_usd.benchmarks.scale import _seams_vs_one_region
+    from lsd3d_usd.benchmarks.scale import seams_vs_one_region
     stats = {"corridor4": _seam_stats(4.0), "corridor4_scene": _seam_stats(2.0),
              "grid4": _seam_stats(1.0), "grid4_scene": _seam_stats(1.0),
              "corridor4_s12": _seam_stats(3.0), "corridor4_scene_s12": _seam_stats(3.0),
              "grid4_s12": _seam_stats(2.0)}
-    out = _seams_vs_one_region(stats, 11, [11, 12])
+    out = seams_vs_one_region(stats, 11, [11, 12])
     assert set(out) == {"11", "12"}
     assert abs(out["11"]["corridor4"]["difference_db"] - 10 * np.log10(2)) < 1e-3
     assert out["11"]["grid4"]["difference_db"] == 0.0

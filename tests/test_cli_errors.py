@@ -4,41 +4,34 @@ import os
 import numpy as np
 import pytest
 
-from lsd3d_usd.cli import main
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.splats.ply import splat_vertex_array, write_ply_vertices
 
 
-def one_line_error(capsys, argv):
-    capsys.readouterr()
-    assert main([str(a) for a in argv]) == 1
-    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("lsd3d-usd: error: "), lines
-    return lines[0]
 
 
 # ------------------------------------------------------------------------------ env
-def test_env_output_below_a_file(tmp_path, capsys):
+def test_env_output_below_a_file(tmp_path, capsys, cli_error):
     (tmp_path / "FILE").write_text("x")
-    line = one_line_error(capsys, ["env", "-o", tmp_path / "FILE" / "e.exr", "--resolution", "64x32"])
+    line = cli_error(["env", "-o", tmp_path / "FILE" / "e.exr", "--resolution", "64x32"])
     assert "FILE is a file, not a folder" in line
     assert os.listdir(tmp_path) == ["FILE"]
 
 
-def test_env_output_is_a_folder(tmp_path, capsys):
-    line = one_line_error(capsys, ["env", "-o", str(tmp_path) + "/", "--resolution", "64x32"])
+def test_env_output_is_a_folder(tmp_path, capsys, cli_error):
+    line = cli_error(["env", "-o", str(tmp_path) + "/", "--resolution", "64x32"])
     assert "is a folder" in line and os.listdir(tmp_path) == []
 
 
 @pytest.mark.parametrize("north", ["inf", "-inf", "nan"])
-def test_env_non_finite_north(tmp_path, capsys, north):
-    line = one_line_error(capsys, ["env", "-o", tmp_path / "e.exr", "--resolution", "64x32",
+def test_env_non_finite_north(tmp_path, capsys, north, cli_error):
+    line = cli_error(["env", "-o", tmp_path / "e.exr", "--resolution", "64x32",
                                    f"--north={north}"])
     assert f"north {north}" in line and os.listdir(tmp_path) == []
 
 
-def test_env_huge_resolution_is_refused_before_rendering(tmp_path, capsys):
-    line = one_line_error(capsys, ["env", "-o", tmp_path / "e.exr", "--resolution", "200000x100000"])
+def test_env_huge_resolution_is_refused_before_rendering(tmp_path, capsys, cli_error):
+    line = cli_error(["env", "-o", tmp_path / "e.exr", "--resolution", "200000x100000"])
     assert "200000x100000" in line and "exceed the limit of 33554432 pixels" in line
     assert os.listdir(tmp_path) == []
 
@@ -72,53 +65,53 @@ def _ply(tmp_path, field_factory, n=5):
 
 
 @pytest.mark.parametrize("claim,shown", [("1000000000000", "1000000000000"), (str(10**40), "1e+40")])
-def test_ply_header_claiming_huge_vertex_counts(tmp_path, field_factory, capsys, claim, shown):
+def test_ply_header_claiming_huge_vertex_counts(tmp_path, field_factory, capsys, claim, shown, cli_error):
     path = _ply(tmp_path, field_factory)
     path.write_bytes(path.read_bytes().replace(b"element vertex 5", f"element vertex {claim}".encode()))
-    line = one_line_error(capsys, ["splats", "import-ply", path, "-o", tmp_path / "o.usdc"])
+    line = cli_error(["splats", "import-ply", path, "-o", tmp_path / "o.usdc"])
     assert f"vertex count {shown} vertices exceeds the limit of 50000000 vertices" in line
     assert "--max-vertices" in line and sorted(os.listdir(tmp_path)) == ["s.ply"]
     # raising the limit does not make the reader trust the header: the body is too short
-    line = one_line_error(capsys, ["splats", "import-ply", path, "-o", tmp_path / "o.usdc",
+    line = cli_error(["splats", "import-ply", path, "-o", tmp_path / "o.usdc",
                                    "--max-vertices", "1e45"])
     assert "truncated" in line and sorted(os.listdir(tmp_path)) == ["s.ply"]
 
 
-def test_ply_errors_do_not_echo_kilobytes_of_header(tmp_path, field_factory, capsys):
+def test_ply_errors_do_not_echo_kilobytes_of_header(tmp_path, field_factory, capsys, cli_error):
     path = _ply(tmp_path, field_factory)
     raw = path.read_bytes()
     for junk in (b"element vertex " + b"9" * 3000, b"property float " + b"q" * 5000 + b" r",
                  b"x" * 5000, b"format " + b"z" * 4000 + b" 1.0"):
         path.write_bytes(raw.replace(b"end_header", junk + b"\nend_header"))
-        line = one_line_error(capsys, ["splats", "import-ply", path, "-o", tmp_path / "o.usdc"])
+        line = cli_error(["splats", "import-ply", path, "-o", tmp_path / "o.usdc"])
         assert len(line) < 300, line
 
 
-def test_ply_point_cloud_shares_the_bounded_reader(tmp_path, capsys):
+def test_ply_point_cloud_shares_the_bounded_reader(tmp_path, capsys, cli_error):
     path = tmp_path / "c.ply"
     path.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 1000000000000\n"
                      b"property float x\nproperty float y\nproperty float z\nend_header\n" + b"\0" * 12)
-    line = one_line_error(capsys, ["proxy", "from-points", path, "-o", tmp_path / "p.usdc"])
+    line = cli_error(["proxy", "from-points", path, "-o", tmp_path / "p.usdc"])
     assert "vertex count 1000000000000 vertices exceeds the limit" in line
 
 
-def test_npz_cloud_count_checked_before_decompressing(tmp_path, capsys):
+def test_npz_cloud_count_checked_before_decompressing(tmp_path, capsys, cli_error):
     np.savez_compressed(tmp_path / "c.npz", points=np.zeros((1000, 3)))
-    line = one_line_error(capsys, ["proxy", "from-points", tmp_path / "c.npz", "-o", tmp_path / "p.usdc",
+    line = cli_error(["proxy", "from-points", tmp_path / "c.npz", "-o", tmp_path / "p.usdc",
                                    "--max-vertices", "10"])
     assert "c.npz: array 'points': point count 1000 vertices exceeds the limit of 10 vertices" in line
 
 
-def test_point_cloud_chunk_limits(tmp_path, capsys):
+def test_point_cloud_chunk_limits(tmp_path, capsys, cli_error):
     rng = np.random.default_rng(0)
     np.savez(tmp_path / "c.npz", points=rng.uniform(0, 50, (500, 3)))
-    line = one_line_error(capsys, ["proxy", "from-points", tmp_path / "c.npz", "-o", tmp_path / "p.usdc",
+    line = cli_error(["proxy", "from-points", tmp_path / "c.npz", "-o", tmp_path / "p.usdc",
                                    "--chunk-size", "0.001"])
     assert "chunk size 0.001 m is below the minimum of 10 m" in line
-    line = one_line_error(capsys, ["proxy", "from-points", tmp_path / "c.npz", "-o", tmp_path / "p.usdc",
+    line = cli_error(["proxy", "from-points", tmp_path / "c.npz", "-o", tmp_path / "p.usdc",
                                    "--voxel", "0.001"])
     assert "voxel grid" in line and "use a larger --voxel" in line
-    line = one_line_error(capsys, ["proxy", "from-points", tmp_path / "c.npz", "-o", tmp_path / "p.usdc",
+    line = cli_error(["proxy", "from-points", tmp_path / "c.npz", "-o", tmp_path / "p.usdc",
                                    "--chunk-size", "10", "--max-chunks", "3"])
     assert "chunk count" in line and "exceeds the limit of 3 chunks" in line
     assert sorted(os.listdir(tmp_path)) == ["c.npz"]

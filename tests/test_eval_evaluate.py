@@ -7,7 +7,7 @@ import shutil
 import numpy as np
 import pytest
 
-from conftest import ROOT
+from conftest import ROOT, SMALL_SCENE
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import models
@@ -15,19 +15,10 @@ from lsd3d_usd.eval import views as V
 from lsd3d_usd.eval.evaluate import eval_options, evaluate
 from lsd3d_usd.conditioning.views import sample_views
 from lsd3d_usd.layout.usdio import read_layout
-from lsd3d_usd.config import generate_config
-from lsd3d_usd.pipeline import RunOptions, generate
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
 
 
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("eval") / "scene"
-    generate(generate_config(layout=LAYOUT, steps=2, surfels=3000, env_resolution=(128, 64),
-                             resolution=(64, 48), views=4, perceptual=False, actors=False),
-             RunOptions(out=out, progress=False, log=lambda *a: None))
-    return out
 
 
 def _opts(scene, **kw):
@@ -46,7 +37,7 @@ def _write_png(path, rgb):
     out.close()
 
 
-def test_eval_end_to_end(tiny_scene, tmp_path):
+def test_eval_end_to_end(small_scene, tmp_path):
     ref = tmp_path / "ref"
     ref.mkdir()
     rng = np.random.default_rng(0)
@@ -56,9 +47,9 @@ def test_eval_end_to_end(tiny_scene, tmp_path):
     weights = tmp_path / "weights"
     weights.mkdir()
     (weights / "dinov2_vits14_pretrain.pth").write_bytes(b"not really weights")
-    res = evaluate(_opts(tiny_scene, reference=ref, weights=weights))
+    res = evaluate(_opts(small_scene, reference=ref, weights=weights))
 
-    runs = S.Scene.open(tiny_scene).runs()
+    runs = S.Scene.open(small_scene).runs()
     assert res["run"] == runs[0].name and "training cameras" in res["seen_views_source"]
     assert res["counts"] == {"train_views": 4, "seen": 3, "novel": 4, "novel_per_bin": 2,
                              "heldout_lane": 3, "trajectory_frames": 4, "reference": 3}
@@ -82,7 +73,7 @@ def test_eval_end_to_end(tiny_scene, tmp_path):
     assert set(un) == {"fid_inception", "fd_dinov2", "clip_score", "fvd"}
     assert "not implemented" in un["fd_dinov2"] and "none of" in un["fid_inception"]
     # Report files: HTML referencing PNGs next to it, JSON equal to what was returned.
-    out = tiny_scene / "eval"
+    out = small_scene / "eval"
     html = (out / "report.html").read_text()
     for name in ("eval_contact_sheet.png", "eval_fd.png", "eval_geometry.png", "eval_temporal.png",
                  "loss.png"):
@@ -92,10 +83,10 @@ def test_eval_end_to_end(tiny_scene, tmp_path):
     assert not list(out.glob(".*tmp*"))
 
 
-def test_seen_views_come_from_the_run_record(tiny_scene):
-    sc = S.Scene.open(tiny_scene)
+def test_seen_views_come_from_the_run_record(small_scene):
+    sc = S.Scene.open(small_scene)
     info = sc.runs()[0]
-    stored = json.loads((tiny_scene / "ggds" / info.name / "views.json").read_text())
+    stored = json.loads((small_scene / "ggds" / info.name / "views.json").read_text())
     seen = V.seen_views(sc, read_layout(sc.layer_path("layout")), None, 128, 96)
     assert seen.run == info.name and len(seen.views) == len(stored)
     for v, d in zip(seen.views, stored):
@@ -106,15 +97,17 @@ def test_seen_views_come_from_the_run_record(tiny_scene):
         V.seen_views(sc, None, "ggds_nope", 64, 48)
 
 
-def test_scene_without_ggds_run_uses_sampled_views(tiny_scene, tmp_path):
+def test_scene_without_ggds_run_uses_sampled_views(small_scene, tmp_path):
     copy = tmp_path / "scene"
-    shutil.copytree(tiny_scene, copy, ignore=shutil.ignore_patterns("eval"))
+    shutil.copytree(small_scene, copy, ignore=shutil.ignore_patterns("eval"))
     sc = S.Scene.open(copy)
     sc.remove_layer(sc.runs()[0].name)   # as after `generate --steps 0`
     layout = read_layout(sc.layer_path("layout"))
     seen = V.seen_views(sc, layout, None, 64, 48)
-    assert seen.run is None and "no GGDS run" in seen.source and "seed 0" in seen.source
-    want = sample_views(layout, V.GGDS_N_VIEWS, 64, 48, seed=0, novel_frac=V.GGDS_NOVEL_FRAC, fov_deg=V.GGDS_FOV_DEG)
+    seed = SMALL_SCENE["seed"]
+    assert seen.run is None and "no GGDS run" in seen.source and f"seed {seed}" in seen.source
+    want = sample_views(layout, V.GGDS_N_VIEWS, 64, 48, seed=seed, novel_frac=V.GGDS_NOVEL_FRAC,
+                        fov_deg=V.GGDS_FOV_DEG)
     assert all(np.array_equal(a.camera.pose, b.camera.pose) for a, b in zip(seen.views, want))
     res = evaluate(_opts(copy, bins=(1.0,), per_bin=1, frames=2, n_seen=2, n_heldout=0))
     assert res["run"] is None and "no GGDS run" in res["seen_views_source"]
@@ -124,12 +117,12 @@ def test_scene_without_ggds_run_uses_sampled_views(tiny_scene, tmp_path):
                                      "reason": "no --reference DIR of images given"}
 
 
-def test_prior_baseline_measures_the_views_not_the_scene(tiny_scene, tmp_path):
+def test_prior_baseline_measures_the_views_not_the_scene(small_scene, tmp_path):
     """The prior's own images of eval's cameras: the same for the GGDS surfels and for the
     initial ones seen from the same cameras (the run muted, its cameras kept), while the
     scene's distances differ; each ratio is its FD over its content change."""
     copy = tmp_path / "scene"
-    shutil.copytree(tiny_scene, copy, ignore=shutil.ignore_patterns("eval"))
+    shutil.copytree(small_scene, copy, ignore=shutil.ignore_patterns("eval"))
     sc = S.Scene.open(copy)
     run = sc.runs()[0].name
     after = evaluate(_opts(copy, out_dir=tmp_path / "a"))
@@ -158,14 +151,14 @@ def test_prior_baseline_measures_the_views_not_the_scene(tiny_scene, tmp_path):
     assert res["timings"]["prior_baseline_s"] > 0
 
 
-def test_prior_baseline_skipped_with_a_reason(tiny_scene, tmp_path, monkeypatch):
+def test_prior_baseline_skipped_with_a_reason(small_scene, tmp_path, monkeypatch):
     from lsd3d_usd.eval.prior_baseline import open_baseline
-    assert open_baseline(tiny_scene, False, 3, None) == (None, "turned off (--no-prior-baseline)")
-    assert open_baseline(tiny_scene, None, 0, None)[1] == "no held-out lane views (--heldout 0)"
+    assert open_baseline(small_scene, False, 3, None) == (None, "turned off (--no-prior-baseline)")
+    assert open_baseline(small_scene, None, 0, None)[1] == "no held-out lane views (--heldout 0)"
     monkeypatch.setattr("lsd3d_usd.ggds.priors.scene.recorded_prior_name", lambda p, run: "diffusers")
-    base, why = open_baseline(tiny_scene, None, 3, None)
+    base, why = open_baseline(small_scene, None, 3, None)
     assert base is None and "'diffusers' is slow on the CPU" in why and "--prior-baseline" in why
-    res = evaluate(_opts(tiny_scene, out_dir=tmp_path / "e", bins=(1.0,), per_bin=1, frames=2))
+    res = evaluate(_opts(small_scene, out_dir=tmp_path / "e", bins=(1.0,), per_bin=1, frames=2))
     assert "prior_baseline" not in res["fd_effnet_lite0"]
     assert {"metric": "fd_effnet_lite0.prior_baseline", "reason": why} in res["unavailable"]
 
@@ -188,11 +181,11 @@ def test_missing_weights_path():
     ("weights", "no such directory"),
     ("baseline", "--prior-baseline needs held-out lane views"),
 ])
-def test_bad_input_is_one_clear_error(tiny_scene, tmp_path, kind, match):
+def test_bad_input_is_one_clear_error(small_scene, tmp_path, kind, match):
     ref = tmp_path / "ref"
     ref.mkdir()
     kw = {}
-    scene = tiny_scene
+    scene = small_scene
     if kind == "missing_scene":
         scene = tmp_path / "nothing"
     elif kind == "missing_ref":
@@ -218,10 +211,10 @@ def test_bad_input_is_one_clear_error(tiny_scene, tmp_path, kind, match):
     assert not out.exists()
 
 
-def test_cli_eval_json(tiny_scene, tmp_path, capsys):
+def test_cli_eval_json(small_scene, tmp_path, capsys):
     from lsd3d_usd.cli import main
     js = tmp_path / "o.json"
-    code = main(["eval", str(tiny_scene / "scene.usda"), "--json", str(js),  # the root layer, as
+    code = main(["eval", str(small_scene / "scene.usda"), "--json", str(js),  # the root layer, as
                                                                           # every command takes "--seen", "2", "--per-bin", "1",
                  "--bins", "2", "--resolution", "64x48", "--frames", "2", "-o", str(tmp_path / "r"),
                  "--no-progress"])

@@ -136,7 +136,7 @@ def test_novel_views_distances_headings_and_determinism(layout):
     nv = V.novel_views(seen, bins, 7, seed=11, layout=layout)
     assert len(nv) == 21
     assert [n.bin_m for n in nv] == [0.5] * 7 + [2.0] * 7 + [8.0] * 7
-    fps = V._footprints(layout)
+    fps = V.building_footprints(layout)
     for i, n in enumerate(nv):
         src = seen[n.source].camera
         assert n.source == i % 7 % 6
@@ -148,7 +148,7 @@ def test_novel_views_distances_headings_and_determinism(layout):
         np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
         # heading turned about z only: the pitch of the optical axis is unchanged
         assert n.view.camera.pose[2, 2] == pytest.approx(src.pose[2, 2], abs=1e-12)
-        assert not V._inside_building(n.view.camera.center, fps)
+        assert not V.inside_building(n.view.camera.center, fps)
         assert n.nearest_train_m <= n.bin_m + 1e-9
     again = V.novel_views(seen, bins, 7, seed=11, layout=layout)
     assert all(np.array_equal(a.view.camera.pose, b.view.camera.pose) for a, b in zip(nv, again))

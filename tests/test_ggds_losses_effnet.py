@@ -52,13 +52,13 @@ def test_real_photos_classify_correctly(extractor):
 
 def test_same_padding_matches_tensorflow_rule():
     x = torch.zeros(1, 1, 224, 223)
-    y = effnet._same_pad(x, 3, 2)
+    y = effnet.same_pad(x, 3, 2)
     # out = ceil(in / s); pad total = (out-1)*s + k - in; TF puts the odd pixel after
     assert y.shape[-2:] == (225, 225)
     x = torch.ones(1, 1, 4, 4)
-    y = effnet._same_pad(x, 3, 2)
+    y = effnet.same_pad(x, 3, 2)
     assert y[0, 0, 0].sum() == 4 and y[0, 0, -1].sum() == 0  # top row kept, bottom padded
-    assert effnet._same_pad(torch.ones(1, 1, 5, 5), 5, 1).shape[-2:] == (9, 9)
+    assert effnet.same_pad(torch.ones(1, 1, 5, 5), 5, 1).shape[-2:] == (9, 9)
 
 
 def test_synthetic_top1_deterministic_and_features_batch_invariant(extractor):

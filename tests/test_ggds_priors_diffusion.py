@@ -13,7 +13,7 @@ diffusers = pytest.importorskip("diffusers")
 transformers = pytest.importorskip("transformers")
 
 
-def _tiny_clip_tokenizer(d):
+def tiny_clip_tokenizer(d):
     """A minimal CLIP BPE vocabulary: single characters (+ end-of-word forms), a few merges."""
     chars = list("abcdefghijklmnopqrstuvwxyz0123456789.,!?'-")
     vocab = {}
@@ -38,7 +38,7 @@ def _tiny_clip_tokenizer(d):
 def tiny_dirs(tmp_path_factory):
     root = tmp_path_factory.mktemp("tiny_sd")
     torch.manual_seed(0)
-    n_vocab = _tiny_clip_tokenizer(root / "tokenizer")
+    n_vocab = tiny_clip_tokenizer(root / "tokenizer")
     unet = diffusers.UNet2DConditionModel(
         sample_size=8, in_channels=4, out_channels=4, layers_per_block=1, block_out_channels=(32, 64),
         down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"), up_block_types=("UpBlock2D", "CrossAttnUpBlock2D"),

@@ -2,21 +2,18 @@
 chunks untouched, a failing chunk named in one line with the scene left valid."""
 import json
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 from pxr import Sdf
 
-from conftest import ROOT
+from conftest import ROOT, generate_small
 from lsd3d_usd import scene as S
 from lsd3d_usd import validation
-from lsd3d_usd.config import generate_config
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.settings import RegionConfig
 from lsd3d_usd.ggds.regions.inputs import region_context
 from lsd3d_usd.ggds.regions.plan import Region, plan_regions
-from lsd3d_usd.pipeline import RunOptions, generate
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"   # 4 chunks: (-1|0, -1|0)
 CHUNKED = {"regions": {"mode": "chunk", "views_per_chunk": 3}, "held_out": 1}
@@ -26,12 +23,10 @@ BORDERS = {"regions": {**CHUNKED["regions"], "fit_context": True, "share_views":
 
 
 def gen(out, run=None, **kw):
-    base = dict(layout=LAYOUT, steps=3, surfels=3000, env_resolution=(64, 32),
-                resolution=(48, 32), perceptual=False, actors=False, ggds=CHUNKED)
-    base.update(kw)
-    return generate(generate_config(**base),
-                    RunOptions(out=Path(out), progress=False, log=lambda *a: None,
-                               **{"workers": 1, **(run or {})}))
+    """The small scene as chunk regions (CHUNKED), one worker unless asked."""
+    return generate_small(out, {"workers": 1, **(run or {})},
+                          **{"steps": 3, "seed": 0, "views": 128, "env_resolution": (64, 32),
+                             "resolution": (48, 32), "ggds": CHUNKED, **kw})
 
 
 def test_small_scenes_are_one_region_and_phases_share_no_band():
@@ -89,7 +84,7 @@ def test_neighbours_condition_a_region_within_the_band(chunked):
                                   chunk_size=100.0)
     assert initial.shape == (ctx.n,) and initial.all()
     p = ctx.positions
-    tol = 1e-3   # a surfel seeded on a neighbour's edge stays with it (ggds.initial._owners)
+    tol = 1e-3   # a surfel seeded on a neighbour's edge stays with it (ggds.initial.chunk_owners)
     inside = (p[:, 0] > tol) & (p[:, 0] < 100 - tol) & (p[:, 1] > tol) & (p[:, 1] < 100 - tol)
     assert ctx.n > 0 and not inside.any()
     assert np.all((p[:, 0] >= -20) & (p[:, 1] >= -20) & (p[:, 0] <= 120) & (p[:, 1] <= 120))

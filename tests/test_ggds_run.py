@@ -165,7 +165,7 @@ def test_relocation_moves_dead_surfels_and_conserves_opacity():
     params = P.to_params(field)
     opt = SelectiveAdam(params, {k: 0.01 for k in P.KEYS})
     strat = MCMCStrategy(relocate_every=1, noise_scale=0.0, max_relocate_frac=1.0)
-    moved = strat._relocate(params, opt)
+    moved = strat.relocate(params, opt)
     assert moved == 10
     dead, src = strat.last_relocation
     op = torch.sigmoid(params["opacities"])
@@ -185,7 +185,7 @@ def test_noise_stays_in_tangent_plane():
                         np.full(n, 1e-4), np.zeros((n, 1, 3)))
     params = P.to_params(field)
     strat = MCMCStrategy(noise_scale=1.0)
-    strat._noise(params, torch.arange(n), lr_means=1e-3)
+    strat.add_noise(params, torch.arange(n), lr_means=1e-3)
     m = params["means"].detach()
     assert m[:, :2].abs().max() > 0.01 and m[:, 2].abs().max() == 0.0
 
@@ -290,10 +290,10 @@ def test_release_views_drops_the_runs_caches_and_only_them():
     for r in (run, other):
         for i in (0, 1):
             prior.cached_render(r.view_data(i).gbuffer, r.env)
-    assert len(prior._render_cache) == 4 and run.views.cached == 2
+    assert len(prior.cached_views()) == 4 and run.views.cached == 2
     before = run.view_data(1).gbuffer
     run.release_views()
-    assert not run.views.cached and len(prior._render_cache) == 2   # the other run's stay
+    assert not run.views.cached and len(prior.cached_views()) == 2   # the other run's stay
     after = run.view_data(1).gbuffer                                # rebuilt on demand
     assert after.key == before.key and torch.equal(after.depth, before.depth)
 
@@ -323,7 +323,7 @@ def test_fit_views_join_the_colour_start_and_leave_nothing_behind():
     np.testing.assert_allclose(split.params["sh"].detach().numpy(), joint.params["sh"].detach().numpy(),
                                rtol=1e-5, atol=1e-6)
     assert not np.allclose(split.params["sh"].detach().numpy(), alone.params["sh"].detach().numpy())
-    keys = {k[0][1] for k in prior._render_cache}
+    keys = set(prior.cached_views())
     assert not any(len(k) == 3 and k[1] == "fit" for k in keys)
     assert split.views.cached == len(a)
 

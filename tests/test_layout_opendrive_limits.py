@@ -44,13 +44,6 @@ def read(path, **kw):
     return layout, [str(x.message) for x in w]
 
 
-def one_line_error(capsys, argv):
-    capsys.readouterr()
-    assert main(argv) == 1
-    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    errors = [line for line in lines if line.startswith("lsd3d-usd: error: ")]
-    assert len(errors) == 1 and "Traceback" not in "".join(lines), lines
-    return errors[0], lines
 
 
 @pytest.mark.parametrize("bad,match", [
@@ -72,19 +65,19 @@ def test_oversized_road_is_skipped_naming_it(tmp_path, bad, match):
         od.read_opendrive(path, strict=True)
 
 
-def test_tiny_file_with_1e8_road_is_one_line_and_writes_nothing(tmp_path, capsys):
+def test_tiny_file_with_1e8_road_is_one_line_and_writes_nothing(tmp_path, capsys, cli_error):
     path = xodr(tmp_path, road("7", length="1e8"))
     assert path.stat().st_size < 600
     out = tmp_path / "L.usda"
-    line, lines = one_line_error(capsys, ["layout", "import", str(path), "-o", str(out)])
+    line = cli_error(["layout", "import", str(path), "-o", str(out)])
     assert "no road could be imported (all 1 roads were skipped; first road 7: length 100000000 m " \
            "exceeds the limit of 100000 m)" in line
     assert not out.exists() and sorted(os.listdir(tmp_path)) == ["m.xodr"]
 
 
-def test_strict_flag_refuses_the_first_bad_road(tmp_path, capsys):
+def test_strict_flag_refuses_the_first_bad_road(tmp_path, capsys, cli_error):
     path = xodr(tmp_path, road("1"), road("2", width="1e7"))
-    line, _ = one_line_error(capsys, ["layout", "import", str(path), "-o", str(tmp_path / "L.usda"),
+    line = cli_error(["layout", "import", str(path), "-o", str(tmp_path / "L.usda"),
                                       "--strict"])
     assert "road 2: lane -1: width 10000000 m exceeds the limit of 100 m" in line
     assert main(["layout", "import", str(path), "-o", str(tmp_path / "L.usda")]) == 0
@@ -121,25 +114,25 @@ def test_far_roads_exceed_the_layout_size(tmp_path):
         od.read_opendrive(xodr(tmp_path, road("1"), far))
 
 
-def test_non_utf8_bytes_are_one_line(tmp_path, capsys):
+def test_non_utf8_bytes_are_one_line(tmp_path, capsys, cli_error):
     p = tmp_path / "bad.xodr"
     p.write_bytes(b'<?xml version="1.0" encoding="UTF-8"?>\n<OpenDRIVE><header name="\xff\xfe"/>'
                   + road("1").encode() + b"</OpenDRIVE>")
-    line, _ = one_line_error(capsys, ["layout", "import", str(p), "-o", str(tmp_path / "L.usda")])
+    line = cli_error(["layout", "import", str(p), "-o", str(tmp_path / "L.usda")])
     assert "bad.xodr" in line and "encoding" in line
     assert not (tmp_path / "L.usda").exists()
 
 
 @pytest.mark.parametrize("target", ["DIR/", "FILE/sub/a.usda", "DIR"])
-def test_bad_output_paths_are_one_line_before_reading(tmp_path, capsys, target):
+def test_bad_output_paths_are_one_line_before_reading(tmp_path, capsys, target, cli_error):
     (tmp_path / "DIR").mkdir()
     (tmp_path / "FILE").write_text("x")
     src = xodr(tmp_path, road("1"))
     out = str(tmp_path) + "/" + target
-    line, _ = one_line_error(capsys, ["layout", "import", str(src), "-o", out])
+    line = cli_error(["layout", "import", str(src), "-o", out])
     assert ("is a folder" in line) if target.startswith("DIR") else ("is a file, not a folder" in line)
     assert sorted(os.listdir(tmp_path)) == ["DIR", "FILE", "m.xodr"] and os.listdir(tmp_path / "DIR") == []
-    line, _ = one_line_error(capsys, ["layout", "generate", "--extent", "100x100", "-o", out])
+    line = cli_error(["layout", "generate", "--extent", "100x100", "-o", out])
 
 
 def test_superelevation_banks_the_cross_section(tmp_path):

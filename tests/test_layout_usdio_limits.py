@@ -48,19 +48,13 @@ def write(tmp_path, text, name="L.usda"):
 Z_UP = 'upAxis = "Z"\n    metersPerUnit = 1'
 
 
-def one_line_error(capsys, argv):
-    capsys.readouterr()
-    assert main(argv) == 1
-    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
-    assert len(lines) == 1 and lines[0].startswith("lsd3d-usd: error: "), lines
-    return lines[0]
 
 
-def test_layout_100km_across_is_refused_up_front(tmp_path, capsys):
+def test_layout_100km_across_is_refused_up_front(tmp_path, capsys, cli_error):
     p = write(tmp_path, layout_text([(0, 0, 0), (100_000, 0, 0)], Z_UP))
     with pytest.raises(InputError, match=r"features span 100004 m x 3.5 m, more than the limit of 50000 m"):
         usdio.read_layout(p)
-    line = one_line_error(capsys, ["proxy", "build", "--layout", str(p), "-o", str(tmp_path / "P.usdc")])
+    line = cli_error(["proxy", "build", "--layout", str(p), "-o", str(tmp_path / "P.usdc")])
     assert "L.usda" in line and "50000" in line
     assert os.listdir(tmp_path) == ["L.usda"]       # nothing written
     # extent metadata is checked too
@@ -96,9 +90,9 @@ def test_bad_extent_is_refused(tmp_path, extent, match):
         usdio.read_layout(p)
 
 
-def test_nan_extent_through_proxy_build_is_one_line(tmp_path, capsys):
+def test_nan_extent_through_proxy_build_is_one_line(tmp_path, capsys, cli_error):
     p = write(tmp_path, layout_text([(0, 0, 0), (10, 0, 0)], Z_UP, "double[] extent = [0, 0, nan, 5]"))
-    line = one_line_error(capsys, ["proxy", "build", "--layout", str(p), "-o", str(tmp_path / "P.usdc")])
+    line = cli_error(["proxy", "build", "--layout", str(p), "-o", str(tmp_path / "P.usdc")])
     assert "lsd3dLayout" in line and "non-finite" in line
 
 
@@ -136,16 +130,16 @@ def test_bad_units_are_refused(tmp_path, meta, match):
         usdio.read_layout(write(tmp_path, layout_text([(0, 0, 0), (60, 0, 0)], meta)))
 
 
-def test_proxy_build_chunk_count_limit_and_override(tmp_path, capsys):
+def test_proxy_build_chunk_count_limit_and_override(tmp_path, capsys, cli_error):
     big = write(tmp_path, layout_text([(0, 0, 0), (10, 0, 0)], Z_UP,
                                       "double[] extent = [0, 0, 20000, 20000]"), "big.usda")
-    line = one_line_error(capsys, ["proxy", "build", "--layout", str(big), "-o", str(tmp_path / "P.usdc")])
+    line = cli_error(["proxy", "build", "--layout", str(big), "-o", str(tmp_path / "P.usdc")])
     assert "chunk count 40000 chunks exceeds the limit of 10000 chunks" in line and "--max-chunks" in line
     assert not (tmp_path / "P.usdc").exists() and not (tmp_path / "P_chunks").exists()
     small = write(tmp_path, layout_text([(0, 0, 0), (10, 0, 0)], Z_UP,
                                         "double[] extent = [0, 0, 200, 200]"), "small.usda")
     args = ["proxy", "build", "--layout", str(small), "-o", str(tmp_path / "S.usdc")]
-    line = one_line_error(capsys, args + ["--max-chunks", "3"])
+    line = cli_error(args + ["--max-chunks", "3"])
     assert "chunk count 4 chunks exceeds the limit of 3 chunks" in line
     assert main(args + ["--max-chunks", "4", "--no-windows"]) == 0
 

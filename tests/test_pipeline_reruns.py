@@ -5,16 +5,13 @@ import json
 import os
 from pathlib import Path
 
-import numpy as np
 import pytest
 from pxr import Sdf, Vt
 
-from conftest import ROOT
+from conftest import ROOT, error_line, generate_small
 from lsd3d_usd import scene as S
 from lsd3d_usd import validation
-from lsd3d_usd.config import generate_config
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.pipeline import RunOptions, generate
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
 SMALL = ["--layout", LAYOUT, "--surfels", "3000", "--env-resolution", "128x64",
@@ -23,24 +20,10 @@ SMALL = ["--layout", LAYOUT, "--surfels", "3000", "--env-resolution", "128x64",
 
 
 def gen(out, run=None, **kw):
-    base = dict(layout=LAYOUT, steps=0, surfels=3000, env_resolution=(128, 64),
-                resolution=(64, 48), views=4, perceptual=False, actors=False,
-                ggds={"held_out": 2})
-    base.update(kw)
-    return generate(generate_config(**base),
-                    RunOptions(out=Path(out), progress=False, log=lambda *a: None, **(run or {})))
+    """The small scene, without GGDS unless asked (steps=N)."""
+    return generate_small(out, run, **{"steps": 0, "seed": 0, "ggds": {"held_out": 2}, **kw})
 
 
-def one_line_error(r, *needles):
-    """Exit 1 with exactly one error line, the last thing printed (progress lines before it
-    are fine), no traceback."""
-    lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
-    errors = [ln for ln in lines if ln.startswith("lsd3d-usd: error: ")]
-    assert r.returncode == 1 and len(errors) == 1 and lines[-1] == errors[0], r.stderr
-    assert "Traceback" not in r.stderr
-    for n in needles:
-        assert n in errors[0], (n, errors[0])
-    return errors[0]
 
 
 def errors_of(path):
@@ -92,7 +75,7 @@ def test_pickled_checkpoint_is_refused_and_never_unpickled(tmp_path, run_cli):
     import pickle
     (run_dir / "state.pt").write_bytes(pickle.dumps({"params": Payload()}))
     r = run_cli("generate", "-o", out, "--resume", *SMALL)
-    one_line_error(r, "state.pt", "pickled checkpoint")
+    error_line(r, "state.pt", "pickled checkpoint")
     assert not marker.exists()
 
 
@@ -117,11 +100,11 @@ def test_truncated_or_foreign_checkpoint_is_one_line(tmp_path, run_cli, monkeypa
     tensors = next(d.glob("state-*.safetensors"))
     tensors.write_bytes(tensors.read_bytes()[:200])
     r = run_cli("generate", "-o", out, "--resume", *SMALL)
-    one_line_error(r, "unreadable checkpoint", tensors.name)
+    error_line(r, "unreadable checkpoint", tensors.name)
     meta = json.loads((d / "state.json").read_text())
     meta["tensors"] = "../../../etc/passwd"
     (d / "state.json").write_text(json.dumps(meta))
-    one_line_error(run_cli("generate", "-o", out, "--resume", *SMALL), "bad tensor file name")
+    error_line(run_cli("generate", "-o", out, "--resume", *SMALL), "bad tensor file name")
 
 
 # ----------------------------------------------------------------------------- paths
@@ -137,9 +120,9 @@ def test_muted_layer_outside_the_scene_is_refused(tmp_path, run_cli):
     data["lsd3d"] = lsd
     root.customLayerData = data
     root.Save()
-    one_line_error(run_cli("scene", "remove", out, "precious", "--delete"), "../../precious.usdc",
+    error_line(run_cli("scene", "remove", out, "precious", "--delete"), "../../precious.usdc",
                    "not a layer file inside layers/")
-    one_line_error(run_cli("scene", "layers", out), "precious")
+    error_line(run_cli("scene", "layers", out), "precious")
     assert precious.read_bytes() == b"keep me"
 
 
@@ -180,7 +163,7 @@ def test_import_ply_over_a_run_needs_retire(finished, tmp_path, run_cli):
     ply = tmp_path / "s.ply"
     assert run_cli("splats", "export-ply", out / "layers" / "surfels.usdc", "-o", ply).returncode == 0
     run = S.Scene.open(out).runs()[0].name
-    one_line_error(run_cli("splats", "import-ply", ply, "-o", out), run, "--retire-runs")
+    error_line(run_cli("splats", "import-ply", ply, "-o", out), run, "--retire-runs")
     r = run_cli("splats", "import-ply", ply, "-o", out, "--retire-runs")
     assert r.returncode == 0, r.stderr
     assert S.Scene.open(out).runs()[0].muted
@@ -201,7 +184,7 @@ def test_resume_uses_recorded_settings_and_refuses_conflicts(tmp_path, run_cli, 
     with pytest.raises(KeyboardInterrupt):
         gen(out, steps=8, checkpoint_every=4, ggds={"held_out": 2, "lr": {"sh_dc": 0.02}})
     monkeypatch.setattr(R.GGDSRun, "step", real)
-    one_line_error(run_cli("generate", "-o", out, "--resume", "--seed", "2"),
+    error_line(run_cli("generate", "-o", out, "--resume", "--seed", "2"),
                    "conflicting", "seed 2")
     r = run_cli("generate", "-o", out, "--resume", "--steps", "5", "--no-progress")
     assert r.returncode == 0, r.stderr
@@ -214,7 +197,7 @@ def test_resume_uses_recorded_settings_and_refuses_conflicts(tmp_path, run_cli, 
     assert r.returncode == 0, r.stderr
     run = S.Scene.open(out).runs()[0]
     assert run.provenance["stepsDone"] == 8 and run.provenance["complete"]
-    one_line_error(run_cli("generate", "-o", out, "--resume", "--seed", "2"),
+    error_line(run_cli("generate", "-o", out, "--resume", "--seed", "2"),
                    "no unfinished GGDS run")
 
 
@@ -222,11 +205,11 @@ def test_resume_uses_recorded_settings_and_refuses_conflicts(tmp_path, run_cli, 
 def test_generate_output_and_json_paths_checked_before_work(tmp_path, run_cli):
     f = tmp_path / "file"
     f.write_text("x")
-    one_line_error(run_cli("generate", "-o", f, *SMALL, "--steps", "0"), "not a folder")
-    one_line_error(run_cli("generate", "-o", tmp_path / "s", "--json", f / "s.json",
+    error_line(run_cli("generate", "-o", f, *SMALL, "--steps", "0"), "not a folder")
+    error_line(run_cli("generate", "-o", tmp_path / "s", "--json", f / "s.json",
                            *SMALL, "--steps", "0"), "--json", "is a file, not a folder")
     assert not (tmp_path / "s").exists()
-    one_line_error(run_cli("generate", "-o", tmp_path / "s", "--set", "ggds.lr.sh_dcc=1"),
+    error_line(run_cli("generate", "-o", tmp_path / "s", "--set", "ggds.lr.sh_dcc=1"),
                    "did you mean 'ggds.lr.sh_dc'")
     assert not (tmp_path / "s").exists()
 

@@ -196,11 +196,11 @@ def test_check_names_index_for_cpu_float32_float64_and_torch_scan_alike():
     x[4321, 1] = float("nan")
     x[4400, 0] = -1.0
     for t in (x, x.double()):
-        assert checks._first_bad_flat(t, 0.0, np.inf) == 4321 * 3 + 1
+        assert checks.first_bad_flat(t, 0.0, np.inf) == 4321 * 3 + 1
     y = x.clone()
     y[4321, 1] = 0.0
-    assert checks._first_bad_flat(y, 0.0, np.inf) == 4400 * 3
-    assert checks._first_bad_flat(y.to(torch.float16), 0.0, np.inf) == 4400 * 3  # torch path
+    assert checks.first_bad_flat(y, 0.0, np.inf) == 4400 * 3
+    assert checks.first_bad_flat(y.to(torch.float16), 0.0, np.inf) == 4400 * 3  # torch path
 
 
 def test_docs_backend_example_plugs_in_and_matches_the_torch_backend():

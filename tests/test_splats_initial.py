@@ -45,7 +45,7 @@ def test_parked_parts_come_back_unchanged_and_nothing_is_left(tmp_path, monkeypa
     for key, f in parked.items():      # each surfel in the chunk holding it (1 mm tolerance)
         lo = np.asarray(key) * 100.0
         assert np.all((f.positions[:, :2] >= lo - 1e-3) & (f.positions[:, :2] <= lo + 100 + 1e-3))
-    monkeypatch.setattr(initial, "_Stash", _InMemory)
+    monkeypatch.setattr(initial, "Stash", _InMemory)
     held, _ = _init(tmp_path / "b")
     assert held.keys() == parked.keys()
     for key in held:

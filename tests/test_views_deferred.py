@@ -99,7 +99,7 @@ def test_same_input_gives_the_same_frame():
     assert np.array_equal(seq[1], a) and np.array_equal(seq[0], seq[2])
     # nothing of a frame stays behind in the prior's per-view cache (a video's frames are
     # never seen again: a cache would hold up to 256 frames' shading)
-    assert not sp.prior.__dict__.get("_render_cache")
+    assert not sp.prior.cached_views()
 
 
 def test_fine_gbuffer_gives_the_supersampled_prior_image():
@@ -137,7 +137,7 @@ def test_actor_pixels_keep_the_raw_frame_and_condition_as_vehicles():
     out = D.Deferrer(sp, 0.5).defer(x, cam, mask, depth)
     assert np.array_equal(out[mask], x[mask])
     assert not np.allclose(out[~mask], x[~mask])
-    gb = D._overlay_actors(sp.gbuffer(cam), cam, mask, depth)
+    gb = D.overlay_actors(sp.gbuffer(cam), cam, mask, depth)
     assert (gb.semantic[torch.from_numpy(mask)] == class_id("vehicle")).all()
     assert torch.allclose(gb.depth[torch.from_numpy(mask)], torch.tensor(6.0))
     # world positions lie at that camera depth
@@ -229,10 +229,10 @@ def test_temporal_warp_on_a_known_pan():
 def tiny_diffusers(tmp_path_factory):
     diffusers = pytest.importorskip("diffusers")
     transformers = pytest.importorskip("transformers")
-    from test_ggds_prior_diffusers import _tiny_clip_tokenizer
+    from test_ggds_priors_diffusion import tiny_clip_tokenizer
     root = tmp_path_factory.mktemp("tiny_sd_deferred")
     torch.manual_seed(1)
-    n_vocab = _tiny_clip_tokenizer(root / "tokenizer")
+    n_vocab = tiny_clip_tokenizer(root / "tokenizer")
     unet = diffusers.UNet2DConditionModel(
         sample_size=8, in_channels=4, out_channels=4, layers_per_block=1, block_out_channels=(32, 64),
         down_block_types=("CrossAttnDownBlock2D", "DownBlock2D"),
@@ -286,7 +286,7 @@ def test_controlnet_sees_the_cameras_proxy_gbuffer(tiny_diffusers):
     assert n_calls == 4                       # 2 inversion + 2 denoising steps, each one call
     assert np.array_equal(a, b)               # deterministic: DDIM inversion, no noise drawn
     assert np.array_equal(a[mask], x[mask])   # actors keep the raw pixel
-    gb = D._overlay_actors(sp.gbuffer(cam), cam, mask, depth)
+    gb = D.overlay_actors(sp.gbuffer(cam), cam, mask, depth)
     h, w = prior.work_size(48, 64)
     want = disparity_condition(gb, h, w)
     for c in seen:
@@ -308,35 +308,26 @@ def test_controlnet_sees_the_cameras_proxy_gbuffer(tiny_diffusers):
 
 
 # ------------------------------------------------------------------ a generated scene
-@pytest.fixture(scope="module")
-def tiny_scene(tmp_path_factory):
-    from lsd3d_usd.config import generate_config
-    from lsd3d_usd.pipeline import RunOptions, generate
-    out = tmp_path_factory.mktemp("deferred") / "scene"
-    generate(generate_config(layout=LAYOUT, steps=2, surfels=3000, env_resolution=(128, 64),
-                             resolution=(64, 48), views=4, perceptual=False, actors=False, seed=5),
-             RunOptions(out=out, progress=False, log=lambda *a: None))
-    return out
 
 
-def test_scene_prior_comes_from_the_run_and_can_be_overridden(tiny_scene):
-    sp = SP.load_scene_prior(tiny_scene)
+def test_scene_prior_comes_from_the_run_and_can_be_overridden(small_scene):
+    sp = SP.load_scene_prior(small_scene)
     assert sp.spec == "procedural" and sp.source.startswith("recorded by GGDS run ggds_")
     assert sp.seed == 5 and sp.prior.seed == 5
     assert sp.shadow is not None and len(sp.proxy[1]) > 0
-    over = SP.load_scene_prior(tiny_scene / "scene.usda", prior="procedural")
+    over = SP.load_scene_prior(small_scene / "scene.usda", prior="procedural")
     assert over.source == "--deferred-prior"
     with pytest.raises(InputError, match="unknown prior"):
-        SP.load_scene_prior(tiny_scene, prior="nosuch")
+        SP.load_scene_prior(small_scene, prior="nosuch")
     with pytest.raises(InputError, match="no such directory"):
-        SP.load_scene_prior(tiny_scene, prior="diffusers:/no/such/dir")
+        SP.load_scene_prior(small_scene, prior="diffusers:/no/such/dir")
     with pytest.raises(InputError, match="needs a scene folder"):
-        SP.scene_root(tiny_scene / "layers")
+        SP.scene_root(small_scene / "layers")
 
 
-def test_render_rig_deferred_writes_beside_the_raw_files(tiny_scene, tmp_path, run_cli):
+def test_render_rig_deferred_writes_beside_the_raw_files(small_scene, tmp_path, run_cli):
     out = tmp_path / "clip"
-    r = run_cli("render", tiny_scene, "--rig", "waymo5", "--route", "w_in,j_we,e_out", "--seconds",
+    r = run_cli("render", small_scene, "--rig", "waymo5", "--route", "w_in,j_we,e_out", "--seconds",
                 "0.2", "--resolution", "48", "--no-overview", "--deferred", "--deferred-strength",
                 "0.25", "--deferred-steps", "3", "-o", out)
     assert r.returncode == 0, r.stderr
@@ -355,9 +346,9 @@ def test_render_rig_deferred_writes_beside_the_raw_files(tiny_scene, tmp_path, r
     assert a.shape == b.shape and not np.array_equal(a, b)
 
 
-def test_render_camera_deferred(tiny_scene, tmp_path, run_cli):
+def test_render_camera_deferred(small_scene, tmp_path, run_cli):
     clip = tmp_path / "clip"
-    assert run_cli("render", tiny_scene, "--rig", "waymo5", "--route", "w_in,j_we,e_out",
+    assert run_cli("render", small_scene, "--rig", "waymo5", "--route", "w_in,j_we,e_out",
                    "--seconds", "0.1", "--resolution", "32", "--no-video", "-o", clip).returncode == 0
     out = tmp_path / "single"
     r = run_cli("render", clip / "rig.usda", "--camera", "/World/Cameras/Ego/Front", "--resolution",
@@ -368,9 +359,9 @@ def test_render_camera_deferred(tiny_scene, tmp_path, run_cli):
     assert prov["strength"] == D.DEFAULT_STRENGTH and prov["steps"] == D.DEFAULT_STEPS
 
 
-def test_eval_deferred(tiny_scene, tmp_path):
+def test_eval_deferred(small_scene, tmp_path):
     from lsd3d_usd.eval.evaluate import eval_options, evaluate
-    res = evaluate(eval_options(scene=tiny_scene, out_dir=tmp_path / "ev", n_seen=3, per_bin=2,
+    res = evaluate(eval_options(scene=small_scene, out_dir=tmp_path / "ev", n_seen=3, per_bin=2,
                                bins=(0.5, 4.0), resolution=(64, 48), frames=4, progress=False,
                                log=lambda *a: None, deferred={"enabled": True, "strength": 0.3}))
     d = res["deferred"]
@@ -384,6 +375,6 @@ def test_eval_deferred(tiny_scene, tmp_path):
     assert "Deferred rendering" in html and "eval_deferred.png" in html
     assert (tmp_path / "ev" / "eval_deferred.png").is_file()
     with pytest.raises(InputError, match="--deferred-strength"):
-        evaluate(eval_options(scene=tiny_scene, out_dir=tmp_path / "bad", deferred={"enabled": True, "strength": 2.0},
+        evaluate(eval_options(scene=small_scene, out_dir=tmp_path / "bad", deferred={"enabled": True, "strength": 2.0},
                              progress=False, log=lambda *a: None))
     assert not (tmp_path / "bad").exists()

@@ -28,8 +28,8 @@ def build(root: Path, controlnet: bool):
     import diffusers
     import transformers
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-    from test_ggds_prior_diffusers import _tiny_clip_tokenizer
-    n_vocab = _tiny_clip_tokenizer(root / "tokenizer")
+    from test_ggds_priors_diffusion import tiny_clip_tokenizer
+    n_vocab = tiny_clip_tokenizer(root / "tokenizer")
     unet = diffusers.UNet2DConditionModel(cross_attention_dim=768, attention_head_dim=8)
     unet.save_pretrained(root / "unet")
     diffusers.AutoencoderKL(block_out_channels=(128, 256, 512, 512), layers_per_block=2,

@@ -133,15 +133,15 @@ def same_view_cameras(seed: int, views: int, size=(240, 135)) -> list:
                                            novel_frac=0.25)]
 
 
-def _paired(a: list, b: list, draws: int = 1000) -> tuple[float, list]:
+def paired(a: list, b: list, draws: int = 1000) -> tuple[float, list]:
     """PSNR of the per-view errors ``a`` (pairs of sum of squared errors, values; pooled
     over the views, each weighted by its pixels) minus that of ``b`` from the same views, and
     its 95 % bootstrap interval over the views."""
-    return _paired_seeds([(a, b)], draws)
+    return paired_seeds([(a, b)], draws)
 
 
-def _paired_seeds(pairs: list, draws: int = 1000) -> tuple[float, list]:
-    """``_paired`` over several runs: (a, b) per GGDS seed, both from the same views. The
+def paired_seeds(pairs: list, draws: int = 1000) -> tuple[float, list]:
+    """``paired`` over several runs: (a, b) per GGDS seed, both from the same views. The
     mean of the per-seed differences and its 95 % interval from a two-level bootstrap (seeds,
     then views within each): a run's training views are a random draw too, and with 24 per
     chunk the same configuration scores ±0.5 dB from one seed to the next."""
@@ -317,7 +317,7 @@ def plot(rows: list, path) -> None:
     fig.tight_layout(); fig.savefig(path, dpi=100); plt.close(fig)
 
 
-def _seams_vs_one_region(stats: dict, seed: int, seeds: list) -> dict:
+def seams_vs_one_region(stats: dict, seed: int, seeds: list) -> dict:
     """Per GGDS seed and baseline layout: the chunk-wise scene's matched seam drop against the
     same layout's one-region scene from the same views (eval.seams.paired_matched_drop)."""
     out = {}
@@ -376,7 +376,7 @@ def main(json_path=None, *, full=False, steps=30, workers=None, seed=11, views_p
         if again:
             result["repeats"] = again
             result["scene_region_repeats"] = [bases[s_] for s_ in seeds[1:]]
-        result["seam_vs_one_region"] = added = _seams_vs_one_region(stats, seed, seeds)
+        result["seam_vs_one_region"] = added = seams_vs_one_region(stats, seed, seeds)
         _log_seams_vs_one_region(added, log)
         here = added[str(seed)]
         by_seed = {k: [added[str(s_)][k]["difference_db"] for s_ in seeds] for k in here}
@@ -384,8 +384,8 @@ def main(json_path=None, *, full=False, steps=30, workers=None, seed=11, views_p
         runs = [(big, one)] + [(rr[ib], rr[io]) for rr in again]
         pairs = [(b["same_views_errors"], o["same_views_errors"]) for b, o in runs
                  if b["same_views_errors"] and o["same_views_errors"]]
-        paired = _paired_seeds(pairs) if pairs else (None, None)
-        per_seed = [_paired(*p)[0] for p in pairs]
+        paired = paired_seeds(pairs) if pairs else (None, None)
+        per_seed = [paired(*p)[0] for p in pairs]
         result["summary"] = {
             "largest_chunks": big["chunks"],
             "density_ratio": round(big["surfels_per_m2"] / one["surfels_per_m2"], 4),

@@ -110,7 +110,7 @@ def pick(n_total: int, n: int, seed: int) -> np.ndarray:
     return np.sort(np.random.default_rng(seed).choice(n_total, n, replace=False))
 
 
-def _footprints(layout):
+def building_footprints(layout):
     # local import: not loaded for --help
     from matplotlib.path import Path as MPath
     out = []
@@ -121,7 +121,7 @@ def _footprints(layout):
     return out
 
 
-def _inside_building(p, footprints) -> bool:
+def inside_building(p, footprints) -> bool:
     for path, x0, x1, y0, y1 in footprints:
         if x0 <= p[0] <= x1 and y0 <= p[1] <= y1 and path.contains_point((p[0], p[1])):
             return True
@@ -149,7 +149,7 @@ def novel_views(sources: list, bins, per_bin: int, seed: int, layout=None,
     rng = np.random.default_rng(seed)
     centres = np.asarray(train_centres if train_centres is not None
                          else [v.camera.center for v in sources], np.float64)
-    fps = _footprints(layout) if layout is not None else []
+    fps = building_footprints(layout) if layout is not None else []
     out = []
     for d in bins:
         d = float(d)
@@ -169,7 +169,7 @@ def novel_views(sources: list, bins, per_bin: int, seed: int, layout=None,
                 phi = rng.uniform(0.0, 2.0 * np.pi)
                 disp = horiz * (np.cos(phi) * fwd + np.sin(phi) * left) + np.array([0.0, 0.0, dz])
                 centre = cam.center + disp
-                if not _inside_building(centre, fps):
+                if not inside_building(centre, fps):
                     break
             yaw = rng.uniform(-max_yaw, max_yaw)
             new = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,

@@ -130,7 +130,7 @@ def _bounds(name):
     return -np.inf, np.inf
 
 
-def _first_bad_flat(x, lo, hi) -> int:
+def first_bad_flat(x, lo, hi) -> int:
     """Flat index of the first non-finite / out-of-range element of tensor x, -1 if none."""
     if x.device.type == "cpu" and x.dtype in (torch.float32, torch.float64):
         flat = np.ascontiguousarray(x.detach().reshape(-1).numpy())
@@ -156,7 +156,7 @@ def _raise_at(x, name, q, lo, hi):
 def _check_values(x, name, shape):
     _check_shape(x, name, shape)
     lo, hi = _bounds(name)
-    q = _first_bad_flat(x, lo, hi)
+    q = first_bad_flat(x, lo, hi)
     if q >= 0:
         _raise_at(x, name, q, lo, hi)
 

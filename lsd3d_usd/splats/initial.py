@@ -54,7 +54,7 @@ def _weighted_area(V: np.ndarray, F: np.ndarray, layout) -> tuple[np.ndarray, np
     return area, w
 
 
-def _owners(positions: np.ndarray, seed_key, chunk_size: float, tol: float = 1e-3) -> dict:
+def chunk_owners(positions: np.ndarray, seed_key, chunk_size: float, tol: float = 1e-3) -> dict:
     """{chunk: indices} of surfels seeded on chunk ``seed_key``'s proxy: the chunk holding each
     centre, except that centres within ``tol`` of the seed chunk stay in it (a float32 centre
     on the chunk's edge rounds across it; a true overhang is farther)."""
@@ -99,7 +99,7 @@ class _ProxyCache:
         return np.concatenate(V), np.concatenate(F)
 
 
-class _Stash:
+class Stash:
     """Surfel parts parked in a temporary folder inside ``parent`` (the scene's chunk
     folder), read back once and deleted."""
 
@@ -172,7 +172,7 @@ def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | 
     folder = chunkio.chunks_base(out_root) / inputs_hash[:16]
     # Surfels waiting for a neighbour wait on disk: a grid sweeps a row of chunks (and more)
     # before the first is complete, and holding them cost ~0.1 GB per chunk in memory.
-    stash = _Stash(chunkio.chunks_base(out_root))
+    stash = Stash(chunkio.chunks_base(out_root))
     pending: dict = {}           # target chunk -> [stashed (field, seed chunks, seed faces)]
     done_sources: set = set()
     infos: dict = {}
@@ -206,7 +206,7 @@ def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | 
                 face = parent[face]
                 NV, NF = cache.neighbourhood(key)
                 colour(field, NV, NF)
-                for target, idx in _owners(field.positions, key, chunk_size).items():
+                for target, idx in chunk_owners(field.positions, key, chunk_size).items():
                     src = np.tile(np.asarray(key, np.int32), (len(idx), 1))
                     pending.setdefault(target, []).append(
                         stash.put(field.subset(idx), src, face[idx]))

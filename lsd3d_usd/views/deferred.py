@@ -69,7 +69,7 @@ def deferred_name(path) -> Path:
 
 
 # ------------------------------------------------------------------------ one frame
-def _overlay_actors(gb, camera, actor_mask: np.ndarray, depth: np.ndarray):
+def overlay_actors(gb, camera, actor_mask: np.ndarray, depth: np.ndarray):
     """G-buffer pixels where an actor is in front take the actor's depth, the vehicle class,
     a camera-facing normal and the matching world position."""
     # local import: not loaded for --help
@@ -128,7 +128,7 @@ class Deferrer:
         t0 = time.perf_counter()
         gb = self.sp.gbuffer(camera, fine=fine)
         if actor_mask is not None:
-            gb = _overlay_actors(gb, camera, actor_mask, depth)
+            gb = overlay_actors(gb, camera, actor_mask, depth)
         # a key of its own, forgotten below: a prior's per-view cache would otherwise keep
         # every frame's derived images (up to its bound) for views never seen again
         gb.key = key = object()

@@ -4,7 +4,7 @@ depth, reads the target's box mean over its disk from a summed-area table and ad
 weighted SH sample to the surfel's normal equations.
 
 Each surfel owns its rows of the accumulators, so the loop runs in parallel without atomics.
-Against the numpy version it replaces (kept in tests/test_worldfit_kernel.py as the float64
+Against the numpy version it replaces (kept in tests/test_ggds_colour_start_kernels.py as the float64
 reference, which it matches to 1e-9), one view of the README sample's 0.9 M surfels takes
 about 13 ms instead of ~150 ms (docs/ggds.md)."""
 from __future__ import annotations

@@ -47,7 +47,7 @@ FEATURE_BLOCKS = (0, 2, 4, 10, 15)
 FEATURE_CHANNELS = (16, 24, 40, 112, 320)
 
 
-def _same_pad(x: torch.Tensor, kernel: int, stride: int) -> torch.Tensor:
+def same_pad(x: torch.Tensor, kernel: int, stride: int) -> torch.Tensor:
     """TensorFlow SAME padding for a square kernel (dilation 1)."""
     h, w = x.shape[-2:]
     ph = max((math.ceil(h / stride) - 1) * stride + kernel - h, 0)
@@ -64,7 +64,7 @@ class SameConv2d(nn.Conv2d):
         super().__init__(cin, cout, kernel, stride=stride, padding=0, groups=groups, bias=False)
 
     def forward(self, x):
-        return super().forward(_same_pad(x, self.kernel_size[0], self.stride[0]))
+        return super().forward(same_pad(x, self.kernel_size[0], self.stride[0]))
 
 
 class MBConv(nn.Module):

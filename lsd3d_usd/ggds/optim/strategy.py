@@ -81,10 +81,10 @@ class MCMCStrategy:
         info = {"noised": 0, "relocated": 0, "densified": 0}
         rows = torch.arange(params["means"].shape[0]) if rows is None else rows
         if self.noise_scale > 0 and rows.numel():
-            info["noised"] = self._noise(params, rows, lr_means)
+            info["noised"] = self.add_noise(params, rows, lr_means)
         if self.relocate_every and step > 0 and step % self.relocate_every == 0:
             moved = []
-            info["relocated"] = self._relocate(params, optimizer)
+            info["relocated"] = self.relocate(params, optimizer)
             if info["relocated"]:
                 moved.append(self.last_relocation)
                 if self.err_sum is not None:   # revived: their residual is measured afresh
@@ -136,7 +136,7 @@ class MCMCStrategy:
         self.last_relocation = (donors, src)
         return int(donors.numel())
 
-    def _noise(self, params, rows, lr_means) -> int:
+    def add_noise(self, params, rows, lr_means) -> int:
         op = torch.sigmoid(params["opacities"][rows])
         gate = torch.sigmoid(-self.gate_sharpness * (op - self.gate_threshold))
         moving = gate > 1e-3
@@ -151,7 +151,7 @@ class MCMCStrategy:
         params["means"][r] += self.noise_scale * gate[moving, None] * step * min(1.0, lr_means / 1e-3)
         return int(len(r))
 
-    def _relocate(self, params, optimizer) -> int:
+    def relocate(self, params, optimizer) -> int:
         op = torch.sigmoid(params["opacities"])
         dead = torch.nonzero(op < self.dead_opacity).flatten()
         alive = torch.nonzero(op >= self.dead_opacity).flatten()

@@ -225,6 +225,12 @@ class ProceduralPrior(Prior):
         cache[key] = (None if keyed else gbuffer, env, P)
         return P
 
+    def cached_views(self) -> list:
+        """The view keys whose render is cached: a training view's G-buffer key, or
+        ("id", object id) of a G-buffer without one."""
+        return [k[0][1] if k[0][0] == "key" else k[0]
+                for k in self.__dict__.get("_render_cache", {})]
+
     def forget(self, keys) -> None:
         cache = self.__dict__.get("_render_cache", {})
         gone = {("key", k) for k in keys}
