@@ -203,14 +203,49 @@ class ChunkInputs:
     hash: str
 
 
+class FeatureIndex:
+    """The features of a layout with their XY bounds in one array, so the features near a
+    chunk are found by one vectorised comparison instead of a walk over every feature
+    (which made a chunk's cost grow with the whole layout). ``near`` returns what
+    ``Layout.features_in_box`` returns, in the same order."""
+
+    def __init__(self, layout):
+        from lsd3d_usd.layout import model as lm
+        self.layout = layout
+        self.features = list(layout.features())
+        b = np.empty((len(self.features), 4))
+        for k, f in enumerate(self.features):
+            (x0, y0), (x1, y1) = f.bbox()
+            pad = float(f.widths.max()) / 2 if isinstance(f, lm.LaneCenter) else 0.0
+            b[k] = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+        self.bounds = b
+
+    def near(self, box, margin: float = 0.0):
+        from lsd3d_usd.layout.model import Layout
+        (bx0, by0), (bx1, by1) = box
+        b = self.bounds
+        hit = ((b[:, 2] >= bx0 - margin) & (b[:, 0] <= bx1 + margin)
+               & (b[:, 3] >= by0 - margin) & (b[:, 1] <= by1 + margin))
+        L = self.layout
+        out = Layout(extent=L.extent, chunk_size=L.chunk_size, metadata=L.metadata)
+        for k in np.nonzero(hit)[0]:
+            out.add(self.features[k])
+        return out
+
+
 class ProxyBuilder:
-    """Builds chunks of one layout; derived features are computed once per layout."""
+    """Builds chunks of one layout; derived features and the feature index are computed
+    once per layout."""
 
     def __init__(self, layout, params: ProxyParams | None = None):
         self.layout = layout
         self.params = params or ProxyParams()
         self.size = float(layout.chunk_size)
         self.fixtures = derive_fixtures(layout, self.params)
+        self.index = FeatureIndex(layout)
+        self._fixtures_at: dict[ChunkKey, list[Fixture]] = {}
+        for f in self.fixtures:
+            self._fixtures_at.setdefault(chunk_of(*f.position, self.size), []).append(f)
 
     def chunks(self, max_chunks: int | None = None) -> list[ChunkKey]:
         return all_chunks(self.layout, max_chunks)
@@ -218,8 +253,8 @@ class ProxyBuilder:
     def inputs(self, key: ChunkKey) -> ChunkInputs:
         i, j = key
         b = chunk_bounds(i, j, self.size)
-        local = self.layout.features_in_box(((b[0], b[1]), (b[2], b[3])), self.params.margin)
-        fx = [f for f in self.fixtures if chunk_of(*f.position, self.size) == key]
+        local = self.index.near(((b[0], b[1]), (b[2], b[3])), self.params.margin)
+        fx = list(self._fixtures_at.get(key, []))
         return ChunkInputs(key, b, local, fx, chunk_inputs_hash(local, fx, self.params, key))
 
     def build(self, key: ChunkKey, inputs: ChunkInputs | None = None) -> list[MeshPart]:

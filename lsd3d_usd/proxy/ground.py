@@ -58,7 +58,7 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
     big = box(x0 - margin, y0 - margin, x1 + margin, y1 + margin)
     road_parts, walk_parts = [], []
     for pts, widths, lane_type in lanes:
-        rib = ribbon(pts, np.asarray(widths, dtype=np.float64) / 2)
+        rib = ribbon(pts, np.asarray(widths, dtype=np.float64) / 2, within=big.bounds)
         (walk_parts if lane_type == "sidewalk" else
          road_parts if lane_type not in NOT_ROAD_LANES else []).append(rib)
     road_parts += [_poly(p) for p in road_areas]
