@@ -288,14 +288,22 @@ def lanelet2_real(path: str | Path, origin=(49.0069, 8.4037)) -> Path:
     from lanelet2.io import Origin
     from lanelet2.projection import LocalCartesianProjector
 
+    shared: dict = {}
+
     def pt(x, y, z=0.0, **attrs):
         return Point3d(getId(), x, y, z, AttributeMap(attrs))
+
+    def node(x, y, z):     # lanelets that follow each other share their bounds' end points
+        key = (round(x, 6), round(y, 6), round(z, 6))
+        if key not in shared:
+            shared[key] = pt(x, y, z)
+        return shared[key]
 
     def ls(xy, typ, sub=None, lid=None, z=0.0):
         attrs = {"type": typ}
         if sub:
             attrs["subtype"] = sub
-        return LineString3d(lid or getId(), [pt(x, y, z) for x, y in xy], AttributeMap(attrs))
+        return LineString3d(lid or getId(), [node(x, y, z) for x, y in xy], AttributeMap(attrs))
 
     def ll(left, right, lid=None, **attrs):
         a = {"type": "lanelet", "subtype": "road", "location": "urban", "one_way": "yes"}
@@ -323,9 +331,9 @@ def lanelet2_real(path: str | Path, origin=(49.0069, 8.4037)) -> Path:
                      TrafficSignsWithType([]), [])
     west[1].addRegulatoryElement(ys)
     lmap.add(ys)
-    vsign = ls([(20, -W - 1.0), (20, -W - 1.6)], "traffic_sign", "de274")
-    vs = TrafficSign(getId(), AttributeMap({"subtype": "speed_limit", "sign_type": "de274"}),
-                     TrafficSignsWithType([vsign], "de274"), TrafficSignsWithType([]), [])
+    vsign = ls([(20, -W - 1.0), (20, -W - 1.6)], "traffic_sign", "de274-30")
+    vs = TrafficSign(getId(), AttributeMap({"subtype": "speed_limit", "sign_type": "de274-30"}),
+                     TrafficSignsWithType([vsign], "de274-30"), TrafficSignsWithType([]), [])
     east[0].addRegulatoryElement(vs)
     lmap.add(vs)
     # poles and furniture beside the street
@@ -335,11 +343,11 @@ def lanelet2_real(path: str | Path, origin=(49.0069, 8.4037)) -> Path:
     lmap.add(ls([(0, W + 4), (120, W + 4)], "fence"))
     lmap.add(ls([(0, -W - 3), (40, -W - 3)], "guard_rail"))
     # bad: right bound 126 m against a 24 m left bound (a spike of road)
-    lmap.add(ll(ls([(150, 0), (174, 0)], "line_thin", "dashed"),
-                ls([(150, -W), (200, -W), (250, -W), (276, -W)], "curbstone"), lid=9001))
+    lmap.add(ll(ls([(150, 0), (174, 0)], "line_thin", "dashed", lid=9011),
+                ls([(150, -W), (200, -W), (250, -W), (276, -W)], "curbstone", lid=9012), lid=9001))
     # bad: bounds that cross halfway (a bow tie)
-    lmap.add(ll(ls([(0, 40), (30, 40)], "line_thin", "solid"),
-                ls([(0, 36.5), (30, 43.5)], "line_thin", "solid"), lid=9002))
+    lmap.add(ll(ls([(0, 40), (30, 40)], "line_thin", "solid", lid=9013),
+                ls([(0, 36.5), (30, 43.5)], "line_thin", "solid", lid=9014), lid=9002))
     # bad: a lane marking far from every lane
     lmap.add(ls([(40, -60), (80, -60)], "line_thin", "dashed", lid=9003))
     path = Path(path)
