@@ -50,6 +50,9 @@ def register(subparsers) -> None:
                         "(default: the file's own, see docs/layout.md)")
     i.add_argument("--bbox", default=None, metavar="MINLON,MINLAT,MAXLON,MAXLAT",
                    help="OSM: read only this area (degrees), e.g. a district of a city file")
+    i.add_argument("--no-clip", dest="clip", action="store_false",
+                   help="OSM: keep the ways touching the area whole instead of cutting every "
+                        "feature at --bbox or, without it, at the file's <bounds>")
     i.set_defaults(func=_import)
 
     x = sub.add_parser(
@@ -130,7 +133,7 @@ def _import(args) -> int:
     origin = _parse_floats(args.origin, 2, "--origin", "LAT,LON in degrees, e.g. 48.137,11.575")
     bbox = _parse_floats(args.bbox, 4, "--bbox", "MINLON,MINLAT,MAXLON,MAXLAT in degrees")
     opts = importers.ImportOptions(tolerance=args.tolerance, strict=args.strict, origin=origin,
-                                   bbox=bbox)
+                                   bbox=bbox, clip=args.clip)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -140,12 +143,13 @@ def _import(args) -> int:
             print(f"lsd3d-usd: warning: {w.message}", file=sys.stderr)
     src = layout.metadata.get("source", {})
     params = {"source": str(args.input), "format": imp.name, "tolerance": args.tolerance}
-    for key in ("origin", "originFrom", "bbox"):
+    for key in ("origin", "originFrom", "bbox", "clip"):
         if key in src:
             params[key] = src[key]
     path = usdio.write_layout(layout, args.output, provenance(
         "layout.import", params, timings={"import_s": round(time.perf_counter() - t0, 3)}))
     _print_summary(layout, path)
+    print(importers.reach_line(layout))
     return 0
 
 

@@ -72,7 +72,10 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
     blocked = _union([R, C])
     walk = [_poly(p) for p in sidewalks] + walk_parts
     if not sidewalks and style.derive_sidewalks and not R.is_empty:
-        walk.append(R.buffer(style.curb_width + style.sidewalk_width, quad_segs=4))
+        derived = R.buffer(style.curb_width + style.sidewalk_width, quad_segs=4)
+        if extent is not None:   # a road cut at the extent continues: no walk around its end
+            derived = shapely.intersection(derived, box(*extent))
+        walk.append(derived)
     houses = _union([_poly(p) for p in buildings])
     S = as_area(shapely.difference(_union(walk), _union([blocked, houses])))
     blocked = _union([blocked, S])
