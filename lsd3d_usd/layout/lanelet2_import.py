@@ -253,6 +253,8 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
     drop_far_markings(path, lmap, layout, options)
     _areas(path, lmap, layout, options, far)
     far.report(path, options)
+    from lsd3d_usd.layout.georef import attach_origin
+    attach_origin(layout, "lanelet2 origin (LocalCartesianProjector)")
     layout.reindex()
     return layout
 

@@ -586,6 +586,7 @@ def read_opendrive(path: str | Path, tolerance: float = DEFAULT_TOLERANCE,
     layout.reindex()
     from lsd3d_usd.layout.opendrive_objects import read_objects_and_signals
     read_objects_and_signals(path, root, roads, layout, strict)
+    _attach_georef(path, root, layout)
     m.check_size(layout, str(path))
     return layout
 
@@ -927,3 +928,20 @@ def _mid_road_pairs(roads: dict, links: list[_MidLink]) -> set:
             for k, e in ends:
                 pairs.add(tuple(sorted([(ml.road, rk, r_lane, ml.end), (ml.main, k, m_lane, e)])))
     return pairs
+
+
+def _attach_georef(path, root, layout) -> None:
+    """The header's geoReference (and <offset>) as the layout's frame (``georef``); a text
+    pyproj cannot read warns and stays text in ``metadata.source.geoReference``."""
+    from lsd3d_usd.layout import georef
+    h = _kid(root, "header")
+    if h is None:
+        return
+    geo, off = _kid(h, "geoReference"), _kid(h, "offset")
+
+    def warn(msg):
+        warnings.warn(msg, OpenDriveWarning, stacklevel=4)
+    ref = georef.from_opendrive_header(None if geo is None else geo.text,
+                                       None if off is None else dict(off.attrib), str(path), warn)
+    if ref is not None:
+        georef.attach(layout, ref)

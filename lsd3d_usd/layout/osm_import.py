@@ -228,6 +228,8 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
                          f"({len(roads)} highway ways read)")
     if far:
         _warn(far, options)
+    from lsd3d_usd.layout.georef import attach_origin
+    attach_origin(layout, "osm origin (LocalCartesianProjector)")
     layout.reindex()
     return layout
 

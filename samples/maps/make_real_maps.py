@@ -8,8 +8,8 @@
 - ``opendrive_virtual_junction``: a main road with a driveway branching off at s = 80 and
   one merging back at s = 120 through a ``type="virtual"`` junction (road links with
   ``elementS`` / ``elementDir``, 1.7).
-- ``opendrive_town``: a 160 m street with sidewalks and a georeference (transverse
-  Mercator around Munich, with a header ``<offset>``) holding objects (buildings with
+- ``opendrive_town``: a 160 m street with sidewalks and a georeference (UTM zone 32 with a
+  header ``<offset>`` near Munich's centre) holding objects (buildings with
   outlines, trees, a hedge-like vegetation strip, poles, street lamps, a repeated guard
   rail, a wall, parking spaces, a parked car, a crosswalk, a traffic island) and signals
   (traffic lights, a stop sign, a yield sign, a speed limit, a signal reference).
@@ -33,10 +33,9 @@ from pathlib import Path
 import numpy as np
 
 MUNICH = (48.137, 11.575)
-# transverse Mercator on the Munich meridian, false easting/northing, as map tools write it
-TOWN_PROJ = ("+proj=tmerc +lat_0=48.137 +lon_0=11.575 +k=1 +x_0=500000 +y_0=0 "
-             "+ellps=WGS84 +units=m +no_defs")
-TOWN_OFFSET = (500000.0, 5331000.0, 0.0, 0.0)     # header <offset x y z hdg>
+# UTM zone 32 with a header offset near Munich's centre, as map tools write it
+TOWN_PROJ = "+proj=utm +zone=32 +ellps=WGS84 +datum=WGS84 +units=m +no_defs"
+TOWN_OFFSET = (691500.0, 5334700.0, 0.0, 0.0)     # header <offset x y z hdg>
 
 
 def _header(name: str, geo: str | None = None, offset=None) -> str:
