@@ -116,8 +116,8 @@ def _heading(points: np.ndarray, at_end: bool) -> np.ndarray:
     return d / n if n > 0 else np.array([1.0, 0.0])
 
 
-# A derived traffic light is left out when a map signal (traffic light, stop or yield sign)
-# stands this close to its approach's end; a derived street light near a map street lamp.
+# A derived traffic light is left out when a map traffic light stands this close to its
+# approach's end (a junction's lights, whichever lanes the map says they control).
 MAP_SIGNAL_RADIUS = 50.0
 
 
@@ -134,9 +134,9 @@ def derive_fixtures(layout, params: ProxyParams) -> list[Fixture]:
 
     A traffic light stands on the right of the rightmost lane of each group of
     driving lanes (same road, ends within 12 m) that enter a junction, unless a
-    stop sign, a yield sign or a map traffic light controls one of them or stands within
-    MAP_SIGNAL_RADIUS of the group's end; none at all when the map lists its traffic lights
-    completely (``metadata.source.signalsComplete``). Street lights stand every
+    stop sign, a yield sign or a map traffic light controls one of them, or a map traffic
+    light stands within MAP_SIGNAL_RADIUS of the group's end; none at all when the map lists
+    its traffic lights completely (``metadata.source.signalsComplete``). Street lights stand every
     ``street_light_spacing`` metres along each boundary road edge, on its outer
     (right-hand) side, starting half a spacing from the edge's first point, except within
     half a spacing of a map street lamp.
@@ -145,11 +145,10 @@ def derive_fixtures(layout, params: ProxyParams) -> list[Fixture]:
     g = params.ground
     if params.traffic_lights and layout.lanes and not _signals_complete(layout):
         by_id = {ln.id: ln for ln in layout.lanes}
-        signals = ([(s.position, s.lane_ids) for s in layout.stop_signs]
-                   + [(t.position, t.lane_ids) for t in layout.traffic_lights]
-                   + [(t.position, t.lane_ids) for t in layout.traffic_signs if t.kind == "yield"])
-        stopped = {lid for _, ids in signals for lid in ids}
-        near_pts = np.array([p[:2] for p, _ in signals]).reshape(-1, 2)
+        signs = [s.lane_ids for s in layout.stop_signs] + \
+            [t.lane_ids for t in layout.traffic_signs if t.kind == "yield"]
+        stopped = {lid for ids in signs + [t.lane_ids for t in layout.traffic_lights] for lid in ids}
+        near_pts = np.array([t.position[:2] for t in layout.traffic_lights]).reshape(-1, 2)
         approaches = [ln for ln in layout.lanes
                       if not ln.is_junction and ln.lane_type == "driving"
                       and ln.direction == "forward" and ln.id not in stopped
