@@ -90,13 +90,21 @@ def test_neighbours_condition_a_region_within_the_band(chunked):
     assert np.all((p[:, 0] >= -20) & (p[:, 1] >= -20) & (p[:, 0] <= 120) & (p[:, 1] <= 120))
     # a finished neighbour conditions with its optimised surfels, not its initial ones
     run = sc.runs()[0].name
+    # (optimised surfels may have moved across the band's edge: at most those near it)
+    edge = np.minimum.reduce([np.abs(p[:, 0] + 20), np.abs(p[:, 1] + 20), np.abs(p[:, 0] - 120),
+                              np.abs(p[:, 1] - 120)]) < 0.05
     done, initial = region_context(sc, run, region, {(-1, 0), (0, -1), (-1, -1)}, 20.0, 100.0)
-    assert done.n == ctx.n and not np.array_equal(done.sh, ctx.sh) and not initial.any()
-    # one neighbour finished: only the others' rows are initial
+    assert abs(done.n - ctx.n) <= edge.sum() and not initial.any()
+    def rows(f):   # a surfel as its position and colour
+        return [tuple(r) for r in np.concatenate([f.positions, f.sh.reshape(f.n, -1)], 1).tolist()]
+    initial_rows = set(rows(ctx))
+    assert not any(r in initial_rows for r in rows(done))   # the optimised surfels
+    # one neighbour finished: only the others' rows are initial, and as they were
     part, initial = region_context(sc, run, region, {(-1, 0)}, 20.0, 100.0)
-    assert part.n == ctx.n and 0 < initial.sum() < ctx.n
-    assert not np.array_equal(part.sh[~initial], ctx.sh[~initial])
-    assert np.array_equal(part.sh[initial], ctx.sh[initial])
+    assert abs(part.n - ctx.n) <= edge.sum() and 0 < initial.sum() < part.n
+    both = rows(part)
+    assert all(r in initial_rows for r, i in zip(both, initial) if i)
+    assert not any(r in initial_rows for r, i in zip(both, initial) if not i)
     assert region_context(sc, run, region, set(), 0.0, 100.0) is None
 
 

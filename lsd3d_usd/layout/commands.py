@@ -13,6 +13,8 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import importers
 from lsd3d_usd.scene import provenance
 
+import numpy as np
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
@@ -56,7 +58,26 @@ def register(subparsers) -> None:
                         "(default: the file's own, see docs/layout.md)")
     i.add_argument("--bbox", default=None, metavar="MINLON,MINLAT,MAXLON,MAXLAT",
                    help="OSM: read only this area (degrees), e.g. a district of a city file")
+    i.add_argument("--no-clip", dest="clip", action="store_false",
+                   help="OSM: keep the ways touching the area whole instead of cutting every "
+                        "feature at --bbox or, without it, at the file's <bounds>")
+    i.add_argument("--frame", default=None, metavar="LAYOUT",
+                   help="write the layout in the frame of this georeferenced layout (or scene): "
+                        "every point is moved through longitude/latitude, so maps of one place "
+                        "from different formats overlay (both need a geoReference)")
     i.set_defaults(func=_import)
+
+    gr = sub.add_parser(
+        "georef", help="show a layout's geoReference; with a second layout, where its frame lies",
+        description="Print the layout's frame (projection and offset, where its origin and "
+                    "centre lie in longitude/latitude). With B: the offset of B's frame in A's "
+                    "(translation, rotation, scale of the rigid motion mapping B coordinates to "
+                    "A coordinates over B's area, and how far the exact reprojection departs "
+                    "from it). `layout import --frame A` writes a map in A's frame.")
+    gr.add_argument("input", help="layout layer or scene (A)")
+    gr.add_argument("other", nargs="?", default=None, help="a second layout (B)")
+    gr.add_argument("--json", action="store_true", help="print JSON")
+    gr.set_defaults(func=_georef)
 
     x = sub.add_parser(
         "export", help="export a layout as ASAM OpenDRIVE (.xodr)",
@@ -134,7 +155,7 @@ def _import(args) -> int:
     origin = _parse_floats(args.origin, 2, "--origin", "LAT,LON in degrees, e.g. 48.137,11.575")
     bbox = _parse_floats(args.bbox, 4, "--bbox", "MINLON,MINLAT,MAXLON,MAXLAT in degrees")
     opts = importers.ImportOptions(tolerance=args.tolerance, strict=args.strict, origin=origin,
-                                   bbox=bbox)
+                                   bbox=bbox, clip=args.clip)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -142,14 +163,24 @@ def _import(args) -> int:
     for w in caught:
         if issubclass(w.category, UserWarning):
             print(f"lsd3d-usd: warning: {w.message}", file=sys.stderr)
+    if args.frame:
+        from lsd3d_usd.layout import georef
+        target = georef.of_layout(usdio.read_layout(args.frame))
+        if target is None:
+            from lsd3d_usd.errors import InputError
+            raise InputError(f"--frame {args.frame}: that layout has no geoReference")
+        layout = georef.reproject(layout, target)
     src = layout.metadata.get("source", {})
     params = {"source": str(args.input), "format": imp.name, "tolerance": args.tolerance}
-    for key in ("origin", "originFrom", "bbox"):
+    if args.frame:
+        params["frame"] = str(args.frame)
+    for key in ("origin", "originFrom", "bbox", "clip"):
         if key in src:
             params[key] = src[key]
     path = usdio.write_layout(layout, args.output, provenance(
         "layout.import", params, timings={"import_s": round(time.perf_counter() - t0, 3)}))
     _print_summary(layout, path)
+    print(importers.reach_line(layout))
     return 0
 
 
@@ -176,6 +207,42 @@ def _export(args) -> int:
             raise InputError(f"{args.output}: not valid against the OpenDRIVE XSD: {errors[0]}"
                              + (f" (+{len(errors) - 1} more)" if len(errors) > 1 else ""))
         print(f"{args.output}: valid against the ASAM OpenDRIVE 1.7 XSD")
+    return 0
+
+
+def _georef(args) -> int:
+    import json
+
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.layout import georef, usdio
+    a = usdio.read_layout(args.input)
+    ra = georef.of_layout(a)
+    if ra is None:
+        raise InputError(f"{args.input}: the layout has no geoReference")
+    (x0, y0), (x1, y1) = a.bounds()
+    centre = np.array([[(x0 + x1) / 2, (y0 + y1) / 2]])
+    lon, lat = ra.to_lonlat(np.vstack([[0.0, 0.0], centre]))
+    out = {"path": str(args.input), "geoReference": ra.to_json(),
+           "origin_lonlat": [float(lon[0]), float(lat[0])],
+           "centre_lonlat": [float(lon[1]), float(lat[1])]}
+    if args.other:
+        b = usdio.read_layout(args.other)
+        rb = georef.of_layout(b)
+        if rb is None:
+            raise InputError(f"{args.other}: the layout has no geoReference")
+        (bx0, by0), (bx1, by1) = b.bounds()
+        at = ((bx0 + bx1) / 2, (by0 + by1) / 2)
+        off = georef.frame_offset(ra, rb, at=at, radius=max(50.0, np.hypot(bx1 - bx0, by1 - by0) / 2))
+        out["other"] = str(args.other)
+        out["offset"] = off.to_json()
+    if args.json:
+        print(json.dumps(out, indent=2))
+        return 0
+    print(f"{args.input}: {ra.proj}; offset {list(ra.offset)} ({ra.source}); origin at lon "
+          f"{out['origin_lonlat'][0]:.7f}, lat {out['origin_lonlat'][1]:.7f}; centre at lon "
+          f"{out['centre_lonlat'][0]:.7f}, lat {out['centre_lonlat'][1]:.7f}")
+    if args.other:
+        print(f"{args.other} (B) in {args.input} (A): {off.line()}")
     return 0
 
 

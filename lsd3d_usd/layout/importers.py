@@ -32,12 +32,15 @@ class ImportOptions:
     """Options of ``layout import``; each importer uses the ones that apply to its format.
 
     ``origin`` is (lat, lon) in degrees for geographic formats (None: the file's own);
-    ``bbox`` is (min_lon, min_lat, max_lon, max_lat) for cutting an OpenStreetMap file.
+    ``bbox`` is (min_lon, min_lat, max_lon, max_lat) for cutting an OpenStreetMap file;
+    ``clip``: an OpenStreetMap file is cut at ``bbox``, else at its own ``<bounds>`` (False:
+    the ways touching the area are kept whole).
     """
     tolerance: float = 0.02
     strict: bool = False
     origin: tuple[float, float] | None = None
     bbox: tuple[float, float, float, float] | None = None
+    clip: bool = True
 
 
 @dataclass(frozen=True)
@@ -192,3 +195,21 @@ def read_map(path: str | Path, options: ImportOptions | None = None,
 def formats_help() -> str:
     """One line per registered format, for ``layout import --help``."""
     return "\n".join(f"  {imp.name:10s} {imp.description}" for imp in registered())
+
+
+def reach_line(layout: m.Layout) -> str:
+    """One line: how far the layout reaches (its features' bounds, the chunks they cover)
+    and, for a clipped import, what it was clipped to."""
+    (x0, y0), (x1, y1) = layout.bounds()
+    ri, rj = layout.chunk_range()
+    line = (f"layout reaches {x1 - x0:.0f} m x {y1 - y0:.0f} m (x {x0:.0f}..{x1:.0f}, y "
+            f"{y0:.0f}..{y1:.0f}; {len(ri) * len(rj)} chunks of {layout.chunk_size:g} m)")
+    clip = layout.metadata.get("source", {}).get("clip") if isinstance(layout.metadata, dict) else None
+    if isinstance(clip, dict) and clip.get("from"):
+        cx0, cy0, cx1, cy1 = clip["extent"]
+        what = "the file's <bounds>" if clip["from"] == "file bounds" else "--bbox"
+        line += (f"; clipped to {what}, {cx1 - cx0:.0f} m x {cy1 - cy0:.0f} m (--no-clip keeps "
+                 "whole ways)")
+    elif isinstance(clip, dict):
+        line += "; not clipped (--no-clip)"
+    return line

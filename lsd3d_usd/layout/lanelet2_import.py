@@ -16,7 +16,19 @@ projector, traffic rules and routing graph.
   subtypes → double, ``color`` yellow); ``stop_line`` → ``StopLine``.
 - Regulatory elements: traffic lights, right of way and all-way stops → the ``StopLine``\\ s of
   their reference lines; stop signs (traffic signs of a stop type, all-way stops) → ``StopSign``
-  at the sign with the lanelets that refer to it. The lights themselves have no layout feature.
+  at the sign with the lanelets that refer to it; each light of a traffic-light rule →
+  ``TrafficLight`` (facing the traffic of the lanelets that refer to it); other traffic signs
+  → ``TrafficSign`` (kind from the sign type, ``signcodes``). A map with traffic-light rules
+  lists its lights completely (``metadata.source.signalsComplete``).
+- Points and line strings of type ``pole`` / ``street_lamp`` / ``bollard`` → ``Pole``; line
+  strings ``fence``, ``wall``, ``guard_rail`` → ``Barrier`` (a guard rail is a ``RoadEdge`` too).
+- Degenerate source geometry (``lanelet_geometry``, ``drop_far_markings``): a lanelet whose
+  bounds differ in length by more than max(BOUND_SLACK_M, (BOUND_RATIO - 1) x the shorter)
+  beyond what its turn explains (parallel bounds around a bend differ by their distance times
+  the turn) has the longer bound cut to the stretch alongside the shorter (repaired; skipped
+  if they still differ so); a lanelet whose bounds cross away from its ends is skipped; a lane marking that
+  bounds no lanelet and lies more than FAR_MARKING_M from every lanelet is skipped. Each
+  warns with the element id (an error with ``strict``).
 - Areas: ``building`` → ``Building`` (``height`` attribute), ``vegetation`` and
   ``traffic_island`` → ``VegetationZone`` (grass), ``parking`` → ``ParkingSpot`` (its minimum
   rotated rectangle, not occupied), ``walkway`` → ``Sidewalk``.
@@ -201,14 +213,17 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
             far.note(f"lanelet {ll.id}", _ring(ll))
             kind = "vehicle" if ll.id in drive else "bicycle"
             rules, g = (vehicle if kind == "vehicle" else bicycle), graphs[kind]
-            c = _arr(ll.centerline)
+            geom = lanelet_geometry(path, ll, options)
+            if geom is None:
+                continue
+            c, left_b, right_b = geom
             keep = np.ones(len(c), bool)
             keep[1:] = np.hypot(*np.diff(c[:, :2], axis=0).T) > 1e-9
             c = c[keep]
             if len(c) < 2:
                 _warn(f"{path}: lanelet {ll.id}: zero-length centre line; skipped", options)
                 continue
-            w = _dist_to_polyline(c, _arr(ll.leftBound)) + _dist_to_polyline(c, _arr(ll.rightBound))
+            w = _dist_to_polyline(c, left_b) + _dist_to_polyline(c, right_b)
             lane_type = {"bus_lane": "bus", "bicycle_lane": "bike"}.get(sub, "driving" if kind == "vehicle" else "bike")
             layout.add(m.LaneCenter(
                 lid(ll), points=c, widths=w, lane_type=lane_type,
@@ -219,7 +234,7 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
                 left_neighbors=[lid(x) for x in (g.left(ll), g.adjacentLeft(ll)) if x is not None],
                 right_neighbors=[lid(x) for x in (g.right(ll), g.adjacentRight(ll)) if x is not None],
                 road_id=_attr(ll, "road_id")))
-            ring = _clean_ring(_ring(ll)) if ll.id in drive else None
+            ring = _clean_ring(np.concatenate([left_b, right_b[::-1]])) if ll.id in drive else None
             if ring is not None:
                 layout.add(m.RoadArea(f"area_ll{ll.id}", polygon=ring))
         elif sub == "crosswalk":
@@ -240,8 +255,13 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
 
     _line_strings(path, lmap, lanelets, drive, layout, options)
     _regulatory(lmap, layout)
+    map_signals(lmap, layout)
+    map_furniture(lmap, layout)
+    drop_far_markings(path, lmap, layout, options)
     _areas(path, lmap, layout, options, far)
     far.report(path, options)
+    from lsd3d_usd.layout.georef import attach_origin
+    attach_origin(layout, "lanelet2 origin (LocalCartesianProjector)")
     layout.reindex()
     return layout
 
@@ -384,3 +404,239 @@ def _warn(msg: str, options: ImportOptions) -> None:
     if options.strict:
         raise InputError(msg)
     warnings.warn(msg, MapWarning, stacklevel=3)
+
+
+# ============================================================ signals, furniture, bad geometry
+
+BOUND_RATIO = 2.0           # bounds differing by more than (ratio - 1) x the shorter: a spike
+BOUND_SLACK_M = 5.0         # ... and by more than this (short lanelets), beyond their turn
+END_ZONE_M = 1.0            # bounds may touch / cross this close to a lanelet's ends
+FAR_MARKING_M = 15.0        # a lane marking this far from every lanelet is not of the road
+
+
+def _length(xy: np.ndarray) -> float:
+    return float(np.hypot(*np.diff(xy[:, :2], axis=0).T).sum()) if len(xy) > 1 else 0.0
+
+
+def _cut(line: np.ndarray, a: float, b: float) -> np.ndarray:
+    """The part of a polyline (N, 3) between arc lengths a < b."""
+    seg = np.hypot(*np.diff(line[:, :2], axis=0).T)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    inner = line[(s > a) & (s < b)]
+    at = lambda x: np.array([np.interp(x, s, line[:, k]) for k in range(3)])  # noqa: E731
+    return np.vstack([at(a), inner, at(b)])
+
+
+def _excess(short_b: np.ndarray, long_b: np.ndarray, diff: float) -> float:
+    """How much two bounds differ in length beyond what parallel bounds around the shorter
+    one's turn differ by (their distance times its net change of heading)."""
+    from lsd3d_usd.layout.fitting import _dist_to_segments
+    if len(short_b) < 2 or len(long_b) < 2:
+        return 0.0
+    d = np.diff(short_b[:, :2], axis=0)
+    d = d[np.hypot(*d.T) > 1e-9]
+    turn = float(np.abs(np.sum(np.angle(np.exp(1j * np.diff(np.arctan2(d[:, 1], d[:, 0]))))))) \
+        if len(d) > 1 else 0.0
+    width = float(np.median(_dist_to_segments(short_b[:, :2], long_b[:-1, :2], long_b[1:, :2])))
+    return diff - width * turn
+
+
+def _midline(left: np.ndarray, right: np.ndarray, n: int | None = None) -> np.ndarray:
+    """Centre line of two bounds: the mean of points at equal fractions of their lengths."""
+    def resample(line, t):
+        seg = np.hypot(*np.diff(line[:, :2], axis=0).T)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        s = s / s[-1] if s[-1] > 0 else s
+        return np.column_stack([np.interp(t, s, line[:, k]) for k in range(3)])
+    n = n or max(len(left), len(right), 2)
+    t = np.linspace(0.0, 1.0, n)
+    return (resample(left, t) + resample(right, t)) / 2
+
+
+def lanelet_geometry(path, ll, options: ImportOptions):
+    """(centre line, left bound, right bound) of a lanelet as (N, 3) arrays, repaired or
+    None (skipped, warned) by the rule in the module doc."""
+    from shapely.geometry import LineString, Point
+    left, right = _arr(ll.leftBound), _arr(ll.rightBound)
+    la, lb = _length(left), _length(right)
+    short, long_ = min(la, lb), max(la, lb)
+    keep, cut = (left, right) if la < lb else (right, left)
+    if _excess(keep, cut, long_ - short) > max(BOUND_SLACK_M, (BOUND_RATIO - 1) * short):
+        line = LineString(cut[:, :2])
+        a, b = sorted((line.project(Point(keep[0, :2])), line.project(Point(keep[-1, :2]))))
+        what = f"lanelet {ll.id}: its {'right' if la < lb else 'left'} bound is {long_:.0f} m long, " \
+               f"its {'left' if la < lb else 'right'} bound {short:.0f} m"
+        trimmed = _cut(cut, a, b) if b - a > 1e-3 else None
+        if trimmed is not None and _excess(keep, trimmed, abs(b - a - short)) <= \
+                max(BOUND_SLACK_M, (BOUND_RATIO - 1) * min(short, b - a)):
+            if la < lb:
+                right = trimmed
+            else:
+                left = trimmed
+            _warn(f"{path}: {what}; the longer bound is cut to the {b - a:.0f} m alongside the "
+                  "other (repaired)", options)
+            return _midline(left, right), left, right
+        _warn(f"{path}: {what}, and no stretch of it runs alongside the other; skipped", options)
+        return None
+    if len(left) >= 2 and len(right) >= 2:
+        cross = LineString(left[:, :2]).intersection(LineString(right[:, :2]))
+        ends = [left[0, :2], left[-1, :2], right[0, :2], right[-1, :2]]
+        pts = [g for g in getattr(cross, "geoms", [cross]) if not g.is_empty]
+        for g in pts:
+            q = np.asarray(g.coords)[:, :2] if g.geom_type != "Polygon" else np.zeros((0, 2))
+            if any(min(np.hypot(*(e - x)) for e in ends) > END_ZONE_M for x in q):
+                _warn(f"{path}: lanelet {ll.id}: its left and right bounds cross at "
+                      f"({q[0, 0]:.1f}, {q[0, 1]:.1f}); skipped", options)
+                return None
+    return _arr(ll.centerline), left, right
+
+
+def _facing(pos: np.ndarray, lane_ids, layout) -> float | None:
+    """Heading that faces the traffic of ``lane_ids`` at their point nearest ``pos``."""
+    best, yaw = np.inf, None
+    for lid in lane_ids:
+        try:
+            ln = layout.lane_by_id(lid)
+        except KeyError:
+            continue
+        a, b = ln.points[:-1, :2], ln.points[1:, :2]
+        d = b - a
+        t = np.clip(np.einsum("ij,ij->i", pos[:2] - a, d) / np.maximum(np.einsum("ij,ij->i", d, d), 1e-18), 0, 1)
+        dist = np.hypot(*(a + t[:, None] * d - pos[:2]).T)
+        k = int(np.argmin(dist))
+        if dist[k] < best:
+            best, yaw = dist[k], float(np.arctan2(-d[k, 1], -d[k, 0]))
+    return yaw
+
+
+def _number_suffix(text: str) -> float:
+    mt = re.search(r"[-_](\d+(?:\.\d+)?)$", str(text))
+    return float(mt.group(1)) if mt else 0.0
+
+
+def map_signals(lmap, layout) -> None:
+    """TrafficLight per light of each traffic-light rule, TrafficSign per sign of each
+    traffic-sign rule that is not a stop (those are StopSigns, ``_regulatory``)."""
+    from lanelet2.core import TrafficLight, TrafficSign
+
+    from lsd3d_usd.layout.signcodes import sign_kind, split_code
+    users: dict[int, list[str]] = {}
+    lanes = {ln.id for ln in layout.lanes}
+    for ll in lmap.laneletLayer:
+        for r in ll.regulatoryElements:
+            if f"ll{ll.id}" in lanes:
+                users.setdefault(r.id, []).append(f"ll{ll.id}")
+    have = {f.id for f in layout.features()}
+    for r in lmap.regulatoryElementLayer:
+        if isinstance(r, TrafficLight):
+            for k, light in enumerate(r.trafficLights):
+                pts = np.array([[p.x, p.y, p.z] for p in light]).reshape(-1, 3)
+                fid = f"light{r.id}_{k}"
+                if not len(pts) or fid in have:
+                    continue
+                pos = np.append(pts[:, :2].mean(axis=0), 0.0)
+                h = _number(light.attributes["height"]) if "height" in light.attributes else None
+                top = float(pts[:, 2].max()) + (h or 0.8)
+                d = pts[-1, :2] - pts[0, :2]
+                yaw = _facing(pos, users.get(r.id, []), layout)
+                if yaw is None:
+                    yaw = float(np.arctan2(-d[0], d[1]))      # normal to the light's line
+                layout.add(m.TrafficLight(fid, position=pos, heading=yaw,
+                                          height=top if 2.0 <= top < 100 else 5.5,
+                                          lane_ids=users.get(r.id, [])))
+                have.add(fid)
+        elif isinstance(r, TrafficSign) and not STOP_SIGN_TYPES.search(str(r.type() or "")):
+            code = str(r.type() or "")
+            country, sign = split_code(code)
+            kind = sign_kind(country or "DE", sign)
+            if kind in ("stop", "traffic_light"):
+                continue
+            for k, sg in enumerate(r.trafficSigns()):
+                pts = np.array([[p.x, p.y, p.z] for p in sg]).reshape(-1, 3)
+                fid = f"sign{r.id}_{k}"
+                if not len(pts) or fid in have:
+                    continue
+                pos = np.append(pts[0, :2], 0.0)
+                yaw = _facing(pos, users.get(r.id, []), layout)
+                top = float(pts[:, 2].max())
+                layout.add(m.TrafficSign(fid, position=pos, heading=yaw or 0.0, kind=kind,
+                                         code=code, value=_number_suffix(code),
+                                         height=top if 1.0 <= top < 100 else 2.5,
+                                         lane_ids=users.get(r.id, [])))
+                have.add(fid)
+    if layout.traffic_lights:
+        layout.metadata.setdefault("source", {})["signalsComplete"] = True
+
+
+POLE_TYPES = {"pole": "pole", "post": "pole", "street_lamp": "street_lamp",
+              "street_light": "street_lamp", "bollard": "bollard"}
+BARRIER_TYPES = {"fence": ("fence", 1.5, 0.05), "wall": ("wall", 2.5, 0.3),
+                 "guard_rail": ("guard_rail", 0.8, 0.3)}
+
+
+def map_furniture(lmap, layout) -> None:
+    """Poles (points, or the foot of line strings, of a pole type) and barriers (line strings
+    fence, wall, guard_rail)."""
+    have = {f.id for f in layout.features()}
+    for pt in lmap.pointLayer:
+        a = pt.attributes
+        kind = POLE_TYPES.get(a["type"] if "type" in a else "")
+        if kind and f"pole{pt.id}" not in have:
+            h = _number(a["height"]) if "height" in a else None
+            layout.add(m.Pole(f"pole{pt.id}", position=[pt.x, pt.y, pt.z], kind=kind,
+                              height=h or {"street_lamp": 7.0, "bollard": 1.0}.get(kind, 4.0)))
+    for ls in lmap.lineStringLayer:
+        a = ls.attributes
+        typ = a["type"] if "type" in a else ""
+        pts = _arr(ls)
+        if typ in POLE_TYPES and len(pts) and f"pole{ls.id}" not in have:
+            kind = POLE_TYPES[typ]
+            h = float(np.ptp(pts[:, 2])) or {"street_lamp": 7.0, "bollard": 1.0}.get(kind, 4.0)
+            layout.add(m.Pole(f"pole{ls.id}", position=pts[0], kind=kind, height=h))
+        elif typ in BARRIER_TYPES:
+            keep = np.ones(len(pts), bool)
+            keep[1:] = np.hypot(*np.diff(pts[:, :2], axis=0).T) > 1e-9
+            pts = pts[keep]
+            if len(pts) < 2:
+                continue
+            kind, h, w = BARRIER_TYPES[typ]
+            hh = _number(a["height"]) if "height" in a else None
+            layout.add(m.Barrier(f"barrier{ls.id}", points=pts, kind=kind, height=hh or h, width=w))
+
+
+def drop_far_markings(path, lmap, layout, options: ImportOptions) -> None:
+    """Remove the RoadLines of lane markings that bound no imported lanelet and lie more than
+    FAR_MARKING_M from every imported lanelet (each warned with its id)."""
+    import shapely
+    from shapely.geometry import LineString, Polygon
+    kept = {int(mt.group(1)) for f in layout.features()
+            if (mt := re.match(r"^(?:area_|crosswalk_|walk_)?ll(\d+)$", f.id))}
+    bounds = set()
+    rings = []
+    for ll in lmap.laneletLayer:
+        if ll.id not in kept:       # a skipped lanelet's bounds do not keep a marking
+            continue
+        bounds.update((ll.leftBound.id, ll.rightBound.id))
+        ring = _arr(ll.leftBound)[:, :2].tolist() + _arr(ll.rightBound)[::-1, :2].tolist()
+        if len(ring) >= 3:
+            rings.append(Polygon(ring).buffer(0) if not Polygon(ring).is_valid else Polygon(ring))
+    if not rings:
+        return
+    area = shapely.union_all([r for r in rings if not r.is_empty])
+    drop = set()
+    for rl in layout.road_lines:
+        if not rl.id.startswith("ls"):
+            continue
+        try:
+            lsid = int(rl.id[2:])
+        except ValueError:
+            continue
+        if lsid in bounds:
+            continue
+        d = area.distance(LineString(rl.points[:, :2]))
+        if d > FAR_MARKING_M:
+            _warn(f"{path}: line string {lsid}: a lane marking {d:.0f} m from the nearest "
+                  f"lanelet (more than {FAR_MARKING_M:g} m); skipped", options)
+            drop.add(rl.id)
+    if drop:
+        layout.road_lines = [rl for rl in layout.road_lines if rl.id not in drop]

@@ -50,6 +50,11 @@ ROAD_LINE_KINDS = ("solid", "broken")
 ROAD_LINE_COLORS = ("white", "yellow")
 ROAD_EDGE_KINDS = ("boundary", "median")
 VEGETATION_KINDS = ("grass", "shrub", "forest", "park")
+# Map signs other than stop signs (StopSign), by what a driver reads from them.
+SIGN_KINDS = ("yield", "speed_limit", "no_entry", "priority", "warning", "mandatory",
+              "prohibition", "information", "other")
+POLE_KINDS = ("pole", "street_lamp", "bollard")
+BARRIER_KINDS = ("fence", "wall", "guard_rail", "jersey", "railing")
 
 Box = tuple[tuple[float, float], tuple[float, float]]  # ((xmin, ymin), (xmax, ymax))
 
@@ -391,9 +396,110 @@ class ParkingSpot(_Feature):
         return self.polygon()
 
 
+@dataclass(eq=False)
+class TrafficLight(_Feature):
+    """A traffic signal head from a map. ``position`` is the ground point below the head,
+    ``heading`` (rad from +X, CCW) the direction the lights face (towards the traffic they
+    control), ``height`` the top of the head above the ground, ``lane_ids`` the lanes it
+    controls. The proxy stands its mast at the roadside of those lanes and reaches over the
+    road to the head when the head is above a lane."""
+    position: np.ndarray = None
+    heading: float = 0.0
+    height: float = 5.5
+    lane_ids: list[str] = field(default_factory=list)
+
+    FEATURE_TYPE = "TrafficLight"
+
+    def __post_init__(self):
+        self.position = as_position(self.position, f"traffic light {self.id} position")
+        self.heading = float(self.heading)
+        self.height = float(self.height)
+        self.lane_ids = list(self.lane_ids)
+        if not (np.isfinite(self.heading) and 0 < self.height < 100):
+            raise ValueError(f"traffic light {self.id}: heading must be finite and height in (0, 100) m")
+
+    def coords(self):
+        return self.position[None, :]
+
+
+@dataclass(eq=False)
+class TrafficSign(_Feature):
+    """A road sign from a map other than a stop sign (those are StopSign): ``kind`` one of
+    SIGN_KINDS, ``code`` the map's own sign code (e.g. ``DE:205``, ``US:R1-2``), ``value``
+    its number where it has one (a speed limit in the map's unit, else 0), facing
+    ``heading`` (rad; towards the traffic it addresses), the top of the plate ``height``
+    above the ground at ``position``, for ``lane_ids``."""
+    position: np.ndarray = None
+    heading: float = 0.0
+    kind: str = "other"
+    code: str = ""
+    value: float = 0.0
+    height: float = 2.5
+    lane_ids: list[str] = field(default_factory=list)
+
+    FEATURE_TYPE = "TrafficSign"
+
+    def __post_init__(self):
+        self.position = as_position(self.position, f"traffic sign {self.id} position")
+        _check_choice(self.kind, SIGN_KINDS, f"traffic sign {self.id} kind")
+        self.heading, self.value, self.height = float(self.heading), float(self.value), float(self.height)
+        self.code = str(self.code)
+        self.lane_ids = list(self.lane_ids)
+        if not (np.isfinite(self.heading) and np.isfinite(self.value) and 0 < self.height < 100):
+            raise ValueError(f"traffic sign {self.id}: heading and value must be finite, height "
+                             "in (0, 100) m")
+
+    def coords(self):
+        return self.position[None, :]
+
+
+@dataclass(eq=False)
+class Pole(_Feature):
+    """A pole from a map at ``position`` (ground point): ``kind`` pole | street_lamp |
+    bollard, ``height`` in metres."""
+    position: np.ndarray = None
+    kind: str = "pole"
+    height: float = 6.0
+
+    FEATURE_TYPE = "Pole"
+
+    def __post_init__(self):
+        self.position = as_position(self.position, f"pole {self.id} position")
+        _check_choice(self.kind, POLE_KINDS, f"pole {self.id} kind")
+        self.height = float(self.height)
+        if not (0 < self.height < 100):
+            raise ValueError(f"pole {self.id} height: must be in (0, 100) m")
+
+    def coords(self):
+        return self.position[None, :]
+
+
+@dataclass(eq=False)
+class Barrier(_Feature):
+    """A fence, wall, guard rail, jersey barrier or railing along a polyline (``kind`` one
+    of BARRIER_KINDS), ``height`` and ``width`` (thickness) in metres."""
+    points: np.ndarray = None
+    kind: str = "fence"
+    height: float = 1.2
+    width: float = 0.2
+
+    FEATURE_TYPE = "Barrier"
+
+    def __post_init__(self):
+        self.points = as_points(self.points, f"barrier {self.id} points", 2)
+        _check_choice(self.kind, BARRIER_KINDS, f"barrier {self.id} kind")
+        self.height, self.width = float(self.height), float(self.width)
+        if not (0 < self.height < 100 and 0 < self.width < 20):
+            raise ValueError(f"barrier {self.id}: height must be in (0, 100) m, width in (0, 20) m")
+
+    def coords(self):
+        return self.points
+
+
 FEATURE_CLASSES: tuple[type[_Feature], ...] = (
     LaneCenter, RoadLine, RoadEdge, Crosswalk, StopLine, StopSign, Building, Tree,
-    Hedge, VegetationZone, ParkingSpot, Sidewalk, RoadArea)
+    Hedge, VegetationZone, ParkingSpot, Sidewalk, RoadArea, TrafficLight, TrafficSign, Pole,
+    Barrier)
 FEATURE_CLASS_BY_TYPE = {c.FEATURE_TYPE: c for c in FEATURE_CLASSES}
 
 # Layout list attribute holding each feature class.
@@ -402,7 +508,8 @@ LIST_FOR_TYPE = {
     "Crosswalk": "crosswalks", "StopLine": "stop_lines", "StopSign": "stop_signs",
     "Building": "buildings", "Tree": "trees", "Hedge": "hedges",
     "VegetationZone": "vegetation_zones", "ParkingSpot": "parking_spots",
-    "Sidewalk": "sidewalks", "RoadArea": "road_areas",
+    "Sidewalk": "sidewalks", "RoadArea": "road_areas", "TrafficLight": "traffic_lights",
+    "TrafficSign": "traffic_signs", "Pole": "poles", "Barrier": "barriers",
 }
 
 
@@ -433,6 +540,10 @@ class Layout:
     parking_spots: list[ParkingSpot] = field(default_factory=list)
     sidewalks: list[Sidewalk] = field(default_factory=list)
     road_areas: list[RoadArea] = field(default_factory=list)
+    traffic_lights: list[TrafficLight] = field(default_factory=list)
+    traffic_signs: list[TrafficSign] = field(default_factory=list)
+    poles: list[Pole] = field(default_factory=list)
+    barriers: list[Barrier] = field(default_factory=list)
     extent: Box | None = None
     chunk_size: float = DEFAULT_CHUNK_SIZE
     metadata: dict = field(default_factory=dict)

@@ -563,6 +563,7 @@ def read_opendrive(path: str | Path, tolerance: float = DEFAULT_TOLERANCE,
 
     layout = m.Layout(metadata={"source": {"format": "OpenDRIVE", "file": Path(path).name,
                                            **_header(root)}})
+    mid_links = _split_at_mid_road_links(path, root, roads, strict)
     lane_meta: dict[str, tuple[_Road, int, _Lane, bool]] = {}
     imported = 0
     for rid, road in list(roads.items()):
@@ -586,8 +587,12 @@ def read_opendrive(path: str | Path, tolerance: float = DEFAULT_TOLERANCE,
                 else "it has no <road>")
         raise InputError(f"{path}: no road could be imported ({what})")
     m.check_size(layout, str(path))
-    _link_lanes(root, roads, layout, lane_meta)
+    _link_lanes(root, roads, layout, lane_meta, _mid_road_pairs(roads, mid_links))
     layout.reindex()
+    from lsd3d_usd.layout.opendrive_objects import read_objects_and_signals
+    read_objects_and_signals(path, root, roads, layout, strict)
+    _attach_georef(path, root, layout)
+    m.check_size(layout, str(path))
     return layout
 
 
@@ -704,8 +709,11 @@ def _marks(road, sec, k, s, t, marks, prefix) -> list:
 
 # ================================================================ lane graph
 
-def _link_lanes(root, roads, layout, lane_meta) -> None:
-    """Predecessors/successors from lane links, road links and junction connections.
+def _link_lanes(root, roads, layout, lane_meta, extra_pairs=()) -> None:
+    """Predecessors/successors from lane links, road links and junction connections
+    (default junctions through their connecting roads, direct junctions from the incoming to
+    the linked road); ``extra_pairs``: lane ends joined in the middle of a road (virtual
+    junctions, ``_mid_road_pairs``).
 
     Every link pairs two lane *ends* ("start"/"end" in s); a pair becomes a
     successor link when it joins one lane's exit (end in its travel direction)
@@ -736,24 +744,30 @@ def _link_lanes(root, roads, layout, lane_meta) -> None:
                     pairs.add(tuple(sorted([(rid, k, ln.id, end), (eid, ok, target, oend)])))
     for j in _kids(root, "junction"):
         jid = j.get("id")
+        direct = j.get("type") == "direct"
         for c in _kids(j, "connection"):
-            inc, con = c.get("incomingRoad"), c.get("connectingRoad")
+            if c.get("type") == "virtual":
+                continue          # a mid-road connection: _mid_road_pairs joins it
+            inc = c.get("incomingRoad")
+            # a direct junction joins the incoming road to a linked road, with no road between
+            con = (c.get("linkedRoad") or c.get("connectingRoad")) if direct else c.get("connectingRoad")
             if inc not in roads or con not in roads:
                 continue
             ri, rc = roads[inc], roads[con]
-            if ri.links.get("successor", (None, None))[:2] == ("junction", jid):
-                ik, iend = len(ri.sections) - 1, "end"
-            elif ri.links.get("predecessor", (None, None))[:2] == ("junction", jid):
-                ik, iend = 0, "start"
-            else:
+            iend = _junction_end(ri, jid)
+            if iend is None:
                 continue
-            ck, cend = end_of(rc, c.get("contactPoint", "start"))
+            ik = len(ri.sections) - 1 if iend == "end" else 0
+            contact = c.get("contactPoint") or (_junction_end(rc, jid) if direct else None) or "start"
+            ck, cend = end_of(rc, contact)
             for ll in _kids(c, "laneLink"):
                 try:
                     f, t = int(float(ll.get("from"))), int(float(ll.get("to")))
                 except (TypeError, ValueError, OverflowError):
                     continue
                 pairs.add(tuple(sorted([(inc, ik, f, iend), (con, ck, t, cend)])))
+
+    pairs.update(extra_pairs)
 
     def exit_end(fwd):
         return "end" if fwd else "start"
@@ -770,3 +784,169 @@ def _link_lanes(root, roads, layout, lane_meta) -> None:
                     la.successors.append(kb)
                 if ka not in lb.predecessors:
                     lb.predecessors.append(ka)
+
+
+# ================================================================ junctions beyond "default"
+
+def _junction_end(road: _Road, jid: str) -> str | None:
+    """The end ("start" / "end") of ``road`` that its road link gives to junction ``jid``."""
+    if road.links.get("successor", (None, None))[:2] == ("junction", jid):
+        return "end"
+    if road.links.get("predecessor", (None, None))[:2] == ("junction", jid):
+        return "start"
+    return None
+
+
+@dataclass
+class _MidLink:
+    """One end of road ``road`` joined to road ``main`` at ``s`` (not at an end of ``main``):
+    OpenDRIVE 1.7 virtual junctions (a road link with ``elementS``, or the deprecated
+    ``connection type="virtual"``). ``lanes``: (lane of ``road`` at that end, lane of
+    ``main``), from the lane links or the connection's laneLinks."""
+    road: str
+    end: str                 # "start" (the road's predecessor link) or "end"
+    main: str
+    s: float
+    lanes: list
+
+
+def _split_at_mid_road_links(path, root, roads: dict, strict: bool) -> list[_MidLink]:
+    """Find the roads joined to another road part-way along it and split that road's lane
+    sections at each such s, so the lanes there have an end to link (lane ids of the split
+    road count the new sections). A link to a missing road or an s off the road warns
+    (InputError with ``strict``) and is dropped."""
+    links: list[_MidLink] = []
+    for el in _kids(root, "road"):
+        rid = el.get("id")
+        link = _kid(el, "link")
+        if rid not in roads or link is None:
+            continue
+        for kind, end in (("predecessor", "start"), ("successor", "end")):
+            le = _kid(link, kind)
+            if le is None or le.get("elementS") is None:
+                continue
+            # not a link to the other road's end: _link_lanes must not read it as one
+            roads[rid].links.pop(kind, None)
+            sec = roads[rid].sections[0 if end == "start" else -1]
+            lanes = [(ln.id, ln.pred if end == "start" else ln.succ) for ln in sec.left + sec.right]
+            links.append(_MidLink(rid, end, le.get("elementId"), le.get("elementS"),
+                                  [(a, b) for a, b in lanes if b is not None]))
+    for j in _kids(root, "junction"):
+        for c in _kids(j, "connection"):
+            if c.get("type") != "virtual":
+                continue
+            con = c.get("connectingRoad")
+            for kind, end in (("predecessor", "start"), ("successor", "end")):
+                le = _kid(c, kind)
+                if le is None or con not in roads:
+                    continue
+                ll = []
+                for x in _kids(c, "laneLink"):
+                    try:
+                        ll.append((int(float(x.get("to"))), int(float(x.get("from")))))
+                    except (TypeError, ValueError, OverflowError):
+                        continue
+                links.append(_MidLink(con, end, le.get("elementId"), le.get("elementS"), ll))
+    out = []
+    for ml in links:
+        try:
+            s_ = float(ml.s)
+        except (TypeError, ValueError):
+            s_ = float("nan")
+        main = roads.get(ml.main)
+        why = (f"links to road {ml.main}, which is not imported" if main is None else
+               f"links to road {ml.main} at s={ml.s}, outside it (length {main.length:g})"
+               if not (np.isfinite(s_) and -1e-6 <= s_ <= main.length + 1e-6) else None)
+        if why:
+            msg = f"{path}: road {ml.road}: its {ml.end} {why}; link dropped"
+            if strict:
+                raise InputError(msg)
+            warnings.warn(msg, OpenDriveWarning, stacklevel=3)
+            continue
+        ml.s = min(max(s_, 0.0), main.length)
+        _split_road(main, ml.s)
+        out.append(ml)
+    return out
+
+
+class _Shifted:
+    """A lane-width polynomial of a section read from ``delta`` further along (the second
+    part of a split section)."""
+
+    def __init__(self, fn, delta: float):
+        self.fn, self.delta = fn, delta
+
+    def __call__(self, ds):
+        return self.fn(np.asarray(ds, dtype=np.float64) + self.delta)
+
+
+def _split_road(road: _Road, s: float, eps: float = 1e-6) -> None:
+    """Split the lane section containing ``s`` in two at ``s`` (nothing when ``s`` already
+    bounds a section). The halves keep the lanes, widths and marks; lanes continue from the
+    first half into the second."""
+    from dataclasses import replace
+    for k, sec in enumerate(road.sections):
+        if sec.s0 + eps < s < sec.s1 - eps:
+            break
+    else:
+        return
+    d = s - sec.s0
+
+    def marks(ms, first: bool):
+        ms = sorted(ms, key=lambda r: r[0])
+        if first:
+            return [m_ for m_ in ms if m_[0] < d]
+        active = [m_ for m_ in ms if m_[0] <= d]
+        later = [(o - d, t, c) for o, t, c in ms if o > d]
+        return ([(0.0,) + active[-1][1:]] if active else []) + later
+
+    def halves(lanes):
+        a = [replace(ln, marks=marks(ln.marks, True), succ=ln.id) for ln in lanes]
+        b = [replace(ln, width=_Shifted(ln.width, d), marks=marks(ln.marks, False), pred=ln.id)
+             for ln in lanes]
+        return a, b
+
+    la, lb = halves(sec.left)
+    ra, rb = halves(sec.right)
+    road.sections[k:k + 1] = [_Section(sec.s0, s, la, ra, marks(sec.center_marks, True)),
+                              _Section(s, sec.s1, lb, rb, marks(sec.center_marks, False))]
+
+
+def _mid_road_pairs(roads: dict, links: list[_MidLink]) -> set:
+    """Lane-end pairs of the mid-road links: the linked road's lane end meets both the main
+    road lane ending at s and the one starting there; ``_link_lanes`` keeps the pair whose
+    ends are an exit and an entry in the lanes' directions of travel (so a road branching off
+    gets the main lane as predecessor, one merging in gets it as successor)."""
+    pairs = set()
+    for ml in links:
+        if ml.road not in roads or ml.main not in roads:
+            continue
+        road, main = roads[ml.road], roads[ml.main]
+        rk = 0 if ml.end == "start" else len(road.sections) - 1
+        ends = []
+        for k, sec in enumerate(main.sections):
+            if abs(sec.s1 - ml.s) < 1e-6:
+                ends.append((k, "end"))
+            if abs(sec.s0 - ml.s) < 1e-6:
+                ends.append((k, "start"))
+        for r_lane, m_lane in ml.lanes:
+            for k, e in ends:
+                pairs.add(tuple(sorted([(ml.road, rk, r_lane, ml.end), (ml.main, k, m_lane, e)])))
+    return pairs
+
+
+def _attach_georef(path, root, layout) -> None:
+    """The header's geoReference (and <offset>) as the layout's frame (``georef``); a text
+    pyproj cannot read warns and stays text in ``metadata.source.geoReference``."""
+    from lsd3d_usd.layout import georef
+    h = _kid(root, "header")
+    if h is None:
+        return
+    geo, off = _kid(h, "geoReference"), _kid(h, "offset")
+
+    def warn(msg):
+        warnings.warn(msg, OpenDriveWarning, stacklevel=4)
+    ref = georef.from_opendrive_header(None if geo is None else geo.text,
+                                       None if off is None else dict(off.attrib), str(path), warn)
+    if ref is not None:
+        georef.attach(layout, ref)

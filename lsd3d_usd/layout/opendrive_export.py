@@ -259,11 +259,7 @@ def layout_to_opendrive(layout: m.Layout, tolerance: float = DEFAULT_TOLERANCE,
     root = etree.Element("OpenDRIVE")
     hdr = etree.SubElement(root, "header", revMajor=str(REV_MAJOR), revMinor=str(REV_MINOR), name=name,
                            version="1", vendor="lsd3d-usd")
-    origin = (layout.metadata.get("source") or {}).get("origin")
-    if origin:
-        geo = etree.SubElement(hdr, "geoReference")
-        geo.text = etree.CDATA(f"+proj=tmerc +lat_0={_lf(origin[0])} +lon_0={_lf(origin[1])} +k=1 "
-                               "+x_0=0 +y_0=0 +ellps=WGS84 +units=m +no_defs")
+    _write_georef(hdr, layout)
     for lid, ps in pieces.items():
         for pc in ps:
             _road(root, pc, tolerance, rep)
@@ -366,3 +362,22 @@ def validate(path: str | Path) -> list[str]:
     return [f"line {e.line}: {e.message}" for e in schema.error_log]
 
 
+
+
+def _write_georef(hdr, layout: m.Layout) -> None:
+    """The layout's geoReference (``georef``) as the header's <geoReference> and <offset>;
+    for an older layout with only a geographic origin, the frame of that origin."""
+    from lxml import etree
+
+    from lsd3d_usd.layout import georef
+    ref = georef.of_layout(layout)
+    if ref is None:
+        origin = (layout.metadata.get("source") or {}).get("origin")
+        if not origin:
+            return
+        ref = georef.local_tangent(origin[0], origin[1])
+    text, off = georef.opendrive_header_text(ref)
+    geo = etree.SubElement(hdr, "geoReference")
+    geo.text = etree.CDATA(text)
+    if off:
+        etree.SubElement(hdr, "offset", **off)

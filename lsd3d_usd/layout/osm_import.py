@@ -1,7 +1,7 @@
 """OpenStreetMap (.osm XML, .osm.pbf) → layout model, read with ``osmium`` (pyosmium).
 
 Three streaming passes, so memory follows the area read, not the file: (1) nodes: the ids of
-the nodes inside ``--bbox`` and the tagged point features there; (2) ways with a relevant key
+the nodes inside ``--bbox`` and the tagged point features there (``osm_features.point_wanted``); (2) ways with a relevant key
 that touch one of those nodes; (3) nodes again: the locations of the nodes those ways use.
 Counts are checked against limits while reading, before anything grows past them.
 
@@ -28,8 +28,10 @@ Mapping (defaults per highway class in ``HIGHWAY``: lanes when untagged, lane wi
   ``floors_hint`` = levels); ``leisure=park|garden`` → park, ``landuse=grass|meadow|
   village_green|recreation_ground`` → grass, ``natural=wood`` / ``landuse=forest`` → forest,
   ``natural=scrub|heath`` → shrub (``VegetationZone``).
+- Signals, signs, street lamps, bollards, barriers, hedges, crossing ways, bad highway ways
+  and the clip at ``--bbox`` or the file's ``<bounds>``: ``osm_features``.
 - Not read: multipolygon relations (buildings and parks mapped as relations), turn
-  restrictions, ``turn:lanes``, traffic signals, parking.
+  restrictions, ``turn:lanes``, parking.
 """
 from __future__ import annotations
 
@@ -54,6 +56,8 @@ from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout import roadnet as R
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
 from lsd3d_usd.layout.lanelet2_import import FAR_ERROR_M, FAR_WARN_M, check_origin
+from lsd3d_usd.layout.osm_features import (clip_area, map_features, point_wanted, record_clip,
+                                           sound_highways)
 
 MAX_FILE_BYTES = 4 * 1024**3
 MAX_NODES = 2_000_000       # nodes inside the area (ids held in memory)
@@ -76,7 +80,7 @@ VEGETATION = {("leisure", "park"): "park", ("leisure", "garden"): "park",
               ("landuse", "village_green"): "grass", ("landuse", "recreation_ground"): "grass",
               ("natural", "wood"): "forest", ("landuse", "forest"): "forest",
               ("natural", "scrub"): "shrub", ("natural", "heath"): "shrub"}
-KEYS = ("highway", "building", "natural", "landuse", "leisure")
+KEYS = ("highway", "building", "natural", "landuse", "leisure", "barrier", "footway")
 
 
 def sniff(path: Path, head: bytes) -> bool:
@@ -126,7 +130,7 @@ def _read(path: Path, options: ImportOptions):
                     raise InputError(f"{path}: more than {MAX_NODES} nodes in the area; choose a "
                                      "smaller --bbox")
             t = n.tags
-            if t.get("natural") == "tree" or t.get("highway") in ("crossing", "stop"):
+            if point_wanted(t):
                 points.append((n.id, dict(t), lat, lon))
         ways = []
         needed: set[int] = set()
@@ -159,6 +163,7 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
         raise InputError(f"{path}: no such file")
     if p.stat().st_size > MAX_FILE_BYTES:
         raise InputError(f"{path}: {p.stat().st_size} bytes; at most {MAX_FILE_BYTES} are read")
+    clip_box, clip_from = clip_area(p, options)
     points, ways, locs, ext = _read(p, options)
     if options.origin is not None:
         origin, origin_from = check_origin(options.origin, f"{path}: --origin"), "flag"
@@ -192,11 +197,12 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
         "projector": "lanelet2 LocalCartesianProjector"}})
     clip = None
     if options.bbox is not None:
-        b = options.bbox
+        layout.metadata["source"]["bbox"] = list(options.bbox)
+    if clip_box is not None:
+        b = clip_box
         corners = np.array([xy(b[1], b[0]), xy(b[1], b[2]), xy(b[3], b[2]), xy(b[3], b[0])])
         (cx0, cy0), (cx1, cy1) = corners.min(axis=0), corners.max(axis=0)
         clip = shp_box(cx0, cy0, cx1, cy1)
-        layout.metadata["source"]["bbox"] = list(b)
         layout.extent = ((float(cx0), float(cy0)), (float(cx1), float(cy1)))
 
     def coords(wid, refs) -> np.ndarray | None:
@@ -211,14 +217,19 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
     far = _far_check(path, xy_of)
     roads = [(wid, t, refs) for wid, t, refs in ways if t.get("highway") in HIGHWAY
              and t.get("area") != "yes"]
+    roads = sound_highways(path, roads, xy_of, options)
     _highways(path, roads, coords, clip, layout, points, xy, options)
     _areas(path, ways, coords, clip, layout, options)
     _trees(points, ways, coords, clip, layout, xy)
+    map_features(path, points, ways, coords, clip, layout, xy, options)
+    record_clip(layout, clip, clip_box, clip_from, options)
     if not layout.lanes:
         raise InputError(f"{path}: no drivable highway in the {'area' if clip is not None else 'file'} "
                          f"({len(roads)} highway ways read)")
     if far:
         _warn(far, options)
+    from lsd3d_usd.layout.georef import attach_origin
+    attach_origin(layout, "osm origin (LocalCartesianProjector)")
     layout.reindex()
     return layout
 
@@ -369,7 +380,7 @@ def _highways(path, roads, coords, clip, layout, points, xy, options) -> None:
             if tg.get("highway") == "crossing":
                 u = d * CROSSWALK_DEPTH / 2
                 poly = np.stack([pxy - u - hw * n_, pxy + u - hw * n_, pxy + u + hw * n_, pxy - u + hw * n_])
-                if clip is None or clip.contains(Polygon(poly)):      # not one cut by the area
+                if clip is None or clip.intersects(Polygon(poly)):    # cut by record_clip
                     layout.add(m.Crosswalk(f"crossing{nid}", polygon=R.xyz(poly)))
             else:
                 pos = pxy - (hw + 1.0) * n_
@@ -477,7 +488,7 @@ def _areas(path, ways, coords, clip, layout, options) -> None:
             _warn(f"{path}: way {wid}: not a valid polygon; skipped", options)
             continue
         if "building" in t:
-            if clip is not None and not clip.contains(poly.centroid):
+            if clip is not None and not clip.intersects(poly):
                 continue
             levels = _num(t.get("building:levels"))
             h = _num(t.get("height")) or (levels * LEVEL_HEIGHT if levels else None)

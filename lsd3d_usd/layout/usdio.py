@@ -4,11 +4,13 @@ Format (full reference in docs/layout.md):
 
 - Every feature prim carries ``lsd3d:featureType`` (token): LaneCenter, RoadLine,
   RoadEdge, Crosswalk, StopLine, StopSign, Building, Tree, Hedge,
-  VegetationZone, ParkingSpot, Sidewalk, RoadArea. Prims without it are
+  VegetationZone, ParkingSpot, Sidewalk, RoadArea, TrafficLight, TrafficSign, Pole,
+  Barrier. Prims without it are
   ignored (so a layout may hold helper prims); the reader walks everything
   under /World/Layout, the grouping scopes the writer makes are optional.
 - Polylines are linear, non-periodic ``BasisCurves``; polygons are linear,
-  periodic (closed) ``BasisCurves``; trees and stop signs are ``Points``.
+  periodic (closed) ``BasisCurves``; trees, stop signs, traffic lights, traffic
+  signs and poles are ``Points``.
 - ``points`` is float32 (USD's ``point3f[]``). For a lossless float64 round
   trip the writer adds ``lsd3d:points64`` (``point3d[]``) and, for lanes,
   ``lsd3d:widths64``; the reader uses a float64 copy only while it still
@@ -44,10 +46,12 @@ GROUP = {
     "Crosswalk": "Crosswalks", "StopLine": "StopLines", "StopSign": "StopSigns",
     "Building": "Buildings", "Tree": "Vegetation", "Hedge": "Vegetation",
     "VegetationZone": "Vegetation", "ParkingSpot": "Parking", "Sidewalk": "Sidewalks",
-    "RoadArea": "RoadAreas",
+    "RoadArea": "RoadAreas", "TrafficLight": "Signals", "TrafficSign": "Signals",
+    "Pole": "Furniture", "Barrier": "Furniture",
 }
 POLYGON_TYPES = {"Crosswalk", "Building", "VegetationZone", "ParkingSpot", "Sidewalk", "RoadArea"}
-POINT_TYPES = {"Tree", "StopSign"}
+POINT_TYPES = {"Tree", "StopSign", "TrafficLight", "TrafficSign", "Pole"}
+SINGLE_POINT_TYPES = POINT_TYPES - {"Tree"}     # exactly one point per prim
 
 # usdview display colours (linear RGB) and display widths of non-lane curves (m).
 COLOR = {
@@ -55,7 +59,8 @@ COLOR = {
     "Crosswalk": (0.9, 0.9, 0.3), "StopLine": (0.95, 0.95, 0.95), "StopSign": (0.9, 0.05, 0.05),
     "Building": (0.8, 0.5, 0.25), "Tree": (0.1, 0.6, 0.15), "Hedge": (0.15, 0.45, 0.1),
     "VegetationZone": (0.3, 0.7, 0.2), "ParkingSpot": (0.4, 0.4, 0.8), "Sidewalk": (0.6, 0.6, 0.6),
-    "RoadArea": (0.3, 0.3, 0.3),
+    "RoadArea": (0.3, 0.3, 0.3), "TrafficLight": (0.1, 0.8, 0.2), "TrafficSign": (0.2, 0.3, 0.9),
+    "Pole": (0.5, 0.5, 0.5), "Barrier": (0.6, 0.45, 0.3),
 }
 YELLOW = (0.95, 0.8, 0.1)
 DISPLAY_WIDTH = 0.15
@@ -181,7 +186,7 @@ def _write_feature(parent: Sdf.PrimSpec, name: str, f) -> None:
             _attr(prim, NS + "widths64", T.DoubleArray, Vt.DoubleArray.FromNumpy(f.widths))
             pad = float(f.widths.max()) / 2
         else:
-            w = f.width if isinstance(f, m.Hedge) else DISPLAY_WIDTH
+            w = f.width if isinstance(f, (m.Hedge, m.Barrier)) else DISPLAY_WIDTH
             _attr(prim, "widths", T.FloatArray, Vt.FloatArray([w])).SetInfo("interpolation", "constant")
             pad = w / 2
         _attr(prim, "extent", T.Float3Array, _extent(pts, pad))
@@ -255,6 +260,14 @@ SCHEMA: dict[str, dict[str, tuple[str, object]]] = {
                     "length": ("length", T.Double), "width": ("width", T.Double),
                     "occupied": ("occupied", T.Bool)},
     "Tree": {},
+    "TrafficLight": {"heading": ("heading", T.Double), "height": ("height", T.Double),
+                     "laneIds": ("lane_ids", T.StringArray)},
+    "TrafficSign": {"heading": ("heading", T.Double), "kind": ("kind", T.Token),
+                    "code": ("code", T.String), "value": ("value", T.Double),
+                    "height": ("height", T.Double), "laneIds": ("lane_ids", T.StringArray)},
+    "Pole": {"kind": ("kind", T.Token), "height": ("height", T.Double)},
+    "Barrier": {"kind": ("kind", T.Token), "height": ("height", T.Double),
+                "width": ("width", T.Double)},
 }
 
 # Types accepted on read for each written type (hand-authored layers use what is natural).
@@ -461,11 +474,11 @@ def _read_prim(prim: Usd.Prim, ftype: str, where: str, units: _Units = _Units())
             v = units.length(float(v))
         kwargs[field_name] = v
 
-    if ftype == "StopSign":
+    if ftype in SINGLE_POINT_TYPES:
         if len(pts) != 1:
-            raise InputError(f"{where}: {path}: attribute points: a StopSign has exactly 1 point, "
+            raise InputError(f"{where}: {path}: attribute points: a {ftype} has exactly 1 point, "
                              f"got {len(pts)}")
-        return [m.StopSign(fid or name, position=pts[0], **kwargs)]
+        return [m.FEATURE_CLASS_BY_TYPE[ftype](fid or name, position=pts[0], **kwargs)]
 
     counts = _curve_counts(prim, len(pts), where)
     polygon = ftype in POLYGON_TYPES

@@ -10,8 +10,12 @@ seamless (no cracks, no double cover):
   strip solids become closed again with a cap on the cut (prism walls).
 * Compact solids (buildings, trees, vehicles, poles, signs, traffic lights)
   are **owned by the chunk containing their anchor** (footprint centroid,
-  trunk or pole foot, spot centre) and kept whole, so they never appear
-  twice; a building may overhang its chunk's box.
+  trunk or pole foot, spot centre, the ground point of a map signal) and kept
+  whole, so they never appear twice; a building may overhang its chunk's box.
+
+The map's own signals and furniture (TrafficLight, TrafficSign, StopSign, Pole, Barrier)
+are built as given; the derived furniture fills in only where the map is silent
+(``derive_fixtures``).
 
 A chunk's inputs (the features within the margin, the few layout-wide
 derived features that land in it, the parameters and ``PROXY_VERSION``) hash to
@@ -36,11 +40,12 @@ from .ground import GroundStyle, ground_areas, ground_parts
 from .markings import MarkingStyle, crosswalk_part, road_line_part, stop_line_part
 from .mesh import MeshPart
 from .planar import area_from_points
+from .signals import barrier_part, pole_parts, sign_parts, signal_parts
 from .vegetation import hedge_part, tree_parts, zone_shrubs
 from .vehicles import vehicle_part
 
 # Bump when the geometry rules change, so stored chunks are rebuilt.
-PROXY_VERSION = "1"
+PROXY_VERSION = "2"
 
 
 @dataclass(frozen=True)
@@ -116,20 +121,39 @@ def _heading(points: np.ndarray, at_end: bool) -> np.ndarray:
     return d / n if n > 0 else np.array([1.0, 0.0])
 
 
+# A derived traffic light is left out when a map traffic light stands this close to its
+# approach's end (a junction's lights, whichever lanes the map says they control).
+MAP_SIGNAL_RADIUS = 50.0
+
+
+def _signals_complete(layout) -> bool:
+    """The map lists its traffic lights completely (OpenDRIVE signals, Lanelet2 traffic-light
+    rules: the importer says so in ``metadata.source.signalsComplete``)."""
+    src = layout.metadata.get("source", {}) if isinstance(layout.metadata, dict) else {}
+    return bool(isinstance(src, dict) and src.get("signalsComplete"))
+
+
 def derive_fixtures(layout, params: ProxyParams) -> list[Fixture]:
-    """Traffic lights at junction approaches and street lights along road edges.
+    """Traffic lights at junction approaches and street lights along road edges, where the
+    map is silent about them.
 
     A traffic light stands on the right of the rightmost lane of each group of
     driving lanes (same road, ends within 12 m) that enter a junction, unless a
-    stop sign controls one of them. Street lights stand every
+    stop sign, a yield sign or a map traffic light controls one of them, or a map traffic
+    light stands within MAP_SIGNAL_RADIUS of the group's end; none at all when the map lists
+    its traffic lights completely (``metadata.source.signalsComplete``). Street lights stand every
     ``street_light_spacing`` metres along each boundary road edge, on its outer
-    (right-hand) side, starting half a spacing from the edge's first point.
+    (right-hand) side, starting half a spacing from the edge's first point, except within
+    half a spacing of a map street lamp.
     """
     out: list[Fixture] = []
     g = params.ground
-    if params.traffic_lights and layout.lanes:
+    if params.traffic_lights and layout.lanes and not _signals_complete(layout):
         by_id = {ln.id: ln for ln in layout.lanes}
-        stopped = {lid for s in layout.stop_signs for lid in s.lane_ids}
+        signs = [s.lane_ids for s in layout.stop_signs] + \
+            [t.lane_ids for t in layout.traffic_signs if t.kind == "yield"]
+        stopped = {lid for ids in signs + [t.lane_ids for t in layout.traffic_lights] for lid in ids}
+        near_pts = np.array([t.position[:2] for t in layout.traffic_lights]).reshape(-1, 2)
         approaches = [ln for ln in layout.lanes
                       if not ln.is_junction and ln.lane_type == "driving"
                       and ln.direction == "forward" and ln.id not in stopped
@@ -145,6 +169,8 @@ def derive_fixtures(layout, params: ProxyParams) -> list[Fixture]:
             else:
                 groups.append([ln])
         for grp in groups:
+            if len(near_pts) and np.hypot(*(near_pts - grp[0].points[-1, :2]).T).min() < MAP_SIGNAL_RADIUS:
+                continue
             h = _heading(grp[0].points, True)
             right = np.array([h[1], -h[0]])
             ln = max(grp, key=lambda l: float(np.dot(l.points[-1, :2], right)))
@@ -152,6 +178,7 @@ def derive_fixtures(layout, params: ProxyParams) -> list[Fixture]:
             yaw = float(np.arctan2(-h[1], -h[0]))       # facing the approaching traffic
             out.append(Fixture("traffic_light", f"tl_{ln.id}", (float(p[0]), float(p[1])), yaw))
     sp = params.street_light_spacing
+    lamps = np.array([p.position[:2] for p in layout.poles if p.kind == "street_lamp"]).reshape(-1, 2)
     if sp > 0:
         for e in layout.road_edges:
             if e.kind != "boundary":
@@ -165,6 +192,8 @@ def derive_fixtures(layout, params: ProxyParams) -> list[Fixture]:
                 right = np.array([d[1], -d[0]])          # road on the left: outside is right
                 p = np.array([np.interp(a, s, xy[:, 0]), np.interp(a, s, xy[:, 1])])
                 p = p + right * (g.curb_width + 0.6)
+                if len(lamps) and np.hypot(*(lamps - p).T).min() < sp / 2:
+                    continue
                 yaw = float(np.arctan2(-right[1], -right[0]))   # arm over the road
                 out.append(Fixture("street_light", f"sl_{e.id}_{k}", (float(p[0]), float(p[1])), yaw))
     return out
@@ -208,14 +237,49 @@ class ChunkInputs:
     hash: str
 
 
+class FeatureIndex:
+    """The features of a layout with their XY bounds in one array, so the features near a
+    chunk are found by one vectorised comparison instead of a walk over every feature
+    (which made a chunk's cost grow with the whole layout). ``near`` returns what
+    ``Layout.features_in_box`` returns, in the same order."""
+
+    def __init__(self, layout):
+        from lsd3d_usd.layout import model as lm
+        self.layout = layout
+        self.features = list(layout.features())
+        b = np.empty((len(self.features), 4))
+        for k, f in enumerate(self.features):
+            (x0, y0), (x1, y1) = f.bbox()
+            pad = float(f.widths.max()) / 2 if isinstance(f, lm.LaneCenter) else 0.0
+            b[k] = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+        self.bounds = b
+
+    def near(self, box, margin: float = 0.0):
+        from lsd3d_usd.layout.model import Layout
+        (bx0, by0), (bx1, by1) = box
+        b = self.bounds
+        hit = ((b[:, 2] >= bx0 - margin) & (b[:, 0] <= bx1 + margin)
+               & (b[:, 3] >= by0 - margin) & (b[:, 1] <= by1 + margin))
+        L = self.layout
+        out = Layout(extent=L.extent, chunk_size=L.chunk_size, metadata=L.metadata)
+        for k in np.nonzero(hit)[0]:
+            out.add(self.features[k])
+        return out
+
+
 class ProxyBuilder:
-    """Builds chunks of one layout; derived features are computed once per layout."""
+    """Builds chunks of one layout; derived features and the feature index are computed
+    once per layout."""
 
     def __init__(self, layout, params: ProxyParams | None = None):
         self.layout = layout
         self.params = params or ProxyParams()
         self.size = float(layout.chunk_size)
         self.fixtures = derive_fixtures(layout, self.params)
+        self.index = FeatureIndex(layout)
+        self._fixtures_at: dict[ChunkKey, list[Fixture]] = {}
+        for f in self.fixtures:
+            self._fixtures_at.setdefault(chunk_of(*f.position, self.size), []).append(f)
 
     def chunks(self, max_chunks: int | None = None) -> list[ChunkKey]:
         return all_chunks(self.layout, max_chunks)
@@ -223,8 +287,8 @@ class ProxyBuilder:
     def inputs(self, key: ChunkKey) -> ChunkInputs:
         i, j = key
         b = chunk_bounds(i, j, self.size)
-        local = self.layout.features_in_box(((b[0], b[1]), (b[2], b[3])), self.params.margin)
-        fx = [f for f in self.fixtures if chunk_of(*f.position, self.size) == key]
+        local = self.index.near(((b[0], b[1]), (b[2], b[3])), self.params.margin)
+        fx = list(self._fixtures_at.get(key, []))
         return ChunkInputs(key, b, local, fx, chunk_inputs_hash(local, fx, self.params, key))
 
     def build(self, key: ChunkKey, inputs: ChunkInputs | None = None) -> list[MeshPart]:
@@ -290,12 +354,74 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
     for s in L.stop_signs:
         if _owned(s.position[0], s.position[1], b):
             parts += stop_sign_parts(s.id, s.position, _sign_yaw(s, lanes_by_id))
+    for tl in L.traffic_lights:
+        if _owned(tl.position[0], tl.position[1], b):
+            parts += signal_parts(tl.id, _mast(tl, L.lanes, g.curb_width), tl.position,
+                                  tl.heading, tl.height)
+    for ts in L.traffic_signs:
+        if _owned(ts.position[0], ts.position[1], b):
+            parts += sign_parts(ts.id, ts.position, ts.heading, ts.kind, ts.height)
+    for po in L.poles:
+        if _owned(po.position[0], po.position[1], b):
+            parts += pole_parts(po.id, po.position, po.kind, po.height,
+                                _towards_road(po.position, L.lanes))
+    for ba in L.barriers:
+        add(barrier_part(ba.id, ba.points, ba.kind, ba.height, ba.width, clip))
     for fx in inp.fixtures:
         if fx.kind == "traffic_light":
             parts += traffic_light_parts(fx.id, fx.position, fx.yaw)
         else:
             parts += street_light_parts(fx.id, fx.position, fx.yaw)
     return parts
+
+
+def _nearest_on(points: np.ndarray, q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+    """(distance, nearest point, unit direction there) from ``q`` to a polyline (XY)."""
+    a, b = points[:-1, :2], points[1:, :2]
+    d = b - a
+    L2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-18)
+    t = np.clip(np.einsum("ij,ij->i", q - a, d) / L2, 0.0, 1.0)
+    c = a + t[:, None] * d
+    dist = np.hypot(*(c - q).T)
+    k = int(np.argmin(dist))
+    return float(dist[k]), c[k], d[k] / np.sqrt(L2[k])
+
+
+def _mast(light, lanes, curb_width: float) -> np.ndarray:
+    """Where a map traffic light's mast stands: below the head, unless the head hangs over a
+    lane it controls (or, naming none, any driving lane within 10 m): then on the right-hand
+    roadside of those lanes (seen by the traffic the light faces), at most MAX_ARM away."""
+    from .signals import MAX_ARM
+    head = np.asarray(light.position[:2], dtype=np.float64)
+    ids = set(light.lane_ids)
+    cands = [ln for ln in lanes if ln.id in ids] or \
+        [ln for ln in lanes if ln.lane_type == "driving" and not ln.is_junction]
+    travel = -np.array([np.cos(light.heading), np.sin(light.heading)])
+    right = np.array([travel[1], -travel[0]])
+    over, reach = False, 0.0
+    for ln in cands:
+        dist, c, _ = _nearest_on(ln.points, head)
+        if dist > 10.0:
+            continue
+        w = float(ln.widths.max()) / 2
+        if dist <= w + 0.25:
+            over = True
+        reach = max(reach, float(np.dot(c - head, right)) + w)
+    if not over or reach <= 0:
+        return head
+    reach = min(reach + curb_width + 0.8, MAX_ARM)
+    return head + right * reach
+
+
+def _towards_road(position, lanes) -> float:
+    """Yaw from ``position`` towards the nearest lane centre (a lamp's arm over the road)."""
+    best, yaw = np.inf, 0.0
+    q = np.asarray(position[:2], dtype=np.float64)
+    for ln in lanes:
+        dist, c, _ = _nearest_on(ln.points, q)
+        if 1e-6 < dist < best:
+            best, yaw = dist, float(np.arctan2(c[1] - q[1], c[0] - q[0]))
+    return yaw
 
 
 def _extent(layout):

@@ -63,7 +63,7 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
     big = box(x0 - margin, y0 - margin, x1 + margin, y1 + margin)
     road_parts, walk_parts = [], []
     for pts, widths, lane_type in lanes:
-        rib = ribbon(pts, np.asarray(widths, dtype=np.float64) / 2)
+        rib = ribbon(pts, np.asarray(widths, dtype=np.float64) / 2, within=big.bounds)
         (walk_parts if lane_type == "sidewalk" else
          road_parts if lane_type not in NOT_ROAD_LANES else []).append(rib)
     road_parts += [_poly(p) for p in road_areas]
@@ -77,7 +77,10 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
     blocked = _union([R, C])
     walk = [_poly(p) for p in sidewalks] + walk_parts
     if not sidewalks and style.derive_sidewalks and not R.is_empty:
-        walk.append(R.buffer(style.curb_width + style.sidewalk_width, quad_segs=4))
+        derived = R.buffer(style.curb_width + style.sidewalk_width, quad_segs=4)
+        if extent is not None:   # a road cut at the extent continues: no walk around its end
+            derived = shapely.intersection(derived, box(*extent))
+        walk.append(derived)
     houses = _union([_poly(p) for p in buildings])
     S = as_area(shapely.difference(_union(walk), _union([blocked, houses])))
     blocked = _union([blocked, S])

@@ -10,7 +10,7 @@ from shapely.geometry import Polygon
 
 from lsd3d_usd.configtree import option
 from .mesh import CROSSWALK, LANE_MARKING, MeshPart
-from .planar import area_from_points, as_area, dashes, flat_mesh, offset_polyline, ribbon
+from .planar import area_from_points, as_area, dashes, flat_mesh, grow, offset_polyline, ribbon, ribbons
 
 PAINT = {"white": (0.80, 0.80, 0.78), "yellow": (0.75, 0.55, 0.08)}
 
@@ -28,18 +28,20 @@ class MarkingStyle:
 
 
 def road_line_area(points: np.ndarray, kind: str, double: bool,
-                   st: MarkingStyle = MarkingStyle()):
+                   st: MarkingStyle = MarkingStyle(), within=None):
     """Painted area of one road line (the dash pattern starts at the line's first point,
-    so it is the same whichever chunk asks)."""
+    so it is the same whichever chunk asks). ``within`` (xmin, ymin, xmax, ymax): only
+    the paint near this box is built (the same paint there as without it)."""
     offsets = [0.0]
     if double:
         d = (st.line_width + st.double_gap) / 2
         offsets = [-d, d]
+    near = None if within is None else grow(within, st.line_width)
     pieces = []
     for o in offsets:
         pl = offset_polyline(points, o) if o else np.asarray(points)[:, :2]
-        segs = dashes(pl, st.dash, st.gap) if kind == "broken" else [pl]
-        pieces += [ribbon(s, st.line_width / 2) for s in segs if len(s) >= 2]
+        segs = dashes(pl, st.dash, st.gap, within=near) if kind == "broken" else [pl]
+        pieces.append(ribbons(segs, st.line_width / 2, within=near))
     pieces = [p for p in pieces if not p.is_empty]
     return as_area(shapely.union_all(np.array(pieces, dtype=object))) if pieces else Polygon()
 
@@ -84,13 +86,14 @@ def paint_part(area, clip: Polygon, cls: str, part_id: str, z: float,
 
 def road_line_part(line_id, points, kind, color, double, clip, road_z,
                    st: MarkingStyle = MarkingStyle()):
-    return paint_part(road_line_area(points, kind, double, st), clip, LANE_MARKING, line_id,
-                      road_z + st.lift, PAINT.get(color))
+    return paint_part(road_line_area(points, kind, double, st, within=clip.bounds), clip,
+                      LANE_MARKING, line_id, road_z + st.lift, PAINT.get(color))
 
 
 def stop_line_part(line_id, points, clip, road_z, st: MarkingStyle = MarkingStyle()):
-    return paint_part(ribbon(points, st.stop_line_width / 2), clip, LANE_MARKING, line_id,
-                      road_z + st.lift, PAINT["white"])
+    return paint_part(ribbon(points, st.stop_line_width / 2,
+                             within=grow(clip.bounds, st.stop_line_width)),
+                      clip, LANE_MARKING, line_id, road_z + st.lift, PAINT["white"])
 
 
 def crosswalk_part(cw_id, polygon, clip, road_z, st: MarkingStyle = MarkingStyle()):

@@ -82,10 +82,32 @@ def _sound(poly: Polygon) -> bool:
     return True
 
 
+def _sound_all(polys: list[Polygon]) -> np.ndarray:
+    """_sound of every polygon at once (vectorised over all rings: many small pieces, such
+    as the dashes of a line, cost one call instead of one Python loop each)."""
+    arr = np.array(polys, dtype=object)
+    ok = shapely.is_valid(arr) & (shapely.area(arr) > RING_AREA)
+    rings, part = shapely.get_rings(arr, return_index=True)
+    if not len(rings):
+        return ok
+    xy, ring_of = shapely.get_coordinates(rings, return_index=True)
+    n = np.bincount(ring_of, minlength=len(rings))
+    same = ring_of[1:] == ring_of[:-1]
+    close = same & (np.hypot(*np.diff(xy, axis=0).T) <= POINT_TOL)
+    bad = np.bincount(ring_of[1:][close], minlength=len(rings)) > 0
+    bad |= n < 4
+    bad |= np.bincount(ring_of[~np.isfinite(xy).all(axis=1)], minlength=len(rings)) > 0
+    bad |= shapely.area(shapely.polygons(rings)) <= RING_AREA
+    ok &= np.bincount(part[bad], minlength=len(polys)) == 0
+    return ok
+
+
 def _clean_pieces(geom: BaseGeometry) -> list[Polygon]:
     out: list[Polygon] = []
-    for poly in polygons_of(geom):
-        if _sound(poly):
+    polys = polygons_of(geom)
+    sound = _sound_all(polys) if polys else []
+    for poly, ok in zip(polys, sound):
+        if ok:
             out.append(poly)
             continue
         q = _rebuilt(poly)
@@ -176,31 +198,110 @@ def clean_polyline(points: np.ndarray, tol: float = 1e-6) -> np.ndarray:
     return xy[keep]
 
 
-def ribbon(points: np.ndarray, left: np.ndarray | float, right: np.ndarray | float | None = None
-           ) -> BaseGeometry:
-    """Area swept by a polyline with per-vertex half widths to the left and right.
-
-    Built from mitred per-segment quads (so consecutive quads share edges and
-    bends leave no wedge gaps) and unioned; self-overlaps on the inside of
-    tight bends are resolved by the union.
-    """
+def _quads(points: np.ndarray, left, right=None,
+           within: tuple[float, float, float, float] | None = None) -> np.ndarray:
+    """The mitred per-segment quads (S, 4, 2) of a ribbon (CCW), those meeting ``within``."""
     pts = np.asarray(points, dtype=np.float64)
     keep_idx = _dedupe_index(pts[:, :2])
     xy = pts[keep_idx, :2]
     if len(xy) < 2:
-        return EMPTY
+        return np.zeros((0, 4, 2))
     left = np.broadcast_to(np.asarray(left, dtype=np.float64), (len(pts),))[keep_idx]
     right = left if right is None else np.broadcast_to(
         np.asarray(right, dtype=np.float64), (len(pts),))[keep_idx]
     vn, sc = _vertex_normals(xy)
     L = xy + vn * (left * sc)[:, None]
     R = xy - vn * (right * sc)[:, None]
-    quads = np.stack([R[:-1], R[1:], L[1:], L[:-1]], axis=1)   # (S, 4, 2), CCW
+    quads = np.stack([R[:-1], R[1:], L[1:], L[:-1]], axis=1)
+    if within is not None:
+        lo, hi = quads.min(axis=1), quads.max(axis=1)
+        near = ((hi[:, 0] >= within[0]) & (lo[:, 0] <= within[2])
+                & (hi[:, 1] >= within[1]) & (lo[:, 1] <= within[3]))
+        quads = quads[near]
+    return quads
+
+
+def _union_quads(quads: np.ndarray) -> BaseGeometry:
+    if not len(quads):
+        return EMPTY
     polys = shapely.polygons(quads)
     bad = ~shapely.is_valid(polys)
     if bad.any():
         polys[bad] = shapely.make_valid(polys[bad])
     return as_area(shapely.union_all(polys))
+
+
+def ribbon(points: np.ndarray, left: np.ndarray | float, right: np.ndarray | float | None = None,
+           within: tuple[float, float, float, float] | None = None) -> BaseGeometry:
+    """Area swept by a polyline with per-vertex half widths to the left and right.
+
+    Built from mitred per-segment quads (so consecutive quads share edges and
+    bends leave no wedge gaps) and unioned; self-overlaps on the inside of
+    tight bends are resolved by the union.
+
+    ``within`` (xmin, ymin, xmax, ymax): only the quads whose bounds meet this box are
+    built and unioned. The quads are those of the whole polyline (the mitre at every
+    vertex is computed from its neighbours), so inside the box the area is the same as
+    the whole ribbon's; a chunk pays for the part of a long lane near it, not its length.
+    """
+    return _union_quads(_quads(points, left, right, within))
+
+
+def _quads_many(lines: list[np.ndarray], half_width: float) -> np.ndarray:
+    """The mitred quads of many polylines of one half width, vectorised over all of them:
+    per polyline the same quads as ``_quads`` (repeated points dropped, mitre at each
+    interior vertex from its two segments, limited as in ``_vertex_normals``)."""
+    lines = [np.asarray(ln, dtype=np.float64)[:, :2] for ln in lines if len(ln) >= 2]
+    if not lines:
+        return np.zeros((0, 4, 2))
+    xy = np.concatenate(lines)
+    lid = np.repeat(np.arange(len(lines)), [len(ln) for ln in lines])
+    same = lid[1:] == lid[:-1]
+    dup = same & (np.hypot(*np.diff(xy, axis=0).T) <= 1e-6)
+    keep = np.concatenate([[True], ~dup])
+    xy, lid = xy[keep], lid[keep]
+    same = lid[1:] == lid[:-1]                      # segment k joins vertex k and k + 1
+    d = np.diff(xy, axis=0)
+    seg_len = np.hypot(d[:, 0], d[:, 1])[:, None]
+    seg_n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.maximum(seg_len, 1e-12)
+    seg_n[~same] = 0.0
+    has_prev = np.concatenate([[False], same])
+    has_next = np.concatenate([same, [False]])
+    prev = np.zeros_like(xy)
+    prev[1:] = seg_n
+    nxt = np.zeros_like(xy)
+    nxt[:-1] = seg_n
+    vn = prev + nxt
+    ln = np.hypot(vn[:, 0], vn[:, 1])
+    bad = ln < 1e-9                                  # a reversal: the incoming normal
+    vn[bad] = np.where(has_prev[bad, None], prev[bad], nxt[bad])
+    ln[bad] = 1.0
+    vn = vn / ln[:, None]
+    inner = has_prev & has_next
+    cos_half = np.ones(len(xy))
+    cos_half[inner] = np.einsum("ij,ij->i", vn[inner], prev[inner])
+    scale = 1.0 / np.clip(cos_half, 0.25, 1.0)       # miter limit 4, as _vertex_normals
+    L = xy + vn * (half_width * scale)[:, None]
+    R = xy - vn * (half_width * scale)[:, None]
+    q = np.stack([R[:-1], R[1:], L[1:], L[:-1]], axis=1)
+    return q[same]
+
+
+def ribbons(lines: list[np.ndarray], half_width: float,
+            within: tuple[float, float, float, float] | None = None) -> BaseGeometry:
+    """The union of the ribbons of many polylines of one half width, in one vectorised step
+    and one union (the dashes of a broken line: one call, not one union per dash)."""
+    q = _quads_many(lines, half_width)
+    if within is not None and len(q):
+        lo, hi = q.min(axis=1), q.max(axis=1)
+        q = q[(hi[:, 0] >= within[0]) & (lo[:, 0] <= within[2])
+              & (hi[:, 1] >= within[1]) & (lo[:, 1] <= within[3])]
+    return _union_quads(q)
+
+
+def grow(bounds: tuple[float, float, float, float], d: float) -> tuple[float, float, float, float]:
+    """A box (xmin, ymin, xmax, ymax) grown by ``d`` on every side."""
+    return bounds[0] - d, bounds[1] - d, bounds[2] + d, bounds[3] + d
 
 
 def _dedupe_index(xy: np.ndarray, tol: float = 1e-6) -> np.ndarray:
@@ -220,11 +321,14 @@ def offset_polyline(points: np.ndarray, dist: float) -> np.ndarray:
     return xy + vn * (dist * sc)[:, None]
 
 
-def dashes(points: np.ndarray, dash: float, gap: float, phase: float = 0.0) -> list[np.ndarray]:
+def dashes(points: np.ndarray, dash: float, gap: float, phase: float = 0.0,
+           within: tuple[float, float, float, float] | None = None) -> list[np.ndarray]:
     """Sub-polylines of length ``dash`` every ``dash + gap`` metres along a polyline.
 
     ``phase`` is the arc length at which the pattern starts (pass the
     polyline's absolute start so dashes line up across chunk borders).
+    ``within`` (xmin, ymin, xmax, ymax): only the dashes along segments that meet this box
+    (the same dashes, at the same arc lengths, as without it).
     """
     xy = clean_polyline(points)
     if len(xy) < 2:
@@ -234,15 +338,30 @@ def dashes(points: np.ndarray, dash: float, gap: float, phase: float = 0.0) -> l
     period = dash + gap
     first = -((phase) % period)
     starts = np.arange(first, s[-1], period)
+    if within is not None:
+        a, b = xy[:-1], xy[1:]
+        lo, hi = np.minimum(a, b), np.maximum(a, b)
+        near = ((hi[:, 0] >= within[0]) & (lo[:, 0] <= within[2])
+                & (hi[:, 1] >= within[1]) & (lo[:, 1] <= within[3]))
+        k = np.nonzero(near)[0]
+        if not len(k):
+            return []
+        # a dash [a, a + dash] is kept when it overlaps a near segment [s_k, s_k+1]
+        seg_of_start = np.searchsorted(s, starts, side="right") - 1
+        seg_of_end = np.searchsorted(s, starts + dash, side="left") - 1
+        cum = np.concatenate([[0], np.cumsum(near)])
+        lo_i = np.clip(seg_of_start, 0, len(seg) - 1)
+        hi_i = np.clip(seg_of_end, 0, len(seg) - 1)
+        starts = starts[cum[hi_i + 1] - cum[lo_i] > 0]
     out = []
     for a in starts:
         a0, a1 = max(a, 0.0), min(a + dash, s[-1])
         if a1 - a0 < 1e-3:
             continue
-        inner = (s > a0) & (s < a1)
+        i0, i1 = np.searchsorted(s, a0, side="right"), np.searchsorted(s, a1, side="left")
         pa = np.array([np.interp(a0, s, xy[:, 0]), np.interp(a0, s, xy[:, 1])])
         pb = np.array([np.interp(a1, s, xy[:, 0]), np.interp(a1, s, xy[:, 1])])
-        out.append(np.vstack([pa, xy[inner], pb]))
+        out.append(np.vstack([pa, xy[i0:i1], pb]))
     return out
 
 

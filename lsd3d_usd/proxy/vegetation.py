@@ -30,7 +30,7 @@ def tree_parts(tree_id: str, position, height: float = 8.0, crown_radius: float 
 def hedge_part(hedge_id: str, points: np.ndarray, height: float, width: float,
                clip: Polygon | None = None) -> MeshPart | None:
     """A hedge as a closed prism along its polyline, cut at ``clip`` (the chunk box)."""
-    area = ribbon(points, width / 2)
+    area = ribbon(points, width / 2, within=None if clip is None else clip.bounds)
     if clip is not None:
         area = shapely.intersection(area, clip)
     v, f = prism(area, 0.0, height)
