@@ -20,10 +20,10 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdSemantics, Vt
 
 import lsd3d_usd  # noqa: F401
-from lsd3d_usd.actors.assets import DIMS_ATTR, mesh_data_from_prim
+from lsd3d_usd.actors.assets import DIMS_ATTR, KIND_ATTR, mesh_data_from_prim
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import ACTORS_PATH, new_stage, save_layer
 from lsd3d_usd.splats.field import SurfelField
@@ -182,6 +182,20 @@ class PlacedActor:
     meshes: list            # MeshData in the actor-root frame
     surfels: object | None  # SurfelField in the actor-root frame, or None
     dims: np.ndarray
+    kind: str = ""          # lsd3d:actor:kind (car, van, ...; "" when not authored)
+    label: str = "vehicle"  # its UsdSemantics class label (semantics.CLASSES)
+
+
+def actor_label(prim) -> str:
+    """The class of an actor: the UsdSemantics ``class`` label on its root (or the first
+    prim below that has one), "vehicle" when none is authored."""
+    for p in Usd.PrimRange(prim):
+        api = UsdSemantics.LabelsAPI(p, "class")
+        attr = api.GetLabelsAttr() if api else None
+        labels = attr.Get() if attr and attr.HasValue() else None
+        if labels:
+            return str(labels[0])
+    return "vehicle"
 
 
 class ActorSet:
@@ -213,7 +227,10 @@ class ActorSet:
             surf = SurfelField.concat(fields, drop_mismatched_semantics=True) if fields else None
             da = prim.GetAttribute(DIMS_ATTR)
             dims = np.array(da.Get(), np.float64) if da and da.HasValue() else np.array([4.5, 1.8, 1.5])
-            self.actors.append(PlacedActor(str(prim.GetPath()), str(role.Get()), meshes, surf, dims))
+            ka = prim.GetAttribute(KIND_ATTR)
+            kind = str(ka.Get()) if ka and ka.HasValue() else ""
+            self.actors.append(PlacedActor(str(prim.GetPath()), str(role.Get()), meshes, surf, dims,
+                                           kind, actor_label(prim)))
 
     @staticmethod
     def _world(prim, t) -> np.ndarray:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene
@@ -51,9 +52,11 @@ def _render(args) -> int:
     # heavy (torch, numba): the renderer only once a render is asked for
     if cfg.rig.name:
         # local import: not loaded for --help
+        from lsd3d_usd.views.ground_truth import parse_outputs
         from lsd3d_usd.views.rig import render_rig
         res = render_rig(args.scene, args.output, cfg.rig, width=size[0] if size else RIG_WIDTH,
                          use_env=cfg.env, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
+                         outputs=parse_outputs(cfg.outputs),
                          progress=progress,   # its notes (the default route) on stdout
                          deferrer=make_deferrer(args.scene, cfg.deferred, log))
         print(res.rig_layer)
@@ -62,6 +65,8 @@ def _render(args) -> int:
             if res.deferred_frames is not None:
                 print(f"{name}: {len(res.deferred_frames[name])} deferred frames"
                       + (f", {res.deferred_videos[name]}" if name in res.deferred_videos else ""))
+        if res.sweeps:
+            print(f"LIDAR_TOP: {len(res.sweeps)} sweeps under {Path(args.output) / 'LIDAR_TOP'}")
         if res.deferred is not None:
             d = res.deferred
             print(f"deferred: prior {d['prior']}, T {d['strength']}, N {d['steps']}, "
@@ -71,6 +76,7 @@ def _render(args) -> int:
         raise InputError("render: give --camera PRIM_PATH, or --rig (driving --route, --trajectory "
                          "or by default the longest drivable route)")
     # local import: not loaded for --help
+    from lsd3d_usd.views.ground_truth import parse_outputs
     from lsd3d_usd.views.preview import parse_times, render_preview
     from lsd3d_usd.views.stage_data import camera_prim
     if cfg.deferred.enabled:   # a wrong camera fails before the prior is loaded
@@ -79,6 +85,7 @@ def _render(args) -> int:
                            times=parse_times(cfg.frames, cfg.time), resolution=size,
                            fmt=cfg.format, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
                            use_env=cfg.env, sh_degree=cfg.sh_degree, progress=progress,
+                           outputs=parse_outputs(cfg.outputs),
                            deferrer=make_deferrer(args.scene, cfg.deferred, log))
     for f in files:
         print(f)

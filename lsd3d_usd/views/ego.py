@@ -28,6 +28,25 @@ class EgoTrack:
     def yaws(self) -> np.ndarray:
         return np.unwrap(np.arctan2(self.rotations[:, 1, 0], self.rotations[:, 0, 0]))
 
+    def at(self, times) -> np.ndarray:
+        """(n, 4, 4) world-from-ego at any ``times`` (seconds): positions linear and
+        rotations slerped between the samples, extended beyond them with the first / last
+        segment's motion (a LiDAR sweep that starts at the last frame ends after it)."""
+        t = np.asarray(times, np.float64).reshape(-1)
+        T = self.times
+        if len(T) == 1:
+            M = np.tile(np.eye(4), (len(t), 1, 1))
+            M[:, :3, :3], M[:, :3, 3] = self.rotations[0], self.positions[0]
+            return M
+        k = np.clip(np.searchsorted(T, t, side="right") - 1, 0, len(T) - 2)
+        f = (t - T[k]) / (T[k + 1] - T[k])
+        pos = self.positions[k] + f[:, None] * (self.positions[k + 1] - self.positions[k])
+        rel = Rotation.from_matrix(self.rotations[k]).inv() * Rotation.from_matrix(self.rotations[k + 1])
+        rot = Rotation.from_matrix(self.rotations[k]) * Rotation.from_rotvec(rel.as_rotvec() * f[:, None])
+        M = np.tile(np.eye(4), (len(t), 1, 1))
+        M[:, :3, :3], M[:, :3, 3] = rot.as_matrix(), pos
+        return M
+
 
 def yaw_rotations(yaw) -> np.ndarray:
     y = np.asarray(yaw, np.float64).reshape(-1)

@@ -17,6 +17,7 @@ from lsd3d_usd.render.gbuffer import render_gbuffer
 from lsd3d_usd.render.raster_types import RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.splats.field import SurfelField
+from lsd3d_usd.views import labels as L
 
 
 @dataclass
@@ -34,6 +35,23 @@ class Frame:
     depth: np.ndarray
     depth_expected: np.ndarray
     actor_mask: np.ndarray
+    labels: "FrameLabels | None" = None
+
+
+@dataclass
+class FrameLabels:
+    """Ground truth of a composited frame, by the one rule that decides what is drawn at a
+    pixel: an actor nearer than the surfels' depth; else the surfels where their alpha
+    reaches 0.5 (their median depth); else an actor behind faint surfels; else the sky.
+
+    z: camera z-depth (along the optical axis) of that surface, inf for the sky.
+    class_id (uint8): views.labels ids (SKY where nothing is drawn). instance_id (uint16): the
+    actor's instance id, 0 for stuff. normal: world-space unit normal, 0 for the sky.
+    """
+    z: np.ndarray
+    class_id: np.ndarray
+    instance_id: np.ndarray
+    normal: np.ndarray
 
 
 def env_background(env, camera: Camera) -> np.ndarray | None:
@@ -45,9 +63,11 @@ def env_background(env, camera: Camera) -> np.ndarray | None:
 
 
 def render_surfels(field, camera: Camera, *, background=None, normal_space: str = "camera",
-                   sh_degree=None, semantic: bool = False, backend: str = "numba"):
+                   sh_degree=None, semantic: bool = False, codes=None, backend: str = "numba"):
     """Rasterise a SurfelField for ``camera`` (no autograd): a render.RasterResult.
-    background: None or (H, W, 3) / (3,) numpy radiance behind the surfels."""
+    background: None or (H, W, 3) / (3,) numpy radiance behind the surfels. ``semantic``:
+    result.semantic holds the largest-weight surfel's class id per pixel; ``codes`` (N,) int:
+    the same with these per-surfel labels instead."""
 
     def t(a):
         return torch.from_numpy(np.ascontiguousarray(a))
@@ -59,41 +79,79 @@ def render_surfels(field, camera: Camera, *, background=None, normal_space: str 
                          settings=RasterSettings.for_camera(camera, sh_degree=sh_degree,
                                                             normal_space=normal_space),
                          background=None if background is None else t(np.asarray(background, np.float32)),
-                         semantic_ids=(t(field.semantic_ids) if semantic and field.semantic_ids is not None
-                                       else None),
+                         semantic_ids=(t(np.asarray(codes, np.int64)) if codes is not None
+                                       else t(field.semantic_ids)
+                                       if semantic and field.semantic_ids is not None else None),
                          backend=backend)
 
 
-def composite(surfels, actors, camera: Camera, env=None, sh_degree=None) -> Frame:
+def surfel_codes(field, class_of_row=None, instance_of_row=None) -> np.ndarray:
+    """Per-surfel label codes (class + labels.CODE * instance) of a SurfelField: its semantic
+    ids through its class table, UNLABELLED where none; ``class_of_row`` / ``instance_of_row``
+    (N,) override them (actor surfels)."""
+    if class_of_row is not None:
+        cls = np.asarray(class_of_row, np.int64)
+    elif field.semantic_ids is None:
+        cls = np.full(field.n, L.UNLABELLED, np.int64)
+    else:
+        table = np.append(L.class_of_names(field.semantic_classes), L.UNLABELLED)
+        ids = np.asarray(field.semantic_ids, np.int64)
+        cls = table[np.where((ids >= 0) & (ids < len(table) - 1), ids, len(table) - 1)]
+    inst = np.zeros(field.n, np.int64) if instance_of_row is None else np.asarray(instance_of_row)
+    return cls + L.CODE * inst
+
+
+def composite(surfels, actors, camera: Camera, env=None, sh_degree=None,
+              instances=None) -> Frame:
     """Render surfels (the scene's and the surfel actors') and mesh actors (a
     stage_data.ActorFrame) for ``camera`` and composite them per pixel in depth order over the
     env background.
 
     Mesh actors are opaque: where an actor is nearer than the surfels' depth (the median
     depth, or the expected depth where the surfels' alpha stays below 0.5) the actor wins;
-    elsewhere the surfels' premultiplied colour goes over the actor (or over the env)."""
+    elsewhere the surfels' premultiplied colour goes over the actor (or over the env).
+    ``instances`` (views.labels.Instances of the reader's actors): also the frame's ground
+    truth (Frame.labels, FrameLabels) from the same rasterisation."""
 
     H, W = camera.height, camera.width
-    fields = [f for f in (surfels, actors.surfels) if f is not None and f.n]
+    want = instances is not None
+    parts = [(f, k) for f, k in ((surfels, "scene"), (actors.surfels, "actor"))
+             if f is not None and f.n]
+    fields = [f for f, _ in parts]
+    s_code = s_normal = None
     if fields:
+        codes = None
+        if want:
+            cls_a = instances.class_ids()
+            codes = np.concatenate([
+                surfel_codes(f) if k == "scene" else
+                surfel_codes(f, cls_a[actors.surfel_actor], instances.ids[actors.surfel_actor])
+                for f, k in parts])
         out = render_surfels(SurfelField.concat(fields, drop_mismatched_semantics=True), camera,
-                             sh_degree=sh_degree)
+                             sh_degree=sh_degree, codes=codes,
+                             normal_space="world" if want else "camera")
         s_rgb = out.rgb.numpy()
         s_a = out.alpha.numpy()
         dmed = out.depth_median.numpy()
         dexp = out.depth_expected.numpy()
         s_depth = np.where(dmed > 0, dmed, np.where(s_a > 1e-4, dexp, np.inf)).astype(np.float32)
+        if want:
+            s_code = out.semantic.numpy()
+            s_normal = out.normal.numpy()
     else:
         s_rgb = np.zeros((H, W, 3), np.float32)
         s_a = np.zeros((H, W), np.float32)
+        dmed = np.zeros((H, W), np.float32)
         dexp = np.zeros((H, W), np.float32)
         s_depth = np.full((H, W), np.inf, np.float32)
     bg = env_background(env, camera)
     under = np.zeros((H, W, 3), np.float32) if bg is None else bg.astype(np.float32)
     a_mask = np.zeros((H, W), bool)
     a_depth = np.full((H, W), np.inf, np.float32)
+    a_face = np.full((H, W), -1, np.int64)
     if len(actors.faces):
         g = render_gbuffer(actors.vertices, actors.faces, camera)
+        a_face = g.face_index
         a_mask = g.face_index >= 0
         a_depth = np.where(a_mask, g.depth, np.inf).astype(np.float32)
         a_rgb = np.zeros((H, W, 3), np.float32)
@@ -103,13 +161,45 @@ def composite(surfels, actors, camera: Camera, env=None, sh_degree=None) -> Fram
     rgb = np.where(front[..., None], under, s_rgb + (1.0 - s_a)[..., None] * under)
     alpha = np.where(front | a_mask, 1.0, s_a).astype(np.float32)
     depth_exp = np.where(front, a_depth, np.where(dexp > 0, dexp, np.where(a_mask, a_depth, 0.0)))
-    return Frame(rgb.astype(np.float32), alpha, np.minimum(a_depth, s_depth),
-                 depth_exp.astype(np.float32), front)
+    frame = Frame(rgb.astype(np.float32), alpha, np.minimum(a_depth, s_depth),
+                  depth_exp.astype(np.float32), front)
+    if want:
+        frame.labels = _labels(front, a_mask, a_depth, a_face, s_a, dmed, s_code, s_normal,
+                               actors, instances, H, W)
+    return frame
 
 
-def render_scene(reader, camera: Camera, time=None, sh_degree=None) -> Frame:
+def _labels(front, a_mask, a_depth, a_face, s_a, dmed, s_code, s_normal, actors, instances,
+            H, W) -> FrameLabels:
+    solid = (s_a >= 0.5) & (dmed > 0) & ~front if s_code is not None else np.zeros((H, W), bool)
+    actor = front | (a_mask & ~solid)
+    z = np.full((H, W), np.inf, np.float32)
+    cls = np.full((H, W), L.SKY, np.int64)
+    inst = np.zeros((H, W), np.int64)
+    nrm = np.zeros((H, W, 3), np.float32)
+    if solid.any():
+        code = s_code[solid]
+        z[solid] = dmed[solid]
+        cls[solid] = np.where(code >= 0, code % L.CODE, L.UNLABELLED)
+        inst[solid] = np.where(code >= 0, code // L.CODE, 0)
+        n = s_normal[solid]
+        nrm[solid] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    if actor.any():
+        f = a_face[actor]
+        q = actors.face_actor[f]
+        z[actor] = a_depth[actor]
+        cls[actor] = instances.class_ids()[q]
+        inst[actor] = instances.ids[q]
+        tri = actors.vertices[actors.faces[f]]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        nrm[actor] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return FrameLabels(z, cls.astype(np.uint8), inst.astype(np.uint16), nrm)
+
+
+def render_scene(reader, camera: Camera, time=None, sh_degree=None, instances=None) -> Frame:
     """The scene of a stage_data.SceneReader seen by ``camera`` at ``time`` (a time code;
     None = the stage's earliest time): surfels + actors over the env. A streaming reader loads
-    the chunks around the camera first."""
+    the chunks around the camera first. ``instances``: with ground truth (composite)."""
     surfels = reader.surfels(time, near=camera.center[None, :])
-    return composite(surfels, reader.actors_at(time), camera, reader.env(time), sh_degree)
+    return composite(surfels, reader.actors_at(time), camera, reader.env(time), sh_degree,
+                     instances)

@@ -49,6 +49,42 @@ def read_image(path) -> np.ndarray:
     return np.asarray(px, np.float32)
 
 
+def write_image(path, pixels: np.ndarray, channels=None, compression: str | None = None) -> Path:
+    """Write (h, w[, c]) pixels atomically, in the format of the file's extension (uint8 /
+    uint16 PNG, float EXR); ``channels``: channel names (EXR)."""
+    # local import: not loaded for --help
+    import OpenImageIO as oiio
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    px = np.ascontiguousarray(pixels)
+    if px.ndim == 2:
+        px = px[..., None]
+    h, w, c = px.shape
+    kind = {np.dtype(np.uint8): "uint8", np.dtype(np.uint16): "uint16",
+            np.dtype(np.float32): "float"}.get(px.dtype)
+    if kind is None:
+        raise InputError(f"{path}: cannot write {px.dtype} pixels")
+    spec = oiio.ImageSpec(w, h, c, kind)
+    if channels:
+        spec.channelnames = tuple(channels)
+    if compression:
+        spec.attribute("compression", compression)
+    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None or not out.open(str(tmp), spec):
+        raise InputError(f"{path}: cannot write image: {oiio.geterror()}")
+    try:
+        ok = out.write_image(px)
+    finally:
+        out.close()
+    if not ok:
+        tmp.unlink(missing_ok=True)
+        raise InputError(f"{path}: writing failed: {out.geterror()}")
+    os.replace(tmp, path)
+    return path
+
+
 def write_frame(path, frame, fmt: str = "png", exposure: float = 0.0,
                 tonemap_method: str = "aces") -> Path:
     """Write a rendered frame (views.frame.Frame) atomically: PNG (8-bit sRGB, tone-mapped) or

@@ -10,8 +10,12 @@ from lsd3d_usd.cliutil import parse_size
 from lsd3d_usd.configtree import option
 from lsd3d_usd.ggds.priors.registry import check_device, check_prior_name
 from lsd3d_usd.render.camera import DEFAULT_WIDTH as SINGLE_WIDTH
-from lsd3d_usd.views.deferred import (DEFAULT_STEPS, DEFAULT_STRENGTH,
-                                      check_steps, check_strength)
+from lsd3d_usd.views.deferred import (
+    DEFAULT_STEPS,
+    DEFAULT_STRENGTH,
+    check_steps,
+    check_strength,
+)
 from lsd3d_usd.views.rigs import RIGS
 
 RIG_WIDTH = 480  # rig frames: five cameras x frames add up; `render --camera` uses 960
@@ -57,6 +61,20 @@ def _check_resolution(v: str, where: str) -> str:
     return v
 
 
+def _check_lidar(v: str, where: str) -> str:
+    if v != "none":
+        # local import: the LiDAR's kernels (numba) are not loaded for --help
+        from lsd3d_usd.views.sensors import lidar_model
+        lidar_model(v, where)
+    return v
+
+
+def _check_outputs(v: str, where: str) -> str:
+    # local import: not loaded for --help
+    from lsd3d_usd.views.ground_truth import check_outputs
+    return check_outputs(v, where)
+
+
 def _check_frames(v: str, where: str) -> str:
     # local import: not loaded for --help
     from lsd3d_usd.views.preview import parse_times
@@ -95,7 +113,13 @@ class RigOptions:
     video: bool = option(True, help="an MP4 per camera", negate="--no-video")
     overview: bool = option(True, help="the third-person overview camera",
                             negate="--no-overview")
-    seed: int = option(0, help="seed of the rig's traffic interaction (IDM)")
+    seed: int = option(0, help="seed of the rig's traffic interaction (IDM) and of the LiDAR's "
+                               "noise")
+    lidar: str | None = option(None, help="a LiDAR on the rig: a preset (waymo_top, hdl32), a "
+                                          "LiDAR FILE.toml (docs/sensors.md) or none; one sweep "
+                                          "per frame under OUT/<name>/ (default: the rig's own: "
+                                          "nuscenes6 carries hdl32 as LIDAR_TOP, waymo5 none)",
+                               flag="--lidar", metavar="NAME|FILE.toml", check=_check_lidar)
 
 
 @dataclass
@@ -124,6 +148,10 @@ class RenderConfig:
                                    choices=(0, 1, 2, 3))
     env: bool = option(True, help="the env map behind the surfels (off: black)",
                        negate="--no-env")
+    outputs: str = option("rgb", help="what to write per camera and frame, comma-separated: "
+                                      "rgb, depth, semantic, instance, normal, boxes (ground "
+                                      "truth from the same composite; docs/sensors.md)",
+                          flag="--outputs", check=_check_outputs)
     rig: RigOptions = field(default_factory=RigOptions)
     deferred: DeferredConfig = field(default_factory=DeferredConfig)
 

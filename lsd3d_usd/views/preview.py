@@ -16,9 +16,12 @@ from tqdm import tqdm
 from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import from_usd
+from lsd3d_usd.views.boxes import actor_boxes, camera_boxes, local_boxes, write_boxes
 from lsd3d_usd.views.deferred import deferred_name, write_provenance
 from lsd3d_usd.views.frame import render_scene
+from lsd3d_usd.views.ground_truth import needs_labels, write_ground_truth
 from lsd3d_usd.views.images import TONEMAPS, write_frame
+from lsd3d_usd.views.labels import Instances, write_tables
 from lsd3d_usd.views.stage_data import SceneReader, camera_prim, usd_time
 
 MAX_FRAMES = 100_000   # frames of one `render --frames` range
@@ -55,9 +58,11 @@ def frame_name(camera_path: str, time, fmt: str, multiple: bool) -> str:
 def render_preview(scene_path, camera_path: str, out_dir, *, times=(None,), resolution=None,
                    fmt: str = "png", exposure: float = 0.0, tonemap_method: str = "aces",
                    use_env: bool = True, sh_degree=None, progress: bool = True,
-                   deferrer=None) -> list[Path]:
+                   outputs=("rgb",), deferrer=None) -> list[Path]:
     """Render frames of ``scene_path`` (scene folder or USD file) from ``camera_path`` at
     ``times`` (time codes; None = the stage's earliest time). Returns the written files.
+    ``outputs`` (views.ground_truth.OUTPUTS): ground truth beside each frame, the class and
+    instance tables in OUT/, boxes in OUT/boxes/<frame>.json.
     With ``deferrer`` (views.deferred.Deferrer) each frame is also deferred through the
     scene's prior: <name>_deferred.<fmt> beside it, provenance in OUT/deferred.json."""
 
@@ -71,14 +76,30 @@ def render_preview(scene_path, camera_path: str, out_dir, *, times=(None,), reso
     width, height = resolution if resolution else (None, None)
     times = list(times)
     written = []
-    for t in tqdm(times, desc="render", unit="frame", disable=not progress or len(times) < 2):
+    labelled = needs_labels(outputs)
+    instances = Instances.of(reader.actors) if labelled else None
+    if labelled:
+        written += list(write_tables(out_dir, instances))
+    lboxes = local_boxes(reader.actors) if "boxes" in outputs and reader.actors else None
+    tcps = stage.GetTimeCodesPerSecond()
+    for k, t in enumerate(tqdm(times, desc="render", unit="frame",
+                               disable=not progress or len(times) < 2)):
         if reader.surfels(t) is None:
             raise InputError(f"{scene_path}: no surfels to render (no visible ParticleField prim "
                              "with particles; run mesh -> surfel initialisation or import a PLY)")
         cam = from_usd(prim, usd_time(t), width, height)
-        frame = render_scene(reader, cam, t, sh_degree)
+        frame = render_scene(reader, cam, t, sh_degree, instances=instances)
         path = Path(out_dir) / frame_name(camera_path, t if t is not None else 0, fmt, len(times) > 1)
         written.append(write_frame(path, frame, fmt, exposure, tonemap_method))
+        if frame.labels is not None:
+            written += list(write_ground_truth(path, frame.labels, outputs).values())
+        if lboxes is not None:
+            code = stage.GetStartTimeCode() if t is None else float(t)
+            boxes = actor_boxes(reader.actors, instances, lboxes, code, tcps, None)
+            name = camera_path.rstrip("/").rsplit("/", 1)[-1]
+            camera_boxes(boxes, cam, name, frame.labels, reader.actors_at(t), instances)
+            written.append(write_boxes(Path(out_dir) / "boxes" / f"{k:04d}.json", k,
+                                       code / tcps, boxes))
         if deferrer is not None:
             written.append(write_frame(deferred_name(path), deferrer.defer_frame(frame, cam), fmt,
                                        exposure, tonemap_method))

@@ -30,6 +30,7 @@ from lsd3d_usd.views.ego import (
     resample,
     track_from_route,
 )
+from lsd3d_usd.views.lidar_sweep import usd_lidar_prim
 from lsd3d_usd.views.rigs import OVERVIEW, RIGS, rig_camera
 
 EGO_PATH = "/World/Cameras/Ego"
@@ -45,7 +46,7 @@ def ego_car_asset(scene_root_file: Path, out_dir: Path) -> Path:
     return write_vehicle_asset("car", Path(out_dir) / ASSETS_DIR / EGO_ASSET)
 
 
-def rig_layer(rig, track: EgoTrack, tcps: float, ego_asset: str | None = None):
+def rig_layer(rig, track: EgoTrack, tcps: float, ego_asset: str | None = None, lidar=None):
     """(anonymous Sdf layer, camera prim paths): /World/Cameras/Ego with its cameras following
     ``track``, and /World/Actors/Ego/Ego_000 referencing ``ego_asset`` (a path relative to
     where the layer will be saved) if given."""
@@ -59,6 +60,8 @@ def rig_layer(rig, track: EgoTrack, tcps: float, ego_asset: str | None = None):
         path = f"{EGO_PATH}/{cam.name}"
         to_usd(stage, path, rig_camera(cam, np.eye(4), cam.size[0]))  # local = ego-relative
         paths.append(path)
+    if lidar is not None:
+        usd_lidar_prim(stage, f"{EGO_PATH}/LIDAR_TOP", lidar)
     tr = ego.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble)
     ori = ego.AddOrientOp(UsdGeom.XformOp.PrecisionDouble)
     quats = Rotation.from_matrix(track.rotations).as_quat()  # xyzw
@@ -95,10 +98,11 @@ def default_route(layout, seconds: float, speed: float | None = None) -> tuple[l
 
 def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None, trajectory=None,
                     fps: float = 10.0, seconds: float = 8.0, speed: float | None = None,
-                    seed: int = 0, ego_body: bool = True, load_all: bool = True):
+                    seed: int = 0, ego_body: bool = True, load_all: bool = True, lidar=None):
     """Write OUT/rig.usda (sublayering the scene) and return (composed stage, camera paths,
     track, timeCodesPerSecond, notes, route lane ids or None). Without ``route`` and
-    ``trajectory`` the ego drives :func:`default_route` (said in a note, to be reused)."""
+    ``trajectory`` the ego drives :func:`default_route` (said in a note, to be reused).
+    ``lidar`` (render.lidar.LidarModel): the LiDAR as a prim under the ego, LIDAR_TOP."""
 
     if rig_name not in RIGS:
         raise InputError(f"--rig {rig_name!r}: known rigs: {', '.join(RIGS)}")
@@ -136,7 +140,7 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None
     out = Path(out_dir).absolute()
     out.mkdir(parents=True, exist_ok=True)
     ego_asset = relative_asset_path(ego_car_asset(root_file, out), out) if ego_body else None
-    layer, paths = rig_layer(RIGS[rig_name], track, tcps, ego_asset)
+    layer, paths = rig_layer(RIGS[rig_name], track, tcps, ego_asset, lidar)
     layer.subLayerPaths = [relative_asset_path(root_file, out)]
     layer.timeCodesPerSecond = tcps
     layer.framesPerSecond = tcps

@@ -36,7 +36,19 @@ WAYMO5 = (
     RigCamera("SideLeft", 90.0, 50.4, (1.25, 0.85, 2.02), (1920, 886)),
     RigCamera("SideRight", -90.0, 50.4, (1.25, -0.85, 2.02), (1920, 886)),
 )
-RIGS = {"waymo5": WAYMO5}
+# nuScenes' six cameras (1600 x 900) as its calibration places them on the ego (x forward,
+# y left, z up; fields of view from the focal lengths: 2 atan(800 / f))
+NUSCENES6 = (
+    RigCamera("CAM_FRONT", 0.0, 64.6, (1.70, 0.02, 1.51), (1600, 900)),
+    RigCamera("CAM_FRONT_LEFT", 55.0, 64.3, (1.52, 0.49, 1.51), (1600, 900)),
+    RigCamera("CAM_FRONT_RIGHT", -55.0, 64.4, (1.50, -0.49, 1.52), (1600, 900)),
+    RigCamera("CAM_BACK", 180.0, 89.4, (0.03, 0.00, 1.57), (1600, 900)),
+    RigCamera("CAM_BACK_LEFT", 110.0, 64.2, (1.03, 0.48, 1.56), (1600, 900)),
+    RigCamera("CAM_BACK_RIGHT", -110.0, 64.5, (1.04, -0.48, 1.57), (1600, 900)),
+)
+RIGS = {"waymo5": WAYMO5, "nuscenes6": NUSCENES6}
+# the LiDAR a rig carries unless --lidar says otherwise (views.sensors presets)
+RIG_LIDAR = {"waymo5": None, "nuscenes6": "hdl32"}
 OVERVIEW = RigCamera("Overview", 0.0, 60.0, (-14.0, 0.0, 8.0), (1920, 1080), pitch_deg=18.0)
 
 

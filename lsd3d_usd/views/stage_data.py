@@ -194,15 +194,19 @@ def camera_prim(stage, camera_path: str):
 # ------------------------------------------------------------------------------ actors
 @dataclass
 class ActorFrame:
-    """Actors placed and lit at one time: one merged mesh and the surfel actors."""
+    """Actors placed and lit at one time: one merged mesh and the surfel actors, each face and
+    surfel with the index of its actor in the reader's ActorSet (ground truth labels)."""
     vertices: np.ndarray            # (V,3) world
     faces: np.ndarray               # (F,3)
     colors: np.ndarray              # (F,3) lit linear colour per face
     surfels: object | None          # SurfelField (world, lit) or None
+    face_actor: np.ndarray = None   # (F,) int
+    surfel_actor: np.ndarray = None  # (n,) int, with surfels
 
     @staticmethod
     def empty() -> "ActorFrame":
-        return ActorFrame(np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3), np.float32), None)
+        return ActorFrame(np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3), np.float32),
+                          None, np.zeros(0, np.int64), np.zeros(0, np.int64))
 
 
 class ChunkStreamer:
@@ -337,8 +341,8 @@ class SceneReader:
         if self.actors is None or not len(self.actors):
             return ActorFrame.empty()
         t = usd_time(time)
-        shown = [(a, M) for a, M, v in zip(self.actors.actors, self.actors.transforms(t),
-                                           self.actors.visible(t)) if v]
+        shown = [(q, a, M) for q, (a, M, v) in enumerate(zip(
+            self.actors.actors, self.actors.transforms(t), self.actors.visible(t))) if v]
         if not shown:
             return ActorFrame.empty()
         version = self.stream.version if self.stream is not None else 0
@@ -348,9 +352,9 @@ class SceneReader:
             self._occluder = proxy_occluder(self.stage)
             self._occluder_version = version
         light = self._lighting
-        vs, fs, cs, surf = [], [], [], []
+        vs, fs, cs, surf, fa, sa = [], [], [], [], [], []
         n = 0
-        for a, M in shown:
+        for q, a, M in shown:
             V = self._occluder.visibility(actor_sample_points(M, a.dims), light.sun_dir)
             for m in a.meshes:
                 v = m.vertices @ M[:3, :3].T + M[:3, 3]
@@ -360,6 +364,7 @@ class SceneReader:
                 vs.append(v)
                 fs.append(m.faces + n)
                 cs.append(m.colors * light.factor(nrm, V))
+                fa.append(np.full(len(m.faces), q, np.int64))
                 n += len(v)
             if a.surfels is not None:
                 f = transform_surfels(a.surfels, M)
@@ -369,8 +374,11 @@ class SceneReader:
                 sh[:, 0, :] = (rgb - 0.5) / SH_C0
                 surf.append(SurfelField(f.positions, f.orientations, f.scales, f.opacities, sh,
                                         f.semantic_ids, f.semantic_classes))
+                sa.append(np.full(f.n, q, np.int64))
         empty = ActorFrame.empty()
         return ActorFrame(np.concatenate(vs) if vs else empty.vertices,
                           np.concatenate(fs) if fs else empty.faces,
                           (np.concatenate(cs) if cs else empty.colors).astype(np.float32),
-                          SurfelField.concat(surf, drop_mismatched_semantics=True) if surf else None)
+                          SurfelField.concat(surf, drop_mismatched_semantics=True) if surf else None,
+                          np.concatenate(fa) if fa else empty.face_actor,
+                          np.concatenate(sa) if sa else empty.surfel_actor)
