@@ -136,10 +136,38 @@ def _scale_run(c: ScaleBench) -> int:
 SCALE = Benchmark("chunk-wise generate at growing extent: time, memory, density and seams per "
                   "configuration", ScaleBench, _scale_run)
 
+# ------------------------------------------------------------------ lidar ---
+@dataclass
+class LidarBench:
+    json: str | None = option(None, help="write results as JSON (keys rays, s_per_sweep, camera_s, "
+                                         "sweep_over_camera, memory_mb_beyond_scene, "
+                                         "range_err_<class>_median_m / _p95_m, "
+                                         "vs_reference_max_m, vs_camera_within_1pct)",
+                              flag="--json", metavar="OUT.json")
+    scene: str | None = option(None, help="scene to sweep (default: the README sample generated "
+                                          "with generate's defaults, a few minutes)",
+                               flag="--scene", metavar="SCENE")
+    quick: bool = option(False, help="without GGDS and with 100 k surfels (under a minute)",
+                         flag="--quick")
+    sweeps: int | None = option(None, help="sweeps along the default route (default 5, --quick 2)",
+                                flag="--sweeps", lo=1, hi=1000)
+
+
+def _lidar_run(c: LidarBench) -> int:
+    from lsd3d_usd.benchmarks.lidar import main   # heavy: numba, a generate
+    main(json_path=c.json, scene=c.scene, quick=c.quick, sweeps=c.sweeps)
+    return 0
+
+
+LIDAR = Benchmark("LiDAR sweeps: seconds per waymo_top sweep against a camera render, range error "
+                  "against the proxy mesh, the float64 reference and the camera depth",
+                  LidarBench, _lidar_run)
+
 BENCHMARKS = Registry("lsd3d_usd.benchmarks", "benchmark", {
     "render": "lsd3d_usd.bench:RENDER",
     "ggds": "lsd3d_usd.bench:GGDS",
     "scale": "lsd3d_usd.bench:SCALE",
+    "lidar": "lsd3d_usd.bench:LIDAR",
 })
 
 

@@ -19,7 +19,7 @@ no pixel). No return where the transmittance stays at or above 0.5 within
 [min_range, max_range]. Mesh actors are opaque: a ray's nearest triangle hit wins when it is
 nearer than the surfels' return.
 
-The kernel bins surfels into tiles of rays (8 columns × 8 rings) by conservative angular
+The kernel bins surfels into tiles of rays (16 columns × 4 rings) by conservative angular
 bounds from each tile's origin, sorts each tile's list by the nearest distance a surfel can be
 met at, and stops a ray once that bound passes its return: the result is the same as
 compositing every surfel (``cast_reference``, float64, every surfel per ray, for small
@@ -38,8 +38,8 @@ from lsd3d_usd.errors import InputError
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 MAX_HITS = 128          # per ray, composited before the return (more: the nearest are kept)
-TILE_COLS = 8
-TILE_RINGS = 8
+TILE_COLS = 16
+TILE_RINGS = 4
 MAX_COLUMNS = 100_000
 MAX_RINGS = 1024
 MAX_RAYS = 20_000_000
