@@ -19,7 +19,7 @@ no pixel). No return where the transmittance stays at or above 0.5 within
 [min_range, max_range]. Mesh actors are opaque: a ray's nearest triangle hit wins when it is
 nearer than the surfels' return.
 
-The kernel bins surfels into tiles of rays (16 columns × 4 rings) by conservative angular
+The kernel bins surfels into tiles of rays (8 columns × 4 rings) by conservative angular
 bounds from each tile's origin, sorts each tile's list by the nearest distance a surfel can be
 met at, and stops a ray once that bound passes its return: the result is the same as
 compositing every surfel (``cast_reference``, float64, every surfel per ray, for small
@@ -28,6 +28,7 @@ scenes), at a fraction of the work. float64 throughout.
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -37,9 +38,12 @@ from lsd3d_usd.errors import InputError
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
+MIN_SCALE = 1e-7         # m: smaller disks are points, never met by a ray
 MAX_HITS = 128          # per ray, composited before the return (more: the nearest are kept)
-TILE_COLS = 16
+TILE_COLS = 8
 TILE_RINGS = 4
+TRACE_TILES = True
+SECTOR_GROUPS = 8        # column groups binned from one origin
 MAX_COLUMNS = 100_000
 MAX_RINGS = 1024
 MAX_RAYS = 20_000_000
@@ -149,48 +153,59 @@ def pose_matrix(xyz, roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.nd
 
 
 # ----------------------------------------------------------------------------- surfel frames
-def surfel_frames(means, quats, scales, opacities):
-    """float64 arrays the kernels take: centres (N,3), t_u, t_v, n (N,3 each), scales (N,2),
-    opacities (N,) and the radius (N,) beyond which a disk's alpha is below ALPHA_MIN (0 for
-    a surfel that never reaches it)."""
-    c = np.ascontiguousarray(means, np.float64)
-    q = np.asarray(quats, np.float64)
+@dataclass
+class LidarSurfels:
+    """The surfels as the kernels take them, float64: centres c (N,3), tangent axes tu, tv and
+    normals n (N,3 each), scales s (N,2), opacities a (N,), the radius rad (N,) beyond which a
+    disk's alpha is below ALPHA_MIN (0 for a surfel never met: one that never reaches it, or
+    a degenerate one: a scale below MIN_SCALE, a value not finite), and ``packed``
+    (N,15: centre, t_u, t_v, n, 1/s_u, 1/s_v, opacity — one surfel's parameters in one row
+    the tracer reads together). Made once per loaded scene and reused by every sweep."""
+    c: np.ndarray
+    tu: np.ndarray
+    tv: np.ndarray
+    n: np.ndarray
+    s: np.ndarray
+    a: np.ndarray
+    rad: np.ndarray
+    packed: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.c)
+
+    def subset(self, idx) -> "LidarSurfels":
+        return LidarSurfels(*(np.ascontiguousarray(getattr(self, f)[idx]) for f in
+                              ("c", "tu", "tv", "n", "s", "a", "rad", "packed")))
+
+
+def surfel_frames(means, quats, scales, opacities) -> LidarSurfels:
+    """The LidarSurfels of surfels given as ParticleField arrays (quaternions x, y, z, w)."""
+    c = np.ascontiguousarray(means, np.float64).reshape(-1, 3)
+    q = np.asarray(quats, np.float64).reshape(-1, 4)
     q = q / np.maximum(np.linalg.norm(q, axis=1, keepdims=True), 1e-30)
     x, y, z, w = q.T
     tu = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], 1)
     tv = np.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], 1)
     n = np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], 1)
-    s = np.maximum(np.ascontiguousarray(scales, np.float64)[:, :2], 1e-8)
+    raw_s = np.asarray(scales, np.float64).reshape(len(c), -1)[:, :2] if len(c) else np.zeros((0, 2))
+    s = np.ascontiguousarray(np.maximum(raw_s, 1e-8))
     a = np.ascontiguousarray(opacities, np.float64).reshape(-1)
     with np.errstate(divide="ignore", invalid="ignore"):
         q2 = 2.0 * np.log(np.minimum(a, ALPHA_MAX) / ALPHA_MIN)
     rad = np.where(q2 > 0, np.sqrt(np.maximum(q2, 0.0)) * s.max(axis=1), 0.0)
-    return c, tu, tv, n, s, a, rad
-
-
-@njit(cache=True, inline="always")
-def _hit(ox, oy, oz, dx, dy, dz, c, tu, tv, nn, s, a, k):
-    """(t, alpha) of ray o + t d against surfel k; t = -1 where it does not count."""
-    den = dx * nn[k, 0] + dy * nn[k, 1] + dz * nn[k, 2]
-    if abs(den) < 1e-12:
-        return -1.0, 0.0
-    wx, wy, wz = c[k, 0] - ox, c[k, 1] - oy, c[k, 2] - oz
-    t = (wx * nn[k, 0] + wy * nn[k, 1] + wz * nn[k, 2]) / den
-    px, py, pz = ox + t * dx - c[k, 0], oy + t * dy - c[k, 1], oz + t * dz - c[k, 2]
-    u = (px * tu[k, 0] + py * tu[k, 1] + pz * tu[k, 2]) / s[k, 0]
-    v = (px * tv[k, 0] + py * tv[k, 1] + pz * tv[k, 2]) / s[k, 1]
-    al = a[k] * math.exp(-0.5 * (u * u + v * v))
-    if al > ALPHA_MAX:
-        al = ALPHA_MAX
-    if al < ALPHA_MIN:
-        return -1.0, 0.0
-    return t, al
+    # degenerate surfels are never met: a scale of 0 (a point), anything not finite
+    ok = (np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(q), axis=1)
+          & np.all(np.isfinite(raw_s), axis=1) & (np.min(raw_s, axis=1) > MIN_SCALE)
+          & np.isfinite(a))
+    rad = np.where(ok, rad, 0.0)
+    packed = np.concatenate([c, tu, tv, n, 1.0 / s, a[:, None]], axis=1)
+    return LidarSurfels(c, np.ascontiguousarray(tu), np.ascontiguousarray(tv),
+                        np.ascontiguousarray(n), s, a, rad, np.ascontiguousarray(packed))
 
 
 @njit(cache=True, inline="always")
 def _hit_packed(ox, oy, oz, dx, dy, dz, P, p):
-    """_hit with the surfel's parameters packed in row p of P (centre, t_u, t_v, n,
-    1/s_u, 1/s_v, opacity): the tile's surfels are read in order, not scattered."""
+    """_hit with the surfel's parameters in row p of P (LidarSurfels.packed)."""
     den = dx * P[p, 9] + dy * P[p, 10] + dz * P[p, 11]
     if abs(den) < 1e-12:
         return -1.0, 0.0
@@ -210,41 +225,13 @@ def _hit_packed(ox, oy, oz, dx, dy, dz, P, p):
     return t, al
 
 
-@njit(cache=True, parallel=True)
-def _pack(idx, c, tu, tv, nn, s, a):
-    P = np.empty((idx.shape[0], 15))
-    for p in prange(idx.shape[0]):
-        k = idx[p]
-        for e in range(3):
-            P[p, e] = c[k, e]
-            P[p, 3 + e] = tu[k, e]
-            P[p, 6 + e] = tv[k, e]
-            P[p, 9 + e] = nn[k, e]
-        P[p, 12] = 1.0 / s[k, 0]
-        P[p, 13] = 1.0 / s[k, 1]
-        P[p, 14] = a[k]
-    return P
-
-
 # ----------------------------------------------------------------------------- binning
 @njit(cache=True)
-def _tile_bounds(dirs, origins, tc, tr):
-    """Per tile (ring group, column group): the reference origin (mean of its columns'),
-    the largest distance of a column origin from it, and the world azimuth / elevation ranges
-    of its rays (azimuths unwrapped about the tile's middle ray)."""
+def _tile_bounds(dirs, tc, tr):
+    """Per tile (ring group, column group): the world azimuth of its middle ray, the largest
+    azimuth difference of its rays from it, and the elevation range of its rays."""
     R, C = dirs.shape[0], dirs.shape[1]
     nr, nc = (R + tr - 1) // tr, (C + tc - 1) // tc
-    org = np.zeros((nc, 3))
-    dmax = np.zeros(nc)
-    for g in range(nc):
-        j0, j1 = g * tc, min(C, (g + 1) * tc)
-        for j in range(j0, j1):
-            for e in range(3):
-                org[g, e] += origins[j, e] / (j1 - j0)
-        for j in range(j0, j1):
-            d = math.sqrt((origins[j, 0] - org[g, 0]) ** 2 + (origins[j, 1] - org[g, 1]) ** 2
-                          + (origins[j, 2] - org[g, 2]) ** 2)
-            dmax[g] = max(dmax[g], d)
     az_mid = np.zeros((nr, nc))
     az_half = np.zeros((nr, nc))
     el_lo = np.zeros((nr, nc))
@@ -266,30 +253,38 @@ def _tile_bounds(dirs, origins, tc, tr):
                     daz = (daz + math.pi) % (2 * math.pi) - math.pi
                     half = max(half, abs(daz))
             el_lo[h, g], el_hi[h, g], az_half[h, g] = lo, hi, half
-    return org, dmax, az_mid, az_half, el_lo, el_hi
+    return az_mid, az_half, el_lo, el_hi
 
 
 @njit(cache=True, inline="always")
-def _overlaps(c, rad, k, o, dm, az_mid, az_half, el_lo, el_hi):
-    """Whether surfel k (bounding sphere) can be met by a ray of a tile with reference origin
-    o, origin spread dm and the given angular ranges; and its nearest possible distance."""
+def _wrap(a):
+    """a brought into [-pi, pi] (a within a few turns of it)."""
+    while a > math.pi:
+        a -= 2 * math.pi
+    while a < -math.pi:
+        a += 2 * math.pi
+    return a
+
+
+@njit(cache=True, inline="always")
+def _cone(c, rad, k, o, dm):
+    """The directions from o in which surfel k (its bounding sphere grown by dm, the spread
+    of the origins it stands for) can be seen: (nearest distance, lowest and highest
+    elevation, azimuth of the centre, azimuthal half-width, whether every azimuth is)."""
     wx, wy, wz = c[k, 0] - o[0], c[k, 1] - o[1], c[k, 2] - o[2]
     dist = math.sqrt(wx * wx + wy * wy + wz * wz)
     r = rad[k] + dm
-    near = dist - r
     if dist <= r:
-        return True, 0.0
+        return 0.0, -10.0, 10.0, 0.0, math.pi, True
     h = math.asin(min(1.0, r / dist))
     el = math.asin(max(-1.0, min(1.0, wz / dist)))
-    if el + h < el_lo or el - h > el_hi:
-        return False, near
-    ce = math.cos(abs(el) + h)
-    if ce <= 1e-9:
-        return True, near       # the sphere reaches over a pole: any azimuth
-    w = math.asin(min(1.0, math.sin(h) / ce)) if math.sin(h) < ce else math.pi
-    daz = math.atan2(wy, wx) - az_mid
-    daz = (daz + math.pi) % (2 * math.pi) - math.pi
-    return abs(daz) <= az_half + w, near
+    ce = math.cos(min(abs(el) + h, math.pi / 2))
+    sh = math.sin(h)
+    if ce <= 1e-9 or sh >= ce:
+        return dist - r, el - h, el + h, 0.0, math.pi, True     # over a pole: any azimuth
+    # a cap of angular radius h at elevation el spans asin(sin h / cos el) in azimuth;
+    # cos(|el| + h) <= cos el keeps the bound conservative
+    return dist - r, el - h, el + h, math.atan2(wy, wx), math.asin(sh / ce), False
 
 
 @njit(cache=True)
@@ -349,62 +344,63 @@ def _candidate_groups(az, w, mid, half_max, full_turn):
 
 
 @njit(cache=True, parallel=True)
-def _bin(c, rad, oref, dref, org, dmax, az_mid, az_half, el_lo, el_hi, mid, half_max,
-         full_turn, max_range, counts_only, offsets, tile_of, key):
-    """Per surfel, the tiles it can reach, from the sweep's reference origin with the surfel's
-    bounding sphere grown by the spread of the column origins (conservative for every
-    column), and the nearest distance it can be met at from any of them. counts_only: the
-    number per surfel in tile_of[k]; else (tile, nearest distance) pairs written from
-    offsets[k]."""
+def _bin(c, rad, oref, dref, sec_org, sec_d, sec_groups, az_mid, az_half, el_lo, el_hi,
+         rings_sorted, mid, half, half_max, full_turn, max_range, counts_only, offsets, tile_of,
+         key):
+    """Per surfel, the tiles it can reach and the nearest distance it can be met at from
+    their rays. Candidate column groups come from the sweep's reference origin with the
+    surfel's bounding sphere grown by the spread of all column origins; the tiles of each
+    sector (``sec_groups`` consecutive column groups) among them are then tested from the
+    sector's own origin, grown by the sector's spread (centimetres on a moving ego, where the
+    whole sweep spreads a metre). counts_only: the number per surfel in tile_of[k]; else
+    (tile, nearest distance) pairs written from offsets[k]."""
     nr, nc = az_mid.shape
     N = c.shape[0]
     for k in prange(N):
-        if rad[k] <= 0.0:
-            if counts_only:
-                tile_of[k] = 0
-            continue
-        wx, wy, wz = c[k, 0] - oref[0], c[k, 1] - oref[1], c[k, 2] - oref[2]
-        dist = math.sqrt(wx * wx + wy * wy + wz * wz)
-        r = rad[k] + dref
-        if dist - r > max_range:
-            if counts_only:
-                tile_of[k] = 0
-            continue
-        w = math.pi
-        if dist <= r:
-            g0, g1 = 0, nc - 1
-            e0, e1 = -10.0, 10.0
-        else:
-            h = math.asin(min(1.0, r / dist))
-            el = math.asin(max(-1.0, min(1.0, wz / dist)))
-            e0, e1 = el - h, el + h
-            ce = math.cos(min(abs(el) + h, math.pi / 2))
-            if ce <= 1e-9 or math.sin(h) >= ce:
-                g0, g1 = 0, nc - 1
-            else:
-                w = math.asin(math.sin(h) / ce)
-                g0, g1 = _candidate_groups(math.atan2(wy, wx), w, mid, half_max, full_turn)
         n = 0
         p = 0 if counts_only else offsets[k]
-        near = max(dist - r, 0.0)      # a lower bound of the distance from any column origin
-        wide = dist <= r or g1 - g0 + 1 >= nc
-        az = math.atan2(wy, wx)
-        for gg in range(g0, g1 + 1):
-            g = gg % nc
-            for hh in range(nr):
-                if el_hi[hh, g] < e0 or el_lo[hh, g] > e1:
-                    continue
-                if not wide:
-                    daz = az - az_mid[hh, g]
-                    daz = (daz + math.pi) % (2 * math.pi) - math.pi
-                    if abs(daz) > az_half[hh, g] + w:
-                        continue
-                if counts_only:
-                    n += 1
+        if rad[k] > 0.0:
+            near0, _, _, az0, w0, every = _cone(c, rad, k, oref, dref)
+            if near0 <= max_range:
+                if every:
+                    g0, g1 = 0, nc - 1
                 else:
-                    tile_of[p] = hh * nc + g
-                    key[p] = near
-                    p += 1
+                    g0, g1 = _candidate_groups(az0, w0, mid, half_max, full_turn)
+                sec = -1
+                near, e0, e1, az, w, anyaz = 0.0, 0.0, 0.0, 0.0, 0.0, True
+                for gg in range(g0, g1 + 1):
+                    g = gg % nc
+                    if g // sec_groups != sec:
+                        sec = g // sec_groups
+                        near, e0, e1, az, w, anyaz = _cone(c, rad, k, sec_org[sec], sec_d[sec])
+                    if near > max_range:
+                        continue
+                    if not anyaz and abs(_wrap(az - mid[g])) > half[g] + w:
+                        continue        # the whole column group is beside the surfel
+                    h0 = 0
+                    if rings_sorted:        # the first ring group reaching up to e0
+                        a_, b_ = 0, nr
+                        while a_ < b_:
+                            m_ = (a_ + b_) // 2
+                            if el_hi[m_, g] < e0:
+                                a_ = m_ + 1
+                            else:
+                                b_ = m_
+                        h0 = a_
+                    for hh in range(h0, nr):
+                        if el_lo[hh, g] > e1:
+                            if rings_sorted:
+                                break
+                            continue
+                        if el_hi[hh, g] < e0:
+                            continue
+                        if not anyaz and abs(_wrap(az - az_mid[hh, g])) > az_half[hh, g] + w:
+                            continue
+                        if not counts_only:
+                            tile_of[p] = hh * nc + g
+                            key[p] = near
+                            p += 1
+                        n += 1
         if counts_only:
             tile_of[k] = n
 
@@ -462,7 +458,7 @@ def _trace(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k
                     if key[p] > min(best, tmax):
                         break
                     k = idx[p]
-                    tt, al = _hit_packed(ox, oy, oz, dx, dy, dz, P, p)
+                    tt, al = _hit_packed(ox, oy, oz, dx, dy, dz, P, k)
                     if tt < tmin or tt > tmax or tt >= best:
                         continue
                     # insert by t (a full buffer drops its farthest hit)
@@ -486,6 +482,102 @@ def _trace(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k
                             n = m + 1       # hits behind the return no longer matter
                             break
                 out_t[i, j] = best
+
+
+@njit(cache=True, parallel=True)
+def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k):
+    """_trace with a tile's rays taken together: each candidate surfel is met by all the
+    tile's rays in one loop the compiler vectorises (most pairs miss: the disk's Gaussian is
+    below alpha_min there), and only the rays it reaches go through the ordered insert. The
+    tile stops once the candidates' nearest distance passes every ray's return: each ray sees
+    a superset of the surfels _trace gives it, the extra ones beyond its return."""
+    R, C = dirs.shape[0], dirs.shape[1]
+    nr, nc = (R + tr - 1) // tr, (C + tc - 1) // tc
+    Q_MAX = 2.0 * 6.2
+    for t_ in prange(nr * nc):
+        h, g = t_ // nc, t_ % nc
+        lo, hi = offsets[t_], offsets[t_ + 1]
+        i0, i1 = h * tr, min(R, (h + 1) * tr)
+        j0, j1 = g * tc, min(C, (g + 1) * tc)
+        m_ = (i1 - i0) * (j1 - j0)
+        ox, oy, oz = np.empty(m_), np.empty(m_), np.empty(m_)
+        dx, dy, dz = np.empty(m_), np.empty(m_), np.empty(m_)
+        qq, tt, dd = np.empty(m_), np.empty(m_), np.empty(m_)
+        best = np.full(m_, np.inf)
+        kk = np.full(m_, -1, np.int64)
+        nh = np.zeros(m_, np.int64)
+        ht = np.empty((m_, MAX_HITS))
+        ha = np.empty((m_, MAX_HITS))
+        hk = np.empty((m_, MAX_HITS), np.int64)
+        r = 0
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                ox[r], oy[r], oz[r] = origins[j, 0], origins[j, 1], origins[j, 2]
+                dx[r], dy[r], dz[r] = dirs[i, j, 0], dirs[i, j, 1], dirs[i, j, 2]
+                r += 1
+        limit = tmax
+        for p in range(lo, hi):
+            if key[p] > limit:
+                break
+            k = idx[p]
+            cx, cy, cz = P[k, 0], P[k, 1], P[k, 2]
+            ux, uy, uz = P[k, 3], P[k, 4], P[k, 5]
+            vx, vy, vz = P[k, 6], P[k, 7], P[k, 8]
+            nx, ny, nz = P[k, 9], P[k, 10], P[k, 11]
+            isu, isv = P[k, 12], P[k, 13]
+            for r in range(m_):
+                den = dx[r] * nx + dy[r] * ny + dz[r] * nz
+                wx, wy, wz = cx - ox[r], cy - oy[r], cz - oz[r]
+                t = (wx * nx + wy * ny + wz * nz) / den
+                px, py, pz = t * dx[r] - wx, t * dy[r] - wy, t * dz[r] - wz
+                u = (px * ux + py * uy + pz * uz) * isu
+                v = (px * vx + py * vy + pz * vz) * isv
+                qq[r] = u * u + v * v
+                tt[r] = t
+                dd[r] = den
+            changed = False
+            for r in range(m_):
+                if not qq[r] <= Q_MAX or abs(dd[r]) < 1e-12:
+                    continue
+                t = tt[r]
+                if t < tmin or t > tmax or t >= best[r]:
+                    continue
+                al = P[k, 14] * math.exp(-0.5 * qq[r])
+                if al > ALPHA_MAX:
+                    al = ALPHA_MAX
+                if al < ALPHA_MIN:
+                    continue
+                n = nh[r]
+                if n == MAX_HITS:
+                    if t >= ht[r, n - 1]:
+                        continue
+                    n -= 1
+                q = n
+                while q > 0 and ht[r, q - 1] > t:
+                    ht[r, q], ha[r, q], hk[r, q] = ht[r, q - 1], ha[r, q - 1], hk[r, q - 1]
+                    q -= 1
+                ht[r, q], ha[r, q], hk[r, q] = t, al, k
+                n += 1
+                T = 1.0
+                for m in range(n):
+                    T *= 1.0 - ha[r, m]
+                    if T < 0.5:
+                        best[r] = ht[r, m]
+                        kk[r] = hk[r, m]
+                        n = m + 1
+                        changed = True
+                        break
+                nh[r] = n
+            if changed:
+                limit = 0.0
+                for r in range(m_):
+                    limit = max(limit, min(best[r], tmax))
+        r = 0
+        for i in range(i0, i1):
+            for j in range(j0, j1):
+                out_t[i, j] = best[r]
+                out_k[i, j] = kk[r]
+                r += 1
 
 
 @njit(cache=True, parallel=True)
@@ -560,12 +652,25 @@ class RayHits:
     stats: dict = field(default_factory=dict)
 
 
-def cast_surfels(frames, origins, dirs, *, min_range: float, max_range: float,
+def _sweep_ordered(mid) -> bool:
+    """Whether the column groups' azimuths fall by a near-constant step (a sweep, as
+    ``LidarModel.directions`` orders them), which lets a surfel's candidate groups be found by
+    the step: within half a step of the line through the first and last."""
+    if len(mid) < 2:
+        return True
+    step = (mid[0] - mid[-1]) / (len(mid) - 1)
+    line = mid[0] - step * np.arange(len(mid))
+    return bool(step > 0 and np.max(np.abs(mid - line)) <= 0.5 * step)
+
+
+def cast_surfels(surfels, origins, dirs, *, min_range: float, max_range: float,
                  tile=(TILE_RINGS, TILE_COLS)):
     """(t (R, C) float64, surfel index (R, C) int64) of the returns of rays from
     ``origins`` (C, 3: one per column) along ``dirs`` (R, C, 3, unit) against the surfels
-    ``frames`` (surfel_frames); and the binned pairs (for statistics)."""
-    c, tu, tv, nn, s, a, rad = frames
+    ``surfels`` (LidarSurfels); and statistics (binned pairs, seconds binning and tracing). Any rays give exact
+    returns; rays in sweep order (columns of falling azimuth, as ``LidarModel.directions``)
+    are binned by angle, others against every column group (slower)."""
+    c, rad = surfels.c, surfels.rad
     dirs = np.ascontiguousarray(dirs, np.float64)
     origins = np.ascontiguousarray(origins, np.float64)
     R, C = dirs.shape[:2]
@@ -573,14 +678,28 @@ def cast_surfels(frames, origins, dirs, *, min_range: float, max_range: float,
     out_t = np.full((R, C), np.inf)
     out_k = np.full((R, C), -1, np.int64)
     if len(c) == 0:
-        return out_t, out_k, 0
-    org, dmax, az_mid, az_half, el_lo, el_hi = _tile_bounds(dirs, origins, tc, tr)
+        return out_t, out_k, {"pairs": 0, "bin_s": 0.0, "trace_s": 0.0}
+    az_mid, az_half, el_lo, el_hi = _tile_bounds(dirs, tc, tr)
     oref = origins.mean(axis=0)
     dref = float(np.max(np.linalg.norm(origins - oref, axis=1)))
     mid, half = _group_azimuths(dirs, tc)
     full = bool(abs((mid[0] - mid[-1]) + (mid[0] - mid[-1]) / max(len(mid) - 1, 1)) >= 2 * np.pi - 1e-6)
-    args = (c, rad, oref, dref, org, dmax, az_mid, az_half, el_lo, el_hi, mid,
-            float(half.max()), full, float(max_range))
+    half_max = float(half.max())
+    if not _sweep_ordered(mid):
+        half_max = 1e3      # columns not in sweep order: every column group is a candidate
+    # sectors of SECTOR_GROUPS column groups, each binned from its own origin
+    nc = az_mid.shape[1]
+    col_sec = np.minimum(np.arange(C) // (tc * SECTOR_GROUPS), (nc - 1) // SECTOR_GROUPS)
+    n_sec = int(col_sec[-1]) + 1
+    sec_org = np.stack([origins[col_sec == q].mean(axis=0) for q in range(n_sec)])
+    sec_d = np.array([np.max(np.linalg.norm(origins[col_sec == q] - sec_org[q], axis=1))
+                      for q in range(n_sec)])
+    # ring groups whose elevation ranges rise with the index in every column group (any
+    # model whose elevations are sorted, on a level enough ego) are searched, not scanned
+    rings_sorted = bool(np.all(np.diff(el_lo, axis=0) >= 0) and np.all(np.diff(el_hi, axis=0) >= 0))
+    args = (c, rad, oref, dref, sec_org, sec_d, SECTOR_GROUPS, az_mid, az_half, el_lo, el_hi,
+            rings_sorted, mid, half, half_max, full, float(max_range))
+    t0 = time.perf_counter()
     per = np.zeros(len(c), np.int64)
     _bin(*args, True, per, per, np.zeros(0))
     starts = np.zeros(len(c) + 1, np.int64)
@@ -591,11 +710,12 @@ def cast_surfels(frames, origins, dirs, *, min_range: float, max_range: float,
     surfel_of_pair = np.repeat(np.arange(len(c), dtype=np.int64), per)
     offsets, idx, key = _by_tile(tile_of, key, surfel_of_pair, az_mid.size)
     _sort_tiles(offsets, idx, key)
-    P = _pack(idx, c, tu, tv, nn, s, a)
-    _trace(dirs, origins, P, offsets, idx, key, tc, tr, float(min_range), float(max_range),
-           out_t, out_k)
+    t1 = time.perf_counter()
+    (_trace_tiles if TRACE_TILES else _trace)(dirs, origins, surfels.packed, offsets, idx, key, tc, tr, float(min_range),
+           float(max_range), out_t, out_k)
     out_k[~np.isfinite(out_t)] = -1
-    return out_t, out_k, int(offsets[-1])
+    return out_t, out_k, {"pairs": int(offsets[-1]), "bin_s": t1 - t0,
+                          "trace_s": time.perf_counter() - t1}
 
 
 @dataclass
@@ -642,22 +762,25 @@ def cast_meshes(actors: MeshActors, origins, dirs, column_times, *, min_range: f
     return out_t, out_a, out_f
 
 
-def cast(frames, actors: MeshActors | None, origins, dirs, column_times, *, min_range: float,
+def cast(surfels, actors: MeshActors | None, origins, dirs, column_times, *, min_range: float,
          max_range: float) -> RayHits:
     """The return of every ray among surfels and mesh actors (the nearer wins)."""
-    st, sk, pairs = cast_surfels(frames, origins, dirs, min_range=min_range, max_range=max_range)
+    st, sk, stats = cast_surfels(surfels, origins, dirs, min_range=min_range,
+                                 max_range=max_range)
+    t0 = time.perf_counter()
     mt, ma, mf = cast_meshes(actors, origins, dirs, column_times, min_range=min_range,
                              max_range=max_range)
+    stats["meshes_s"] = time.perf_counter() - t0
     mesh = mt < st
     t = np.where(mesh, mt, st)
     return RayHits(t, np.where(mesh, -1, sk), np.where(mesh, ma, -1), np.where(mesh, mf, -1),
-                   {"pairs": pairs})
+                   stats)
 
 
-def cast_reference(frames, origins, dirs, *, min_range: float, max_range: float):
+def cast_reference(surfels, origins, dirs, *, min_range: float, max_range: float):
     """The plain float64 reference of ``cast_surfels``: every surfel against every ray,
     composited in the order of t. Small scenes only."""
-    c, tu, tv, nn, s, a, _ = frames
+    c, tu, tv, nn, s, a = surfels.c, surfels.tu, surfels.tv, surfels.n, surfels.s, surfels.a
     R, C = dirs.shape[:2]
     out_t = np.full((R, C), np.inf)
     out_k = np.full((R, C), -1, np.int64)
@@ -673,6 +796,7 @@ def cast_reference(frames, origins, dirs, *, min_range: float, max_range: float)
             v = np.einsum("ij,ij->i", p, tv) / s[:, 1]
             al = np.minimum(a * np.exp(-0.5 * (u * u + v * v)), ALPHA_MAX)
             ok = (np.abs(den) >= 1e-12) & (al >= ALPHA_MIN) & (t >= min_range) & (t <= max_range)
+            ok &= surfels.rad > 0       # degenerate surfels are never met
             ok &= np.isfinite(t)
             ks = np.flatnonzero(ok)
             if not len(ks):

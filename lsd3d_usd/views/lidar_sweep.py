@@ -171,7 +171,7 @@ def sweep(reader, model: LidarModel, world_from_ego, t0: float, tcps: float, ins
     s_rows = k >= 0
     if s_rows.any():
         cls[s_rows] = surfel_class[k[s_rows]]
-        normal[s_rows] = frames[3][k[s_rows]]
+        normal[s_rows] = frames.n[k[s_rows]]
     a_rows = a >= 0
     if a_rows.any():
         q = keep[a[a_rows]]
