@@ -9,7 +9,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import generate_small
 
 OUTPUTS = ("rgb", "depth", "semantic", "instance", "normal", "boxes")
@@ -59,6 +58,7 @@ def _proxy(scene):
     """The proxy mesh with each face's class, read from its UsdSemantics labels."""
     import trimesh
     from pxr import Usd, UsdGeom, UsdSemantics
+
     from lsd3d_usd.semantics import CLASS_ID
     stage = Usd.Stage.Open(str(Path(scene) / "scene.usda"))
     V, F, C, n = [], [], [], 0
@@ -96,6 +96,7 @@ def _cast(mesh, cls, origins, dirs):
 
 def _rig_cameras(out):
     from pxr import Usd
+
     from lsd3d_usd.render.camera import from_usd
     from lsd3d_usd.views.rigs import NUSCENES6
     stage = Usd.Stage.Open(str(out / "rig.usda"))
@@ -145,6 +146,7 @@ def test_pixels_depth_and_class_match_the_proxy(sensors):
     pixel centre: the tolerance is 1.5 pixels of the surface's depth gradient there (large
     where the ray grazes it; the LiDAR, which has no such filter, is exact)."""
     from scipy.ndimage import maximum_filter, minimum_filter
+
     from lsd3d_usd.views.labels import SKY
     scene, out, res = sensors
     mesh, cls = _proxy(scene)
@@ -254,6 +256,7 @@ def test_lidar_sweeps(sensors):
     box at the point's own time; the PLY opens in trimesh; the LiDAR prim is in rig.usda."""
     import trimesh
     from pxr import Usd
+
     from lsd3d_usd.views.boxes import local_boxes
     from lsd3d_usd.views.stage_data import SceneReader
     scene, out, res = sensors
@@ -313,6 +316,7 @@ def test_lidar_sweeps(sensors):
 def test_lidar_sweep_is_seeded(sensors, tmp_path):
     """Noise is seeded: the same sweep twice is the same, another seed another."""
     from pxr import Usd
+
     from lsd3d_usd.views.ego import EgoTrack
     from lsd3d_usd.views.labels import Instances
     from lsd3d_usd.views.lidar_sweep import sweep
@@ -364,8 +368,9 @@ def test_bad_lidar_toml_is_one_line_and_writes_nothing(small_scene, tmp_path, cl
 
 
 def test_camera_render_outputs_and_bad_output(small_scene, tmp_path, cli_error):
-    from lsd3d_usd.cli import main
     from pxr import Usd, UsdGeom
+
+    from lsd3d_usd.cli import main
     stage = Usd.Stage.Open(str(small_scene / "scene.usda"))
     cam = next(p.GetPath().pathString for p in stage.Traverse() if p.IsA(UsdGeom.Camera))
     out = tmp_path / "cam"

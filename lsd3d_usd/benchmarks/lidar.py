@@ -111,14 +111,14 @@ def measure(scene_dir, *, sweeps: int = 5, lidar: str = "waymo_top", log=print) 
         e = np.concatenate(errs[c])
         out[f"range_err_{c}_median_m"] = float(np.median(e)) if len(e) else None
         out[f"range_err_{c}_p95_m"] = float(np.percentile(e, 95)) if len(e) else None
-        out[f"range_err_{c}_points"] = int(len(e))
+        out[f"range_err_{c}_points"] = len(e)
         out[f"range_bias_{c}_median_m"] = float(np.median(np.concatenate(signed[c]))) if len(e) else None
         # where the proxy face the ray meets has the return's class: the same surface (the
         # rest are disk edges overhanging a class boundary, e.g. a kerb's lip)
         e = np.concatenate(same[c])
         out[f"range_err_{c}_same_class_median_m"] = float(np.median(e)) if len(e) else None
         out[f"range_err_{c}_same_class_p95_m"] = float(np.percentile(e, 95)) if len(e) else None
-        out[f"range_err_{c}_same_class_points"] = int(len(e))
+        out[f"range_err_{c}_same_class_points"] = len(e)
     out.update(_vs_reference(surfels, results[0], model))
     out.update(_vs_camera(reader, results[0], cam, field_))
     log(f"lidar {lidar}: {out['rays']} rays, {out['s_per_sweep']:.3f} s/sweep, camera 960x540 "
@@ -131,7 +131,7 @@ def measure(scene_dir, *, sweeps: int = 5, lidar: str = "waymo_top", log=print) 
 def _proxy_along(proxy, origins, d, max_range):
     """(range to the proxy mesh along each ray (inf: none), its face class) with trimesh's
     Embree intersector."""
-    import trimesh   # local import: the benchmark's independent reference only
+    import trimesh  # local import: the benchmark's independent reference only
     V, F, C = proxy
     mesh = trimesh.Trimesh(V, F, process=False)
     loc, ray, tri = mesh.ray.intersects_location(origins, d, multiple_hits=False)
@@ -158,7 +158,7 @@ def _vs_reference(surfels, sw, model, radius: float = 12.0, max_rays: int = 3000
     t, _, _ = cast_surfels(sub, origins, dirs, min_range=model.min_range, max_range=radius)
     tr, _ = cast_reference(sub, origins, dirs, min_range=model.min_range, max_range=radius)
     both = np.isfinite(t) & np.isfinite(tr)
-    return {"vs_reference_surfels": int(len(near)), "vs_reference_rays": int(dirs.shape[1]),
+    return {"vs_reference_surfels": len(near), "vs_reference_rays": int(dirs.shape[1]),
             "vs_reference_max_m": float(np.max(np.abs(t[both] - tr[both]))) if both.any() else None,
             "vs_reference_same_returns": bool(np.array_equal(np.isfinite(t), np.isfinite(tr)))}
 

@@ -64,7 +64,7 @@ class LidarModel:
     mount: tuple = (0.0, 0.0, 2.0, 0.0, 0.0, 0.0)   # x, y, z (m), roll, pitch, yaw (deg) on the ego
     extras: dict = field(default_factory=dict, compare=False)
 
-    def check(self, where: str = "lidar") -> "LidarModel":
+    def check(self, where: str = "lidar") -> LidarModel:
         """One InputError line naming the first bad key."""
         el = np.asarray(self.elevations_deg, np.float64)
         if el.ndim != 1 or not 1 <= len(el) <= MAX_RINGS:
@@ -173,7 +173,7 @@ class LidarSurfels:
     def __len__(self) -> int:
         return len(self.c)
 
-    def subset(self, idx) -> "LidarSurfels":
+    def subset(self, idx) -> LidarSurfels:
         return LidarSurfels(*(np.ascontiguousarray(getattr(self, f)[idx]) for f in
                               ("c", "tu", "tv", "n", "s", "a", "rad", "packed")))
 
@@ -218,8 +218,7 @@ def _hit_packed(ox, oy, oz, dx, dy, dz, P, p):
     if q > 2.0 * 6.2:       # exp(-6.2) < 1/255 · 0.99: below alpha_min for any opacity
         return -1.0, 0.0
     al = P[p, 14] * math.exp(-0.5 * q)
-    if al > ALPHA_MAX:
-        al = ALPHA_MAX
+    al = min(al, ALPHA_MAX)
     if al < ALPHA_MIN:
         return -1.0, 0.0
     return t, al
@@ -543,8 +542,7 @@ def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t,
                 if t < tmin or t > tmax or t >= best[r]:
                     continue
                 al = P[k, 14] * math.exp(-0.5 * qq[r])
-                if al > ALPHA_MAX:
-                    al = ALPHA_MAX
+                al = min(al, ALPHA_MAX)
                 if al < ALPHA_MIN:
                     continue
                 n = nh[r]

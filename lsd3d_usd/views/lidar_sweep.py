@@ -187,7 +187,7 @@ def sweep(reader, model: LidarModel, world_from_ego, t0: float, tcps: float, ins
                  intensity.astype(np.float32), ring.astype(np.uint16), col.astype(np.uint32),
                  (model.column_times()[col]).astype(np.float32), cls.astype(np.uint8),
                  inst.astype(np.uint16), M0,
-                 {"rays": int(ok.size), "returns": int(len(r)), **hits.stats})
+                 {"rays": int(ok.size), "returns": len(r), **hits.stats})
 
 
 def _actor_normals(mesh: MeshActors, hits: RayHits, ring, col, d) -> np.ndarray:
