@@ -384,3 +384,20 @@ def test_camera_render_outputs_and_bad_output(small_scene, tmp_path, cli_error):
     cli_error(["render", small_scene, "-o", bad, "--camera", cam, "--outputs", "lidar"],
               "'lidar'")
     assert not bad.exists()
+
+
+def test_rig_lidar_default_and_none(small_scene, tmp_path):
+    """nuscenes6 carries its LIDAR_TOP unless --lidar none; waymo5 carries none unless asked."""
+    from pxr import Usd
+
+    from lsd3d_usd.cli import main
+    common = ["--seconds", "0.1", "--resolution", "32", "--no-video", "--no-overview",
+              "--no-progress"]
+    for rig_name, flag, has in (("nuscenes6", [], True), ("nuscenes6", ["--lidar", "none"], False),
+                                ("waymo5", [], False), ("waymo5", ["--lidar", "hdl32"], True)):
+        out = tmp_path / f"{rig_name}{len(flag)}"
+        assert main(["render", str(small_scene), "-o", str(out), "--rig", rig_name, *common,
+                     *flag]) == 0
+        assert (out / "LIDAR_TOP").is_dir() == has, (rig_name, flag)
+        stage = Usd.Stage.Open(str(out / "rig.usda"))
+        assert any(p.GetName() == "LIDAR_TOP" for p in stage.Traverse()) == has

@@ -62,7 +62,7 @@ def _check_resolution(v: str, where: str) -> str:
 
 
 def _check_lidar(v: str, where: str) -> str:
-    if v != "none":
+    if v not in ("auto", "none"):
         # local import: the LiDAR's kernels (numba) are not loaded for --help
         from lsd3d_usd.views.sensors import lidar_model
         lidar_model(v, where)
@@ -115,10 +115,10 @@ class RigOptions:
                             negate="--no-overview")
     seed: int = option(0, help="seed of the rig's traffic interaction (IDM) and of the LiDAR's "
                                "noise")
-    lidar: str | None = option(None, help="a LiDAR on the rig: a preset (waymo_top, hdl32), a "
-                                          "LiDAR FILE.toml (docs/sensors.md) or none; one sweep "
-                                          "per frame under OUT/<name>/ (default: the rig's own: "
-                                          "nuscenes6 carries hdl32 as LIDAR_TOP, waymo5 none)",
+    lidar: str = option("auto", help="a LiDAR on the rig: a preset (waymo_top, hdl32), a "
+                                     "LiDAR FILE.toml (docs/sensors.md), none, or auto: the "
+                                     "rig's own (nuscenes6 carries hdl32, waymo5 none); one "
+                                     "sweep per frame under OUT/LIDAR_TOP/",
                                flag="--lidar", metavar="NAME|FILE.toml", check=_check_lidar)
 
 

@@ -52,7 +52,9 @@ class RigResult:
 
 def rig_lidar(rig: RigOptions):
     """The LiDAR model the rig carries (views.sensors), or None."""
-    spec = rig.lidar if rig.lidar is not None else RIG_LIDAR.get(rig.name or "waymo5")
+    spec = rig.lidar
+    if spec in (None, "auto"):
+        spec = RIG_LIDAR.get(rig.name or "waymo5")
     return None if spec in (None, "none") else lidar_model(spec)
 
 
