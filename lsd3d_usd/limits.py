@@ -136,9 +136,24 @@ IMAGE_PIXELS = Limit(
     "image_pixels", 8192 * 4096, " pixels", "image size",
     "--resolution / --size flags (cliutil.parse_size), env map rendering")
 
+# ------------------------------------------------------------------------ LiDAR
+LIDAR_BEAMS = Limit(
+    "lidar_beams", 1024, " beams", "beam count",
+    "--lidar FILE.toml (views.sensors) and LidarModel.check, before any ray is cast")
+LIDAR_COLUMNS = Limit(
+    "lidar_columns", 100_000, " columns", "column count",
+    "--lidar FILE.toml and LidarModel.check, before any ray is cast")
+LIDAR_RAYS = Limit(
+    "lidar_rays", 20_000_000, " rays", "rays per sweep (beams x columns)",
+    "--lidar FILE.toml and LidarModel.check: a sweep's arrays are allocated per ray")
+LIDAR_RANGE = Limit(
+    "lidar_range", 10_000.0, " m", "max_range",
+    "--lidar FILE.toml and LidarModel.check")
+
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
-       PLY_VERTICES, USDA_PARTICLES, IMAGE_PIXELS)
+       PLY_VERTICES, USDA_PARTICLES, IMAGE_PIXELS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
+       LIDAR_RANGE)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

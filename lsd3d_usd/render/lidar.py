@@ -35,6 +35,7 @@ import numpy as np
 from numba import njit, prange
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RANGE, LIDAR_RAYS
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -44,9 +45,9 @@ TILE_COLS = 8
 TILE_RINGS = 4
 TRACE_TILES = True
 SECTOR_GROUPS = 8        # column groups binned from one origin
-MAX_COLUMNS = 100_000
-MAX_RINGS = 1024
-MAX_RAYS = 20_000_000
+MAX_COLUMNS = int(LIDAR_COLUMNS.value)
+MAX_RINGS = int(LIDAR_BEAMS.value)
+MAX_RAYS = int(LIDAR_RAYS.value)
 
 
 @dataclass(frozen=True)
@@ -86,8 +87,9 @@ class LidarModel:
         if not (math.isfinite(self.max_range) and self.max_range > self.min_range):
             raise InputError(f"{where}: max_range: {self.max_range} must exceed min_range "
                              f"{self.min_range}")
-        if self.max_range > 10_000.0:
-            raise InputError(f"{where}: max_range: {self.max_range} m exceeds the limit of 10000 m")
+        if not LIDAR_RANGE.ok(self.max_range):
+            raise InputError(f"{where}: max_range: "
+                             f"{LIDAR_RANGE.describe(self.max_range, what='').strip()}")
         if not (math.isfinite(self.rotation_hz) and 0.01 <= self.rotation_hz <= 1000.0):
             raise InputError(f"{where}: rotation_hz: {self.rotation_hz} is outside 0.01 .. 1000")
         if not (math.isfinite(self.range_sigma) and 0.0 <= self.range_sigma <= 10.0):
