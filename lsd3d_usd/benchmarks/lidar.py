@@ -178,9 +178,22 @@ def _vs_camera(reader, sw, cam, field_) -> dict:
     z_cam = frame.labels.z[v, u]
     same = (frame.labels.class_id[v, u] == sw.class_id[rows]) & np.isfinite(z_cam)
     rel = np.abs(z_cam[same] - pc[rows[same], 2]) / pc[rows[same], 2]
+    # pixels whose 3x3 neighbourhood spans < 1 % in depth: there a pixel's one depth stands
+    # for the whole footprint the beam may land in (elsewhere, at grazing angles and edges,
+    # a pixel's depth and a ray through another point of it differ by the gradient)
+    z = frame.labels.z
+    zp = np.pad(z, 1, mode="edge")
+    win = np.stack([zp[1 + dy:1 + dy + z.shape[0], 1 + dx:1 + dx + z.shape[1]]
+                    for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    with np.errstate(invalid="ignore"):
+        spread = (win.max(0) - win.min(0)) / z
+    smooth = spread[v, u][same] < 0.01
     return {"vs_camera_points": int(same.sum()),
             "vs_camera_rel_median": float(np.median(rel)) if len(rel) else None,
-            "vs_camera_within_1pct": float(np.mean(rel <= 0.01)) if len(rel) else None}
+            "vs_camera_within_1pct": float(np.mean(rel <= 0.01)) if len(rel) else None,
+            "vs_camera_smooth_points": int(smooth.sum()),
+            "vs_camera_smooth_within_1pct": (float(np.mean(rel[smooth] <= 0.01))
+                                             if smooth.any() else None)}
 
 
 def main(json_path=None, *, scene=None, quick=False, sweeps=None, log=print) -> dict:
