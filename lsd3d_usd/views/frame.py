@@ -171,28 +171,31 @@ def composite(surfels, actors, camera: Camera, env=None, sh_degree=None,
 
 def _labels(front, a_mask, a_depth, a_face, s_a, dmed, s_code, s_normal, actors, instances,
             H, W) -> FrameLabels:
+    # whole-image operations rather than boolean gathers: a rig renders this per frame
     solid = (s_a >= 0.5) & (dmed > 0) & ~front if s_code is not None else np.zeros((H, W), bool)
     actor = front | (a_mask & ~solid)
-    z = np.full((H, W), np.inf, np.float32)
+    z = np.where(solid, dmed, np.float32(np.inf)).astype(np.float32)
     cls = np.full((H, W), L.SKY, np.int64)
     inst = np.zeros((H, W), np.int64)
     nrm = np.zeros((H, W, 3), np.float32)
     if solid.any():
-        code = s_code[solid]
-        z[solid] = dmed[solid]
-        cls[solid] = np.where(code >= 0, code % L.CODE, L.UNLABELLED)
-        inst[solid] = np.where(code >= 0, code // L.CODE, 0)
-        n = s_normal[solid]
-        nrm[solid] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        labelled = solid & (s_code >= 0)
+        cls[solid] = L.UNLABELLED
+        np.copyto(cls, s_code % L.CODE, where=labelled)
+        np.copyto(inst, s_code // L.CODE, where=labelled)
+        norm = np.sqrt(np.einsum("ijk,ijk->ij", s_normal, s_normal))
+        np.divide(s_normal, np.maximum(norm, 1e-12)[..., None], out=nrm, where=solid[..., None])
     if actor.any():
         f = a_face[actor]
+        used, back = np.unique(f, return_inverse=True)     # a face's normal once, not per pixel
+        tri = actors.vertices[actors.faces[used]]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
         q = actors.face_actor[f]
         z[actor] = a_depth[actor]
         cls[actor] = instances.class_ids()[q]
         inst[actor] = instances.ids[q]
-        tri = actors.vertices[actors.faces[f]]
-        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-        nrm[actor] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        nrm[actor] = n[back]
     return FrameLabels(z, cls.astype(np.uint8), inst.astype(np.uint16), nrm)
 
 
