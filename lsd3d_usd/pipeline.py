@@ -189,6 +189,7 @@ def prepare_scene(cfg: GenerateConfig, run: RunOptions, layout_hash: str) -> S.S
         raise InputError(f"-o {out}: exists and is not a folder")
     if (out / S.ROOT_FILE).is_file():
         sc = S.Scene.open(out)
+        sc.check_writable()
         root = S.Sdf.Layer.FindOrOpen(str(sc.root_layer_path))
         stored = S.read_provenance(root).get("layoutHash")
         if stored and stored != layout_hash and not run.force:

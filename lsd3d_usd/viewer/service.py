@@ -14,7 +14,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import tempfile
 import threading
 import time
@@ -24,6 +23,7 @@ from urllib.parse import quote
 
 import numpy as np
 
+from lsd3d_usd import safepaths
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import atomic_write_bytes
 from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
@@ -132,6 +132,14 @@ class ViewerService:
     def _cache_root(self) -> Path:
         folder = self.root / CACHE_DIR
         try:
+            # A planted link (viewer_cache -> elsewhere) would make the cache write and
+            # evict there: never follow one, cache in a temp folder instead.
+            safepaths.check_tree(folder, self.root, "viewer cache")
+        except InputError as e:
+            tmp = Path(tempfile.mkdtemp(prefix="lsd3d-viewer-"))
+            self._problem("cache", f"{e}; caching buffers in {tmp} for this run", "warning")
+            return tmp
+        try:
             folder.mkdir(exist_ok=True)
             probe = folder / f".probe-{os.getpid()}"
             probe.write_bytes(b"")
@@ -237,7 +245,7 @@ class ViewerService:
             for key, idx in pack.bin_by_chunk(f.positions, size).items():
                 groups.setdefault(key, []).append((f, idx))
         tmp = cfg.folder.with_name(cfg.folder.name + f".tmp{os.getpid()}")
-        shutil.rmtree(tmp, ignore_errors=True)
+        safepaths.rmtree(tmp, self.cache_root, "viewer cache folder")
         tmp.mkdir(parents=True)
         chunks = {}
         for key, parts in groups.items():
@@ -260,19 +268,23 @@ class ViewerService:
                  "chunkSize": size, "shDegree": deg, "semanticClasses": classes,
                  "chunks": [vars(c) for c in chunks.values()]}
         atomic_write_bytes(tmp / "index.json", json.dumps(index).encode())
-        shutil.rmtree(cfg.folder, ignore_errors=True)
-        os.replace(tmp, cfg.folder)
+        safepaths.rmtree(cfg.folder, self.cache_root, "viewer cache folder")
+        safepaths.replace(tmp, cfg.folder, self.cache_root, "viewer cache folder")
         n = sum(c.n for c in chunks.values())
         self.log(f"built {n} surfels in {len(chunks)} chunks for layers {', '.join(cfg.layers)} "
                  f"in {cfg.seconds:.2f} s")
 
     def _evict(self) -> None:
-        olds = sorted((p for p in self.cache_root.glob("surfels_*") if p.is_dir()),
+        olds = sorted((p for p in self.cache_root.glob("surfels_*")
+                       if p.is_dir() and not p.is_symlink()),
                       key=lambda p: p.stat().st_mtime, reverse=True)
         live = {c.folder for c in self.configs.values()}
         for p in olds[KEEP_CONFIGS:]:
             if p not in live and p.parent == self.cache_root:
-                shutil.rmtree(p, ignore_errors=True)
+                try:
+                    safepaths.rmtree(p, self.cache_root, "viewer cache folder")
+                except (InputError, OSError) as e:
+                    self._problem("cache", f"{p}: not removed: {e}", "warning")
 
     def chunk_bytes(self, cid: str, key: tuple[int, int]) -> bytes | None:
         cfg = self.configs.get(cid)

@@ -1,0 +1,102 @@
+"""Writes and deletes never go through a symbolic link or outside the folder they belong to
+(issue 40, cases 1-3 and the scene part of 7)."""
+import os
+import shutil
+
+import pytest
+
+from lsd3d_usd import safepaths
+from lsd3d_usd import scene as S
+from lsd3d_usd.errors import InputError
+
+
+def _tree(folder):
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*"))
+
+
+# ------------------------------------------------------------------------ helpers
+def test_safepaths_refuse_links_and_outside(tmp_path):
+    root, outside = tmp_path / "root", tmp_path / "outside"
+    (root / "d").mkdir(parents=True)
+    (outside / "keep").mkdir(parents=True)
+    (outside / "keep" / "x").write_text("precious")
+    os.symlink(outside, root / "link")
+    for fn, args in [(safepaths.rmtree, (root / "link",)), (safepaths.rmtree, (root / "link" / "keep",)),
+                     (safepaths.unlink, (root / "link" / "keep" / "x",)),
+                     (safepaths.rmtree, (outside / "keep",)), (safepaths.rmtree, (root / ".." / "outside",))]:
+        with pytest.raises(InputError) as e:
+            fn(*args, root)
+        assert "\n" not in str(e.value)
+    with pytest.raises(InputError, match="symbolic link"):
+        safepaths.check_tree(root, root / "..")
+    assert _tree(outside) == ["keep", "keep/x"]
+    (root / "d" / "f").write_text("")
+    safepaths.rmtree(root / "d", root)           # a plain folder inside is removed
+    assert not (root / "d").exists()
+
+
+# ------------------------------------------------------------------ 1. viewer cache
+def test_viewer_cache_symlink_is_not_followed(tmp_path):
+    from tests.test_viewer_server import make_scene
+    from lsd3d_usd.viewer.service import ViewerService
+    root = tmp_path / "scene"
+    make_scene(root)
+    outside = tmp_path / "OUTSIDE"
+    for k in range(9):
+        (outside / f"surfels_old{k}").mkdir(parents=True)
+        (outside / f"surfels_old{k}" / "data.bin").write_bytes(b"precious")
+    before = _tree(outside)
+    os.symlink(outside, root / "viewer_cache")
+    svc = ViewerService(root, validate=False)
+    for runs in ([], None):
+        cfg = svc.config(runs)
+        assert cfg.chunks and not cfg.folder.is_relative_to(outside)
+    assert _tree(outside) == before
+    assert any("symbolic link" in p["message"] for p in svc.problems)
+
+
+# --------------------------------------------------- 2. generate re-run through links
+@pytest.mark.parametrize("linked", ["layers/proxy_chunks", "layers/surfels_chunks", "ggds"])
+def test_rerun_refuses_symlinked_scene_folders(small_scene, tmp_path, linked):
+    from tests.conftest import generate_small
+    from lsd3d_usd.validation import validate
+    copy = tmp_path / "S"
+    shutil.copytree(small_scene, copy, symlinks=True)
+    outside = tmp_path / "outside"
+    shutil.move(copy / linked, outside)
+    (outside / "chunk_9_9.usdc").write_text("precious")
+    (outside / "chunk_precious.usdc").write_text("precious")
+    os.symlink(outside, copy / linked)
+    before, scene_before = _tree(outside), (copy / S.ROOT_FILE).read_bytes()
+    problems = [p for p in validate(copy) if p.check == "lsd3d:SymbolicLink"]
+    assert problems and linked in problems[0].message
+    with pytest.raises(InputError, match="symbolic link") as e:
+        generate_small(copy)
+    assert "\n" not in str(e.value)
+    assert _tree(outside) == before and (copy / S.ROOT_FILE).read_bytes() == scene_before
+
+
+def test_proxy_build_refuses_a_linked_chunk_folder(tmp_path):
+    from lsd3d_usd.layout.usdio import read_layout
+    from lsd3d_usd.proxy.usdio import build_proxy_layer
+    from tests.conftest import LAYOUT
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    (outside / "chunk_9_9.usdc").write_text("precious")
+    os.symlink(outside, tmp_path / "proxy_chunks")
+    with pytest.raises(InputError, match="symbolic link"):
+        build_proxy_layer(read_layout(LAYOUT), tmp_path / "proxy.usdc")
+    assert _tree(outside) == ["chunk_9_9.usdc"] and not (tmp_path / "proxy.usdc").exists()
+
+
+# ----------------------------------------------- 7. scene remove checks before changing
+def test_scene_remove_of_a_linked_run_changes_nothing(tmp_path, cli_error):
+    from tests.test_viewer_server import RUN, make_scene
+    root = tmp_path / "scene"
+    make_scene(root)
+    outside = tmp_path / "outside"
+    shutil.move(root / "ggds" / RUN, outside)
+    os.symlink(outside, root / "ggds" / RUN)
+    before = (root / S.ROOT_FILE).read_bytes()
+    cli_error(["scene", "remove", root, RUN, "--delete"], "symbolic link")
+    assert (root / S.ROOT_FILE).read_bytes() == before and (outside / "summary.json").is_file()
