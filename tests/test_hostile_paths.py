@@ -100,3 +100,52 @@ def test_scene_remove_of_a_linked_run_changes_nothing(tmp_path, cli_error):
     before = (root / S.ROOT_FILE).read_bytes()
     cli_error(["scene", "remove", root, RUN, "--delete"], "symbolic link")
     assert (root / S.ROOT_FILE).read_bytes() == before and (outside / "summary.json").is_file()
+
+
+# ---------------------------------------------------- 3. batch outputs outside the spec
+def _spec(folder, text):
+    folder.mkdir(parents=True, exist_ok=True)
+    p = folder / "spec.toml"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize("body,needle", [
+    ('[batch]\noutput = "../../outside_b"\n[[scene]]\nname = "a"', "batch.output"),
+    ('[[scene]]\nname = "a"\noutput = "/tmp"', "scene[0] ('a').output"),
+    ('[batch]\noutput = "../../"\n[[scene]]\nname = "a"\noutput = "../../../"', "batch.output"),
+    ('[[scene]]\nname = "a"\noutput = "../../.."', "holds the spec's folder"),
+    ('[batch]\noutput = "o"\n[[scene]]\nname = "a"\noutput = "../link/x"', "scene[0] ('a').output"),
+])
+def test_batch_outputs_outside_need_permission(tmp_path, cli_error, body, needle):
+    folder = tmp_path / "a" / "b" / "specs"
+    p = _spec(folder, body)
+    (folder / "link").symlink_to(tmp_path)
+    before = _tree(tmp_path)
+    line = cli_error(["batch", p, "--dry-run"], needle)
+    assert "outside" in line or "holds the spec" in line
+    assert _tree(tmp_path) == before
+
+
+def test_batch_allowed_outputs_and_dry_run_shows_real_paths(tmp_path, capsys):
+    from lsd3d_usd.batch.spec import load_spec
+    from lsd3d_usd.cli import main
+    from tests.conftest import LAYOUT
+    shared = tmp_path / "shared"
+    folder = tmp_path / "specs"
+    p = _spec(folder, f'[batch]\noutput = "../shared/b"\nallowed_outputs = ["../shared"]\n'
+                      f'[[scene]]\nname = "a"\nlayout = "{LAYOUT}"\nsteps = 0\n'
+                      f'[[scene]]\nname = "c"\nlayout = "{LAYOUT}"\nsteps = 0\noutput = "../x/../c2"\n')
+    spec = load_spec(p)
+    assert spec.output == shared / "b" and spec.scenes[1].output == shared / "c2"
+    # the allowed folder itself is no scene folder
+    _spec(folder, f'[batch]\nallowed_outputs = ["../shared"]\n[[scene]]\nname = "a"\noutput = "{shared}"')
+    with pytest.raises(InputError, match="outside the spec's folder"):
+        load_spec(p)
+    _spec(folder, f'[batch]\noutput = "../shared/b"\nallowed_outputs = ["../shared"]\n'
+                  f'[[scene]]\nname = "a"\nlayout = "{LAYOUT}"\nsteps = 0\n')
+    capsys.readouterr()
+    assert main(["batch", str(p), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert f"output: {shared / 'b'}" in out and f"scene a: {shared / 'b' / 'a'}" in out
+    assert not shared.exists()
