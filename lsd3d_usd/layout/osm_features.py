@@ -77,7 +77,7 @@ def clip_area(path, options: ImportOptions) -> tuple[tuple | None, str | None]:
             box = reader.header().box()
         finally:
             reader.close()
-    except RuntimeError:
+    except (RuntimeError, osmium.InvalidLocationError):
         return None, None           # the reader itself reports what is wrong with the file
     if not box.valid():
         return None, None

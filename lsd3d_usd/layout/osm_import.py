@@ -56,6 +56,7 @@ from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout import roadnet as R
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
 from lsd3d_usd.layout.lanelet2_import import FAR_ERROR_M, FAR_WARN_M, check_origin
+from lsd3d_usd.layout.osmxml import osmium_errors
 from lsd3d_usd.layout.osm_features import (clip_area, map_features, point_wanted, record_clip,
                                            sound_highways)
 
@@ -115,7 +116,7 @@ def _read(path: Path, options: ImportOptions):
     inside: set[int] = set()
     points = []
     ext = [np.inf, np.inf, -np.inf, -np.inf]
-    try:
+    with osmium_errors(path):
         for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
             loc = n.location
             if not loc.valid():
@@ -147,8 +148,6 @@ def _read(path: Path, options: ImportOptions):
         for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
             if n.id in needed and n.location.valid():
                 locs[n.id] = (n.location.lat, n.location.lon)
-    except RuntimeError as e:
-        raise InputError(f"{path}: osmium cannot read it: {e}") from None
     return points, ways, locs, ext
 
 
@@ -165,17 +164,20 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
         raise InputError(f"{path}: {p.stat().st_size} bytes; at most {MAX_FILE_BYTES} are read")
     clip_box, clip_from = clip_area(p, options)
     points, ways, locs, ext = _read(p, options)
+    if not ways and not np.isfinite(ext[0]) and options.bbox is None:
+        raise InputError(f"{path}: no nodes or ways could be read (an empty or truncated file)")
     if options.origin is not None:
         origin, origin_from = check_origin(options.origin, f"{path}: --origin"), "flag"
     elif options.bbox is not None:
         b = options.bbox
         origin, origin_from = ((b[1] + b[3]) / 2, (b[0] + b[2]) / 2), "bbox"
     else:
-        reader = osmium.io.Reader(str(p), osmium.osm.osm_entity_bits.NOTHING)
-        try:
-            box = reader.header().box()
-        finally:
-            reader.close()
+        with osmium_errors(p):
+            reader = osmium.io.Reader(str(p), osmium.osm.osm_entity_bits.NOTHING)
+            try:
+                box = reader.header().box()
+            finally:
+                reader.close()
         if box.valid():
             origin = ((box.bottom_left.lat + box.top_right.lat) / 2,
                       (box.bottom_left.lon + box.top_right.lon) / 2)
