@@ -187,6 +187,11 @@ def prepare_scene(cfg: GenerateConfig, run: RunOptions, layout_hash: str) -> S.S
     out = Path(run.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {out}: exists and is not a folder")
+    for parent in out.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"-o {out}: {parent} is a file, not a folder")
+            break
     if (out / S.ROOT_FILE).is_file():
         sc = S.Scene.open(out)
         sc.check_writable()

@@ -74,3 +74,48 @@ def test_import_refuses_an_area_beyond_the_layout_limit(tmp_path, cli_error):
     cli_error(["layout", "import", src, "--bbox=11,48,12,49", "-o", tmp_path / "o.usda"],
               "town.osm", "extent", "limit of 50000 m")
     assert sorted(os.listdir(tmp_path)) == ["town.osm"]
+
+
+# ------------------------------------------------------------ 15-18: no tracebacks
+DEEP = "a = " + "[" * 2000 + "]" * 2000 + "\n"
+
+
+def test_deeply_nested_toml(tmp_path, cli_error):
+    cfg = tmp_path / "deep.toml"
+    cfg.write_text(DEEP)
+    cli_error(["generate", "--config", cfg, "-o", tmp_path / "s"], "deep.toml", "nested too deeply")
+    spec = tmp_path / "spec.toml"
+    spec.write_text('[[scene]]\nname = "a"\n' + DEEP)
+    cli_error(["batch", spec, "--dry-run"], "spec.toml", "nested too deeply")
+    assert sorted(os.listdir(tmp_path)) == ["deep.toml", "spec.toml"]
+
+
+def test_generate_below_a_file(tmp_path, cli_error):
+    from tests.conftest import LAYOUT
+    (tmp_path / "FILE").write_text("x")
+    cli_error(["generate", "--layout", LAYOUT, "-o", tmp_path / "FILE" / "x", "--steps", "0"],
+              "FILE is a file, not a folder")
+    assert os.listdir(tmp_path) == ["FILE"]
+
+
+def test_os_errors_are_one_line(tmp_path, cli_error, monkeypatch):
+    # 16: a folder made immutable mid-run: the OSError of the write is one line naming the file
+    import lsd3d_usd.env.commands as envc
+
+    def denied(*a, **k):
+        raise PermissionError(13, "Permission denied", str(tmp_path / "ggds" / "loss.png"))
+    monkeypatch.setattr(envc, "_env", denied)
+    line = cli_error(["env", "-o", tmp_path / "e.exr", "--resolution", "64x32"])
+    assert line == f"lsd3d-usd: error: {tmp_path / 'ggds' / 'loss.png'}: Permission denied"
+
+
+def test_broken_pipe_is_quiet():
+    # 17: `lsd3d-usd ... | head -1`: the reader is gone before the command writes
+    import subprocess
+    import sys
+    proc = subprocess.Popen([sys.executable, "-m", "lsd3d_usd", "generate", "--list-options"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 141
+    assert "Traceback" not in err and "Broken" not in err, err
