@@ -126,10 +126,18 @@ PLY_VERTICES = Limit(
     "ply_vertices", 50_000_000, " vertices", "vertex count",
     "PLY readers (splats import-ply, proxy from-points), before reading the body; the "
     "body must also hold the bytes the header claims", flag="--max-vertices")
+PLY_HEADER_BYTES = Limit(
+    "ply_header_bytes", 1 << 20, " bytes", "header size",
+    "PLY readers (splats import-ply, proxy from-points), while the header is read")
 USDA_PARTICLES = Limit(
     "usda_particles", 10_000, " particles", "particle count in a .usda (text) layer",
     "surfel writers (splats init / import-ply / export-3dgs -o *.usda) refuse; validate "
     "reports BulkDataInUsda")
+
+# ---------------------------------------------------------------------- prompts
+PROMPT_CHARS = Limit(
+    "prompt_chars", 10_000, " characters", "prompt length",
+    "env / generate / batch --prompt, before it is parsed (the prompt is kept in provenance)")
 
 # ----------------------------------------------------------------------- images
 IMAGE_PIXELS = Limit(
@@ -138,7 +146,7 @@ IMAGE_PIXELS = Limit(
 
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
-       PLY_VERTICES, USDA_PARTICLES, IMAGE_PIXELS)
+       PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS, IMAGE_PIXELS)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

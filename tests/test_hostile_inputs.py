@@ -119,3 +119,47 @@ def test_broken_pipe_is_quiet():
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 141
     assert "Traceback" not in err and "Broken" not in err, err
+
+
+# ------------------------------------------------------------- 21-23: clear messages
+def test_huge_prompt_is_refused_and_unknown_words_are_cut(tmp_path, cli_error, capsys):
+    from lsd3d_usd.cli import main
+    line = cli_error(["env", "-o", tmp_path / "e.exr", "--resolution", "64x32",
+                      "--prompt", "x" * 50_000_000], "prompt length 50000000 characters",
+                     "limit of 10000 characters")
+    assert len(line) < 300 and os.listdir(tmp_path) == []
+    words = " ".join(f"qq{k}" for k in range(1500))
+    assert main(["env", "-o", str(tmp_path / "e.exr"), "--resolution", "64x32", "--prompt", words]) == 0
+    warn = [ln for ln in capsys.readouterr().err.splitlines() if "not understood" in ln]
+    assert len(warn) == 1 and len(warn[0]) < 400 and "(and 1490 more)" in warn[0]
+
+
+def _splat_ply(tmp_path, field_factory, n=40):
+    from lsd3d_usd.splats.ply import splat_vertex_array, write_ply_vertices
+    path = tmp_path / "s.ply"
+    write_ply_vertices(path, splat_vertex_array(field_factory(n, sh_degree=0, semantic=False)))
+    return path
+
+
+def test_ply_header_over_the_size_limit(tmp_path, field_factory, cli_error):
+    path = _splat_ply(tmp_path, field_factory)
+    data = path.read_bytes()
+    comments = b"".join(b"comment " + b"c" * 90 + b"\n" for _ in range(20_000))   # 1.9 MB
+    path.write_bytes(data.replace(b"ply\n", b"ply\n" + comments, 1))
+    cli_error(["splats", "import-ply", path, "-o", tmp_path / "o.usdc"], "s.ply",
+              "header size", "exceeds the limit of 1048576 bytes")
+    assert os.listdir(tmp_path) == ["s.ply"]
+
+
+def test_ply_binary_header_with_an_ascii_body(tmp_path, field_factory, cli_error):
+    import numpy as np
+    from lsd3d_usd.plyio import read_ply_vertices
+    path = _splat_ply(tmp_path, field_factory)
+    data = path.read_bytes()
+    head, _ = data.split(b"end_header\n", 1)
+    arr = read_ply_vertices(path)
+    rows = "\n".join(" ".join(f"{v:.6g}" for v in r) for r in np.array(arr.tolist()))
+    path.write_bytes(head + b"end_header\n" + (rows + "\n").encode() * 3)
+    cli_error(["splats", "import-ply", path, "-o", tmp_path / "o.usdc"], "s.ply",
+              "binary_little_endian", "body is ASCII text")
+    assert os.listdir(tmp_path) == ["s.ply"]
