@@ -163,3 +163,29 @@ def test_ply_binary_header_with_an_ascii_body(tmp_path, field_factory, cli_error
     cli_error(["splats", "import-ply", path, "-o", tmp_path / "o.usdc"], "s.ply",
               "binary_little_endian", "body is ASCII text")
     assert os.listdir(tmp_path) == ["s.ply"]
+
+
+# ------------------------------------------------ 24: bad surfels named at render/eval
+@pytest.mark.parametrize("attr,value,needle", [
+    ("positions", float("nan"), "a non-finite position at particle 14"),
+    ("orientations", 0.0, "a zero quaternion at particle 14"),
+    ("opacities", 5.0, "an opacity outside [0, 1]"),
+])
+def test_render_names_the_layer_and_prim_of_bad_surfels(tmp_path, cli_error, attr, value, needle):
+    from tests.test_viewer_server import make_scene
+    from lsd3d_usd import scene as S
+    root = tmp_path / "scene"
+    make_scene(root, chunks=((0, 0),), n=40, run=False,
+                   cameras={"Top": ((-10, 20, 30), (50, 50, 0))})
+    import numpy as np
+    from pxr import Usd
+    st = Usd.Stage.Open(str(root / "layers" / "surfels.usdc"))   # the writer refuses bad values
+    a = st.GetPrimAtPath(S.SURFELS_PATH).GetAttribute(attr)
+    arr = np.array(a.Get())
+    arr[14] = value
+    a.Set(type(a.Get()).FromNumpy(arr))
+    st.GetRootLayer().Save()
+    before = sorted(os.listdir(root))
+    line = cli_error(["render", root, "--camera", "/World/Cameras/Top", "--resolution", "32x24",
+                      "-o", tmp_path / "frames"], "surfels.usdc", f"{S.SURFELS_PATH}.{attr}", needle)
+    assert len(line) < 400 and not (tmp_path / "frames").exists() and sorted(os.listdir(root)) == before
