@@ -139,6 +139,17 @@ PROMPT_CHARS = Limit(
     "prompt_chars", 10_000, " characters", "prompt length",
     "env / generate / batch --prompt, before it is parsed (the prompt is kept in provenance)")
 
+# ----------------------------------------------------------------------- viewer
+VIEWER_PROBLEMS = Limit(
+    "viewer_problems", 200, " problems", "problems listed by the viewer",
+    "view: /api/problems lists the first ones and says that more were found")
+VIEWER_CONNECTIONS = Limit(
+    "viewer_connections", 32, " connections", "open connections to the viewer",
+    "view: a connection beyond it is answered 503 and closed")
+VIEWER_IDLE_SECONDS = Limit(
+    "viewer_idle_seconds", 30, " s", "idle time of a viewer connection",
+    "view: a connection that sends nothing for this long is closed")
+
 # ----------------------------------------------------------------------- images
 IMAGE_PIXELS = Limit(
     "image_pixels", 8192 * 4096, " pixels", "image size",
@@ -146,7 +157,8 @@ IMAGE_PIXELS = Limit(
 
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
-       PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS, IMAGE_PIXELS)
+       PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS, IMAGE_PIXELS,
+       VIEWER_PROBLEMS, VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

@@ -25,6 +25,7 @@ import numpy as np
 
 from lsd3d_usd import safepaths
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import VIEWER_PROBLEMS
 from lsd3d_usd.scene import atomic_write_bytes
 from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
 from lsd3d_usd.viewer import pack
@@ -32,6 +33,8 @@ from lsd3d_usd.viewer.data import GGDS, SceneSource
 
 CACHE_DIR = "viewer_cache"
 KEEP_CONFIGS = 6              # surfel caches kept per scene (the oldest are removed)
+MAX_PROBLEMS = int(VIEWER_PROBLEMS.value)   # problems listed (memory and page size bounded)
+MAX_RUNS_ASKED = 1000         # run names in one /api/config request
 SCENE_FILE_SUFFIXES = (".png", ".jpg", ".json", ".txt", ".md", ".usda", ".csv", ".html")
 
 
@@ -80,6 +83,7 @@ class ViewerService:
         self.log = log or (lambda msg: None)
         self.lock = threading.RLock()
         self.problems: list[dict] = []
+        self._problems_dropped = 0
         self.configs: dict[str, Config] = {}
         self._digests: dict = {}
         self._stages: dict = {}
@@ -97,9 +101,16 @@ class ViewerService:
 
     # ------------------------------------------------------------------------ helpers
     def _problem(self, where: str, message: str, severity: str = "error") -> None:
-        entry = {"severity": severity, "where": where, "message": message}
+        entry = {"severity": severity, "where": where[:200], "message": message[:1000]}
         with self.lock:
-            if entry in self.problems:
+            if entry in self.problems or self._problems_dropped:
+                self._problems_dropped += entry not in self.problems
+                return
+            if len(self.problems) >= MAX_PROBLEMS:   # bounded: the page shows the first ones
+                self._problems_dropped = 1
+                self.problems.append({"severity": "warning", "where": "viewer",
+                                      "message": f"more than {MAX_PROBLEMS} problems; "
+                                                 "the rest are not listed"})
                 return
             self.problems.append(entry)
         self.log(f"{severity}: {where}: {message}")
@@ -123,10 +134,8 @@ class ViewerService:
         except Exception as e:
             found = [{"severity": "error", "where": "validate",
                       "message": f"{type(e).__name__}: {' '.join(str(e).split())[:400]}"}]
-        with self.lock:
-            for p in found:
-                if p not in self.problems:
-                    self.problems.append(p)
+        for p in found:
+            self._problem(p["where"], p["message"], p["severity"])
         self.validation_done.set()
 
     def _cache_root(self) -> Path:
@@ -324,6 +333,11 @@ class ViewerService:
         return info
 
     def config_info(self, runs: list[str] | None) -> dict:
+        if runs is not None:   # a request naming unknown runs is a bad request, no scene problem
+            if len(runs) > MAX_RUNS_ASKED:
+                raise InputError(f"{len(runs)} runs asked for; at most {MAX_RUNS_ASKED}")
+            with self.lock:
+                self._layer_files(runs)
         try:
             cfg = self.config(runs)
         except InputError as e:
