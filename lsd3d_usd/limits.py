@@ -139,6 +139,14 @@ PROMPT_CHARS = Limit(
     "prompt_chars", 10_000, " characters", "prompt length",
     "env / generate / batch --prompt, before it is parsed (the prompt is kept in provenance)")
 
+# ------------------------------------------------------------------------ batch
+BATCH_SPEC_BYTES = Limit(
+    "batch_spec_bytes", 16 * 1024 * 1024, " bytes", "batch spec size",
+    "batch, before the spec is parsed")
+BATCH_SCENES = Limit(
+    "batch_scenes", 10_000, " scenes", "scene count",
+    "batch, right after parsing, before any scene is checked")
+
 # ----------------------------------------------------------------------- viewer
 VIEWER_PROBLEMS = Limit(
     "viewer_problems", 200, " problems", "problems listed by the viewer",
@@ -158,7 +166,7 @@ IMAGE_PIXELS = Limit(
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
        PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS, IMAGE_PIXELS,
-       VIEWER_PROBLEMS, VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS)
+       BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS, VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

@@ -149,3 +149,25 @@ def test_batch_allowed_outputs_and_dry_run_shows_real_paths(tmp_path, capsys):
     out = capsys.readouterr().out
     assert f"output: {shared / 'b'}" in out and f"scene a: {shared / 'b' / 'a'}" in out
     assert not shared.exists()
+
+
+# ------------------------------------------------------ 11. batch specs: bounded work
+def test_batch_scene_count_and_spec_size_limits(tmp_path, cli_error):
+    p = _spec(tmp_path, "".join(f'[[scene]]\nname = "s{i}"\n' for i in range(10_001)))
+    cli_error(["batch", p, "--dry-run"], "spec.toml", "scene count 10001 scenes exceeds the limit of 10000")
+    p.write_text("# " + "x" * (16 * 1024 * 1024) + "\n[[scene]]\nname = \"a\"\n")
+    cli_error(["batch", p, "--dry-run"], "spec.toml", "exceeds the limit of 16777216 bytes")
+    assert sorted(os.listdir(tmp_path)) == ["spec.toml"]
+
+
+def test_batch_planning_reads_a_shared_layout_once(tmp_path, monkeypatch):
+    from lsd3d_usd.batch import tasks
+    from lsd3d_usd.batch.spec import load_spec
+    calls = []
+    real = tasks.read_layout_for
+    monkeypatch.setattr(tasks, "read_layout_for", lambda cfg: calls.append(1) or real(cfg))
+    p = _spec(tmp_path, "".join(f'[[scene]]\nname = "s{i}"\nsteps = 0\nextent = [120, 120]\n'
+                                f'prompt = "p{i}"\n' for i in range(30)))
+    plans = tasks.plan_batch(load_spec(p))
+    assert len(plans) == 30 and len(calls) == 1
+    assert len({pl.tasks[-1].inputs_hash for pl in plans}) == 30   # still one task per scene

@@ -36,6 +36,7 @@ from lsd3d_usd import configtree as ct
 from lsd3d_usd.config import GenerateConfig
 from lsd3d_usd.configtree import read_toml, resolve_paths
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import BATCH_SCENES, BATCH_SPEC_BYTES
 
 SPLIT_CHOICES = ("auto", "always", "never")
 # Injected failures, for tests of retry and reporting only (documented as such).
@@ -225,6 +226,7 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
     scenes_raw = data.get("scene", [])
     if not isinstance(scenes_raw, list) or not scenes_raw:
         raise InputError(f"{w}: no scenes: add at least one [[scene]] table with a name")
+    BATCH_SCENES.check(len(scenes_raw), w)
     spec = BatchSpec(path, output, workers=batch.get("workers"), retries=batch.get("retries"))
     names, outputs = {}, {}
     for i, raw in enumerate(scenes_raw):
@@ -270,4 +272,6 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
 
 def load_spec(path: str | Path) -> BatchSpec:
     path = Path(path)
+    if path.is_file():
+        BATCH_SPEC_BYTES.check(path.stat().st_size, str(path))
     return parse_spec(read_toml(path, f"{path}: no such batch spec file"), path)

@@ -99,14 +99,21 @@ def chunk_file(scene_out: Path, key) -> Path:
 
 
 def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
-               address: str | None = None) -> ScenePlan:
+               address: str | None = None, layouts: dict | None = None) -> ScenePlan:
     """Tasks of one scene. Reads (or generates) the layout and checks the options, so bad
-    input is refused here, before any task runs."""
+    input is refused here, before any task runs. ``layouts`` memoises layouts between the
+    scenes of one batch (many scenes share a layout file or generator settings)."""
 
     try:
         cfg = sc.config()
         check_config(cfg)
-        layout = read_layout_for(cfg)
+        key = (str(cfg.layout), cfg.seed, tuple(cfg.extent), cfg.style) if cfg.layout is None \
+            else (str(cfg.layout), file_hash(cfg.layout))
+        layout = layouts.get(key) if layouts is not None else None
+        if layout is None:
+            layout = read_layout_for(cfg)
+            if layouts is not None:
+                layouts[key] = layout
     except InputError as e:
         raise InputError(f"{sc.where}: {e}") from None
     lhash = layout_hash(layout)
@@ -147,7 +154,8 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
 
 def plan_batch(spec: BatchSpec) -> list[ScenePlan]:
     logs = spec.output / ".batch"
-    return [plan_scene(sc, logs, spec.executor, spec.address) for sc in spec.scenes]
+    layouts: dict = {}
+    return [plan_scene(sc, logs, spec.executor, spec.address, layouts) for sc in spec.scenes]
 
 
 def prepare_scene(plan: ScenePlan) -> None:
