@@ -139,6 +139,12 @@ PROMPT_CHARS = Limit(
     "prompt_chars", 10_000, " characters", "prompt length",
     "env / generate / batch --prompt, before it is parsed (the prompt is kept in provenance)")
 
+# -------------------------------------------------------------------------- OSM
+OSM_WAY_NODES = Limit(
+    "osm_way_nodes", 2000, " nodes", "node references of one way",
+    "layout import (OSM): each way while the file is read, before its nodes are kept "
+    "(the way is skipped with a warning; OpenStreetMap's own API allows 2000)")
+
 # ------------------------------------------------------------------------ batch
 BATCH_SPEC_BYTES = Limit(
     "batch_spec_bytes", 16 * 1024 * 1024, " bytes", "batch spec size",
@@ -166,7 +172,7 @@ IMAGE_PIXELS = Limit(
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
        PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS, IMAGE_PIXELS,
-       BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS, VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS)
+       OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS, VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

@@ -2,6 +2,8 @@
 naming what is wrong and where, exit 1, nothing written."""
 import os
 
+import numpy as np
+
 import pytest
 
 
@@ -189,3 +191,79 @@ def test_render_names_the_layer_and_prim_of_bad_surfels(tmp_path, cli_error, att
     line = cli_error(["render", root, "--camera", "/World/Cameras/Top", "--resolution", "32x24",
                       "-o", tmp_path / "frames"], "surfels.usdc", f"{S.SURFELS_PATH}.{attr}", needle)
     assert len(line) < 400 and not (tmp_path / "frames").exists() and sorted(os.listdir(root)) == before
+
+
+# ------------------------------------------------------ 8, 9: OSM ways of many nodes
+def _random_way(n, seed=1):
+    import random
+    rnd = random.Random(seed)
+    nodes = "".join(f'<node id="{i}" lat="{48.0 + rnd.uniform(0, 700 / 111000)}" '
+                    f'lon="{8.4 + rnd.uniform(0, 150 / 74000)}"/>' for i in range(1, n + 1))
+    refs = "".join(f'<nd ref="{i}"/>' for i in range(1, n + 1))
+    return nodes, f'<way id="1">{refs}<tag k="highway" v="residential"/></way>'
+
+
+def test_osm_way_over_the_node_limit_is_skipped_by_name(tmp_path, cli_error, capsys):
+    from lsd3d_usd.cli import main
+    refs = "".join(f'<nd ref="{1 + k % 2}"/>' for k in range(2001))    # alternating refs
+    src = tmp_path / "m.osm"
+    src.write_text(_osm(_nodes() + f'<way id="9">{refs}<tag k="highway" v="primary"/></way>' + WAY))
+    capsys.readouterr()
+    assert main(["layout", "import", str(src), "-o", str(tmp_path / "o.usda")]) == 0
+    err = capsys.readouterr().err
+    assert "way 9: node references of one way 2001 nodes exceeds the limit of 2000 nodes; way skipped" in err
+    cli_error(["layout", "import", src, "--strict", "-o", tmp_path / "p.usda"], "way 9", "2000 nodes")
+    assert not (tmp_path / "p.usda").exists()
+
+
+def _spikes_reference(pts, limit_deg):
+    """The plain repair: drop the first node where the way turns back, start again."""
+    keep = list(range(len(pts)))
+    lim = np.cos(np.radians(limit_deg))
+    changed = True
+    while changed and len(keep) > 2:
+        changed = False
+        for i in range(1, len(keep) - 1):
+            u = pts[keep[i]] - pts[keep[i - 1]]
+            v = pts[keep[i + 1]] - pts[keep[i]]
+            if np.dot(u, v) / max(np.hypot(*u) * np.hypot(*v), 1e-12) < lim:
+                del keep[i]
+                changed = True
+                break
+    return keep
+
+
+def test_spike_repair_matches_the_plain_reference():
+    import warnings
+    from lsd3d_usd.layout.importers import ImportOptions
+    from lsd3d_usd.layout.osm_features import SPIKE_DEG, sound_highways
+    rng = np.random.default_rng(3)
+    for n in (3, 10, 60, 300):
+        pts = rng.uniform(0, 100, (n, 2))
+        xy_of = {k: pts[k] for k in range(n)}
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            (_, _, refs), = sound_highways("m.osm", [(1, {}, list(range(n)))], xy_of, ImportOptions())
+        assert refs == _spikes_reference(pts, SPIKE_DEG), n
+
+
+def test_long_way_surface_matches_one_buffer():
+    import shapely
+    from shapely.geometry import LineString
+    from lsd3d_usd.layout.osm_import import _road_strip
+    pts = np.random.default_rng(0).uniform(0, 100, (300, 2))
+    one = LineString(pts).buffer(3.0, cap_style="flat", join_style="round", quad_segs=4)
+    pieces = shapely.union_all(_road_strip(pts, 3.0))
+    assert len(_road_strip(pts, 3.0)) > 1
+    assert pieces.symmetric_difference(one).area < 1e-5 * one.area
+
+
+@pytest.mark.slow
+def test_random_way_of_2000_nodes_imports(tmp_path):
+    from lsd3d_usd.layout.importers import read_map
+    nodes, way = _random_way(2000)
+    src = tmp_path / "r.osm"
+    src.write_text(_osm(nodes + way))
+    with pytest.warns(Warning, match="turns back"):
+        layout, _ = read_map(src)
+    assert layout.lanes

@@ -51,6 +51,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import substring
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import OSM_WAY_NODES
 from lsd3d_usd.layout import blocks as B
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout import roadnet as R
@@ -136,6 +137,10 @@ def _read(path: Path, options: ImportOptions):
         ways = []
         needed: set[int] = set()
         for w in osmium.FileProcessor(str(path), osmium.osm.WAY).with_filter(osmium.filter.KeyFilter(*KEYS)):
+            if not OSM_WAY_NODES.ok(len(w.nodes)):
+                _warn(OSM_WAY_NODES.message(len(w.nodes), f"{path}: way {w.id}") + "; way skipped",
+                      options)
+                continue
             refs = [nd.ref for nd in w.nodes]
             if bbox is not None and not any(r in inside for r in refs):
                 continue
@@ -333,7 +338,7 @@ def _highways(path, roads, coords, clip, layout, points, xy, options) -> None:
         centre = np.asarray(substring(line, c0, line.length - c1).coords)
         hw = (f + b) * w / 2 if not both else w / 2
         # the surface runs up to the junction node: the roads' strips overlap there
-        road_polys.append(line.buffer(hw, cap_style="flat", join_style="round", quad_segs=4))
+        road_polys.extend(_road_strip(pts, hw))
         lane_type = "bike" if t["highway"] == "cycleway" else "driving"
         speed = _num((t.get("maxspeed") or "").replace("km/h", "")) if "mph" not in (t.get("maxspeed") or "") else None
         base = f"w{wid}_{k}"
@@ -417,6 +422,25 @@ def _highways(path, roads, coords, clip, layout, points, xy, options) -> None:
                 c = np.asarray(ring.coords)[:, :2]
                 layout.add(m.RoadEdge(f"edge{n_e}", points=R.xyz(c)))
                 n_e += 1
+
+
+STRIP_PIECE = 32   # points per buffered piece of a long way
+
+
+def _road_strip(pts: np.ndarray, hw: float) -> list:
+    """The road surface along ``pts`` (flat ends, round joins) as polygons. GEOS buffers
+    a long line that crosses itself in quadratic time (2000 random points: 42 s, 1.4 GB),
+    so a long way is buffered in pieces with a disc at each seam (the same set: a round
+    join is the disc) and united by the caller (union_all is near linear)."""
+    if len(pts) <= 2 * STRIP_PIECE:
+        return [LineString(pts).buffer(hw, cap_style="flat", join_style="round", quad_segs=4)]
+    out = []
+    for s in range(0, len(pts) - 1, STRIP_PIECE):
+        piece = pts[s:s + STRIP_PIECE + 1]
+        out.append(LineString(piece).buffer(hw, cap_style="flat", join_style="round", quad_segs=4))
+        if s > 0:
+            out.append(Point(piece[0]).buffer(hw, quad_segs=4))
+    return out
 
 
 def _half_width(t: dict) -> float:
