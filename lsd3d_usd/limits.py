@@ -107,6 +107,12 @@ COORDINATE = Limit(
     "coordinate", 10_000_000.0, " m", "distance from the origin",
     "USD layout reader and layout import: every coordinate (UTM northings fit; beyond, "
     "float32 points lose whole metres and overflow)")
+FEATURE_POINTS = Limit(
+    "feature_points", 100_000, " points", "points of one feature",
+    "USD layout reader (every command that reads a layout), before the points are converted")
+LAYOUT_POINTS = Limit(
+    "layout_points", 2_000_000, " points", "points of all features",
+    "USD layout reader, as the features are read")
 CHUNK_SIZE_MIN = Limit(
     "chunk_size_min", 10.0, " m", "chunk size",
     "USD layout reader (lsd3dLayout.chunkSize), proxy from-points --chunk-size", kind="min")
@@ -170,7 +176,7 @@ IMAGE_PIXELS = Limit(
     "--resolution / --size flags (cliutil.parse_size), env map rendering")
 
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
-       LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
+       LAYOUT_EXTENT, COORDINATE, FEATURE_POINTS, LAYOUT_POINTS, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
        PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS, IMAGE_PIXELS,
        OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS, VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS)
 

@@ -267,3 +267,17 @@ def test_random_way_of_2000_nodes_imports(tmp_path):
     with pytest.warns(Warning, match="turns back"):
         layout, _ = read_map(src)
     assert layout.lanes
+
+
+# ------------------------------------------------------- 10: layout point limits
+def test_layout_reader_refuses_a_lane_of_too_many_points(tmp_path, cli_error):
+    from lsd3d_usd.layout import model as m
+    from lsd3d_usd.layout.usdio import write_layout
+    n = 100_001
+    s = np.linspace(0, 40_000, n)
+    lay = m.Layout()
+    lay.add(m.LaneCenter("a", points=np.c_[s, np.sin(s / 50), np.zeros(n)], widths=np.full(n, 3.5)))
+    write_layout(lay, tmp_path / "L.usdc")
+    cli_error(["layout", "export", tmp_path / "L.usdc", "-o", tmp_path / "L.xodr"], "L.usdc",
+              ".points", "points of one feature 100001 points exceeds the limit of 100000 points")
+    assert not (tmp_path / "L.xodr").exists()
