@@ -171,3 +171,95 @@ def test_batch_planning_reads_a_shared_layout_once(tmp_path, monkeypatch):
     plans = tasks.plan_batch(load_spec(p))
     assert len(plans) == 30 and len(calls) == 1
     assert len({pl.tasks[-1].inputs_hash for pl in plans}) == 30   # still one task per scene
+
+
+# ----------------------------------------------- 4. composition outside the scene
+def _outside_camera(tmp_path):
+    from pxr import Usd, UsdGeom
+    out = tmp_path / "outside.usda"
+    st = Usd.Stage.CreateNew(str(out))
+    UsdGeom.Camera.Define(st, "/World/Cameras/Evil")
+    st.GetRootLayer().Save()
+    return out
+
+
+@pytest.mark.parametrize("how", ["absolute", "dotdot", "texture"])
+def test_render_and_validate_refuse_paths_outside_the_scene(tmp_path, cli_error, how, monkeypatch):
+    from pxr import Sdf
+    from tests.test_viewer_server import make_scene
+    from lsd3d_usd.validation import validate
+    root = tmp_path / "scene"
+    make_scene(root, chunks=((0, 0),), n=20, run=False, cameras={"Top": ((-10, 20, 30), (50, 50, 0))})
+    outside = _outside_camera(tmp_path)
+    layer = Sdf.Layer.FindOrOpen(str(root / S.ROOT_FILE))
+    if how == "texture":
+        spec = Sdf.CreatePrimInLayer(layer, "/World/Env/Dome")
+        spec.specifier = Sdf.SpecifierOver
+        Sdf.AttributeSpec(spec, "inputs:texture:file", Sdf.ValueTypeNames.Asset).default = \
+            Sdf.AssetPath(str(tmp_path / "sky.exr"))
+        (tmp_path / "sky.exr").write_bytes(b"x")
+    else:
+        layer.subLayerPaths.insert(0, str(outside) if how == "absolute" else "./layers/../../outside.usda")
+    layer.Save()
+    before = sorted(os.listdir(root))
+    bad = [p for p in validate(root) if p.check == "lsd3d:OutsideScene"]
+    assert bad and ("outside.usda" in bad[0].message or "sky.exr" in bad[0].message)
+    cam = "/World/Cameras/Evil" if how != "texture" else "/World/Cameras/Top"
+    cli_error(["render", root, "--camera", cam, "--resolution", "32x24", "-o", tmp_path / "f"],
+              "outside the scene folder", "LSD3D_ASSET_ROOTS")
+    assert not (tmp_path / "f").exists() and sorted(os.listdir(root)) == before
+    # a folder the user names is allowed
+    monkeypatch.setenv("LSD3D_ASSET_ROOTS", str(tmp_path))
+    assert not [p for p in validate(root) if p.check == "lsd3d:OutsideScene"]
+
+
+def test_layout_sublayers_outside_its_folder_are_refused(tmp_path, cli_error):
+    from tests.conftest import LAYOUT
+    folder = tmp_path / "lay"
+    folder.mkdir()
+    (tmp_path / "lane.usda").write_bytes(LAYOUT.read_bytes())
+    text = LAYOUT.read_text()
+    head, rest = text.split("(", 1)
+    (folder / "L.usda").write_text(head + "(\n    subLayers = [@../lane.usda@, @../../../../../../etc/passwd@]\n" + rest)
+    cli_error(["layout", "lanes", folder / "L.usda"], "L.usda", "outside the scene folder")
+
+
+# ------------------------------------------- 7. generate --retire-runs checks first
+def test_retire_runs_changes_nothing_when_generate_would_fail(small_scene, tmp_path):
+    from pxr import Sdf
+    from tests.conftest import generate_small
+    copy = tmp_path / "S"
+    shutil.copytree(small_scene, copy, symlinks=True)
+    surf = copy / "layers" / "surfels.usdc"
+    layer = Sdf.Layer.FindOrOpen(str(surf))
+    data = dict(layer.customLayerData)
+    lsd = dict(data["lsd3d"])
+    lsd["chunkFolder"] = "../../elsewhere"
+    data["lsd3d"] = lsd
+    layer.customLayerData = data
+    layer.Save()
+    runs_before = [(i.name, i.muted) for i in S.Scene.open(copy).layers()]
+    root_before = (copy / S.ROOT_FILE).read_bytes()
+    with pytest.raises(InputError, match="chunk folder '../../elsewhere' lies outside"):
+        generate_small(copy, run={"retire_runs": True}, surfels=2000)
+    assert (copy / S.ROOT_FILE).read_bytes() == root_before
+    assert [(i.name, i.muted) for i in S.Scene.open(copy).layers()] == runs_before
+
+
+# ------------------------------------------- 26. --resume after a kill before GGDS
+def test_resume_before_ggds_started_continues_generate(small_scene, tmp_path):
+    copy = tmp_path / "S"
+    shutil.copytree(small_scene, copy, symlinks=True)
+    sc = S.Scene.open(copy)
+    for r in sc.runs():                       # as if killed before GGDS started
+        sc.remove_layer(r.name, delete_file=True)
+    assert not S.Scene.open(copy).runs()
+    logs = []
+    from lsd3d_usd.config import generate_config
+    from lsd3d_usd.pipeline import RunOptions, generate
+    from tests.conftest import SMALL_SCENE
+    generate(generate_config(**SMALL_SCENE), RunOptions(out=copy, progress=False, resume=True,
+                                                        log=logs.append))
+    assert any("no GGDS run was started" in m for m in logs)
+    runs = S.Scene.open(copy).runs()
+    assert len(runs) == 1 and runs[0].provenance["complete"]

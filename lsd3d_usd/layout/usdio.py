@@ -32,6 +32,7 @@ import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
 import lsd3d_usd  # noqa: F401  (schema registration before any stage opens)
+from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.limits import (CHUNK_SIZE_MAX, CHUNK_SIZE_MIN, COORDINATE, FEATURE_POINTS,
@@ -289,6 +290,7 @@ _ACCEPT = {
 def read_layout(path: str | Path) -> m.Layout:
     """Read the layout under /World/Layout of the USD file (or scene folder) at ``path``."""
     stage = open_stage(path)
+    check_scene(stage, path)   # a layout's sublayers outside its folder are refused
     return layout_from_stage(stage, str(path))
 
 
