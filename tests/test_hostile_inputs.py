@@ -281,3 +281,17 @@ def test_layout_reader_refuses_a_lane_of_too_many_points(tmp_path, cli_error):
     cli_error(["layout", "export", tmp_path / "L.usdc", "-o", tmp_path / "L.xodr"], "L.usdc",
               ".points", "points of one feature 100001 points exceeds the limit of 100000 points")
     assert not (tmp_path / "L.xodr").exists()
+
+
+# ------------------------------------------------------- 25: ways with missing nodes
+@pytest.mark.parametrize("bbox", [None, "8.3,47.9,8.5,48.1"])
+def test_ways_with_missing_nodes_are_named(tmp_path, capsys, bbox):
+    from lsd3d_usd.cli import main
+    src = tmp_path / "m.osm"
+    src.write_text(_osm(_nodes() + WAY + '<way id="8"><nd ref="1"/><nd ref="99"/>'
+                        '<tag k="highway" v="residential"/></way>'))
+    capsys.readouterr()
+    args = ["layout", "import", str(src), "-o", str(tmp_path / "o.usda")] + ([f"--bbox={bbox}"] if bbox else [])
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert "way 8" in err and "node 99" in err

@@ -212,12 +212,16 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
         clip = shp_box(cx0, cy0, cx1, cy1)
         layout.extent = ((float(cx0), float(cy0)), (float(cx1), float(cy1)))
 
+    cut_ways: dict = {}   # with --bbox: ways cut at the file's own edge, warned once
+
     def coords(wid, refs) -> np.ndarray | None:
         missing = [r for r in refs if r not in xy_of]
         if missing:
-            if options.bbox is None:   # inside an area cut, missing nodes are simply outside the file
+            if options.bbox is None:
                 _warn(f"{path}: way {wid}: references node {missing[0]}, which the file lacks; "
                       "way skipped", options)
+            else:   # an extract's ways often run past its edge: one warning for all of them
+                cut_ways.setdefault(wid, missing[0])
             return None
         return np.array([xy_of[r] for r in refs])
 
@@ -230,6 +234,10 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
     _trees(points, ways, coords, clip, layout, xy)
     map_features(path, points, ways, coords, clip, layout, xy, options)
     record_clip(layout, clip, clip_box, clip_from, options)
+    if cut_ways:
+        wid, nid = next(iter(cut_ways.items()))
+        _warn(f"{path}: {len(cut_ways)} way(s) reference nodes the file lacks (first: way {wid}, "
+              f"node {nid}), e.g. cut at the file's edge; those ways skipped", options)
     if not layout.lanes:
         raise InputError(f"{path}: no drivable highway in the {'area' if clip is not None else 'file'} "
                          f"({len(roads)} highway ways read)")
