@@ -263,3 +263,31 @@ def test_resume_before_ggds_started_continues_generate(small_scene, tmp_path):
     assert any("no GGDS run was started" in m for m in logs)
     runs = S.Scene.open(copy).runs()
     assert len(runs) == 1 and runs[0].provenance["complete"]
+
+
+# ------------------------------------------- 27. a resumed run's before/after figure
+def test_resumed_run_plots_its_initial_surfels(tmp_path, monkeypatch):
+    import numpy as np
+    from lsd3d_usd.ggds.run import lifecycle
+    from lsd3d_usd.ggds.run import optimisation as R
+    from tests.conftest import generate_small
+    real, n = R.GGDSRun.step, {"k": 0}
+
+    def stop(self):
+        n["k"] += 1
+        if n["k"] == 3:
+            raise KeyboardInterrupt     # killed mid-run: a checkpoint, resumable
+        return real(self)
+    monkeypatch.setattr(R.GGDSRun, "step", stop)
+    out = tmp_path / "S"
+    with pytest.raises(KeyboardInterrupt):
+        generate_small(out, steps=4, checkpoint_every=2, ggds={"held_out": 2})
+    monkeypatch.setattr(R.GGDSRun, "step", real)
+    seen = {}
+    plots = lifecycle.write_plots
+    monkeypatch.setattr(lifecycle, "write_plots",
+                        lambda run, held, before, d: seen.update(before=before) or plots(run, held, before, d))
+    generate_small(out, run={"resume": True}, steps=4, checkpoint_every=2, ggds={"held_out": 2})
+    assert seen["before"] and all(np.isfinite(b).all() for b in seen["before"])
+    run = S.Scene.open(out).runs()[0]
+    assert run.provenance["complete"] and (out / "ggds" / run.name / "before_after.png").is_file()
