@@ -76,9 +76,34 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("lsd3d-usd: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:       # `... | head`: the reader left; not an error of ours
+        _silence_stdout()
+        return 141                # 128 + SIGPIPE, as a shell tool killed by it
+    except OSError as e:          # a folder made read-only, a file where a folder goes, ...
+        if args.debug:
+            raise
+        print(f"lsd3d-usd: error: {os_error_line(e)}", file=sys.stderr)
+        return 1
     finally:
         if notice is not None:
             notice.close()
+
+
+def os_error_line(e: OSError) -> str:
+    """'<file>: <reason>' of an OSError, one line."""
+    reason = e.strerror or " ".join(str(e).split()) or type(e).__name__
+    files = [f for f in (e.filename, e.filename2) if f is not None]
+    where = " -> ".join(str(f) for f in files)
+    return f"{where}: {reason}" if where else f"{type(e).__name__}: {reason}"
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so the interpreter's final flush cannot fail again."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
 
 
 def run() -> None:
@@ -86,8 +111,15 @@ def run() -> None:
     otherwise prints spurious "leaked instances" warnings at interpreter teardown once torch
     is also loaded, which would bury our one-line messages."""
     code = main()
-    sys.stdout.flush()
-    sys.stderr.flush()
+    try:
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()
+        code = code or 141
+    try:
+        sys.stderr.flush()
+    except BrokenPipeError:
+        pass
     os._exit(code)
 
 

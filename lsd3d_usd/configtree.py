@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import difflib
+import functools
 import math
 import sys
 import types
@@ -85,7 +86,10 @@ class Leaf:
 
 
 # ------------------------------------------------------------------------------ the tree
+@functools.lru_cache(maxsize=None)
 def _hints(cls) -> dict:
+    # cached: get_type_hints re-evaluates every annotation string, and a batch spec checks
+    # its scenes' tables against the same tree thousands of times
     return typing.get_type_hints(cls)
 
 
@@ -99,6 +103,11 @@ def _default(f: dataclasses.Field):
 
 def leaves(cls, prefix: tuple[str, ...] = ()) -> list[Leaf]:
     """Every leaf of the tree rooted at dataclass ``cls``, depth first in field order."""
+    return list(_leaves(cls, tuple(prefix)))
+
+
+@functools.lru_cache(maxsize=None)
+def _leaves(cls, prefix: tuple[str, ...]) -> tuple[Leaf, ...]:
     out = []
     hints = _hints(cls)
     for f in fields(cls):
@@ -107,9 +116,10 @@ def leaves(cls, prefix: tuple[str, ...] = ()) -> list[Leaf]:
             out.extend(leaves(t, prefix + (f.name,)))
         elif _META in f.metadata:
             out.append(Leaf(prefix + (f.name,), t, _default(f), f.metadata[_META]))
-    return out
+    return tuple(out)
 
 
+@functools.lru_cache(maxsize=None)
 def _index(cls) -> tuple[dict, dict]:
     by_key = {lf.key: lf for lf in leaves(cls)}
     by_alias = {lf.meta["alias"]: lf for lf in by_key.values() if lf.meta["alias"]}

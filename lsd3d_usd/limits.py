@@ -107,6 +107,12 @@ COORDINATE = Limit(
     "coordinate", 10_000_000.0, " m", "distance from the origin",
     "USD layout reader and layout import: every coordinate (UTM northings fit; beyond, "
     "float32 points lose whole metres and overflow)")
+FEATURE_POINTS = Limit(
+    "feature_points", 100_000, " points", "points of one feature",
+    "USD layout reader (every command that reads a layout), before the points are converted")
+LAYOUT_POINTS = Limit(
+    "layout_points", 2_000_000, " points", "points of all features",
+    "USD layout reader, as the features are read")
 CHUNK_SIZE_MIN = Limit(
     "chunk_size_min", 10.0, " m", "chunk size",
     "USD layout reader (lsd3dLayout.chunkSize), proxy from-points --chunk-size", kind="min")
@@ -126,10 +132,43 @@ PLY_VERTICES = Limit(
     "ply_vertices", 50_000_000, " vertices", "vertex count",
     "PLY readers (splats import-ply, proxy from-points), before reading the body; the "
     "body must also hold the bytes the header claims", flag="--max-vertices")
+PLY_HEADER_BYTES = Limit(
+    "ply_header_bytes", 1 << 20, " bytes", "header size",
+    "PLY readers (splats import-ply, proxy from-points), while the header is read")
 USDA_PARTICLES = Limit(
     "usda_particles", 10_000, " particles", "particle count in a .usda (text) layer",
     "surfel writers (splats init / import-ply / export-3dgs -o *.usda) refuse; validate "
     "reports BulkDataInUsda")
+
+# ---------------------------------------------------------------------- prompts
+PROMPT_CHARS = Limit(
+    "prompt_chars", 10_000, " characters", "prompt length",
+    "env / generate / batch --prompt, before it is parsed (the prompt is kept in provenance)")
+
+# -------------------------------------------------------------------------- OSM
+OSM_WAY_NODES = Limit(
+    "osm_way_nodes", 2000, " nodes", "node references of one way",
+    "layout import (OSM): each way while the file is read, before its nodes are kept "
+    "(the way is skipped with a warning; OpenStreetMap's own API allows 2000)")
+
+# ------------------------------------------------------------------------ batch
+BATCH_SPEC_BYTES = Limit(
+    "batch_spec_bytes", 16 * 1024 * 1024, " bytes", "batch spec size",
+    "batch, before the spec is parsed")
+BATCH_SCENES = Limit(
+    "batch_scenes", 10_000, " scenes", "scene count",
+    "batch, right after parsing, before any scene is checked")
+
+# ----------------------------------------------------------------------- viewer
+VIEWER_PROBLEMS = Limit(
+    "viewer_problems", 200, " problems", "problems listed by the viewer",
+    "view: /api/problems lists the first ones and says that more were found")
+VIEWER_CONNECTIONS = Limit(
+    "viewer_connections", 32, " connections", "open connections to the viewer",
+    "view: a connection beyond it is answered 503 and closed")
+VIEWER_IDLE_SECONDS = Limit(
+    "viewer_idle_seconds", 30, " s", "idle time of a viewer connection",
+    "view: a connection that sends nothing for this long is closed")
 
 # ----------------------------------------------------------------------- images
 IMAGE_PIXELS = Limit(
@@ -151,8 +190,10 @@ LIDAR_RANGE = Limit(
     "--lidar FILE.toml and LidarModel.check")
 
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
-       LAYOUT_EXTENT, COORDINATE, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX, CHUNKS, CHUNK_VOXELS,
-       PLY_VERTICES, USDA_PARTICLES, IMAGE_PIXELS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
+       LAYOUT_EXTENT, COORDINATE, FEATURE_POINTS, LAYOUT_POINTS, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX,
+       CHUNKS, CHUNK_VOXELS, PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS,
+       IMAGE_PIXELS, OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS,
+       VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
        LIDAR_RANGE)
 
 

@@ -152,6 +152,11 @@ def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
 def _resume_config(sc: S.Scene, cfg: GenerateConfig, run: RunOptions):
     """The newest unfinished run's recorded configuration; explicit conflicting keys refused."""
     names = sc.unfinished_runs()
+    if not names and not sc.runs():
+        # killed before GGDS started: what there is to continue is the plain re-run, which
+        # reuses every finished step
+        run.log("resume: no GGDS run was started; continuing generate from the finished steps")
+        return cfg, None, None
     if not names:
         raise InputError(f"{sc.root}: no unfinished GGDS run to resume")
     name = names[0]
@@ -187,8 +192,14 @@ def prepare_scene(cfg: GenerateConfig, run: RunOptions, layout_hash: str) -> S.S
     out = Path(run.out)
     if out.exists() and not out.is_dir():
         raise InputError(f"-o {out}: exists and is not a folder")
+    for parent in out.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"-o {out}: {parent} is a file, not a folder")
+            break
     if (out / S.ROOT_FILE).is_file():
         sc = S.Scene.open(out)
+        sc.check_writable()
         root = S.Sdf.Layer.FindOrOpen(str(sc.root_layer_path))
         stored = S.read_provenance(root).get("layoutHash")
         if stored and stored != layout_hash and not run.force:
@@ -199,6 +210,15 @@ def prepare_scene(cfg: GenerateConfig, run: RunOptions, layout_hash: str) -> S.S
         raise InputError(f"{out}: exists and is not empty (and not a scene); use --force or "
                          "choose another output folder")
     return S.Scene.create(out, seed=cfg.seed, exist_ok=True)
+
+
+def _preflight(sc: S.Scene) -> None:
+    """What later steps would refuse, checked before anything changes (so a run is not
+    retired, nor a layer rewritten, by a generate that then fails): the surfels layer's
+    recorded chunk folder must lie inside the scene."""
+    path = sc.layer_path("surfels")
+    if path.is_file():
+        chunkio.chunk_folder(path)
 
 
 def _check_dependents(sc: S.Scene, p: Plan, run: RunOptions) -> None:
@@ -222,7 +242,7 @@ def _check_dependents(sc: S.Scene, p: Plan, run: RunOptions) -> None:
 def _layout_step(sc: S.Scene, p: Plan) -> None:
     """The layout layer is the input exactly as given (bytes copied when it is usda)."""
     dst = sc.layer_path("layout")
-    if p.source is not None and p.source.suffix.lower() == ".usda":
+    if p.source is not None and p.source.suffix.lower() == ".usda" and not _composes(p.source):
         data = p.source.read_bytes()
         if not dst.is_file() or dst.read_bytes() != data:
             S.atomic_write_bytes(dst, data)
@@ -234,6 +254,13 @@ def _layout_step(sc: S.Scene, p: Plan) -> None:
     root = S.Sdf.Layer.FindOrOpen(str(sc.root_layer_path))
     if S.read_provenance(root).get("layoutHash") != p.layout_hash:
         S.save_layer(root, sc.root_layer_path, {"layoutHash": p.layout_hash})
+
+
+def _composes(path: Path) -> bool:
+    """Whether a layer names other files (sublayers, references, payloads): copied as
+    bytes, those paths would resolve from layers/ instead; such a layout is flattened."""
+    layer = S.Sdf.Layer.FindOrOpen(str(path))
+    return layer is None or bool(layer.GetCompositionAssetDependencies())
 
 
 def _proxy_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
@@ -343,6 +370,7 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
     p = plan(cfg, run)
     cfg = p.cfg
     sc = prepare_scene(cfg, run, p.layout_hash)
+    _preflight(sc)
     if p.resume_run is None:
         _check_dependents(sc, p, run)
     timings = {}

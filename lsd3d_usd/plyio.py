@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from lsd3d_usd.errors import InputError, excerpt
-from lsd3d_usd.limits import PLY_VERTICES
+from lsd3d_usd.limits import PLY_HEADER_BYTES, PLY_VERTICES
 from lsd3d_usd.scene import atomic_write_bytes
 
 PLY_TYPES = {
@@ -24,7 +24,8 @@ PLY_TYPES = {
     "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
-MAX_HEADER_BYTES = 1 << 20
+MAX_HEADER_BYTES = int(PLY_HEADER_BYTES.value)
+_TEXT_BYTES = frozenset(b"0123456789+-.eEnaifNAIF \t\r\n")
 _MAX_LINE = 4096
 
 
@@ -38,7 +39,9 @@ def _parse_header(f, path):
     while True:
         line = f.readline(_MAX_LINE + 1)
         size += len(line)
-        if not line or size > MAX_HEADER_BYTES:
+        if size > MAX_HEADER_BYTES:
+            PLY_HEADER_BYTES.check(size, f"{path}: PLY header (no end_header within the limit)")
+        if not line:
             raise InputError(f"{path}: PLY header has no end_header")
         if len(line) > _MAX_LINE:
             raise InputError(f"{path}: PLY header line longer than {_MAX_LINE} bytes "
@@ -95,6 +98,13 @@ def read_ply_vertices(path, max_vertices: int | None = None) -> np.ndarray:
         body_bytes = f.tell() - body_start
         f.seek(body_start)
         endian = ">" if fmt == "binary_big_endian" else "<"
+        if fmt != "ascii":
+            # a binary header over a text body reads as garbage numbers: refuse it
+            sample = f.read(256)
+            f.seek(body_start)
+            if len(sample) >= 32 and set(sample) <= _TEXT_BYTES and any(48 <= c <= 57 for c in sample):
+                raise InputError(f"{path}: PLY header says {fmt} but the body is ASCII text "
+                                 f"(starts {excerpt(sample[:40])}); fix the format line")
         names = [e[0] for e in elements]
         if "vertex" not in names:
             raise InputError(f"{path}: PLY has no 'vertex' element (elements: "

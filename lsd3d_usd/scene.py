@@ -30,7 +30,6 @@ import json
 import os
 import platform
 import re
-import shutil
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -39,6 +38,7 @@ from typing import Any, Iterable
 from pxr import Sdf, Usd, UsdGeom, Vt  # noqa: E402  (lsd3d_usd registered the schema first)
 
 import lsd3d_usd
+from lsd3d_usd import safepaths
 from lsd3d_usd.errors import InputError
 
 WORLD = "/World"
@@ -54,6 +54,7 @@ LAYERS_DIR = "layers"
 TEXTURES_DIR = "textures"
 ASSETS_DIR = "assets"
 RUNS_DIR = "ggds"
+WRITTEN_DIRS = (LAYERS_DIR, RUNS_DIR, TEXTURES_DIR)   # rewritten and pruned by the steps
 
 # Fixed step layers, weakest first. GGDS runs stack above all of them, newest strongest.
 STEP_LAYERS: dict[str, str] = {
@@ -348,6 +349,13 @@ class Scene:
                              "refusing to read, write or delete it")
         return p
 
+    def check_writable(self) -> None:
+        """Refuse (one line) a scene whose folders the steps rewrite and prune (layers/,
+        ggds/, textures/) are, or hold, symbolic links: a re-run would write and delete
+        through them, outside the scene. Called before a command changes anything."""
+        for d in WRITTEN_DIRS:
+            safepaths.check_tree(self.root / d, self.root, f"scene folder {d}/")
+
     def run_files(self, run: str) -> RunFiles:
         run = Path(run).stem if run.endswith(".usdc") else run
         if not _RUN_RE.match(f"{run}.usdc"):
@@ -528,14 +536,21 @@ class Scene:
     def remove_layer(self, name: str, delete_file: bool = False) -> None:
         f = self._resolve(name)
         root = self._root_layer()
+        layer_file, run_dir = self.root / LAYERS_DIR / f, None
+        if delete_file:   # everything checked before the root layer changes
+            safepaths.check_inside(layer_file, self.root, "layer")
+            if f.startswith(GGDS_PREFIX):
+                run_dir = self.run_files(f).dir
+                if run_dir.exists() or run_dir.is_symlink():
+                    safepaths.check_tree(run_dir, self.root, "run folder")
+                else:
+                    run_dir = None
         self._write_root(root, [s for s in self._stack_files(root) if s != f],
                          [m for m in self._muted_files(root) if m != f])
         if delete_file:
-            self.inside(self.root / LAYERS_DIR / f, "layer").unlink(missing_ok=True)
-            if f.startswith(GGDS_PREFIX):
-                rf = self.run_files(f)
-                if rf.dir.is_dir():
-                    shutil.rmtree(self.inside(rf.dir, "run folder"))
+            layer_file.unlink(missing_ok=True)
+            if run_dir is not None:
+                safepaths.rmtree(run_dir, self.root, "run folder")
 
     # ---- GGDS runs and what they depend on
     def runs(self) -> list[LayerInfo]:

@@ -7,6 +7,7 @@ what is wrong; errors fail validation, warnings are reported only.
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import numpy as np
 from pxr import Tf, Sdf, Usd, UsdGeom, UsdValidation, UsdVol
 
 import lsd3d_usd
-from lsd3d_usd import scene
+from lsd3d_usd import assetroots, safepaths, scene
 from lsd3d_usd.diagnostics import captured_stderr
 from lsd3d_usd.limits import USDA_PARTICLES
 from lsd3d_usd.splats.field import kernel_bounds, sh_coeff_count
@@ -362,6 +363,33 @@ def _check_assets(stage: Usd.Stage) -> list[Problem]:
     return out
 
 
+def _check_outside(stage: Usd.Stage, path: str | Path) -> list[Problem]:
+    """Layers, arcs and asset paths outside the scene folder (and LSD3D_ASSET_ROOTS):
+    render, eval and generate refuse them."""
+    folder = assetroots.folder_of(path)
+    return [Problem("error", "/", None, f"{where} names {p!r}, outside the scene folder "
+                    f"{folder} (allowed roots: {assetroots.ASSET_ROOTS_ENV})", "lsd3d:OutsideScene")
+            for where, p in assetroots.outside_paths(
+                stage, assetroots.allowed_roots(*assetroots.scene_roots(stage, path)))]
+
+
+def _check_links(path: str | Path) -> list[Problem]:
+    """Symbolic links in a scene folder's written folders: a re-run would write and delete
+    through them (scene.Scene.check_writable refuses such a scene)."""
+    p = Path(path)
+    root = p if p.is_dir() else p.parent
+    if not (root / scene.ROOT_FILE).is_file() or (p.is_file() and p.name != scene.ROOT_FILE):
+        return []
+    out = []
+    for d in scene.WRITTEN_DIRS:
+        for link in safepaths.links_in_tree(root / d):
+            out.append(Problem("error", "/", None,
+                               f"{link.relative_to(root)} is a symbolic link (to "
+                               f"{os.readlink(link)}); steps that rewrite the scene refuse to "
+                               "write or delete through it", "lsd3d:SymbolicLink"))
+    return out
+
+
 def validate(path: str | Path) -> list[Problem]:
     """All problems of the USD file (or scene folder) at `path`. Raises InputError when
     the file cannot be opened at all."""
@@ -382,6 +410,8 @@ def validate(path: str | Path) -> list[Problem]:
             elif prim.IsA(UsdGeom.BasisCurves):
                 problems += _check_curves(prim)
         problems += _check_assets(stage)
+        problems += _check_outside(stage, path)
+    problems += _check_links(path)
     # usd-core's MissingReference validator may also name a missing texture we report per attribute.
     ours = {Path(p.message.split("@")[1]).name for p in problems if p.check == "lsd3d:AssetPath"}
     return [p for p in problems

@@ -64,13 +64,15 @@ def test_waymo5_geometry():
 
 
 @pytest.fixture()
-def rig_scene(tmp_path):
-    """A scene with a surfel 'building', one parked and one moving car (referenced assets)."""
+def rig_scene(tmp_path, monkeypatch):
+    """A scene with a surfel 'building', one parked and one moving car (referenced assets,
+    in a library outside the scene that LSD3D_ASSET_ROOTS allows)."""
     from lsd3d_usd.actors.assets import write_library
     from lsd3d_usd.actors.usdio import ActorSpec, actors_layer
     from lsd3d_usd.scene import Scene, new_stage
     from lsd3d_usd.splats.usdio import write_surfels
     lib = write_library(tmp_path / "lib", ("car",))
+    monkeypatch.setenv("LSD3D_ASSET_ROOTS", str(tmp_path / "lib"))
     sc = Scene.create(tmp_path / "scene")
     st = new_stage()
     write_surfels(st, "/World/Surfels", _box_surfels((5, -8, 0), (25, 2, 8)))

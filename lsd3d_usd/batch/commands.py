@@ -27,6 +27,9 @@ def _batch(args) -> int:
     if workers is not None and workers < 1:
         raise InputError(f"--workers {workers}: must be >= 1")
     if args.dry_run:
+        print(f"output: {spec.output}")
+        for sc in spec.scenes:
+            print(f"scene {sc.name}: {sc.output}")
         for plan in plan_batch(spec):
             for t in plan.tasks:
                 deps = f" (after {len(t.deps)} chunk task(s))" if t.deps else ""

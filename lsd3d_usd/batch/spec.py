@@ -36,6 +36,7 @@ from lsd3d_usd import configtree as ct
 from lsd3d_usd.config import GenerateConfig
 from lsd3d_usd.configtree import read_toml, resolve_paths
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import BATCH_SCENES, BATCH_SPEC_BYTES
 
 SPLIT_CHOICES = ("auto", "always", "never")
 # Injected failures, for tests of retry and reporting only (documented as such).
@@ -93,6 +94,12 @@ def _path(v, where, base):
     return p if p.is_absolute() else (base / p).resolve()
 
 
+def _paths(v, where, base):
+    if not isinstance(v, list):
+        raise InputError(f"{where}: expected a list of folders, got {v!r}")
+    return [_path(x, f"{where}[{k}]", base) for k, x in enumerate(v)]
+
+
 def _split(v, where, base):
     if isinstance(v, bool):
         return "always" if v else "never"
@@ -104,7 +111,7 @@ def _split(v, where, base):
 RUN_KEYS = {"force": _bool, "region_workers": _int(1)}
 # batch-only keys of a scene (and of [defaults], except name/output)
 SCENE_KEYS = {"name": _str, "output": _path, "split_chunks": _split}
-BATCH_KEYS = {"output": _path, "workers": _int(1), "retries": _int(0)}
+BATCH_KEYS = {"output": _path, "workers": _int(1), "retries": _int(0), "allowed_outputs": _paths}
 TOP_KEYS = ("batch", "defaults", "scene")
 
 
@@ -183,6 +190,23 @@ def _settings(table: dict, where: str, base: Path, extra: dict) -> tuple[dict, d
     return settings, own
 
 
+def _check_output(p: Path, roots: list[Path], where: str, strict: bool) -> Path:
+    """``p``'s real path, refused (one line) unless it lies inside the spec's folder or an
+    ``allowed_outputs`` folder (``roots``, real paths; ``strict``: not equal to one) and is
+    no ancestor of the spec's folder (a scene folder is rewritten and pruned)."""
+    real = p.resolve()
+    spec_dir = roots[0]
+    if spec_dir.is_relative_to(real) and (strict or real != spec_dir):
+        raise InputError(f"{where}: {p} resolves to {real}, which holds the spec's folder "
+                         f"{spec_dir}; refusing to write there")
+    for r in roots:
+        if real.is_relative_to(r) and (real != r or not strict):
+            return real
+    shown = f" (resolves to {real})" if real != p else ""
+    raise InputError(f"{where}: {p}{shown} lies outside the spec's folder {spec_dir}; list a "
+                     "folder holding it in [batch] allowed_outputs to write there")
+
+
 def parse_spec(data: dict, path: Path) -> BatchSpec:
     """Validate a parsed TOML document; ``path`` is the spec file (relative paths resolve
     against its folder)."""
@@ -194,12 +218,15 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
             raise _unknown(key, TOP_KEYS, w)
     batch = _options(_table(data.get("batch", {}), f"{w}: [batch]"), f"{w}: batch", base, BATCH_KEYS)
     output = batch.get("output", base / f"{path.stem}_out")
+    roots = [base.resolve()] + [r.resolve() for r in batch.get("allowed_outputs", [])]
+    output = _check_output(output, roots, f"{w}: batch.output", strict=False)
     default_keys = {**RUN_KEYS, "split_chunks": _split}
     defaults, default_own = _settings(_table(data.get("defaults", {}), f"{w}: [defaults]"),
                                       f"{w}: defaults", base, default_keys)
     scenes_raw = data.get("scene", [])
     if not isinstance(scenes_raw, list) or not scenes_raw:
         raise InputError(f"{w}: no scenes: add at least one [[scene]] table with a name")
+    BATCH_SCENES.check(len(scenes_raw), w)
     spec = BatchSpec(path, output, workers=batch.get("workers"), retries=batch.get("retries"))
     names, outputs = {}, {}
     for i, raw in enumerate(scenes_raw):
@@ -226,11 +253,12 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
                     merged.pop(k, None)
         own = {**default_own, **own}
         out_dir = own.pop("output", output / name)
+        out_dir = _check_output(out_dir, roots, f"{where}.output", strict=True)
         if out_dir in outputs:
             raise InputError(f"{where}.output: {out_dir} is also the output of scene "
                              f"{outputs[out_dir]!r}")
         outputs[out_dir] = name
-        if out_dir.resolve() == output.resolve():
+        if out_dir == output or output.is_relative_to(out_dir):
             raise InputError(f"{where}.output: a scene cannot be written into the batch output "
                              f"folder itself ({output}); use a subfolder")
         split = own.pop("split_chunks", "auto")
@@ -244,4 +272,6 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
 
 def load_spec(path: str | Path) -> BatchSpec:
     path = Path(path)
+    if path.is_file():
+        BATCH_SPEC_BYTES.check(path.stat().st_size, str(path))
     return parse_spec(read_toml(path, f"{path}: no such batch spec file"), path)

@@ -99,17 +99,26 @@ def chunk_file(scene_out: Path, key) -> Path:
 
 
 def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
-               address: str | None = None) -> ScenePlan:
+               address: str | None = None, layouts: dict | None = None) -> ScenePlan:
     """Tasks of one scene. Reads (or generates) the layout and checks the options, so bad
-    input is refused here, before any task runs."""
+    input is refused here, before any task runs. ``layouts`` memoises layouts between the
+    scenes of one batch (many scenes share a layout file or generator settings)."""
 
     try:
         cfg = sc.config()
         check_config(cfg)
-        layout = read_layout_for(cfg)
+        key = (str(cfg.layout), cfg.seed, tuple(cfg.extent), cfg.style) if cfg.layout is None \
+            else (str(cfg.layout), file_hash(cfg.layout))
+        memo = layouts.get(key) if layouts is not None else None
+        if memo is None:
+            layout = read_layout_for(cfg)
+            memo = {"layout": layout, "hash": layout_hash(layout)}
+            if layouts is not None:
+                layouts[key] = memo
+        layout = memo["layout"]
     except InputError as e:
         raise InputError(f"{sc.where}: {e}") from None
-    lhash = layout_hash(layout)
+    lhash = memo["hash"]
     plan = ScenePlan(sc, lhash)
     jopts = _json_options(sc.options)
     layout_file = sc.options.get("layout")
@@ -117,8 +126,11 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
     base = {"target": "lsd3d_usd.batch.tasks:run_task", "scene": sc.name,
             "out": str(sc.output), "options": jopts, "force": sc.force,
             "region_workers": sc.region_workers, "executor": executor, "address": address}
-    builder = ProxyBuilder(layout, cfg.proxy)
-    keys = sorted(builder.chunks())
+    pkey = repr(cfg.proxy)
+    if pkey not in memo:   # the proxy plan of one layout and proxy settings, built once
+        builder = ProxyBuilder(layout, cfg.proxy)
+        memo[pkey] = (builder, sorted(builder.chunks()))
+    builder, keys = memo[pkey]
     split = sc.split_chunks == "always" or (sc.split_chunks == "auto"
                                                 and len(keys) >= AUTO_SPLIT_MIN_CHUNKS)
     deps = []
@@ -147,7 +159,8 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
 
 def plan_batch(spec: BatchSpec) -> list[ScenePlan]:
     logs = spec.output / ".batch"
-    return [plan_scene(sc, logs, spec.executor, spec.address) for sc in spec.scenes]
+    layouts: dict = {}
+    return [plan_scene(sc, logs, spec.executor, spec.address, layouts) for sc in spec.scenes]
 
 
 def prepare_scene(plan: ScenePlan) -> None:

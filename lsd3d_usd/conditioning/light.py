@@ -18,6 +18,7 @@ import torch
 
 from lsd3d_usd.conditioning.shadow import shadow_map
 from lsd3d_usd.env import EnvParams, build_params
+from lsd3d_usd.env.prompt import unknown_words
 from lsd3d_usd.env.lookup import EnvMap
 from lsd3d_usd.env.sh import eval_sh_irradiance, sh_irradiance
 from lsd3d_usd.env.sky import SkyModel, render_sky
@@ -162,7 +163,7 @@ def env_params(env_settings: dict, seed: int = 0, log=None) -> EnvParams:
     if e.get("prompt"):
         params.extras["prompt"] = e["prompt"]
     if unknown and log is not None:
-        log(f"warning: prompt words not understood (ignored): {', '.join(unknown)}")
+        log(f"warning: prompt words not understood (ignored): {unknown_words(unknown)}")
     return params
 
 

@@ -16,7 +16,7 @@ def _env(args) -> int:
     from lsd3d_usd.env.exr import write_env
     from lsd3d_usd.env.mapping import check_resolution
     # local import: not loaded for --help
-    from lsd3d_usd.env.prompt import build_params
+    from lsd3d_usd.env.prompt import build_params, unknown_words
 
     w, h = args.resolution
     check_resolution(w, h)
@@ -29,7 +29,7 @@ def _env(args) -> int:
                                    weather=args.weather, season=args.season,
                                    time_of_day=args.time_of_day, **fields)
     if unknown:
-        print(f"lsd3d-usd: warning: prompt words not understood (ignored): {', '.join(unknown)}",
+        print(f"lsd3d-usd: warning: prompt words not understood (ignored): {unknown_words(unknown)}",
               file=sys.stderr)
     r = params.resolved()
     t0 = time.perf_counter()

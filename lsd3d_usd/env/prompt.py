@@ -21,7 +21,8 @@ from lsd3d_usd.env.params import (
     season_of,
 )
 from lsd3d_usd.env.sun import find_time_for_elevation, solar_noon
-from lsd3d_usd.errors import InputError
+from lsd3d_usd.errors import InputError, excerpt
+from lsd3d_usd.limits import PROMPT_CHARS
 
 # name: (latitude, longitude, standard UTC offset in hours)
 CITIES = {
@@ -152,6 +153,8 @@ def build_params(prompt: str | None = None, *, when: _dt.datetime | str | None =
     """EnvParams from a prompt and explicit values (explicit values win).
 
     Returns (params, unknown prompt words)."""
+    if prompt and not PROMPT_CHARS.ok(len(prompt)):
+        PROMPT_CHARS.check(len(prompt), f"--prompt {excerpt(prompt, 40)}")
     said, unknown = understand(prompt) if prompt else ({}, [])
     if (lat is None) != (lon is None):
         raise InputError("--lat and --lon go together: give both or neither")
@@ -221,12 +224,18 @@ def build_params(prompt: str | None = None, *, when: _dt.datetime | str | None =
     return params, unknown
 
 
+def unknown_words(words: list[str], limit: int = 10) -> str:
+    """The words not understood, for a warning: at most ``limit``, each cut short."""
+    shown = ", ".join(w if len(w) <= 40 else w[:40] + "..." for w in words[:limit])
+    return shown + (f" (and {len(words) - limit} more)" if len(words) > limit else "")
+
+
 def parse_prompt(text: str, warn: bool = True) -> tuple[EnvParams, list[str]]:
     """`parse_prompt("rainy autumn evening in Seattle") -> (EnvParams, unknown_words)`.
     Unknown words are listed in a warning (and returned); the environment is still made."""
     params, unknown = build_params(text)
     if unknown and warn:
-        warnings.warn(f"environment prompt: words not understood (ignored): {', '.join(unknown)}",
+        warnings.warn(f"environment prompt: words not understood (ignored): {unknown_words(unknown)}",
                       UserWarning, stacklevel=2)
     return params, unknown
 

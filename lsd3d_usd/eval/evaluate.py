@@ -20,6 +20,7 @@ import torch
 import torch.nn.functional as F
 from tqdm import tqdm
 
+from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
@@ -141,6 +142,7 @@ def evaluate(o: EvalOptions) -> dict:
     timings = {}
     t = time.perf_counter()
     stage = sc.open_stage()
+    check_scene(stage, sc.root)
     surfels = scene_surfels(stage)
     if surfels is None:
         raise InputError(f"{sc.root}: no surfels to render (no visible ParticleField prim)")

@@ -81,6 +81,19 @@ def xml_root_name(head: bytes) -> str | None:
     return mt.group(1).decode("ascii", "replace").split(":")[-1] if mt else None
 
 
+_DOCTYPE = re.compile(rb"<!DOCTYPE\b", re.I)
+
+
+def refuse_doctype(path, head: bytes) -> None:
+    """Refuse an XML map with a document type declaration (one line): an internal DTD
+    subset can define entities that expand to gigabytes, or name external files; no map
+    format we read needs one."""
+    text = head.lstrip(b"\xef\xbb\xbf \t\r\n")
+    if text.startswith(b"<") and _DOCTYPE.search(head):
+        raise InputError(f"{path}: XML with a document type declaration (<!DOCTYPE ...>) is "
+                         "refused: DTDs can define entities and name outside files; remove it")
+
+
 def _sniff_opendrive(path: Path, head: bytes) -> bool:
     return xml_root_name(head) == "OpenDRIVE"
 
@@ -160,6 +173,7 @@ def detect(path: str | Path) -> Importer:
         head = f.read(HEAD_BYTES)
     if not head:
         raise InputError(f"{path}: empty file")
+    refuse_doctype(path, head)
     imps = registered()
     name = p.name.lower()
     # equal priorities: the one whose extension matches the name is asked first
@@ -183,9 +197,11 @@ def read_map(path: str | Path, options: ImportOptions | None = None,
     if format:
         with open(path, "rb") as f:
             head = f.read(HEAD_BYTES)
+        refuse_doctype(path, head)
         if not imp.sniff(Path(path), head):
             raise InputError(f"{path}: is not a {imp.name} file ({imp.description})")
     layout = imp.read(Path(path), options)
+    m.check_size(layout, str(path))   # what every reader would refuse is refused here
     src = layout.metadata.setdefault("source", {})
     src.setdefault("format", imp.name)
     src.setdefault("file", Path(path).name)

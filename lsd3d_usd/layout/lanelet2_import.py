@@ -61,6 +61,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout.fitting import _dist_to_segments
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
+from lsd3d_usd.layout.osmxml import bad_location, osmium_errors
 
 MAX_FILE_BYTES = 256 * 1024 * 1024
 MAX_LANELETS = 200_000
@@ -92,20 +93,21 @@ def sniff(path: Path, head: bytes) -> bool:
 def file_origin(path: Path) -> tuple[tuple[float, float], str]:
     """(lat, lon) of the file's own origin and where it came from: the header's bounds, else the
     centre of the nodes' extent (read with osmium)."""
-    reader = osmium.io.Reader(str(path), osmium.osm.osm_entity_bits.NOTHING)
-    try:
-        box = reader.header().box()
-    finally:
-        reader.close()
-    if box.valid():
-        bl, tr = box.bottom_left, box.top_right
-        return ((bl.lat + tr.lat) / 2, (bl.lon + tr.lon) / 2), "file bounds"
-    lat0 = lon0 = np.inf
-    lat1 = lon1 = -np.inf
-    for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
-        if n.location.valid():
-            lat0, lat1 = min(lat0, n.location.lat), max(lat1, n.location.lat)
-            lon0, lon1 = min(lon0, n.location.lon), max(lon1, n.location.lon)
+    with osmium_errors(path):
+        reader = osmium.io.Reader(str(path), osmium.osm.osm_entity_bits.NOTHING)
+        try:
+            box = reader.header().box()
+        finally:
+            reader.close()
+        if box.valid():
+            bl, tr = box.bottom_left, box.top_right
+            return ((bl.lat + tr.lat) / 2, (bl.lon + tr.lon) / 2), "file bounds"
+        lat0 = lon0 = np.inf
+        lat1 = lon1 = -np.inf
+        for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
+            if n.location.valid():
+                lat0, lat1 = min(lat0, n.location.lat), max(lat1, n.location.lat)
+                lon0, lon1 = min(lon0, n.location.lon), max(lon1, n.location.lon)
     if not np.isfinite(lat0):
         raise InputError(f"{path}: no node with a valid location")
     return ((lat0 + lat1) / 2, (lon0 + lon1) / 2), "node extent"
@@ -154,6 +156,9 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
     if p.stat().st_size > MAX_FILE_BYTES:
         raise InputError(f"{path}: {p.stat().st_size} bytes; Lanelet2 maps of at most "
                          f"{MAX_FILE_BYTES} bytes are read (lanelet2 holds the whole map in memory)")
+    bad = bad_location(p)   # lanelet2 would project a NaN node silently
+    if bad:
+        raise InputError(f"{path}: {bad}; fix or remove the node")
     if options.origin is not None:
         origin, origin_from = check_origin(options.origin, f"{path}: --origin"), "flag"
     else:

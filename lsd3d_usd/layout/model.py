@@ -661,6 +661,12 @@ def check_size(layout: Layout, where: str) -> None:
     USD's float32 points lose precision beyond) or lie farther than limits.COORDINATE from
     the origin. Readers and importers call it before they return a layout."""
 
+    if layout.extent is not None:   # e.g. an import's --bbox: every reader checks it
+        (ex0, ey0), (ex1, ey1) = layout.extent
+        if not LAYOUT_EXTENT.ok(max(ex1 - ex0, ey1 - ey0)):
+            raise InputError(f"{where}: the layout's extent is {ex1 - ex0:.6g} m x {ey1 - ey0:.6g} m, "
+                             f"more than the limit of {LAYOUT_EXTENT.value:.0f} m on a side "
+                             "(choose a smaller area)")
     (x0, y0), (x1, y1) = layout.bounds()
     size = max(x1 - x0, y1 - y0)
     if not LAYOUT_EXTENT.ok(size):

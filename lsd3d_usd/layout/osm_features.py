@@ -77,7 +77,7 @@ def clip_area(path, options: ImportOptions) -> tuple[tuple | None, str | None]:
             box = reader.header().box()
         finally:
             reader.close()
-    except RuntimeError:
+    except (RuntimeError, osmium.InvalidLocationError):
         return None, None           # the reader itself reports what is wrong with the file
     if not box.valid():
         return None, None
@@ -181,24 +181,26 @@ def sound_highways(path, roads, xy_of: dict, options: ImportOptions) -> list:
             _warn(f"{path}: way {wid}: a highway of {len(refs)} node(s) at one position; skipped",
                   options)
             continue
-        changed = True
+        # One pass with a stack (linear time): a node where the way turns back is dropped,
+        # and the turn at the node before it is looked at again.
         spikes = []
-        while changed and len(keep) > 2:
-            changed = False
-            for i in range(1, len(keep) - 1):
-                a, b, c = (xy_of[keep[i - 1]], xy_of[keep[i]], xy_of[keep[i + 1]])
+        limit = np.cos(np.radians(SPIKE_DEG))
+        stack = keep[:1]
+        for r in keep[1:]:
+            while len(stack) >= 2:
+                a, b, c = xy_of[stack[-2]], xy_of[stack[-1]], xy_of[r]
                 u, v = b - a, c - b
-                cos = np.dot(u, v) / max(np.hypot(*u) * np.hypot(*v), 1e-12)
-                if cos < np.cos(np.radians(SPIKE_DEG)):
-                    spikes.append(keep[i])
-                    keep = keep[:i] + keep[i + 1:]
-                    changed = True
+                if np.dot(u, v) / max(np.hypot(*u) * np.hypot(*v), 1e-12) >= limit:
                     break
+                spikes.append(stack.pop())
+            stack.append(r)
+        keep = stack
         if spikes:
             _warn(f"{path}: way {wid}: turns back on itself at node {spikes[0]}"
                   f"{f' (and {len(spikes) - 1} more)' if len(spikes) > 1 else ''}; node(s) "
                   "dropped from the way (repaired)", options)
-            refs = [r for r in refs if r not in set(spikes)]
+            dropped = set(spikes)
+            refs = [r for r in refs if r not in dropped]
         out.append((wid, t, refs))
     return out
 

@@ -51,11 +51,13 @@ from shapely.geometry.polygon import orient
 from shapely.ops import substring
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import OSM_WAY_NODES
 from lsd3d_usd.layout import blocks as B
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout import roadnet as R
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
 from lsd3d_usd.layout.lanelet2_import import FAR_ERROR_M, FAR_WARN_M, check_origin
+from lsd3d_usd.layout.osmxml import osmium_errors
 from lsd3d_usd.layout.osm_features import (clip_area, map_features, point_wanted, record_clip,
                                            sound_highways)
 
@@ -115,7 +117,7 @@ def _read(path: Path, options: ImportOptions):
     inside: set[int] = set()
     points = []
     ext = [np.inf, np.inf, -np.inf, -np.inf]
-    try:
+    with osmium_errors(path):
         for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
             loc = n.location
             if not loc.valid():
@@ -135,6 +137,10 @@ def _read(path: Path, options: ImportOptions):
         ways = []
         needed: set[int] = set()
         for w in osmium.FileProcessor(str(path), osmium.osm.WAY).with_filter(osmium.filter.KeyFilter(*KEYS)):
+            if not OSM_WAY_NODES.ok(len(w.nodes)):
+                _warn(OSM_WAY_NODES.message(len(w.nodes), f"{path}: way {w.id}") + "; way skipped",
+                      options)
+                continue
             refs = [nd.ref for nd in w.nodes]
             if bbox is not None and not any(r in inside for r in refs):
                 continue
@@ -147,8 +153,6 @@ def _read(path: Path, options: ImportOptions):
         for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
             if n.id in needed and n.location.valid():
                 locs[n.id] = (n.location.lat, n.location.lon)
-    except RuntimeError as e:
-        raise InputError(f"{path}: osmium cannot read it: {e}") from None
     return points, ways, locs, ext
 
 
@@ -165,17 +169,20 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
         raise InputError(f"{path}: {p.stat().st_size} bytes; at most {MAX_FILE_BYTES} are read")
     clip_box, clip_from = clip_area(p, options)
     points, ways, locs, ext = _read(p, options)
+    if not ways and not np.isfinite(ext[0]) and options.bbox is None:
+        raise InputError(f"{path}: no nodes or ways could be read (an empty or truncated file)")
     if options.origin is not None:
         origin, origin_from = check_origin(options.origin, f"{path}: --origin"), "flag"
     elif options.bbox is not None:
         b = options.bbox
         origin, origin_from = ((b[1] + b[3]) / 2, (b[0] + b[2]) / 2), "bbox"
     else:
-        reader = osmium.io.Reader(str(p), osmium.osm.osm_entity_bits.NOTHING)
-        try:
-            box = reader.header().box()
-        finally:
-            reader.close()
+        with osmium_errors(p):
+            reader = osmium.io.Reader(str(p), osmium.osm.osm_entity_bits.NOTHING)
+            try:
+                box = reader.header().box()
+            finally:
+                reader.close()
         if box.valid():
             origin = ((box.bottom_left.lat + box.top_right.lat) / 2,
                       (box.bottom_left.lon + box.top_right.lon) / 2)
@@ -205,12 +212,16 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
         clip = shp_box(cx0, cy0, cx1, cy1)
         layout.extent = ((float(cx0), float(cy0)), (float(cx1), float(cy1)))
 
+    cut_ways: dict = {}   # with --bbox: ways cut at the file's own edge, warned once
+
     def coords(wid, refs) -> np.ndarray | None:
         missing = [r for r in refs if r not in xy_of]
         if missing:
-            if options.bbox is None:   # inside an area cut, missing nodes are simply outside the file
+            if options.bbox is None:
                 _warn(f"{path}: way {wid}: references node {missing[0]}, which the file lacks; "
                       "way skipped", options)
+            else:   # an extract's ways often run past its edge: one warning for all of them
+                cut_ways.setdefault(wid, missing[0])
             return None
         return np.array([xy_of[r] for r in refs])
 
@@ -223,6 +234,10 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
     _trees(points, ways, coords, clip, layout, xy)
     map_features(path, points, ways, coords, clip, layout, xy, options)
     record_clip(layout, clip, clip_box, clip_from, options)
+    if cut_ways:
+        wid, nid = next(iter(cut_ways.items()))
+        _warn(f"{path}: {len(cut_ways)} way(s) reference nodes the file lacks (first: way {wid}, "
+              f"node {nid}), e.g. cut at the file's edge; those ways skipped", options)
     if not layout.lanes:
         raise InputError(f"{path}: no drivable highway in the {'area' if clip is not None else 'file'} "
                          f"({len(roads)} highway ways read)")
@@ -331,7 +346,7 @@ def _highways(path, roads, coords, clip, layout, points, xy, options) -> None:
         centre = np.asarray(substring(line, c0, line.length - c1).coords)
         hw = (f + b) * w / 2 if not both else w / 2
         # the surface runs up to the junction node: the roads' strips overlap there
-        road_polys.append(line.buffer(hw, cap_style="flat", join_style="round", quad_segs=4))
+        road_polys.extend(_road_strip(pts, hw))
         lane_type = "bike" if t["highway"] == "cycleway" else "driving"
         speed = _num((t.get("maxspeed") or "").replace("km/h", "")) if "mph" not in (t.get("maxspeed") or "") else None
         base = f"w{wid}_{k}"
@@ -415,6 +430,25 @@ def _highways(path, roads, coords, clip, layout, points, xy, options) -> None:
                 c = np.asarray(ring.coords)[:, :2]
                 layout.add(m.RoadEdge(f"edge{n_e}", points=R.xyz(c)))
                 n_e += 1
+
+
+STRIP_PIECE = 32   # points per buffered piece of a long way
+
+
+def _road_strip(pts: np.ndarray, hw: float) -> list:
+    """The road surface along ``pts`` (flat ends, round joins) as polygons. GEOS buffers
+    a long line that crosses itself in quadratic time (2000 random points: 42 s, 1.4 GB),
+    so a long way is buffered in pieces with a disc at each seam (the same set: a round
+    join is the disc) and united by the caller (union_all is near linear)."""
+    if len(pts) <= 2 * STRIP_PIECE:
+        return [LineString(pts).buffer(hw, cap_style="flat", join_style="round", quad_segs=4)]
+    out = []
+    for s in range(0, len(pts) - 1, STRIP_PIECE):
+        piece = pts[s:s + STRIP_PIECE + 1]
+        out.append(LineString(piece).buffer(hw, cap_style="flat", join_style="round", quad_segs=4))
+        if s > 0:
+            out.append(Point(piece[0]).buffer(hw, quad_segs=4))
+    return out
 
 
 def _half_width(t: dict) -> float:

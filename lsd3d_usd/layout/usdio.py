@@ -32,9 +32,11 @@ import numpy as np
 from pxr import Sdf, Tf, Usd, UsdGeom, Vt
 
 import lsd3d_usd  # noqa: F401  (schema registration before any stage opens)
+from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import model as m
-from lsd3d_usd.limits import CHUNK_SIZE_MAX, CHUNK_SIZE_MIN, COORDINATE, LAYOUT_EXTENT
+from lsd3d_usd.limits import (CHUNK_SIZE_MAX, CHUNK_SIZE_MIN, COORDINATE, FEATURE_POINTS,
+                              LAYOUT_EXTENT, LAYOUT_POINTS)
 from lsd3d_usd.scene import LAYOUT_PATH, WORLD, new_stage, open_stage, save_stage
 
 NS = "lsd3d:"
@@ -288,6 +290,7 @@ _ACCEPT = {
 def read_layout(path: str | Path) -> m.Layout:
     """Read the layout under /World/Layout of the USD file (or scene folder) at ``path``."""
     stage = open_stage(path)
+    check_scene(stage, path)   # a layout's sublayers outside its folder are refused
     return layout_from_stage(stage, str(path))
 
 
@@ -300,6 +303,7 @@ def layout_from_stage(stage: Usd.Stage, where: str = "stage") -> m.Layout:
     units = _stage_units(stage, where)
     layout = m.Layout()
     _read_layer_data(stage, layout, where, units)
+    total = 0
     for prim in Usd.PrimRange(root):
         attr = prim.GetAttribute(NS + "featureType")
         if not attr or not attr.HasAuthoredValue():
@@ -314,6 +318,10 @@ def layout_from_stage(stage: Usd.Stage, where: str = "stage") -> m.Layout:
         try:
             for f in _read_prim(prim, ftype, where, units):
                 layout.add(f)
+                total += len(f.coords())
+                if not LAYOUT_POINTS.ok(total):
+                    LAYOUT_POINTS.check(total, f"{where}: {prim.GetPath()}",
+                                        what="points of the features read so far")
         except ValueError as e:
             raise InputError(f"{where}: {prim.GetPath()}: {e}") from None
     seen: set[str] = set()
@@ -419,7 +427,10 @@ def _float_points(prim: Usd.Prim, where: str) -> np.ndarray:
                                   T.Vector3fArray):
         raise InputError(f"{where}: {prim.GetPath()}: attribute points has type "
                          f"{attr.GetTypeName()}, expected point3f[]")
-    return np.asarray(attr.Get(), dtype=np.float64).reshape(-1, 3)
+    value = attr.Get()
+    if value is not None and not FEATURE_POINTS.ok(len(value)):
+        FEATURE_POINTS.check(len(value), f"{where}: {prim.GetPath()}.points")
+    return np.asarray(value, dtype=np.float64).reshape(-1, 3)
 
 
 def _prefer64(prim: Usd.Prim, name: str, approx: np.ndarray, where: str, want) -> np.ndarray:

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from pxr import Sdf, Usd, UsdGeom, UsdSemantics, Vt
 
+from lsd3d_usd import safepaths
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
     PROXY_PATH,
@@ -239,6 +240,8 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
     builder = ProxyBuilder(layout, params)
     keys = builder.chunks(max_chunks) if chunks is None else chunks
     folder = chunks_dir(path)
+    # Chunk files are rewritten and pruned below: never through a planted link.
+    safepaths.check_tree(folder, path.absolute().parent, "proxy chunk folder")
     old_map = read_chunk_map(path)
     new_map: dict[tuple[int, int], str] = {}
     if chunks is not None:
@@ -272,7 +275,7 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
         keep = {chunk_file_name(*k) for k in new_map}
         for f in folder.glob("chunk_*.usdc"):
             if f.name not in keep:
-                f.unlink()
+                safepaths.unlink(f, folder, "proxy chunk file")
     new_names = {chunk_prim_name(*k): h for k, h in new_map.items()}
     lhash = layout_hash(layout)
     if force or new_names != old_map or not path.is_file() or _root_layout_hash(path) != lhash:

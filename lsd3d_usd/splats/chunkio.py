@@ -25,7 +25,6 @@ payload. Per-chunk bookkeeping (surfel count, bounds, inputs hash) is in the roo
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 from typing import Iterable
 
@@ -33,6 +32,7 @@ import numpy as np
 from pxr import Sdf, Usd, UsdGeom, Vt
 
 import lsd3d_usd
+from lsd3d_usd import safepaths
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
     SURFELS_PATH,
@@ -179,9 +179,10 @@ def prune_chunk_folders(root_path) -> list[Path]:
     base = chunks_base(root_path)
     removed = []
     if base.is_dir() and keep != base:
+        safepaths.check_tree(base, Path(root_path).absolute().parent, "surfel chunk folder")
         for d in base.iterdir():
             if d.is_dir() and d.resolve() != keep.resolve():
-                shutil.rmtree(d)
+                safepaths.rmtree(d, base, "surfel chunk folder")
                 removed.append(d)
     return removed
 

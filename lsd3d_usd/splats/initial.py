@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from lsd3d_usd import safepaths
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.proxy.usdio import proxy_arrays, read_chunk_map
 from lsd3d_usd.scene import parse_chunk_prim_name
@@ -165,6 +166,9 @@ def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | 
     surfel colours in place, given the proxy of its 3×3 neighbourhood (what can shadow it).
     Returns a summary."""
 
+    # Chunk folders are written and pruned below: never through a planted link.
+    safepaths.check_tree(chunkio.chunks_base(out_root), Path(out_root).absolute().parent,
+                         "surfel chunk folder")
     keys = sorted(parse_chunk_prim_name(n) for n in read_chunk_map(proxy_path))
     cache = _ProxyCache(proxy_path, keys)
     counts, areas = _counts(keys, cache, layout, count, density, max_count)

@@ -26,12 +26,14 @@ import json
 import re
 import socket
 import sys
+import threading
 from http import HTTPStatus
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from importlib import resources
 from urllib.parse import parse_qs, unquote
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS
 
 STATIC_TYPES = {".html": "text/html; charset=utf-8", ".js": "text/javascript; charset=utf-8",
                 ".css": "text/css; charset=utf-8", ".svg": "image/svg+xml", ".png": "image/png"}
@@ -93,6 +95,7 @@ def _has_dot_segment(path: str) -> bool:
 class Handler(BaseHTTPRequestHandler):
     server_version = "lsd3d-usd-viewer"
     protocol_version = "HTTP/1.1"
+    timeout = VIEWER_IDLE_SECONDS.value   # an idle keep-alive connection is closed
 
     # ----------------------------------------------------------------------- replies
     def _send(self, status: int, body: bytes, ctype: str, cache: str = "no-store") -> None:
@@ -128,6 +131,10 @@ class Handler(BaseHTTPRequestHandler):
     do_PUT = do_DELETE = do_PATCH = do_POST
 
     def do_GET(self):
+        if not self.server.host_allowed(self.headers.get("Host")):
+            # DNS rebinding: a page of evil.example.com resolving to 127.0.0.1 sends its own
+            # name; only our own names may read the scene
+            return self._error(403, "refused: unknown Host header")
         path, _, query = self.path.partition("?")
         if _has_dot_segment(path) or not path.startswith("/"):
             return self._error(403, "refused: path outside the scene folder")
@@ -201,13 +208,59 @@ class ViewerServer(ThreadingHTTPServer):
     daemon_threads = True
     allow_reuse_address = True
 
-    def __init__(self, address, service, quiet: bool = False):
+    def __init__(self, address, service, quiet: bool = False, allow_remote: bool = False):
         host = address[0]
         self.address_family = socket.AF_INET6 if ":" in host else socket.AF_INET
         super().__init__(address, Handler)
         self.service = service
         self.static = static_files()
         self.quiet = quiet
+        self.allow_remote = allow_remote
+        self.names = {"localhost", host.lower().strip("[]")}
+        if allow_remote:
+            self.names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
+        self._slots = threading.BoundedSemaphore(int(VIEWER_CONNECTIONS.value))
+
+    def host_allowed(self, header: str | None) -> bool:
+        """Whether a request's Host header names this server: loopback names and addresses,
+        the bound host; with --allow-remote also IP literals and this machine's names (DNS
+        rebinding needs a domain name of the attacker's)."""
+        if not header:
+            return False
+        h = header.strip().lower()
+        if h.startswith("["):
+            name = h[1:h.find("]")] if "]" in h else h[1:]
+        else:
+            name = h.rsplit(":", 1)[0] if h.count(":") == 1 else h
+        if name in self.names:
+            return True
+        try:
+            ip = ipaddress.ip_address(name)
+        except ValueError:
+            return False
+        return ip.is_loopback or self.allow_remote
+
+    # bounded workers: one thread per connection, at most VIEWER_CONNECTIONS of them
+    def process_request(self, request, client_address):
+        if not self._slots.acquire(blocking=False):
+            try:
+                request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\n"
+                                b"Connection: close\r\n\r\n")
+            except OSError:
+                pass
+            self.shutdown_request(request)
+            return
+        try:
+            super().process_request(request, client_address)
+        except BaseException:
+            self._slots.release()
+            raise
+
+    def process_request_thread(self, request, client_address):
+        try:
+            super().process_request_thread(request, client_address)
+        finally:
+            self._slots.release()
 
 
 def is_loopback(host: str) -> bool:
@@ -227,7 +280,7 @@ def make_server(service, host: str = "127.0.0.1", port: int = 8021, *, allow_rem
         raise InputError(f"--host {host}: not a loopback address; serving a scene to other machines "
                          "needs --allow-remote (anyone who can reach the port can read the scene)")
     try:
-        return ViewerServer((host, port), service, quiet)
+        return ViewerServer((host, port), service, quiet, allow_remote)
     except OSError as e:
         raise InputError(f"cannot listen on {host}:{port}: {e.strerror or e} "
                          "(try another --port, or --port 0 for any free one)") from None

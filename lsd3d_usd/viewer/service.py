@@ -14,7 +14,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import tempfile
 import threading
 import time
@@ -24,7 +23,9 @@ from urllib.parse import quote
 
 import numpy as np
 
+from lsd3d_usd import safepaths
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import VIEWER_PROBLEMS
 from lsd3d_usd.scene import atomic_write_bytes
 from lsd3d_usd.semantics import CLASS_COLORS, CLASS_ID
 from lsd3d_usd.viewer import pack
@@ -32,6 +33,8 @@ from lsd3d_usd.viewer.data import GGDS, SceneSource
 
 CACHE_DIR = "viewer_cache"
 KEEP_CONFIGS = 6              # surfel caches kept per scene (the oldest are removed)
+MAX_PROBLEMS = int(VIEWER_PROBLEMS.value)   # problems listed (memory and page size bounded)
+MAX_RUNS_ASKED = 1000         # run names in one /api/config request
 SCENE_FILE_SUFFIXES = (".png", ".jpg", ".json", ".txt", ".md", ".usda", ".csv", ".html")
 
 
@@ -80,6 +83,7 @@ class ViewerService:
         self.log = log or (lambda msg: None)
         self.lock = threading.RLock()
         self.problems: list[dict] = []
+        self._problems_dropped = 0
         self.configs: dict[str, Config] = {}
         self._digests: dict = {}
         self._stages: dict = {}
@@ -97,9 +101,16 @@ class ViewerService:
 
     # ------------------------------------------------------------------------ helpers
     def _problem(self, where: str, message: str, severity: str = "error") -> None:
-        entry = {"severity": severity, "where": where, "message": message}
+        entry = {"severity": severity, "where": where[:200], "message": message[:1000]}
         with self.lock:
-            if entry in self.problems:
+            if entry in self.problems or self._problems_dropped:
+                self._problems_dropped += entry not in self.problems
+                return
+            if len(self.problems) >= MAX_PROBLEMS:   # bounded: the page shows the first ones
+                self._problems_dropped = 1
+                self.problems.append({"severity": "warning", "where": "viewer",
+                                      "message": f"more than {MAX_PROBLEMS} problems; "
+                                                 "the rest are not listed"})
                 return
             self.problems.append(entry)
         self.log(f"{severity}: {where}: {message}")
@@ -123,14 +134,20 @@ class ViewerService:
         except Exception as e:
             found = [{"severity": "error", "where": "validate",
                       "message": f"{type(e).__name__}: {' '.join(str(e).split())[:400]}"}]
-        with self.lock:
-            for p in found:
-                if p not in self.problems:
-                    self.problems.append(p)
+        for p in found:
+            self._problem(p["where"], p["message"], p["severity"])
         self.validation_done.set()
 
     def _cache_root(self) -> Path:
         folder = self.root / CACHE_DIR
+        try:
+            # A planted link (viewer_cache -> elsewhere) would make the cache write and
+            # evict there: never follow one, cache in a temp folder instead.
+            safepaths.check_tree(folder, self.root, "viewer cache")
+        except InputError as e:
+            tmp = Path(tempfile.mkdtemp(prefix="lsd3d-viewer-"))
+            self._problem("cache", f"{e}; caching buffers in {tmp} for this run", "warning")
+            return tmp
         try:
             folder.mkdir(exist_ok=True)
             probe = folder / f".probe-{os.getpid()}"
@@ -237,7 +254,7 @@ class ViewerService:
             for key, idx in pack.bin_by_chunk(f.positions, size).items():
                 groups.setdefault(key, []).append((f, idx))
         tmp = cfg.folder.with_name(cfg.folder.name + f".tmp{os.getpid()}")
-        shutil.rmtree(tmp, ignore_errors=True)
+        safepaths.rmtree(tmp, self.cache_root, "viewer cache folder")
         tmp.mkdir(parents=True)
         chunks = {}
         for key, parts in groups.items():
@@ -260,19 +277,23 @@ class ViewerService:
                  "chunkSize": size, "shDegree": deg, "semanticClasses": classes,
                  "chunks": [vars(c) for c in chunks.values()]}
         atomic_write_bytes(tmp / "index.json", json.dumps(index).encode())
-        shutil.rmtree(cfg.folder, ignore_errors=True)
-        os.replace(tmp, cfg.folder)
+        safepaths.rmtree(cfg.folder, self.cache_root, "viewer cache folder")
+        safepaths.replace(tmp, cfg.folder, self.cache_root, "viewer cache folder")
         n = sum(c.n for c in chunks.values())
         self.log(f"built {n} surfels in {len(chunks)} chunks for layers {', '.join(cfg.layers)} "
                  f"in {cfg.seconds:.2f} s")
 
     def _evict(self) -> None:
-        olds = sorted((p for p in self.cache_root.glob("surfels_*") if p.is_dir()),
+        olds = sorted((p for p in self.cache_root.glob("surfels_*")
+                       if p.is_dir() and not p.is_symlink()),
                       key=lambda p: p.stat().st_mtime, reverse=True)
         live = {c.folder for c in self.configs.values()}
         for p in olds[KEEP_CONFIGS:]:
             if p not in live and p.parent == self.cache_root:
-                shutil.rmtree(p, ignore_errors=True)
+                try:
+                    safepaths.rmtree(p, self.cache_root, "viewer cache folder")
+                except (InputError, OSError) as e:
+                    self._problem("cache", f"{p}: not removed: {e}", "warning")
 
     def chunk_bytes(self, cid: str, key: tuple[int, int]) -> bytes | None:
         cfg = self.configs.get(cid)
@@ -312,6 +333,11 @@ class ViewerService:
         return info
 
     def config_info(self, runs: list[str] | None) -> dict:
+        if runs is not None:   # a request naming unknown runs is a bad request, no scene problem
+            if len(runs) > MAX_RUNS_ASKED:
+                raise InputError(f"{len(runs)} runs asked for; at most {MAX_RUNS_ASKED}")
+            with self.lock:
+                self._layer_files(runs)
         try:
             cfg = self.config(runs)
         except InputError as e:

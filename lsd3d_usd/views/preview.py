@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import from_usd
@@ -71,6 +72,7 @@ def render_preview(scene_path, camera_path: str, out_dir, *, times=(None,), reso
     if tonemap_method not in TONEMAPS:
         raise InputError(f"--tonemap {tonemap_method!r}: choose from {', '.join(TONEMAPS)}")
     stage = scene.open_stage(scene_path)
+    check_scene(stage, scene_path)
     prim = camera_prim(stage, camera_path)
     reader = SceneReader(stage, use_env=use_env)
     width, height = resolution if resolution else (None, None)

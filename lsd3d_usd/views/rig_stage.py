@@ -15,6 +15,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom
 from scipy.spatial.transform import Rotation
 
+from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd import scene as S
 from lsd3d_usd.actors.assets import relative_asset_path, write_vehicle_asset
 from lsd3d_usd.actors.usdio import ActorSpec, author_actor
@@ -111,6 +112,7 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None
     sp = Path(scene_path)
     root_file = (sp / S.ROOT_FILE if sp.is_dir() else sp).absolute()
     scene_stage = S.open_stage(root_file, load=False)
+    check_scene(scene_stage, root_file)
     root_layer = scene_stage.GetRootLayer()
     tcps = float(root_layer.timeCodesPerSecond) if root_layer.HasTimeCodesPerSecond() else 24.0
     times = frame_times(fps, seconds)

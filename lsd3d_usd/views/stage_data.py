@@ -67,6 +67,43 @@ def scene_surfel_prims(stage) -> list:
     return [p for p in surfel_prims(stage) if not str(p.GetPath()).startswith(skip)]
 
 
+OPACITY_TOL = 1e-3   # as validation's OpacityRange: linear opacity in [0, 1]
+
+
+def _layer_of(prim, name: str, t) -> str:
+    """The file holding the strongest opinion of attribute ``name`` (or its half variant)."""
+    for n in (name, name + "h"):
+        attr = prim.GetAttribute(n)
+        if attr and attr.HasValue():
+            stack = attr.GetPropertyStack(t)
+            if stack:
+                return stack[0].layer.realPath or stack[0].layer.identifier
+    return prim.GetStage().GetRootLayer().realPath
+
+
+def check_renderable(prim, f: SurfelField, t) -> None:
+    """Refuse (one line naming the layer file, prim, attribute and particle) surfels that
+    the rasteriser cannot draw or that validate reports as errors: non-finite positions,
+    scales or orientations, zero quaternions, negative scales, opacity outside [0, 1]."""
+    with np.errstate(all="ignore"):
+        q = np.asarray(f.orientations, np.float64)
+        tests = (
+            ("positions", ~np.isfinite(f.positions).all(1), "a non-finite position"),
+            ("orientations", ~np.isfinite(q).all(1), "a non-finite quaternion"),
+            ("orientations", (q * q).sum(1) < 1e-20, "a zero quaternion"),
+            ("scales", ~np.isfinite(f.scales).all(1) | (f.scales < 0).any(1),
+             "a non-finite or negative scale"),
+            ("opacities", ~((f.opacities >= -OPACITY_TOL) & (f.opacities <= 1 + OPACITY_TOL)),
+             "an opacity outside [0, 1] (linear, not logit)"),
+        )
+    for name, bad, what in tests:
+        hit = np.flatnonzero(bad)
+        if hit.size:
+            raise InputError(f"{_layer_of(prim, name, t)}: {prim.GetPath()}.{name}: {what} at "
+                             f"particle {int(hit[0])} ({hit.size} bad of {f.n}); `lsd3d-usd "
+                             "validate` lists the problems")
+
+
 def scene_surfels(stage, time=None, prims=None):
     """The scene's visible surfels in world space as one SurfelField (semantics dropped when
     the prims' class tables differ), or None when there are none."""
@@ -78,6 +115,7 @@ def scene_surfels(stage, time=None, prims=None):
             continue
         f = read_surfels(prim, t)
         if f.n:
+            check_renderable(prim, f, t)
             fields.append(transform_surfels(f, _world(prim, t)))
     return SurfelField.concat(fields, drop_mismatched_semantics=True) if fields else None
 

@@ -58,14 +58,15 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     run = GGDSRun(inputs, prior, config, term_state=term_state)
     inputs.field = inputs.context = None
     store.write_views(inputs.views)
-    before = []
+    # "before" = the initial surfels as authored; rendered before a checkpoint is restored
+    # too, so a resumed run's before_after.png still shows where it started
+    with torch.no_grad():
+        before = [render_rgb(run, v) for v in inputs.held_out[:BEFORE_AFTER_VIEWS]]
     if resume:
         tensors, meta = store.load_checkpoint()
         run.restore(tensors, meta)
         log(f"ggds: resuming {store.name} at step {run.step_index} of {config.steps}")
     else:
-        with torch.no_grad():  # "before" = the initial surfels as authored
-            before = [render_rgb(run, v) for v in inputs.held_out[:BEFORE_AFTER_VIEWS]]
         if config.world_init and run.world_init():
             log("ggds: surfel colours initialised from the world-space prior")
             # its least-squares temporaries (hundreds of MB) would otherwise stay resident
