@@ -146,11 +146,11 @@ def _label(prim, cls: str = VEHICLE_CLASS) -> None:
     UsdSemantics.LabelsAPI.Apply(prim, "class").CreateLabelsAttr(Vt.TokenArray([cls]))
 
 
-def _root_attrs(prim, kind: str, dims) -> None:
+def _root_attrs(prim, kind: str, dims, cls: str = VEHICLE_CLASS) -> None:
     prim.CreateAttribute(KIND_ATTR, Sdf.ValueTypeNames.Token, variability=Sdf.VariabilityUniform).Set(kind)
     prim.CreateAttribute(DIMS_ATTR, Sdf.ValueTypeNames.Float3, variability=Sdf.VariabilityUniform).Set(
         Gf.Vec3f(*map(float, dims)))
-    _label(prim)
+    _label(prim, cls)
 
 
 def _new_asset_stage(name: str, kind: str):
@@ -163,7 +163,7 @@ def _new_asset_stage(name: str, kind: str):
     return stage, root
 
 
-def author_mesh(stage, path: str, m: MeshData):
+def author_mesh(stage, path: str, m: MeshData, cls: str = VEHICLE_CLASS):
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = np.ascontiguousarray(m.vertices, np.float32)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
@@ -176,7 +176,7 @@ def author_mesh(stage, path: str, m: MeshData):
         mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray.FromNumpy(cols[:1]))
     else:
         mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(cols))
-    _label(mesh.GetPrim())
+    _label(mesh.GetPrim(), cls)
     return mesh
 
 
