@@ -95,6 +95,7 @@ class AssetInfo:
     dimensions: np.ndarray         # (3,) length, width, height
     meshes: list[MeshData] = field(default_factory=list)
     has_surfels: bool = False
+    label: str = VEHICLE_CLASS     # its UsdSemantics class (vehicle, pedestrian, cyclist, ...)
 
 
 # ------------------------------------------------------------------ geometry
@@ -315,7 +316,19 @@ def read_asset(path) -> AssetInfo:
                              f"author {DIMS_ATTR} on {root.GetPath()}")
         lo, hi = np.array(r.GetMin()), np.array(r.GetMax())
         dims = np.array([hi[0] - lo[0], hi[1] - lo[1], hi[2]])
-    return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels)
+    return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels, asset_label(root))
+
+
+def asset_label(root) -> str:
+    """The class of an asset: the UsdSemantics ``class`` label on its root prim (or the
+    first prim below with one), "vehicle" when none is authored."""
+    for p in Usd.PrimRange(root):
+        api = UsdSemantics.LabelsAPI(p, "class")
+        attr = api.GetLabelsAttr() if api else None
+        labels = attr.Get() if attr and attr.HasValue() else None
+        if labels:
+            return str(labels[0])
+    return VEHICLE_CLASS
 
 
 def library_assets(folder) -> dict[str, Path]:
