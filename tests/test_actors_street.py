@@ -12,6 +12,7 @@ import pytest
 import shapely
 from shapely.geometry import LineString, Point, Polygon
 
+from lsd3d_usd.actors import people as P
 from lsd3d_usd.actors.pedestrians import obb_overlap
 from lsd3d_usd.actors.sidewalks import build_walkable
 from lsd3d_usd.actors.street import STATES, StreetParams, simulate_street
@@ -21,9 +22,11 @@ from lsd3d_usd.layout.model import Crosswalk, LaneCenter, Layout
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "layouts" / "hand_crossing.usda"
 SEEDS = range(50)
 SECONDS, FPS = 5.0, 5.0
-VEHICLES = [(4.6, 1.8)] * 6 + [(5.3, 2.0)] * 2
-CYCLISTS = [(1.8, 0.65)] * 4
-PEOPLE = [("adult", 0.75, 0.65, False)] * 8 + [("child", 0.55, 0.45, True)] * 4
+VEHICLES = [(4.6, 1.8)] * 6 + [(5.3, 2.0)] * 2     # the procedural car and van
+_dims = {k: P.dimensions(k) for k in ("adult", "adult_broad", "child", "cyclist")}
+CYCLISTS = [tuple(_dims["cyclist"][:2])] * 4
+PEOPLE = ([("adult", *_dims["adult"][:2], False)] * 5 + [("adult_broad", *_dims["adult_broad"][:2], False)] * 3
+          + [("child", *_dims["child"][:2], True)] * 4)
 
 
 def _layouts():
@@ -215,7 +218,7 @@ def test_layout_without_sidewalks_places_no_pedestrians():
     from lsd3d_usd.proxy.ground import GroundStyle
     w = build_walkable(L, style=GroundStyle(derive_sidewalks=False))
     assert not w.tracks
-    r = simulate_street(L, [], [(1.8, 0.65)], PEOPLE[:3], seed=0, seconds=1.0, fps=5.0,
+    r = simulate_street(L, [], CYCLISTS[:1], PEOPLE[:3], seed=0, seconds=1.0, fps=5.0,
                         params=no_walk, walkable=w)
     assert r.people.n == 0 and r.traffic.n == 1
 
@@ -225,7 +228,7 @@ def test_cyclists_take_bike_lanes_when_the_layout_has_them():
     bike = LaneCenter("bike", points=[[0, -2.5, 0], [100, -2.5, 0]], lane_type="bike",
                       widths=np.full(2, 1.5), speed_limit_mps=6.0)
     L = Layout(lanes=[car, bike])
-    r = simulate_street(L, [(4.6, 1.8)] * 2, [(1.8, 0.65)] * 2, [], seed=1, seconds=2.0, fps=5.0)
+    r = simulate_street(L, [(4.6, 1.8)] * 2, CYCLISTS[:2], [], seed=1, seconds=2.0, fps=5.0)
     tr = r.traffic
     ids = np.array(tr.lane_ids)
     assert set(ids[tr.lane[tr.cyclist].ravel()]) == {"bike"}

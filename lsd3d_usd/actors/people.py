@@ -169,8 +169,15 @@ def pedestrian_parts(kind: str) -> list[Part]:
     hv[:, 2] += H - head_r
     parts = [Part("Torso", MeshData("Torso", tv, tf, _col(b.shirt, tf))),
              Part("Head", MeshData("Head", hv, hf, _col(b.skin, hf)))]
+    # the leg's length: its toe (a corner of the swinging box) just reaches the ground at the
+    # extreme of the swing, never below it
+    half_d = b.depth * 0.35
+    sw = np.radians(np.linspace(0.0, b.leg_swing, 64))
+    leg = hip
+    for _ in range(3):
+        leg = hip - float(np.max(leg * np.cos(sw) + half_d * np.sin(sw)) - leg)
     for side, sgn in (("Left", 1.0), ("Right", -1.0)):
-        lv, lf = box(b.depth * 0.7, leg_w, -hip, 0.0)
+        lv, lf = box(b.depth * 0.7, leg_w, -leg, 0.0)
         parts.append(Part(f"{side}Leg/Mesh", MeshData("Mesh", lv, lf, _col(b.trousers, lf)),
                           (0.0, sgn * (b.shoulders / 2 - leg_w / 2 - 0.01), hip)))
         arm_len = 0.42 * H * 0.8
@@ -263,6 +270,13 @@ def envelope(parts: list[Part], kind: str) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def dimensions(kind: str) -> np.ndarray:
+    """length, width, height (m) of a procedural model: its box over the whole motion cycle,
+    footprint centred on the origin (as written to ``lsd3d:actor:dimensions``)."""
+    lo, hi = envelope(parts_of(kind), kind)
+    return np.array([2 * max(-lo[0], hi[0]), 2 * max(-lo[1], hi[1]), hi[2]])
+
+
 def parts_of(kind: str) -> list[Part]:
     if kind in BODIES:
         return pedestrian_parts(kind)
@@ -290,8 +304,7 @@ def write_person_asset(kind: str, path) -> Path:
                 rot.Set(ang[joint], Usd.TimeCode(i * CYCLE_CODES / (len(cycle) - 1)))
         author_mesh(stage, f"/{name}/{p.path}", p.mesh, cls)
     lo, hi = envelope(parts, kind)
-    # centre the footprint on the origin: the envelope is nearly symmetric; say exactly
-    dims = np.array([2 * max(-lo[0], hi[0]), 2 * max(-lo[1], hi[1]), hi[2]])
+    dims = dimensions(kind)
     _root_attrs(root.GetPrim(), kind, dims, cls)
     UsdGeom.ModelAPI(root.GetPrim()).SetExtentsHint([tuple(lo), tuple(hi)])
     stage.SetStartTimeCode(0.0)
@@ -316,5 +329,5 @@ def write_people_library(folder, kinds=PEDESTRIAN_KINDS + CYCLIST_KINDS, fmt: st
 
 
 __all__ = ["BODIES", "CYCLIST_CLASS", "CYCLIST_KINDS", "PEDESTRIAN_CLASS", "PEDESTRIAN_KINDS",
-           "cyclist_angles", "envelope", "gait_angles", "joint_names", "parts_of",
+           "cyclist_angles", "dimensions", "envelope", "gait_angles", "joint_names", "parts_of",
            "write_people_library", "write_person_asset"]
