@@ -12,6 +12,7 @@ import pytest
 import shapely
 from shapely.geometry import LineString, Point, Polygon
 
+from lsd3d_usd.actors import assets as A
 from lsd3d_usd.actors import people as P
 from lsd3d_usd.actors.pedestrians import obb_overlap
 from lsd3d_usd.actors.sidewalks import build_walkable
@@ -22,7 +23,8 @@ from lsd3d_usd.layout.model import Crosswalk, LaneCenter, Layout
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "layouts" / "hand_crossing.usda"
 SEEDS = range(50)
 SECONDS, FPS = 5.0, 5.0
-VEHICLES = [(4.6, 1.8)] * 6 + [(5.3, 2.0)] * 2     # the procedural car and van
+_car, _van = (tuple(A.dimensions_of(A.vehicle_meshes(k))[:2]) for k in ("car", "van"))
+VEHICLES = [_car] * 6 + [_van] * 2                  # the procedural car and van
 _dims = {k: P.dimensions(k) for k in ("adult", "adult_broad", "child", "cyclist")}
 CYCLISTS = [tuple(_dims["cyclist"][:2])] * 4
 PEOPLE = ([("adult", *_dims["adult"][:2], False)] * 5 + [("adult_broad", *_dims["adult_broad"][:2], False)] * 3
@@ -251,3 +253,21 @@ def test_a_crossing_reaches_the_other_side():
     axis = (c.b - c.a) / np.linalg.norm(c.b - c.a)
     # it went from one end of the crosswalk to the other, across the road
     assert abs(np.dot(b - a, axis)) > np.linalg.norm(c.b - c.a)
+
+
+def test_parked_actors_keep_off_crosswalks_and_sidewalks():
+    """add_actors parks with the crosswalks as footprints to avoid: no parked box on a
+    crosswalk (where pedestrians cross) or on a sidewalk (where they walk)."""
+    from lsd3d_usd.actors.placement import crosswalk_footprints, footprint, parked_placements
+    from lsd3d_usd.layout.generator import generate
+    L = generate(3, (400.0, 400.0))
+    dims = {k: tuple(A.dimensions_of(A.vehicle_meshes(k))) for k in A.SPECS}
+    cw = crosswalk_footprints(L)
+    assert len(cw) == len(L.crosswalks)
+    walk = build_walkable(L).area
+    places = parked_placements(L, 200, 0, dims, avoid=cw)
+    assert len(places) > 20
+    for p in places:
+        fp = footprint(p.position, p.yaw, dims[p.kind][0], dims[p.kind][1])
+        assert not any(fp.intersects(c) for c in cw)
+        assert fp.intersection(walk).area < 1e-6

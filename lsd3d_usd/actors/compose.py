@@ -10,7 +10,7 @@ import numpy as np
 from lsd3d_usd import scene as S
 from lsd3d_usd.actors import assets as A
 from lsd3d_usd.actors import people as P
-from lsd3d_usd.actors.placement import KIND_WEIGHTS, parked_placements, parking_slots
+from lsd3d_usd.actors.placement import KIND_WEIGHTS, crosswalk_footprints, parked_placements, parking_slots
 from lsd3d_usd.actors.street import MAX_CYCLISTS, MAX_PEDESTRIANS, STATES, simulate_street
 from lsd3d_usd.actors.traffic import simulate
 from lsd3d_usd.actors.usdio import (
@@ -104,7 +104,8 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
     wp /= wp.sum()
     notes = []
 
-    places = parked_placements(layout, parked, seed, dims, weights)
+    # never on a crosswalk: pedestrians cross there (and parking on one is not allowed)
+    places = parked_placements(layout, parked, seed, dims, weights, avoid=crosswalk_footprints(layout))
     if len(places) < parked:
         n_slots = len(parking_slots(layout))
         notes.append(f"no parked actors: the layout has no parking (no free parking spot, no lane "
@@ -133,8 +134,8 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
         if n_cyc < cyclists:
             notes.append(f"only {n_cyc} of {cyclists} cyclists found room on the lanes")
         if street.people.n < pedestrians:
-            notes.append("no pedestrians: the layout has no sidewalks (no sidewalk polygons or lanes, "
-                         "no roads to derive them along)" if not street.walkable.tracks else
+            notes.append("no pedestrians: the layout has no sidewalk area (no sidewalk polygons or lanes, "
+                         "and none derived along its roads within its extent)" if not street.walkable.tracks else
                          f"only {street.people.n} of {pedestrians} pedestrians found room on the "
                          f"sidewalks ({street.walkable.area.area:.0f} m²)")
         moving_kinds = moving_kinds[:n_cars]
