@@ -68,7 +68,8 @@ def test_gait_and_wheels_follow_the_distance():
     b = P.BODIES["adult"]
     d = np.linspace(0, 3 * b.stride, 200)
     g = P.gait_angles(d, np.full_like(d, P.REFERENCE_WALK), b)
-    assert np.allclose(g["LeftLeg"], -g["RightLeg"]) and np.allclose(g["LeftArm"], -g["LeftLeg"] * b.arm_swing / b.leg_swing)
+    assert np.allclose(g["LeftLeg"], -g["RightLeg"])
+    assert np.allclose(g["LeftArm"], -g["LeftLeg"] * b.arm_swing / b.leg_swing)
     assert abs(np.abs(g["LeftLeg"]).max() - b.leg_swing) < 0.1
     # one cycle per stride, and standing still is the rest pose
     assert np.allclose(P.gait_angles(d + b.stride, 1.3, b)["LeftLeg"], g["LeftLeg"])

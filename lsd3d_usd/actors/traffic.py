@@ -164,6 +164,7 @@ class LaneGraph:
         self.width = np.array([g.width for g in self.geoms])
         self.conflicts = self._conflicts(params.conflict_distance)
         self.crossings: list[list] = [[] for _ in self.geoms]   # per lane: (crosswalk, s_in, s_out)
+        self.crossings_of = None       # what the crossings were computed for (street's walkable)
 
     def set_crosswalks(self, polygons, step: float = 0.25) -> None:
         """For every lane, the arc-length interval where the lane's width touches each

@@ -20,10 +20,10 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdSemantics, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 import lsd3d_usd  # noqa: F401
-from lsd3d_usd.actors.assets import DIMS_ATTR, KIND_ATTR, mesh_data_from_prim
+from lsd3d_usd.actors.assets import DIMS_ATTR, KIND_ATTR, asset_label, mesh_data_from_prim
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import ACTORS_PATH, new_stage, save_layer
 from lsd3d_usd.splats.field import SurfelField
@@ -211,13 +211,7 @@ class PlacedActor:
 def actor_label(prim) -> str:
     """The class of an actor: the UsdSemantics ``class`` label on its root (or the first
     prim below that has one), "vehicle" when none is authored."""
-    for p in Usd.PrimRange(prim):
-        api = UsdSemantics.LabelsAPI(p, "class")
-        attr = api.GetLabelsAttr() if api else None
-        labels = attr.Get() if attr and attr.HasValue() else None
-        if labels:
-            return str(labels[0])
-    return "vehicle"
+    return asset_label(prim)
 
 
 def _moves_within(sub, root) -> bool:
