@@ -127,6 +127,29 @@ def test_actors_add_people_cli_and_plain_usd(scene, capsys):
     for ref, last, n_leg, label in seen["Pedestrians"] + seen["Cyclists"]:
         assert ref.startswith("../assets/") and last == pytest.approx(2.0 * 24.0) and n_leg == 21
         assert label[0] in ("pedestrian", "cyclist")
+    # the sensors' instance table labels them by class; limbs move within the walkers
+    from lsd3d_usd.actors.usdio import ActorSet
+    from lsd3d_usd.views.labels import Instances
+    stage = Usd.Stage.Open(str(scene.root_layer_path))
+    aset = ActorSet(stage)
+    rows = Instances.of(aset).rows
+    assert sorted(r["class"] for r in rows) == ["cyclist"] * 2 + ["pedestrian"] * 6 + ["vehicle"] * 3
+    assert {r["class_id"] for r in rows if r["class"] == "pedestrian"} == {12}
+    walkers = [q for q, a in enumerate(aset.actors) if a.label == "pedestrian"
+               and stage.GetPrimAtPath(a.path).GetAttribute("lsd3d:actor:behaviour").Get() == "walking"]
+    moved = 0
+    for q in walkers:
+        a = aset.actors[q]
+        assert len(a.animated) == 4                     # two legs, two arms
+        feet = []
+        for code in (0.0, 6.0, 12.0):
+            M = np.linalg.inv(aset.transforms(code)[q]) @ aset.part_transforms(q, code)[0]
+            local = a.animated[0][2]                    # the left leg in its own frame
+            v = local @ M[:3, :3].T + M[:3, 3]          # in the walker's frame
+            feet.append(v[np.argmin(v[:, 2])])
+            assert v[:, 2].min() > -1e-6                # never below the ground
+        moved += max(abs(f[0] - feet[0][0]) for f in feet) > 0.05   # the foot swings along x
+    assert moved > 0
     # re-run with the same seed: the same layer
     first = scene.layer_path("actors").read_text()
     assert main(["actors", "add", str(scene.root), "--parked", "0", "--moving", "3", "--pedestrians",
