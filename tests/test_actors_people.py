@@ -198,3 +198,24 @@ def test_sensor_class_table_has_the_new_classes():
     rows = {r["name"]: r for r in class_table()}
     assert rows["pedestrian"]["id"] == 12 and rows["cyclist"]["id"] == 13
     assert rows["pedestrian"]["color"] == [220, 20, 60]
+
+
+def test_user_people_assets_by_class(scene, tmp_path, capsys):
+    """--assets DIR: an asset of class pedestrian is a pedestrian whatever its file name; a
+    folder without one refuses --pedestrians with one line naming the folder."""
+    from lsd3d_usd.cli import main
+    lib = tmp_path / "lib"
+    A.write_vehicle_asset("car", lib / "car.usda")
+    P.write_person_asset("child", lib / "kid.usda")
+    assert main(["actors", "add", str(scene.root), "--parked", "0", "--moving", "2", "--pedestrians", "3",
+                 "--seconds", "1", "--assets", str(lib)]) == 0
+    stage = Usd.Stage.Open(str(scene.root_layer_path))
+    kids = stage.GetPrimAtPath(f"{ACTORS_PATH}/Pedestrians").GetChildren()
+    assert len(kids) == 3 and all(k.GetName().startswith("Kid_") for k in kids)
+    cars = stage.GetPrimAtPath(f"{ACTORS_PATH}/Moving").GetChildren()
+    assert len(cars) == 2 and all(c.GetName().startswith("Car_") for c in cars)
+    (lib / "kid.usda").unlink()
+    capsys.readouterr()
+    assert main(["actors", "add", str(scene.root), "--pedestrians", "2", "--assets", str(lib)]) == 1
+    err = capsys.readouterr().err
+    assert "--pedestrians 2" in err and str(lib) in err and "pedestrian" in err
