@@ -2,7 +2,8 @@
 the README sample and a generated 400 m layout: boxes never overlap, pedestrians stay on
 sidewalks and crosswalks, vehicles stay out of occupied crosswalks, cyclists stay in their
 lane, speeds stay in the documented ranges. The runs are computed once per layout (arrays
-only, no scenes)."""
+only, no scenes), with mid-block crossings five times as likely as by default so that they
+happen in 5 s runs."""
 from __future__ import annotations
 
 from pathlib import Path
@@ -14,7 +15,7 @@ from shapely.geometry import LineString, Point, Polygon
 
 from lsd3d_usd.actors import assets as A
 from lsd3d_usd.actors import people as P
-from lsd3d_usd.actors.pedestrians import obb_overlap
+from lsd3d_usd.actors.pedestrians import WalkParams, obb_overlap
 from lsd3d_usd.actors.sidewalks import build_walkable
 from lsd3d_usd.actors.street import STATES, StreetParams, simulate_street
 from lsd3d_usd.actors.traffic import LaneGraph
@@ -23,6 +24,7 @@ from lsd3d_usd.layout.model import Crosswalk, LaneCenter, Layout
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "layouts" / "hand_crossing.usda"
 SEEDS = range(50)
 SECONDS, FPS = 5.0, 5.0
+PARAMS = StreetParams(walk=WalkParams(midblock_rate=0.05))
 _car, _van = (tuple(A.dimensions_of(A.vehicle_meshes(k))[:2]) for k in ("car", "van"))
 VEHICLES = [_car] * 6 + [_van] * 2                  # the procedural car and van
 _dims = {k: P.dimensions(k) for k in ("adult", "adult_broad", "child", "cyclist")}
@@ -42,7 +44,7 @@ def runs(request):
     L = _layouts()[request.param]
     w, g = build_walkable(L), LaneGraph(L)
     out = [simulate_street(L, VEHICLES, CYCLISTS, PEOPLE, seed=s, seconds=SECONDS, fps=FPS,
-                           walkable=w, graph=g) for s in SEEDS]
+                           params=PARAMS, walkable=w, graph=g) for s in SEEDS]
     return L, w, g, out
 
 
@@ -82,6 +84,9 @@ def test_runs_place_everyone_and_people_do_things(runs):
     states = np.concatenate([r.people.state.ravel() for r in out])
     for s in ("walk", "wait", "cross", "stand"):
         assert (states == STATES.index(s)).any(), s
+    # mid-block crossings (polygons after the crosswalks) happen too
+    K = len(w.crosswalks)
+    assert any(((r.people.crosswalk >= K) & (r.people.state == STATES.index("cross"))).any() for r in out)
 
 
 def test_no_two_boxes_overlap_at_any_sample(runs):
@@ -98,24 +103,32 @@ def test_no_two_boxes_overlap_at_any_sample(runs):
 
 
 def test_pedestrians_stay_on_sidewalks_and_crosswalks(runs):
+    """... or on the corridor of their own mid-block crossing."""
     _, w, _, out = runs
     allowed = w.allowed(pad=1e-6)
     shapely.prepare(allowed)
+    walk = w.area.buffer(w.curb_width + 0.05)
+    cw = shapely.union_all([c.polygon for c in w.crosswalks]).buffer(w.curb_width + 0.05)
+    K = len(w.crosswalks)
     for r in out:
-        P = r.people.position[..., :2].reshape(-1, 2)
-        inside = shapely.contains_xy(allowed, P[:, 0], P[:, 1])
+        pe = r.people
+        P = pe.position[..., :2]
+        own = np.zeros(P.shape[:2], bool)       # on the corridor of its own mid-block crossing
+        for i, k in zip(*np.nonzero(pe.crosswalk >= K)):
+            own[i, k] = r.polygons[pe.crosswalk[i, k]].buffer(1e-6).contains(Point(P[i, k]))
+        flat = P.reshape(-1, 2)
+        inside = shapely.contains_xy(allowed, flat[:, 0], flat[:, 1]).reshape(own.shape) | own
         assert inside.all(), (r.seed, P[~inside][:3])
-        # on the road surface only on a crosswalk
-        cw = shapely.union_all([c.polygon for c in w.crosswalks]).buffer(w.curb_width + 0.05)
-        off_walk = ~shapely.contains_xy(w.area.buffer(w.curb_width + 0.05), P[:, 0], P[:, 1])
-        assert shapely.contains_xy(cw, P[off_walk, 0], P[off_walk, 1]).all()
+        # on the road surface only on a crosswalk (or its own mid-block corridor)
+        off_walk = ~shapely.contains_xy(walk, flat[:, 0], flat[:, 1]).reshape(own.shape) & ~own
+        assert shapely.contains_xy(cw, P[off_walk][:, 0], P[off_walk][:, 1]).all()
 
 
 def test_vehicles_stay_out_of_occupied_crosswalks_and_stop_for_them(runs):
     _, w, _, out = runs
-    polys = [c.polygon for c in w.crosswalks]
     stopped = 0
     for r in out:
+        polys = r.polygons           # the crosswalks, then the run's mid-block corridors
         tr = r.traffic
         for c in range(len(polys)):
             for k in np.flatnonzero(r.occupied[c]):
@@ -166,7 +179,7 @@ def test_speeds_within_documented_ranges(runs):
 def test_deterministic_per_seed(runs):
     L, w, g, out = runs
     again = simulate_street(L, VEHICLES, CYCLISTS, PEOPLE, seed=out[3].seed, seconds=SECONDS,
-                            fps=FPS, walkable=w, graph=g)
+                            fps=FPS, params=PARAMS, walkable=w, graph=g)
     assert np.array_equal(again.people.position, out[3].people.position)
     assert np.array_equal(again.traffic.position, out[3].traffic.position)
     assert not np.array_equal(out[4].people.position, out[3].people.position)
@@ -271,3 +284,26 @@ def test_parked_actors_keep_off_crosswalks_and_sidewalks():
         fp = footprint(p.position, p.yaw, dims[p.kind][0], dims[p.kind][1])
         assert not any(fp.intersects(c) for c in cw)
         assert fp.intersection(walk).area < 1e-6
+
+
+def test_midblock_line_crosses_the_road_away_from_crosswalks():
+    from lsd3d_usd.actors.sidewalks import midblock_line
+    L = _road_with_crosswalk(length=200.0, cw_x=100.0)
+    w = build_walkable(L)
+    found = []
+    for k, t in enumerate(w.tracks):
+        for s in np.linspace(0, t.length, 200, endpoint=False):
+            line = midblock_line(w, k, float(s))
+            if line is None:
+                continue
+            p, jt, js, corridor = line
+            q = w.tracks[jt].point(js)
+            if not 10.0 < p[0] < 190.0:
+                continue                 # the band of this layout (no extent) rounds the road ends
+            found.append((p, q))
+            assert abs(p[0] - q[0]) < 1e-6 and np.sign(p[1]) == -np.sign(q[1])   # straight across
+            assert 7.0 < abs(p[1] - q[1]) < 12.0
+            assert corridor.distance(w.crosswalks[0].polygon) >= 8.0
+    assert len(found) > 20
+    xs = np.array([p[0] for p, _ in found])
+    assert not np.any(np.abs(xs - 100.0) < 8.0 + 1.5)

@@ -29,6 +29,7 @@ class WalkParams:
     speed_child: tuple = (0.8, 1.3)      # m/s, per child
     cross_probability: float = 0.6       # at each crosswalk a walker passes
     wait: tuple = (0.5, 3.0)             # s waited at the kerb before looking for a gap
+    midblock_rate: float = 0.01          # per second walked: cross straight over the road here
     start_at_crosswalk: float = 0.35     # share of walkers that start waiting at a crosswalk
     stand_share: float = 0.2             # share of pedestrians standing (at corners)
     clearance: float = 0.05              # m kept between boxes by the move check
@@ -78,15 +79,21 @@ class Walker:
     join: tuple = (-1, 0.0)
     last_crossed: int = -1
     occupying: bool = False
+    midblock: tuple | None = None     # (far point, far track, its arc length) of a mid-block crossing
 
 
 class Pedestrians:
     """The walkers of a run on a `sidewalks.Walkable`; `step(dt, others)` moves them."""
 
-    def __init__(self, walkable, rng: np.random.Generator, params: WalkParams = WalkParams()):
+    def __init__(self, walkable, rng: np.random.Generator, params: WalkParams = WalkParams(),
+                 add_crossing=None):
+        """``add_crossing(polygon) -> index``: registers a mid-block crossing corridor with
+        the traffic (None: no mid-block crossings)."""
         self.w = walkable
         self.rng = rng
         self.p = params
+        self.add_crossing = add_crossing
+        self.polygons = [c.polygon for c in walkable.crosswalks]   # + mid-block corridors
         self.people: list[Walker] = []
         # leave points per track: (s, crosswalk index, forward)
         self.leave = [[] for _ in walkable.tracks]
@@ -136,6 +143,12 @@ class Pedestrians:
 
     # ---- crossing
     def _start_crossing(self, p: Walker, k: int, forward: bool) -> None:
+        if p.midblock is not None:
+            q, jt, js = p.midblock
+            path = np.array([p.xy, q])
+            p.path, p.cum, p.u = path, np.array([0.0, float(np.linalg.norm(q - p.xy))]), 0.0
+            p.release_u, p.join, p.state, p.occupying, p.midblock = p.cum[-1], (jt, js), CROSS, True, None
+            return
         c = self.w.crosswalks[k]
         a, b = (c.a, c.b) if forward else (c.b, c.a)
         d = (b - a) / max(np.linalg.norm(b - a), 1e-9)
@@ -150,6 +163,21 @@ class Pedestrians:
         p.join = (jt, js)
         p.state = CROSS
         p.occupying = True
+
+    def _maybe_midblock(self, p: Walker, dt: float) -> None:
+        if self.add_crossing is None or self.p.midblock_rate <= 0:
+            return
+        if self.rng.random() >= self.p.midblock_rate * dt:
+            return
+        from lsd3d_usd.actors.sidewalks import midblock_line
+        line = midblock_line(self.w, p.track, p.s)
+        if line is None:
+            return
+        start, jt, js, corridor = line
+        k = self.add_crossing(corridor)
+        self.polygons.append(corridor)
+        p.state, p.crosswalk, p.midblock = WAIT, k, (self.w.tracks[jt].point(js), jt, js)
+        p.wait_left = float(self.rng.uniform(*self.p.wait))
 
     def _path_point(self, p: Walker, u: float):
         u = min(u, p.cum[-1])
@@ -208,6 +236,8 @@ class Pedestrians:
                         p.v = d / dt
                     else:
                         p.last_crossed = stop[1]    # walk past it
+                elif stop is None and frac == 1.0:
+                    self._maybe_midblock(p, dt)
                 return
         p.v = 0.0
 

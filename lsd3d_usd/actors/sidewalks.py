@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 from shapely.geometry import LineString, Point, Polygon
+from shapely.geometry.polygon import orient
 
 from lsd3d_usd.proxy.ground import GroundStyle, ground_areas
 from lsd3d_usd.proxy.planar import area_from_points
@@ -93,6 +94,7 @@ class Walkable:
     tracks: list                 # Track
     stand_spots: np.ndarray      # (n, 2) candidate standing points, corners first
     curb_width: float
+    road: object = None          # shapely: road surface and curbs (where mid-block crossings go)
 
     def allowed(self, pad: float = 0.0):
         """Sidewalks, crosswalks and the curb strips between them (shapely), grown by ``pad``."""
@@ -102,10 +104,12 @@ class Walkable:
 
 
 def _rings(geom) -> list[np.ndarray]:
+    """Exterior and interior rings, the area always on their left (exteriors anticlockwise)."""
     out = []
     for poly in getattr(geom, "geoms", [geom]):
         if poly.is_empty or poly.geom_type != "Polygon":
             continue
+        poly = orient(poly, 1.0)
         for ring in [poly.exterior, *poly.interiors]:
             xy = np.asarray(ring.coords, np.float64)[:, :2]
             if len(xy) >= 4 and LineString(xy).length > 4.0:
@@ -118,13 +122,14 @@ def _track(xy: np.ndarray, step: float = 0.5) -> Track:
     n = max(8, int(np.ceil(line.length / step)))
     pts = np.array([line.interpolate(d).coords[0][:2] for d in np.linspace(0, line.length, n + 1)])
     pts[-1] = pts[0]
-    # anticlockwise for exteriors, clockwise for holes: shapely's orientation is kept
+    # the ring's orientation is kept: the walkable area on the left of the walking direction
     seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
     return Track(pts, np.concatenate([[0.0], np.cumsum(seg)]))
 
 
-def walkable_area(layout, style: GroundStyle = GroundStyle()):
-    """The sidewalk area of ``layout`` as the proxy builds it (shapely), obstacles removed."""
+def walkable_area(layout, style: GroundStyle = GroundStyle(), with_road: bool = False):
+    """The sidewalk area of ``layout`` as the proxy builds it (shapely), obstacles removed
+    (and with ``with_road`` the road surface with its curbs as a second value)."""
     (x0, y0), (x1, y1) = layout.area_box()
     pad = style.curb_width + style.sidewalk_width + 5.0
     b = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
@@ -141,6 +146,8 @@ def walkable_area(layout, style: GroundStyle = GroundStyle()):
     obstacles += [Point(*p.position[:2]).buffer(POLE_RADIUS, quad_segs=3) for p in layout.poles]
     if obstacles and not W.is_empty:
         W = W.difference(shapely.union_all(np.array(obstacles, dtype=object)))
+    if with_road:
+        return W, shapely.union(areas["road"], areas["curb"])
     return W
 
 
@@ -165,7 +172,7 @@ def _crosswalk_axis(poly: Polygon, W) -> tuple[np.ndarray, np.ndarray, float] | 
 def build_walkable(layout, track_offset: float = 0.6, stand_offset: float = 1.5,
                    style: GroundStyle = GroundStyle()) -> Walkable:
     """Walkable area, walking tracks, crosswalk links and standing spots of ``layout``."""
-    W = walkable_area(layout, style)
+    W, road = walkable_area(layout, style, with_road=True)
     tracks = [] if W.is_empty else [_track(r) for r in _rings(W.buffer(-track_offset, quad_segs=6))]
     links = []
     for cw in layout.crosswalks:
@@ -202,4 +209,39 @@ def build_walkable(layout, track_offset: float = 0.6, stand_offset: float = 1.5,
                 A = np.concatenate(anchors)
                 d = np.min(np.linalg.norm(stand[:, None, :] - A[None, ::max(1, len(A) // 400), :], axis=2), axis=1)
                 stand = stand[np.argsort(d, kind="stable")]
-    return Walkable(W, links, tracks, stand, style.curb_width)
+    return Walkable(W, links, tracks, stand, style.curb_width, road)
+
+
+def midblock_line(w: Walkable, track: int, s: float, max_length: float = 25.0,
+                  crosswalk_distance: float = 8.0):
+    """A way straight across the road from arc length ``s`` of ``track``, to the right of
+    the walking direction (away from the sidewalk): (the point, the far track, its arc
+    length there, the crossing corridor polygon), or None where there is no road to cross
+    there (a façade, a hole, no track within ``max_length``, a crosswalk within
+    ``crosswalk_distance``: cross there instead)."""
+    if w.road is None or w.road.is_empty:
+        return None
+    t = w.tracks[track]
+    p, yaw = t.pose2d(s)
+    n = np.array([np.sin(yaw), -np.cos(yaw)])
+    ray = LineString([p + 0.3 * n, p + max_length * n])
+    best = None
+    for k, other in enumerate(w.tracks):
+        hit = ray.intersection(LineString(other.points))
+        for g in getattr(hit, "geoms", [hit]):
+            if g.is_empty or g.geom_type != "Point":
+                continue
+            d = float(np.dot(np.asarray(g.coords[0]) - p, n))
+            if best is None or d < best[0]:
+                best = (d, k, np.asarray(g.coords[0]))
+    if best is None or best[0] < 4.0:
+        return None
+    d, k, q = best
+    seg = LineString([p, q])
+    off_walk = seg.difference(w.area.buffer(w.curb_width + 0.05))
+    if off_walk.length < 3.0 or not w.road.buffer(0.05).contains(off_walk):
+        return None
+    corridor = seg.buffer(0.8, cap_style="flat")
+    if any(corridor.distance(c.polygon) < crosswalk_distance for c in w.crosswalks):
+        return None
+    return p, k, w.tracks[k].project(q), corridor

@@ -57,8 +57,9 @@ class StreetRun:
     traffic: TrafficRun                      # vehicles then cyclists (traffic.cyclist)
     people: PeopleRun
     walkable: Walkable
-    occupied: np.ndarray                     # (n_crosswalks, n_t) bool
-    crossings: list                          # per traffic lane: (crosswalk, s_in, s_out)
+    occupied: np.ndarray                     # (n_polygons, n_t) bool
+    crossings: list                          # per traffic lane: (polygon, s_in, s_out)
+    polygons: list = field(default_factory=list)   # the crosswalks, then mid-block corridors
     seed: int = 0
 
 
@@ -79,6 +80,7 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
     if getattr(sim.g, "crossings_of", None) is not w:      # a graph reused over seeds keeps them
         sim.g.set_crosswalks([c.polygon for c in w.crosswalks])
         sim.g.crossings_of = w
+    sim.g.truncate_crosswalks(len(w.crosswalks))          # no mid-block crossing of another run
     if vehicles:
         sim.spawn([float(L) for L, _ in vehicles])
         for v, (_, W) in zip(sim.veh, vehicles):
@@ -88,7 +90,7 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
     specs = [(float(L), float(W), float(rng_c.uniform(*params.cyclist_speed))) for L, W in cyclists]
     sim.spawn_cyclists(specs, edge=params.cyclist_edge)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9ED]))
-    crowd = Pedestrians(w, rng, params.walk)
+    crowd = Pedestrians(w, rng, params.walk, add_crossing=sim.g.add_crosswalk)
     _spawn_people(crowd, sim, pedestrians, rng)
 
     n_t = int(round(seconds * fps)) + 1
@@ -99,7 +101,7 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
     D = np.zeros((n_p, n_t))
     ST = np.zeros((n_p, n_t), np.int8)
     CW = np.full((n_p, n_t), -1, np.int32)
-    OCC = np.zeros((len(w.crosswalks), n_t), bool)
+    occ = []
 
     def on_step(s: Simulation, dt: float) -> None:
         crowd.step(dt, vehicle_boxes(s), s.crosswalk_clear)
@@ -110,23 +112,27 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
             P[i, k], Y[i, k], V[i, k], D[i, k] = p.xy, p.yaw, p.v, p.walked
             ST[i, k] = STATES.index(p.state)
             CW[i, k] = p.crosswalk if p.state in (WAIT, CROSS) else -1
-        for c in crowd.occupied():
-            OCC[c, k] = True
+        occ.append(crowd.occupied())
 
     sim.occupied = crowd.occupied()
     run = sim.run(seconds, fps, on_step=on_step, on_sample=on_sample)
     run.cyclist[:n_motor] = False
     for i in range(n_p):
         Y[i] = np.unwrap(Y[i])
+    OCC = np.zeros((len(crowd.polygons), n_t), bool)
+    for k, cs in enumerate(occ):
+        OCC[sorted(cs), k] = True
     z = np.full((n_p, n_t), SIDEWALK_TOP)
-    if w.crosswalks and n_p:
-        cw = shapely.union_all(np.array([c.polygon for c in w.crosswalks], dtype=object))
+    if crowd.polygons and n_p:
+        cw = shapely.union_all(np.array(crowd.polygons, dtype=object))
         on_cw = shapely.contains_xy(cw, P[..., 0].ravel(), P[..., 1].ravel()).reshape(n_p, n_t)
         z[on_cw] = 0.02
     people = PeopleRun(run.t, np.concatenate([P, z[..., None]], axis=2), Y, V, D, ST, CW,
                        [p.kind for p in crowd.people],
                        np.array([[p.length, p.width] for p in crowd.people]).reshape(-1, 2))
-    return StreetRun(run, people, w, OCC, sim.g.crossings, int(seed))
+    crossings = [list(row) for row in sim.g.crossings]
+    sim.g.truncate_crosswalks(len(w.crosswalks))
+    return StreetRun(run, people, w, OCC, crossings, list(crowd.polygons), int(seed))
 
 
 def vehicle_boxes(sim: Simulation):

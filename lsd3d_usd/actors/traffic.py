@@ -165,26 +165,44 @@ class LaneGraph:
         self.conflicts = self._conflicts(params.conflict_distance)
         self.crossings: list[list] = [[] for _ in self.geoms]   # per lane: (crosswalk, s_in, s_out)
         self.crossings_of = None       # what the crossings were computed for (street's walkable)
+        self.n_crosswalks = 0
 
-    def set_crosswalks(self, polygons, step: float = 0.25) -> None:
+    def set_crosswalks(self, polygons) -> None:
         """For every lane, the arc-length interval where the lane's width touches each
         crosswalk polygon (shapely): ``crossings[lane] = [(k, s_in, s_out), ...]``."""
-        import shapely
         self.crossings = [[] for _ in self.geoms]
-        for k, poly in enumerate(polygons):
-            x0, y0, x1, y1 = poly.bounds
-            for i, g in enumerate(self.geoms):
-                pad = self.width[i] / 2
-                lo, hi = g.points[:, :2].min(0), g.points[:, :2].max(0)
-                if lo[0] > x1 + pad or hi[0] < x0 - pad or lo[1] > y1 + pad or hi[1] < y0 - pad:
-                    continue
-                s = np.linspace(0.0, g.length, max(2, int(np.ceil(g.length / step)) + 1))
-                p = g.point(s)
-                inside = shapely.dwithin(poly, shapely.points(p[:, 0], p[:, 1]), pad)
-                if inside.any():
-                    idx = np.flatnonzero(inside)
-                    self.crossings[i].append((k, float(s[max(idx[0] - 1, 0)]),
-                                              float(s[min(idx[-1] + 1, len(s) - 1)])))
+        self.n_crosswalks = 0
+        if not hasattr(self, "_bounds"):
+            self._bounds = [(g.points[:, :2].min(0), g.points[:, :2].max(0)) for g in self.geoms]
+        for poly in polygons:
+            self.add_crosswalk(poly)
+
+    def add_crosswalk(self, poly, step: float = 0.25) -> int:
+        """Add one crossing polygon (a crosswalk, or a mid-block crossing while it lasts);
+        returns its index."""
+        import shapely
+        k = self.n_crosswalks
+        self.n_crosswalks += 1
+        x0, y0, x1, y1 = poly.bounds
+        for i, g in enumerate(self.geoms):
+            pad = self.width[i] / 2
+            lo, hi = self._bounds[i]
+            if lo[0] > x1 + pad or hi[0] < x0 - pad or lo[1] > y1 + pad or hi[1] < y0 - pad:
+                continue
+            s = np.linspace(0.0, g.length, max(2, int(np.ceil(g.length / step)) + 1))
+            p = g.point(s)
+            inside = shapely.dwithin(poly, shapely.points(p[:, 0], p[:, 1]), pad)
+            if inside.any():
+                idx = np.flatnonzero(inside)
+                self.crossings[i].append((k, float(s[max(idx[0] - 1, 0)]),
+                                          float(s[min(idx[-1] + 1, len(s) - 1)])))
+        return k
+
+    def truncate_crosswalks(self, n: int) -> None:
+        """Forget the crossing polygons from index ``n`` on (a run's mid-block crossings)."""
+        if self.n_crosswalks > n:
+            self.crossings = [[c for c in row if c[0] < n] for row in self.crossings]
+            self.n_crosswalks = n
 
     def _conflicts(self, dist: float) -> list[set]:
         """For each junction lane: the other junction lanes whose centre lines come within
