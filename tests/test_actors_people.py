@@ -219,3 +219,14 @@ def test_user_people_assets_by_class(scene, tmp_path, capsys):
     assert main(["actors", "add", str(scene.root), "--pedestrians", "2", "--assets", str(lib)]) == 1
     err = capsys.readouterr().err
     assert "--pedestrians 2" in err and str(lib) in err and "pedestrian" in err
+
+
+def test_generate_configuration_keys():
+    from lsd3d_usd.config import generate_config
+    from lsd3d_usd.errors import InputError
+    assert generate_config(pedestrians=3, cyclists=1).actors.pedestrians == 3
+    assert generate_config(actors={"cyclists": 2}).actors.cyclists == 2
+    with pytest.raises(InputError, match="--pedestrians: must be in"):
+        generate_config(pedestrians=-1)
+    with pytest.raises(InputError, match="--cyclists: must be in"):
+        generate_config(cyclists=10_000)
