@@ -307,3 +307,17 @@ def test_midblock_line_crosses_the_road_away_from_crosswalks():
     assert len(found) > 20
     xs = np.array([p[0] for p, _ in found])
     assert not np.any(np.abs(xs - 100.0) < 8.0 + 1.5)
+
+
+def test_rig_ego_stops_for_a_pedestrian_on_a_crosswalk():
+    from lsd3d_usd.views.ego import track_from_route
+    L = _road_with_crosswalk(length=120.0, cw_x=60.0)
+    times = np.arange(0, 12.0, 0.1)
+    free = track_from_route(L, ["a"], times)
+    on_cw = track_from_route(L, ["a"], times, pedestrians=lambda t: np.array([[60.0, -1.0]]))
+    gone = track_from_route(L, ["a"], times, pedestrians=lambda t: np.array([[60.0, -1.0]]) if t < 6.0
+                            else np.zeros((0, 2)))
+    assert free.positions[-1, 0] > 80.0
+    front = on_cw.positions[:, 0] + 4.8 / 2
+    assert front.max() < 58.5 - 1.0 + 1e-6 and abs(on_cw.positions[-1, 0] - on_cw.positions[-10, 0]) < 1e-3
+    assert gone.positions[-1, 0] > 62.0          # drives on once the pedestrian has gone
