@@ -196,8 +196,7 @@ def cyclist_parts() -> list[Part]:
     frame = _merge([_segment(bb, seat, 0.04), _segment(seat, head_tube, 0.035),
                     _segment(bb, head_tube, 0.045), _segment([rx, 0, WHEEL_R], bb, 0.03),
                     _segment([rx, 0, WHEEL_R], seat, 0.03), _segment(head_tube, [fx, 0, WHEEL_R], 0.035),
-                    _segment(head_tube, bar, 0.035), _segment(bar + [0, -0.25, 0], bar + [0, 0.25, 0], 0.03),
-                    box(0.24, 0.12, 0.90, 0.95)])
+                    _segment(head_tube, bar, 0.035), _segment(bar + [0, -0.25, 0], bar + [0, 0.25, 0], 0.03)])
     fv, ff = frame
     sv, sf = box(0.24, 0.12, 0.0, 0.05)                   # saddle, moved onto the seat post
     sv += seat
