@@ -42,7 +42,7 @@ def _layouts():
 @pytest.fixture(scope="module", params=["sample", "generated400"])
 def runs(request):
     L = _layouts()[request.param]
-    w, g = build_walkable(L), LaneGraph(L)
+    w, g = build_walkable(L), LaneGraph(L, bike_lanes=True)
     out = [simulate_street(L, VEHICLES, CYCLISTS, PEOPLE, seed=s, seconds=SECONDS, fps=FPS,
                            params=PARAMS, walkable=w, graph=g) for s in SEEDS]
     return L, w, g, out

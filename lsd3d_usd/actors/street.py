@@ -70,11 +70,13 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
     """Spawn and run. ``vehicles``: [(length, width)], ``cyclists``: [(length, width)],
     ``pedestrians``: [(kind, length, width, child)] — box sizes from the assets. Fewer
     actors than asked are placed when the layout has no room (the run says how many).
-    ``walkable`` / ``graph`` may be passed in to reuse them over many seeds."""
+    ``walkable`` / ``graph`` (a ``LaneGraph(layout, bike_lanes=True)``) may be passed in to
+    reuse them over many seeds."""
     if len(pedestrians) > MAX_PEDESTRIANS or len(cyclists) > MAX_CYCLISTS:
         raise InputError(f"actors: at most {MAX_PEDESTRIANS} pedestrians and {MAX_CYCLISTS} cyclists "
                          f"(asked for {len(pedestrians)} and {len(cyclists)})")
-    sim = Simulation(layout, seed, params.idm, graph)
+    sim = Simulation(layout, seed, params.idm, graph if graph is not None else
+                     LaneGraph(layout, params.idm, bike_lanes=True))
     w = walkable if walkable is not None else build_walkable(
         layout, params.walk.track_offset, params.walk.stand_offset)
     if getattr(sim.g, "crossings_of", None) is not w:      # a graph reused over seeds keeps them

@@ -144,14 +144,15 @@ class TrafficRun:
 
 
 class LaneGraph:
-    """Drivable lanes of a layout with successor indices and junction conflict sets."""
+    """Drivable lanes of a layout (`Layout.drivable_lanes`, the one definition) with successor
+    indices and junction conflict sets; with ``bike_lanes`` also the layout's bike lanes, for
+    cyclists (a car never chooses one)."""
 
-    def __init__(self, layout, params: IDMParams = IDMParams()):
+    def __init__(self, layout, params: IDMParams = IDMParams(), bike_lanes: bool = False):
         self.layout = layout
         drivable = {id(ln) for ln in layout.drivable_lanes()}
-        # bike lanes join the graph for cyclists; a car never chooses one
         lanes = [ln for ln in layout.lanes if id(ln) in drivable or (
-            ln.lane_type == "bike" and ln.speed_limit_mps > 0 and ln.length() > 1e-6)]
+            bike_lanes and ln.lane_type == "bike" and ln.speed_limit_mps > 0 and ln.length() > 1e-6)]
         self.geoms = [LaneGeom(ln) for ln in lanes]
         self.ids = [g.id for g in self.geoms]
         self.index = {lid: i for i, lid in enumerate(self.ids)}
