@@ -67,6 +67,10 @@ class ActorsConfig:
                          alias="parked", lo=0, hi=100_000)
     moving: int = option(8, help="moving actors driven by IDM traffic over the lane graph",
                          flag="--moving", alias="moving", lo=0, hi=100_000)
+    pedestrians: int = option(0, help="pedestrians on the sidewalks and crosswalks",
+                              flag="--pedestrians", alias="pedestrians", lo=0, hi=2000)
+    cyclists: int = option(0, help="cyclists on bike lanes or the right of driving lanes",
+                           flag="--cyclists", alias="cyclists", lo=0, hi=500)
     seconds: float = option(8.0, help="traffic duration in seconds", flag="--actor-seconds",
                             alias="actor_seconds", lo=0.1, hi=3600.0)
     fps: float = option(10.0, help="traffic samples per second", flag="--actor-fps",

@@ -23,6 +23,7 @@ from pxr import UsdLux
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.actors import assets as A
+from lsd3d_usd.actors import people as P
 from lsd3d_usd.actors.compose import add_actors
 from lsd3d_usd.conditioning.light import colour_by_light, env_params, scene_light
 from lsd3d_usd.config import GenerateConfig
@@ -328,11 +329,19 @@ def _actors_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     if missing:
         A.write_library(folder, missing)
     a = p.cfg.actors
+    if a.pedestrians or a.cyclists:
+        kinds = P.PEDESTRIAN_KINDS + P.CYCLIST_KINDS
+        missing = [k for k in kinds if not (folder / f"{k}.usda").is_file()]
+        if missing:
+            P.write_people_library(folder, missing)
     res = add_actors(sc, p.layout, parked=a.parked, moving=a.moving, seed=p.cfg.seed,
-                     seconds=a.seconds, fps=a.fps, assets_dir=folder)
+                     seconds=a.seconds, fps=a.fps, assets_dir=folder, pedestrians=a.pedestrians,
+                     cyclists=a.cyclists)
     for note in res.notes:
         run.log(f"actors: {note}")
-    return {"parked": len(res.parked), "moving": len(res.moving_kinds), "seconds": res.seconds}
+    return {"parked": len(res.parked), "moving": len(res.moving_kinds),
+            "pedestrians": len(res.pedestrian_kinds), "cyclists": len(res.cyclist_kinds),
+            "seconds": res.seconds}
 
 
 def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
@@ -393,10 +402,11 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
             f"({'reused' if sinfo['reused'] else 'initialised'})")
     summary = {"scene": str(sc.root), "proxy": prep, "surfels": sinfo}
     a = cfg.actors
-    if a.enabled and (a.parked or a.moving):
+    if a.enabled and (a.parked or a.moving or a.pedestrians or a.cyclists):
         summary["actors"] = timed("actors_s", _actors_step, sc, p, run)
         run.log(f"actors: {summary['actors']['parked']} parked, "
-                f"{summary['actors']['moving']} moving")
+                f"{summary['actors']['moving']} moving, {summary['actors']['pedestrians']} "
+                f"pedestrians, {summary['actors']['cyclists']} cyclists")
     summary["cameras"] = timed("cameras_s", write_scene_cameras, sc, p.layout, cfg, run.log)
     if cfg.ggds.steps > 0 or p.resume_run:
         summary["ggds"] = g = timed("ggds_s", _ggds_step, sc, p, run)

@@ -10,6 +10,7 @@ import numpy as np
 CLASSES: tuple[str, ...] = (
     "road", "lane_marking", "curb", "sidewalk", "crosswalk", "building",
     "vegetation", "vehicle", "pole", "sign", "terrain", "traffic_light",
+    "pedestrian", "cyclist",
 )
 CLASS_ID: dict[str, int] = {name: i for i, name in enumerate(CLASSES)}
 UNLABELLED = -1
@@ -29,6 +30,8 @@ CLASS_COLORS = np.array([
     (0.60, 0.10, 0.08),   # sign
     (0.18, 0.20, 0.10),   # terrain: grass / soil
     (0.08, 0.08, 0.08),   # traffic_light: housing
+    (0.20, 0.16, 0.14),   # pedestrian: clothing / skin
+    (0.25, 0.10, 0.08),   # cyclist: rider and painted frame
 ], dtype=np.float32)
 
 

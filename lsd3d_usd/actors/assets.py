@@ -95,6 +95,7 @@ class AssetInfo:
     dimensions: np.ndarray         # (3,) length, width, height
     meshes: list[MeshData] = field(default_factory=list)
     has_surfels: bool = False
+    label: str = VEHICLE_CLASS     # its UsdSemantics class (vehicle, pedestrian, cyclist, ...)
 
 
 # ------------------------------------------------------------------ geometry
@@ -146,11 +147,11 @@ def _label(prim, cls: str = VEHICLE_CLASS) -> None:
     UsdSemantics.LabelsAPI.Apply(prim, "class").CreateLabelsAttr(Vt.TokenArray([cls]))
 
 
-def _root_attrs(prim, kind: str, dims) -> None:
+def _root_attrs(prim, kind: str, dims, cls: str = VEHICLE_CLASS) -> None:
     prim.CreateAttribute(KIND_ATTR, Sdf.ValueTypeNames.Token, variability=Sdf.VariabilityUniform).Set(kind)
     prim.CreateAttribute(DIMS_ATTR, Sdf.ValueTypeNames.Float3, variability=Sdf.VariabilityUniform).Set(
         Gf.Vec3f(*map(float, dims)))
-    _label(prim)
+    _label(prim, cls)
 
 
 def _new_asset_stage(name: str, kind: str):
@@ -163,7 +164,7 @@ def _new_asset_stage(name: str, kind: str):
     return stage, root
 
 
-def author_mesh(stage, path: str, m: MeshData):
+def author_mesh(stage, path: str, m: MeshData, cls: str = VEHICLE_CLASS):
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = np.ascontiguousarray(m.vertices, np.float32)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
@@ -176,7 +177,7 @@ def author_mesh(stage, path: str, m: MeshData):
         mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray.FromNumpy(cols[:1]))
     else:
         mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(cols))
-    _label(mesh.GetPrim())
+    _label(mesh.GetPrim(), cls)
     return mesh
 
 
@@ -315,7 +316,19 @@ def read_asset(path) -> AssetInfo:
                              f"author {DIMS_ATTR} on {root.GetPath()}")
         lo, hi = np.array(r.GetMin()), np.array(r.GetMax())
         dims = np.array([hi[0] - lo[0], hi[1] - lo[1], hi[2]])
-    return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels)
+    return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels, asset_label(root))
+
+
+def asset_label(root) -> str:
+    """The class of an asset: the UsdSemantics ``class`` label on its root prim (or the
+    first prim below with one), "vehicle" when none is authored."""
+    for p in Usd.PrimRange(root):
+        api = UsdSemantics.LabelsAPI(p, "class")
+        attr = api.GetLabelsAttr() if api else None
+        labels = attr.Get() if attr and attr.HasValue() else None
+        if labels:
+            return str(labels[0])
+    return VEHICLE_CLASS
 
 
 def library_assets(folder) -> dict[str, Path]:

@@ -13,9 +13,12 @@ def _add(args) -> int:
     scene = Scene.open(args.scene)
     layout = layout_of_scene(scene)
     res = add_actors(scene, layout, args.parked, args.moving, args.seed, seconds=args.seconds,
-                     fps=args.fps, assets_dir=args.assets)
-    n_moving = 0 if res.run is None else res.run.n
-    print(f"{res.layer}: {len(res.parked)} parked, {n_moving} moving actors "
+                     fps=args.fps, assets_dir=args.assets, pedestrians=args.pedestrians,
+                     cyclists=args.cyclists)
+    people = ""
+    if args.pedestrians or args.cyclists:
+        people = f", {len(res.pedestrian_kinds)} pedestrians, {len(res.cyclist_kinds)} cyclists"
+    print(f"{res.layer}: {len(res.parked)} parked, {len(res.moving_kinds)} moving actors{people} "
           f"({res.seconds:g} s at {args.fps:g} samples/s, {res.tcps:g} time codes/s)")
     for n in res.notes:
         print(f"note: {n}")
@@ -28,16 +31,20 @@ def _assets(args) -> int:
     if args.ply:
         print(ply_to_asset(args.ply, args.output))
         return 0
-    for kind, path in write_library(args.output, fmt=args.format).items():
+    from lsd3d_usd.actors.people import write_people_library
+    for kind, path in {**write_library(args.output, fmt=args.format),
+                       **write_people_library(args.output, fmt=args.format)}.items():
         print(f"{kind}: {path}")
     return 0
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("actors", help="actors: referenced vehicle assets, parked and moving (IDM traffic)",
+    p = sub.add_parser("actors", help="actors: referenced vehicle, pedestrian and cyclist assets, "
+                                      "parked and moving (IDM traffic, sidewalk walkers)",
                        description="Compose actors into a scene by reference: vehicles parked in free "
-                                   "parking slots and vehicles driving the lane graph (seeded IDM car "
-                                   "following), written to the scene's actors layer.")
+                                   "parking slots, vehicles and cyclists driving the lane graph (seeded "
+                                   "IDM car following), pedestrians on the sidewalks and crosswalks, "
+                                   "written to the scene's actors layer.")
     s = p.add_subparsers(dest="actors_command", metavar="SUBCOMMAND")
     a = s.add_parser("add", help="(re)write the actors layer of a scene",
                      description="Place parked actors at free parking spots / along parking lanes and "
@@ -47,6 +54,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     a.add_argument("scene", help="scene folder (holding scene.usda with a layout layer)")
     a.add_argument("--parked", type=int, default=12, help="number of parked actors (default 12)")
     a.add_argument("--moving", type=int, default=8, help="number of moving actors (default 8)")
+    a.add_argument("--pedestrians", type=int, default=0,
+                   help="pedestrians walking the sidewalks, crossing at crosswalks and standing at "
+                        "corners (default 0)")
+    a.add_argument("--cyclists", type=int, default=0,
+                   help="cyclists on bike lanes, or the right part of driving lanes, in the IDM "
+                        "traffic (default 0)")
     a.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     a.add_argument("--seconds", type=float, default=8.0, help="length of the traffic run (default 8)")
     a.add_argument("--fps", type=float, default=10.0,
@@ -55,9 +68,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                     "SCENE/assets, the procedural library written there where "
                                     "missing)")
     a.set_defaults(func=_add)
-    b = s.add_parser("assets", help="write the procedural vehicle library, or convert a splat .ply",
-                     description="Write car/van/truck/bus asset files into OUTPUT (a folder), or with "
-                                 "--ply convert a 3DGS/2DGS .ply into a surfel asset file OUTPUT.")
+    b = s.add_parser("assets", help="write the procedural library, or convert a splat .ply",
+                     description="Write car/van/truck/bus, adult/adult_broad/child (pedestrians) and "
+                                 "cyclist asset files into OUTPUT (a folder), or with --ply convert a "
+                                 "3DGS/2DGS .ply into a surfel asset file OUTPUT.")
     b.add_argument("output", help="output folder (library) or asset file (with --ply)")
     b.add_argument("--ply", help="a 3DGS/2DGS .ply to convert into a referenced surfel asset")
     b.add_argument("--format", choices=("usda", "usdc"), default="usda", help="library file format")

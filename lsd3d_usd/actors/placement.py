@@ -36,6 +36,17 @@ def footprint(center, yaw: float, length: float, width: float, pad: float = 0.0)
     return Polygon([p - u - v, p + u - v, p + u + v, p - u + v])
 
 
+def crosswalk_footprints(layout) -> list[Polygon]:
+    """The layout's crosswalks as polygons (valid ones), to keep parked actors off them."""
+    out = []
+    for cw in layout.crosswalks:
+        p = Polygon(np.asarray(cw.polygon, np.float64)[:, :2])
+        p = p if p.is_valid else p.buffer(0)
+        if not p.is_empty:
+            out.append(p)
+    return out
+
+
 def parking_slots(layout, pitch: float = 6.0):
     """(id, centre, heading, max length, max width) of every candidate slot."""
     out = []

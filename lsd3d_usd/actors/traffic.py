@@ -18,10 +18,20 @@ crosses or merges with it (centre lines closer than ``conflict_distance``); it r
 one vehicle length after leaving it. A hard guard keeps every bumper-to-bumper gap to the
 leader >= ``min_gap`` (IDM alone can undershoot it after a late merge).
 
+Cyclists are vehicles of this model too (``_Vehicle.cyclist``): they ride bike lanes where
+the layout has them (``bike`` lanes of the graph are theirs alone) and otherwise the right
+part of driving lanes (a lateral ``offset``), at their own desired speed, following and
+followed in the same IDM chain. Crosswalks: a vehicle treats every occupied crosswalk ahead
+on its lane or plan (`occupied`, set by the pedestrian model) as a wall ``stop_margin``
+before the first point where its lane's width touches the crosswalk, and `crosswalk_clear`
+tells a pedestrian whether every vehicle heading across a crosswalk can still stop before it.
+
 Arrays in, arrays out: `simulate` returns a `TrafficRun` sampled at ``fps``.
 """
 from __future__ import annotations
 
+import bisect
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,6 +53,8 @@ class IDMParams:
     conflict_distance: float = 1.5
     dt_max: float = 0.05        # s simulation step (output samples fall on steps)
     speed_factor: tuple = (0.8, 1.0)
+    crosswalk_headway: float = 0.5   # s a pedestrian adds to a vehicle's braking distance
+    crosswalk_buffer: float = 2.0    # m more it keeps from a vehicle before stepping out
 
 
 class LaneGeom:
@@ -60,6 +72,39 @@ class LaneGeom:
         self.id = lane.id
         self.limit = float(lane.speed_limit_mps)
         self.is_junction = bool(lane.is_junction)
+        self.bike = lane.lane_type == "bike"
+        w = np.asarray(lane.widths, np.float64) if lane.widths is not None and len(lane.widths) else \
+            np.full(len(lane.points), 3.5)
+        self.width = float(np.min(w))
+
+    def pose2d(self, s: float, offset: float = 0.0, half: float = 1.0) -> tuple[float, float, float]:
+        """(x, y, yaw) at one arc length, ``offset`` m to the left: the scalar fast path of
+        `point` / `heading` / `offset_point` (same values) for per-step queries."""
+        if not hasattr(self, "_cum_list"):
+            self._cum_list = self.cum.tolist()
+            self._xy_list = self.points[:, :2].tolist()
+        x, y = self._xy2(s)
+        ax, ay = self._xy2(max(s - half, 0.0))
+        bx, by = self._xy2(min(s + half, self.length))
+        yaw = math.atan2(by - ay, bx - ax)
+        if offset:
+            x, y = x - math.sin(yaw) * offset, y + math.cos(yaw) * offset
+        return x, y, yaw
+
+    def _xy2(self, s: float) -> tuple[float, float]:
+        cum, xy = self._cum_list, self._xy_list
+        s = min(max(s, 0.0), self.length)
+        j = min(max(bisect.bisect_right(cum, s) - 1, 0), len(cum) - 2)
+        d = cum[j + 1] - cum[j]
+        f = (s - cum[j]) / d if d > 0 else 0.0
+        return xy[j][0] + f * (xy[j + 1][0] - xy[j][0]), xy[j][1] + f * (xy[j + 1][1] - xy[j][1])
+
+    def offset_point(self, s, offset) -> np.ndarray:
+        """The point ``offset`` m to the left of the centre line (negative: right) at s."""
+        p = self.point(s)
+        h = self.heading(s)
+        off = np.asarray(offset, np.float64)
+        return p + np.stack([-np.sin(h) * off, np.cos(h) * off, np.zeros_like(h * off)], axis=-1)
 
     def point(self, s) -> np.ndarray:
         s = np.clip(np.asarray(s, np.float64), 0.0, self.length)
@@ -89,6 +134,9 @@ class TrafficRun:
     lane_limits: np.ndarray
     seed: int = 0
     params: IDMParams = field(default_factory=IDMParams)
+    cyclist: np.ndarray | None = None     # (n_v,) bool: a cyclist, not a motor vehicle
+    offset: np.ndarray | None = None      # (n_v, n_t) lateral offset from the centre line (m, + left)
+    widths: np.ndarray | None = None      # (n_v,) box widths
 
     @property
     def n(self) -> int:
@@ -96,11 +144,15 @@ class TrafficRun:
 
 
 class LaneGraph:
-    """Drivable lanes of a layout with successor indices and junction conflict sets."""
+    """Drivable lanes of a layout (`Layout.drivable_lanes`, the one definition) with successor
+    indices and junction conflict sets; with ``bike_lanes`` also the layout's bike lanes, for
+    cyclists (a car never chooses one)."""
 
-    def __init__(self, layout, params: IDMParams = IDMParams()):
+    def __init__(self, layout, params: IDMParams = IDMParams(), bike_lanes: bool = False):
         self.layout = layout
-        lanes = layout.drivable_lanes()
+        drivable = {id(ln) for ln in layout.drivable_lanes()}
+        lanes = [ln for ln in layout.lanes if id(ln) in drivable or (
+            bike_lanes and ln.lane_type == "bike" and ln.speed_limit_mps > 0 and ln.length() > 1e-6)]
         self.geoms = [LaneGeom(ln) for ln in lanes]
         self.ids = [g.id for g in self.geoms]
         self.index = {lid: i for i, lid in enumerate(self.ids)}
@@ -109,7 +161,49 @@ class LaneGraph:
         self.length = np.array([g.length for g in self.geoms])
         self.limit = np.array([g.limit for g in self.geoms])
         self.junction = np.array([g.is_junction for g in self.geoms], bool)
+        self.bike = np.array([g.bike for g in self.geoms], bool)
+        self.width = np.array([g.width for g in self.geoms])
         self.conflicts = self._conflicts(params.conflict_distance)
+        self.crossings: list[list] = [[] for _ in self.geoms]   # per lane: (crosswalk, s_in, s_out)
+        self.crossings_of = None       # what the crossings were computed for (street's walkable)
+        self.n_crosswalks = 0
+
+    def set_crosswalks(self, polygons) -> None:
+        """For every lane, the arc-length interval where the lane's width touches each
+        crosswalk polygon (shapely): ``crossings[lane] = [(k, s_in, s_out), ...]``."""
+        self.crossings = [[] for _ in self.geoms]
+        self.n_crosswalks = 0
+        if not hasattr(self, "_bounds"):
+            self._bounds = [(g.points[:, :2].min(0), g.points[:, :2].max(0)) for g in self.geoms]
+        for poly in polygons:
+            self.add_crosswalk(poly)
+
+    def add_crosswalk(self, poly, step: float = 0.25) -> int:
+        """Add one crossing polygon (a crosswalk, or a mid-block crossing while it lasts);
+        returns its index."""
+        import shapely
+        k = self.n_crosswalks
+        self.n_crosswalks += 1
+        x0, y0, x1, y1 = poly.bounds
+        for i, g in enumerate(self.geoms):
+            pad = self.width[i] / 2
+            lo, hi = self._bounds[i]
+            if lo[0] > x1 + pad or hi[0] < x0 - pad or lo[1] > y1 + pad or hi[1] < y0 - pad:
+                continue
+            s = np.linspace(0.0, g.length, max(2, int(np.ceil(g.length / step)) + 1))
+            p = g.point(s)
+            inside = shapely.dwithin(poly, shapely.points(p[:, 0], p[:, 1]), pad)
+            if inside.any():
+                idx = np.flatnonzero(inside)
+                self.crossings[i].append((k, float(s[max(idx[0] - 1, 0)]),
+                                          float(s[min(idx[-1] + 1, len(s) - 1)])))
+        return k
+
+    def truncate_crosswalks(self, n: int) -> None:
+        """Forget the crossing polygons from index ``n`` on (a run's mid-block crossings)."""
+        if self.n_crosswalks > n:
+            self.crossings = [[c for c in row if c[0] < n] for row in self.crossings]
+            self.n_crosswalks = n
 
     def _conflicts(self, dist: float) -> list[set]:
         """For each junction lane: the other junction lanes whose centre lines come within
@@ -139,7 +233,7 @@ class LaneGraph:
         """Validate a route: known drivable lanes, each the successor of the one before."""
         idx = []
         for k, lid in enumerate(lane_ids):
-            if lid not in self.index:
+            if lid not in self.index or self.bike[self.index[lid]]:
                 raise InputError(f"route: {route_hint(self.layout, lid)}")
             i = self.index[lid]
             if idx and i not in self.succ[idx[-1]]:
@@ -162,6 +256,10 @@ class _Vehicle:
     forced: list          # remaining forced route (ego)
     holds: dict           # lane index -> release condition (lane it leads to, or -1 while on it)
     free: bool = True     # chooses successors once ``forced`` runs out (else stops at its end)
+    cyclist: bool = False
+    v_max: float = np.inf  # own top speed (cyclists)
+    offset: float = 0.0    # lateral offset from the lane centre (m, + left)
+    width: float = 1.8
 
 
 def _idm(v, v0, gap, dv, p: IDMParams) -> float:
@@ -172,16 +270,21 @@ def _idm(v, v0, gap, dv, p: IDMParams) -> float:
 
 
 class Simulation:
-    def __init__(self, layout, seed: int, params: IDMParams = IDMParams()):
+    def __init__(self, layout, seed: int, params: IDMParams = IDMParams(), graph: LaneGraph | None = None):
         self.p = params
-        self.g = LaneGraph(layout, params)
+        self.g = graph if graph is not None else LaneGraph(layout, params)
         self.rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x1D3]))
         self.seed = int(seed)
         self.veh: list[_Vehicle] = []
+        self.occupied: set[int] = set()     # crosswalks with a pedestrian on (or stepping onto) them
 
     # ---- setup
-    def _choose(self, lane: int) -> int | None:
+    def _choose(self, lane: int, cyclist: bool = False) -> int | None:
         succ = self.g.succ[lane]
+        if self.g.bike.any():
+            # cars never take a bike lane; a cyclist on a bike lane stays on bike lanes if it can
+            own = [j for j in succ if self.g.bike[j]] if cyclist and self.g.bike[lane] else []
+            succ = own or [j for j in succ if not self.g.bike[j]]
         if not succ:
             return None
         return int(succ[int(self.rng.integers(len(succ)))]) if len(succ) > 1 else int(succ[0])
@@ -189,7 +292,7 @@ class Simulation:
     def _fill_plan(self, v: _Vehicle) -> None:
         last = v.plan[-1] if v.plan else v.lane
         while len(v.plan) < 2 and last is not None:
-            nxt = v.forced.pop(0) if v.forced else (self._choose(last) if v.free else None)
+            nxt = v.forced.pop(0) if v.forced else (self._choose(last, v.cyclist) if v.free else None)
             if nxt is None:
                 break
             v.plan.append(nxt)
@@ -197,7 +300,7 @@ class Simulation:
 
     def spawn(self, lengths, min_spacing: float = 8.0, max_tries: int = 200) -> list[_Vehicle]:
         """Place vehicles of the given lengths on non-junction lanes, spaced apart."""
-        cand = np.flatnonzero(~self.g.junction & (self.g.length >= 12.0))
+        cand = np.flatnonzero(~self.g.junction & (self.g.length >= 12.0) & ~self.g.bike)
         if len(cand) == 0 and len(lengths):
             raise InputError("traffic: the layout has no drivable lane long enough (>= 12 m) "
                              "outside junctions to place moving actors on")
@@ -217,12 +320,51 @@ class Simulation:
                     break
         return self.veh
 
-    def _spawn_ok(self, lane, s, L, spacing) -> bool:
-        p = self.g.geoms[lane].point(s)
+    def spawn_cyclists(self, specs, min_spacing: float = 6.0, max_tries: int = 200,
+                       edge: float = 0.25) -> list[_Vehicle]:
+        """Place cyclists ``specs`` = [(length, width, v_max), ...]: on bike lanes when the
+        layout has any, else on driving lanes (not bus lanes, not junctions) in their right
+        part, ``edge`` m clear of the lane's right edge. Returns the cyclists placed."""
+        bike = ~self.g.junction & (self.g.length >= 12.0) & self.g.bike
+        if not bike.any():
+            types = [ln.lane_type for ln in (self.g.layout.lane_by_id(i) for i in self.g.ids)]
+            bike = ~self.g.junction & (self.g.length >= 12.0) & np.array([t == "driving" for t in types])
+        cand = np.flatnonzero(bike)
+        out = []
+        if len(cand) == 0:
+            return out
+        w = self.g.length[cand] / self.g.length[cand].sum()
+        for L, W, vmax in specs:
+            for _ in range(max_tries):
+                lane = int(cand[self.rng.choice(len(cand), p=w)])
+                lo, hi = L / 2 + 1.0, self.g.length[lane] - L / 2 - 1.0
+                if hi <= lo:
+                    continue
+                s = float(self.rng.uniform(lo, hi))
+                off = self.cyclist_offset(lane, W, edge)
+                if self._spawn_ok(lane, s, L, min_spacing, off):
+                    f = float(self.rng.uniform(*self.p.speed_factor))
+                    v = _Vehicle(float(L), lane, s, 0.5 * f * min(vmax, self.g.limit[lane]), f, [], [], {},
+                                 cyclist=True, v_max=float(vmax), offset=off, width=float(W))
+                    self._fill_plan(v)
+                    self.veh.append(v)
+                    out.append(v)
+                    break
+        return out
+
+    def cyclist_offset(self, lane: int, width: float, edge: float = 0.25) -> float:
+        """Lateral offset of a cyclist on ``lane``: 0 on a bike lane, else the right part of
+        the lane, ``edge`` m clear of its right edge."""
+        if self.g.bike[lane]:
+            return 0.0
+        return -max(0.0, self.g.width[lane] / 2 - edge - width / 2)
+
+    def _spawn_ok(self, lane, s, L, spacing, offset: float = 0.0) -> bool:
+        p = self.g.geoms[lane].offset_point(s, offset) if offset else self.g.geoms[lane].point(s)
         for o in self.veh:
             if o.lane == lane and abs(o.s - s) < (o.length + L) / 2 + spacing:
                 return False
-            q = self.g.geoms[o.lane].point(o.s)
+            q = self.g.geoms[o.lane].offset_point(o.s, o.offset) if o.offset else self.g.geoms[o.lane].point(o.s)
             if np.linalg.norm(p[:2] - q[:2]) < (o.length + L) / 2 + 0.5 and o.lane != lane:
                 # a different lane this close: only fine if side by side (>= a lane apart)
                 if np.linalg.norm(p[:2] - q[:2]) < 2.8:
@@ -280,6 +422,48 @@ class Simulation:
             return dist - me.length / 2 - self.p.stop_margin, 0.0
         return best
 
+    def _crossings_ahead(self, me: _Vehicle, horizon: float):
+        """(crosswalk, distance from the front bumper to where the lane touches it, s_out
+        distance) of the crosswalks ahead on the vehicle's lane and plan, nearest first."""
+        out = []
+        base = -me.s - me.length / 2          # arc length of the lane start from my front
+        for k, lane in enumerate([me.lane] + list(me.plan)):
+            for cw, s_in, s_out in self.g.crossings[lane]:
+                d_in, d_out = base + s_in, base + s_out
+                if k == 0 and d_out + me.length < 0:
+                    continue                  # the whole vehicle is past it
+                out.append((cw, d_in, d_out))
+            base += self.g.length[lane]
+            if base > horizon:
+                break
+        return out
+
+    def _crosswalk_gap(self, me: _Vehicle, horizon: float) -> float:
+        """Bumper distance to the wall of the nearest occupied crosswalk ahead (inf: none).
+        A crosswalk the front is already over is not a wall (the pedestrian did not step out
+        in front of it: `crosswalk_clear`)."""
+        if not self.occupied:
+            return np.inf
+        for cw, d_in, _ in self._crossings_ahead(me, horizon):
+            if cw in self.occupied and d_in > -0.5:
+                return d_in - self.p.stop_margin
+        return np.inf
+
+    def crosswalk_clear(self, cw: int) -> bool:
+        """May a pedestrian step onto crosswalk ``cw`` now: no vehicle is over it, and every
+        vehicle heading across it can stop before it at its comfortable deceleration."""
+        p = self.p
+        for me in self.veh:
+            for c, d_in, d_out in self._crossings_ahead(me, 150.0):
+                if c != cw:
+                    continue
+                if d_in <= 0.0 and d_out + me.length >= 0.0:
+                    return False              # over it
+                need = me.v ** 2 / (2 * p.b) + me.v * p.crosswalk_headway + p.stop_margin + p.crosswalk_buffer
+                if 0.0 < d_in < need:
+                    return False
+        return True
+
     def _must_stop(self, me: _Vehicle, cur: int, nxt: int) -> bool:
         return bool(self.g.junction[nxt]) and nxt not in me.holds and not self.g.junction[cur]
 
@@ -335,9 +519,12 @@ class Simulation:
         for i, me in enumerate(self.veh):
             horizon = max(120.0, me.v * 8.0)
             gap, v_lead = self._ahead(i, horizon)
-            v0 = self.g.limit[me.lane] * me.factor
+            cw_gap = self._crosswalk_gap(me, horizon)
+            if cw_gap < gap:
+                gap, v_lead = cw_gap, 0.0
+            v0 = min(self.g.limit[me.lane] * me.factor, me.v_max)
             if me.plan:
-                nxt_lim = self.g.limit[me.plan[0]] * me.factor
+                nxt_lim = min(self.g.limit[me.plan[0]] * me.factor, me.v_max)
                 rem = self.g.length[me.lane] - me.s
                 if nxt_lim < v0 and rem < me.v ** 2 / (2 * p.b) + me.v * p.T + 5.0:
                     v0 = nxt_lim
@@ -353,7 +540,7 @@ class Simulation:
                 v_new = min(v_new, 2.0 * ds / dt - me.v) if ds > 0 else 0.0
                 v_new = max(v_new, 0.0)
             self._advance(me, ds)
-            me.v = min(v_new, self.g.limit[me.lane])
+            me.v = min(v_new, self.g.limit[me.lane], me.v_max)
         for me in self.veh:
             self._release(me)
 
@@ -366,10 +553,19 @@ class Simulation:
                 return
             me.s -= self.g.length[me.lane]
             me.lane = me.plan.pop(0)
+            if me.cyclist:
+                me.offset = self.cyclist_offset(me.lane, me.width)
             self._fill_plan(me)
 
     # ---- run
-    def run(self, seconds: float, fps: float) -> TrafficRun:
+    def pose(self, me: _Vehicle) -> tuple[float, float, float]:
+        """(x, y, yaw) of a vehicle now."""
+        return self.g.geoms[me.lane].pose2d(me.s, me.offset)
+
+    def run(self, seconds: float, fps: float, on_step=None, on_sample=None) -> TrafficRun:
+        """Run for ``seconds``, sampling every 1/fps s. ``on_step(sim, dt)`` is called before
+        every vehicle step (the pedestrian model moves there and sets ``occupied``),
+        ``on_sample(sim, k)`` at every output sample k."""
         if not (fps > 0) or not (seconds >= 0):
             raise InputError(f"traffic: need fps > 0 and seconds >= 0, got fps={fps}, seconds={seconds}")
         n_t = int(round(seconds * fps)) + 1
@@ -379,23 +575,29 @@ class Simulation:
         lane = np.zeros((nv, n_t), np.int32)
         s = np.zeros((nv, n_t))
         v = np.zeros((nv, n_t))
+        off = np.zeros((nv, n_t))
         for k in range(n_t):
             if k:
                 for _ in range(sub):
+                    if on_step is not None:
+                        on_step(self, dt)
                     self.step(dt)
             for i, me in enumerate(self.veh):
-                lane[i, k], s[i, k], v[i, k] = me.lane, me.s, me.v
+                lane[i, k], s[i, k], v[i, k], off[i, k] = me.lane, me.s, me.v, me.offset
+            if on_sample is not None:
+                on_sample(self, k)
         pos = np.zeros((nv, n_t, 3))
         yaw = np.zeros((nv, n_t))
         for i in range(nv):
             for k in range(n_t):
                 g = self.g.geoms[lane[i, k]]
-                pos[i, k] = g.point(s[i, k])
-                yaw[i, k] = g.heading(s[i, k])
+                x, y, yaw[i, k] = g.pose2d(float(s[i, k]), float(off[i, k]))
+                pos[i, k] = x, y, np.interp(min(max(s[i, k], 0.0), g.length), g.cum, g.points[:, 2])
             yaw[i] = np.unwrap(yaw[i])
         return TrafficRun(np.arange(n_t) / fps, pos, yaw, v, lane, s, list(self.g.ids),
                           np.array([me.length for me in self.veh]), self.g.limit.copy(),
-                          self.seed, self.p)
+                          self.seed, self.p, np.array([me.cyclist for me in self.veh], bool),
+                          off, np.array([me.width for me in self.veh]))
 
 
 def simulate(layout, lengths, seed: int = 0, seconds: float = 8.0, fps: float = 10.0,

@@ -20,10 +20,10 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdSemantics, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, Vt
 
 import lsd3d_usd  # noqa: F401
-from lsd3d_usd.actors.assets import DIMS_ATTR, KIND_ATTR, mesh_data_from_prim
+from lsd3d_usd.actors.assets import DIMS_ATTR, KIND_ATTR, asset_label, mesh_data_from_prim
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import ACTORS_PATH, new_stage, save_layer
 from lsd3d_usd.splats.field import SurfelField
@@ -50,6 +50,9 @@ class ActorSpec:
     speed: np.ndarray | None = None
     paint: tuple | None = None
     extra: dict = field(default_factory=dict)
+    colors: dict = field(default_factory=dict)   # part path under the actor -> displayColor over
+    joints: dict = field(default_factory=dict)   # joint Xform path -> rotateY degrees (per time)
+    group: str | None = None                     # /World/Actors/<group>; default from the role
 
 
 def _spec_attr(prim_spec, name: str, type_name, value=None, uniform=False, custom=True):
@@ -90,12 +93,28 @@ def author_actor(layer, parent_path: str, a: ActorSpec, tcps: float):
             layer.SetTimeSample(rz.path, code, float(Y[k]))
             if sp is not None:
                 layer.SetTimeSample(sp.path, code, float(a.speed[k]))
+    colors = dict(a.colors)
     if a.paint is not None:
-        body = Sdf.CreatePrimInLayer(layer, path.AppendChild("Body"))
-        body.specifier = Sdf.SpecifierOver
-        pv = _spec_attr(body, "primvars:displayColor", T.Color3fArray,
-                        Vt.Vec3fArray([Gf.Vec3f(*map(float, a.paint))]), custom=False)
+        colors.setdefault("Body", a.paint)
+    for part, rgb in colors.items():
+        over = Sdf.CreatePrimInLayer(layer, path.AppendPath(Sdf.Path(part)))
+        over.specifier = Sdf.SpecifierOver
+        for anc in over.path.GetAncestorsRange():     # the parts between, as overs too
+            if anc.HasPrefix(path) and anc != path:
+                layer.GetPrimAtPath(anc).specifier = Sdf.SpecifierOver
+        pv = _spec_attr(over, "primvars:displayColor", T.Color3fArray,
+                        Vt.Vec3fArray([Gf.Vec3f(*map(float, rgb))]), custom=False)
         pv.SetInfo("interpolation", "constant")
+    for joint, angles in a.joints.items():
+        over = Sdf.CreatePrimInLayer(layer, path.AppendPath(Sdf.Path(joint)))
+        over.specifier = Sdf.SpecifierOver
+        rot = _spec_attr(over, "xformOp:rotateY", T.Float, custom=False)
+        ang = np.asarray(angles, np.float64).reshape(-1)
+        if a.times is None or len(ang) == 1:
+            rot.default = float(ang[0])
+        else:
+            for k, t in enumerate(np.asarray(a.times, np.float64)):
+                layer.SetTimeSample(rot.path, round(float(t) * tcps, 6), float(ang[k]))
     return spec
 
 
@@ -124,7 +143,7 @@ def actors_layer(actors: list[ActorSpec], tcps: float, seconds: float, info: dic
             _spec_attr(root, f"lsd3d:actors:{k}", Sdf.ValueTypeNames.String, str(v), uniform=True)
         groups = set()
         for a in actors:
-            g = {"parked": "Parked", "moving": "Moving", "ego": "Ego"}.get(a.role, "Other")
+            g = a.group or {"parked": "Parked", "moving": "Moving", "ego": "Ego"}.get(a.role, "Other")
             gp = f"{ACTORS_PATH}/{g}"
             if g not in groups:
                 gs = Sdf.CreatePrimInLayer(layer, gp)
@@ -184,18 +203,25 @@ class PlacedActor:
     dims: np.ndarray
     kind: str = ""          # lsd3d:actor:kind (car, van, ...; "" when not authored)
     label: str = "vehicle"  # its UsdSemantics class label (semantics.CLASSES)
+    # meshes moving within the actor (limbs, wheels): (index into meshes, prim path, vertices
+    # in the mesh prim's own frame); `meshes` holds them in the pose of the first time
+    animated: list = field(default_factory=list)
 
 
 def actor_label(prim) -> str:
     """The class of an actor: the UsdSemantics ``class`` label on its root (or the first
     prim below that has one), "vehicle" when none is authored."""
-    for p in Usd.PrimRange(prim):
-        api = UsdSemantics.LabelsAPI(p, "class")
-        attr = api.GetLabelsAttr() if api else None
-        labels = attr.Get() if attr and attr.HasValue() else None
-        if labels:
-            return str(labels[0])
-    return "vehicle"
+    return asset_label(prim)
+
+
+def _moves_within(sub, root) -> bool:
+    """Does prim ``sub`` move relative to the actor ``root`` over time (an animated joint)?"""
+    p = sub
+    while p and p != root:
+        if p.IsA(UsdGeom.Xformable) and UsdGeom.Xformable(p).TransformMightBeTimeVarying():
+            return True
+        p = p.GetParent()
+    return False
 
 
 class ActorSet:
@@ -216,10 +242,13 @@ class ActorSet:
             if not role or not role.HasValue():
                 continue
             Minv = np.linalg.inv(self._world(prim, t0))
-            meshes, fields = [], []
+            meshes, fields, animated = [], [], []
             for sub in Usd.PrimRange(prim):
                 if sub.IsA(UsdGeom.Mesh):
                     meshes.append(mesh_data_from_prim(sub, Minv @ self._world(sub, t0)))
+                    if _moves_within(sub, prim):
+                        animated.append((len(meshes) - 1, str(sub.GetPath()),
+                                         mesh_data_from_prim(sub).vertices))
                 elif is_particle_field(sub):
                     f = read_surfels(sub, t0)
                     if f.n:
@@ -230,7 +259,7 @@ class ActorSet:
             ka = prim.GetAttribute(KIND_ATTR)
             kind = str(ka.Get()) if ka and ka.HasValue() else ""
             self.actors.append(PlacedActor(str(prim.GetPath()), str(role.Get()), meshes, surf, dims,
-                                           kind, actor_label(prim)))
+                                           kind, actor_label(prim), animated))
 
     @staticmethod
     def _world(prim, t) -> np.ndarray:
@@ -238,6 +267,11 @@ class ActorSet:
 
     def __len__(self) -> int:
         return len(self.actors)
+
+    def part_transforms(self, q: int, time_code) -> list[np.ndarray]:
+        """World-from-mesh matrices of actor q's animated meshes (as `PlacedActor.animated`)."""
+        t = Usd.TimeCode(time_code)
+        return [self._world(self.stage.GetPrimAtPath(p), t) for _, p, _ in self.actors[q].animated]
 
     def transforms(self, time_code) -> list[np.ndarray]:
         t = Usd.TimeCode(time_code)

@@ -26,11 +26,13 @@ EDGES = [(a, b) for a in range(8) for b in range(a + 1, 8)
 
 
 def local_boxes(actor_set) -> list:
-    """(lo, hi) of each actor's geometry in its own frame (meshes and surfels)."""
+    """(lo, hi) of each actor's geometry in its own frame (meshes and surfels); for an
+    articulated actor (limbs, wheels moving within it) its dimensions, the box of its whole
+    motion cycle, so the box does not change with the pose."""
     out = []
     for a in actor_set.actors:
-        pts = [m.vertices for m in a.meshes]
-        if a.surfels is not None and a.surfels.n:
+        pts = [] if a.animated else [m.vertices for m in a.meshes]
+        if a.surfels is not None and a.surfels.n and not a.animated:
             pts.append(a.surfels.positions)
         if pts:
             p = np.concatenate(pts).astype(np.float64)

@@ -63,10 +63,16 @@ def frame_times(fps: float, seconds: float) -> np.ndarray:
     return np.arange(n) / float(fps)
 
 
-def track_from_route(layout, lane_ids, times, speed: float | None = None, seed: int = 0) -> EgoTrack:
+CROSSWALK_REACH = 1.0     # m around a crosswalk where a pedestrian makes the ego wait
+
+
+def track_from_route(layout, lane_ids, times, speed: float | None = None, seed: int = 0,
+                     pedestrians=None) -> EgoTrack:
     """Drive ``lane_ids`` from the start of the first lane: at constant ``speed`` (m/s), or
     (default) with IDM on an empty road (accelerates towards the lanes' speed limits, yields at
-    junctions, stops at the end of the route)."""
+    junctions, stops at the end of the route). ``pedestrians(t)`` -> (n, 2) xy of the scene's
+    pedestrians at t seconds: with IDM the ego stops before every crosswalk with one on it
+    (or within CROSSWALK_REACH of it)."""
     times = np.asarray(times, np.float64)
     if speed is not None:
         pos, yaw = T.constant_speed_route(layout, lane_ids, speed, times)
@@ -74,7 +80,22 @@ def track_from_route(layout, lane_ids, times, speed: float | None = None, seed: 
     fps = 1.0 / (times[1] - times[0]) if len(times) > 1 else 10.0
     sim = T.Simulation(layout, seed)
     sim.add_ego(sim.g.route_indices(list(lane_ids)), 4.8)
-    run = sim.run(float(times[-1]), fps)
+    on_step = None
+    if pedestrians is not None and layout.crosswalks:
+        import shapely
+
+        from lsd3d_usd.proxy.planar import area_from_points
+        polys = [area_from_points(c.polygon) for c in layout.crosswalks]
+        sim.g.set_crosswalks(polys)
+        reach = [p.buffer(CROSSWALK_REACH) for p in polys]
+        clock = [0.0]
+
+        def on_step(s, dt):
+            xy = np.asarray(pedestrians(clock[0]), np.float64).reshape(-1, 2)
+            s.occupied = {k for k, r in enumerate(reach)
+                          if len(xy) and shapely.contains_xy(r, xy[:, 0], xy[:, 1]).any()}
+            clock[0] += dt
+    run = sim.run(float(times[-1]), fps, on_step=on_step)
     return EgoTrack(times, run.position[0][:len(times)], yaw_rotations(run.yaw[0][:len(times)]))
 
 

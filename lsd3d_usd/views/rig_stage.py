@@ -18,7 +18,7 @@ from scipy.spatial.transform import Rotation
 from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd import scene as S
 from lsd3d_usd.actors.assets import relative_asset_path, write_vehicle_asset
-from lsd3d_usd.actors.usdio import ActorSpec, author_actor
+from lsd3d_usd.actors.usdio import ROLE_ATTR, ActorSpec, actor_label, author_actor
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout.lanes import longest_route
 from lsd3d_usd.layout.usdio import layout_from_stage
@@ -97,6 +97,25 @@ def default_route(layout, seconds: float, speed: float | None = None) -> tuple[l
     return longest_route(layout, max_length=float(seconds) * float(v))
 
 
+def scene_pedestrians(stage, tcps: float):
+    """``positions(t)`` -> (n, 2) xy at t seconds of the stage's pedestrian actors (UsdSemantics
+    class pedestrian), or None when it has none."""
+    start = stage.GetPrimAtPath(S.ACTORS_PATH)
+    if not start:
+        return None
+    prims = [p for p in Usd.PrimRange(start) if p.GetAttribute(ROLE_ATTR)
+             and p.GetAttribute(ROLE_ATTR).HasValue() and actor_label(p) == "pedestrian"]
+    if not prims:
+        return None
+    xf = [UsdGeom.Xformable(p) for p in prims]
+
+    def positions(t: float) -> np.ndarray:
+        code = Usd.TimeCode(float(t) * tcps)
+        return np.array([np.array(x.ComputeLocalToWorldTransform(code).ExtractTranslation())[:2]
+                         for x in xf])
+    return positions
+
+
 def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None, trajectory=None,
                     fps: float = 10.0, seconds: float = 8.0, speed: float | None = None,
                     seed: int = 0, ego_body: bool = True, load_all: bool = True, lidar=None):
@@ -133,7 +152,8 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None
                          f"where it covers the clip ({length:.0f} m; `lsd3d-usd layout lanes` "
                          f"lists the lanes); reuse it with --route {route}")
         ids = [r.strip() for r in (route.split(",") if isinstance(route, str) else route) if r.strip()]
-        track = track_from_route(layout, ids, times, speed, seed)
+        track = track_from_route(layout, ids, times, speed, seed,
+                                 pedestrians=scene_pedestrians(scene_stage, tcps))
     else:
         track, clamped = resample(load_trajectory(trajectory), times)
         if clamped:

@@ -394,8 +394,12 @@ class SceneReader:
         n = 0
         for q, a, M in shown:
             V = self._occluder.visibility(actor_sample_points(M, a.dims), light.sun_dir)
-            for m in a.meshes:
-                v = m.vertices @ M[:3, :3].T + M[:3, 3]
+            posed = {}
+            if a.animated:      # limbs and wheels in their pose at this time
+                for (mi, _, local), W in zip(a.animated, self.actors.part_transforms(q, t)):
+                    posed[mi] = local @ W[:3, :3].T + W[:3, 3]
+            for mi, m in enumerate(a.meshes):
+                v = posed[mi] if mi in posed else m.vertices @ M[:3, :3].T + M[:3, 3]
                 tri = v[m.faces]
                 nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
                 nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
