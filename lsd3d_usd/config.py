@@ -15,6 +15,7 @@ from lsd3d_usd import configtree as ct
 from lsd3d_usd.configtree import option
 from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.ggds.priors.registry import PriorConfig
+from lsd3d_usd.limits import CYCLISTS, PEDESTRIANS
 from lsd3d_usd.proxy.chunks import ProxyParams
 
 STYLES = ("urban", "suburban", "highway")
@@ -68,9 +69,11 @@ class ActorsConfig:
     moving: int = option(8, help="moving actors driven by IDM traffic over the lane graph",
                          flag="--moving", alias="moving", lo=0, hi=100_000)
     pedestrians: int = option(0, help="pedestrians on the sidewalks and crosswalks",
-                              flag="--pedestrians", alias="pedestrians", lo=0, hi=2000)
+                              flag="--pedestrians", alias="pedestrians", lo=0,
+                              hi=int(PEDESTRIANS.value))
     cyclists: int = option(0, help="cyclists on bike lanes or the right of driving lanes",
-                           flag="--cyclists", alias="cyclists", lo=0, hi=500)
+                           flag="--cyclists", alias="cyclists", lo=0,
+                           hi=int(CYCLISTS.value))
     seconds: float = option(8.0, help="traffic duration in seconds", flag="--actor-seconds",
                             alias="actor_seconds", lo=0.1, hi=3600.0)
     fps: float = option(10.0, help="traffic samples per second", flag="--actor-fps",

@@ -175,6 +175,15 @@ IMAGE_PIXELS = Limit(
     "image_pixels", 8192 * 4096, " pixels", "image size",
     "--resolution / --size flags (cliutil.parse_size), env map rendering")
 
+# ------------------------------------------------------------------------ actors
+PEDESTRIANS = Limit(
+    "pedestrians", 2000, " pedestrians", "pedestrian count",
+    "actors add --pedestrians, generate actors.pedestrians (each walker is checked against "
+    "every other actor's box per sample)", flag="--pedestrians")
+CYCLISTS = Limit(
+    "cyclists", 500, " cyclists", "cyclist count",
+    "actors add --cyclists, generate actors.cyclists", flag="--cyclists")
+
 # ------------------------------------------------------------------------ LiDAR
 LIDAR_BEAMS = Limit(
     "lidar_beams", 1024, " beams", "beam count",
@@ -193,7 +202,7 @@ ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL
        LAYOUT_EXTENT, COORDINATE, FEATURE_POINTS, LAYOUT_POINTS, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX,
        CHUNKS, CHUNK_VOXELS, PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS,
        IMAGE_PIXELS, OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS,
-       VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
+       VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS, PEDESTRIANS, CYCLISTS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
        LIDAR_RANGE)
 
 

@@ -18,10 +18,11 @@ from lsd3d_usd.actors.pedestrians import CROSS, STAND, WAIT, WALK, Pedestrians, 
 from lsd3d_usd.actors.sidewalks import Walkable, build_walkable
 from lsd3d_usd.actors.traffic import IDMParams, LaneGraph, Simulation, TrafficRun
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import CYCLISTS, PEDESTRIANS
 
 STATES = (WALK, WAIT, CROSS, STAND)
-MAX_PEDESTRIANS = 2000
-MAX_CYCLISTS = 500
+MAX_PEDESTRIANS = int(PEDESTRIANS.value)
+MAX_CYCLISTS = int(CYCLISTS.value)
 SIDEWALK_TOP = 0.17          # m: proxy road_z + curb_height, where a pedestrian's feet are
 
 
