@@ -41,9 +41,7 @@ def resolve_library(scene, assets_dir=None) -> dict[str, Path]:
     if assets_dir is not None:
         return A.library_assets(assets_dir)
     folder = Path(scene.root) / "assets"
-    missing = [k for k in A.LIBRARY_KINDS if not (folder / f"{k}.usda").is_file()]
-    if missing:
-        A.write_library(folder, missing)
+    A.ensure_library(folder)
     return A.library_assets(folder)
 
 

@@ -7,8 +7,9 @@ Layer content (authored with Sdf, so nothing needs to resolve while writing)::
                                   xformOp:translate + xformOp:rotateZ (degrees), static
       Moving/<Kind>_<k>           the same, both ops time-sampled (one sample per traffic
                                   step at the scene's timeCodesPerSecond), plus
-                                  lsd3d:actor:speed (m/s) samples
-        Body                      over: primvars:displayColor = per-instance paint
+                                  lsd3d:actor:speed (m/s) samples; primvars:displayColor
+                                  (constant) = per-instance paint, inherited by every mesh
+                                  of the asset that has no displayColor of its own
 
 The asset files stay where they are (a library folder); the layer only points at them.
 Every actor prim carries ``lsd3d:actor:role`` (parked | moving | ego) and
@@ -90,10 +91,8 @@ def author_actor(layer, parent_path: str, a: ActorSpec, tcps: float):
             layer.SetTimeSample(rz.path, code, float(Y[k]))
             if sp is not None:
                 layer.SetTimeSample(sp.path, code, float(a.speed[k]))
-    if a.paint is not None:
-        body = Sdf.CreatePrimInLayer(layer, path.AppendChild("Body"))
-        body.specifier = Sdf.SpecifierOver
-        pv = _spec_attr(body, "primvars:displayColor", T.Color3fArray,
+    if a.paint is not None:   # on the reference root: no asset prim name assumed
+        pv = _spec_attr(spec, "primvars:displayColor", T.Color3fArray,
                         Vt.Vec3fArray([Gf.Vec3f(*map(float, a.paint))]), custom=False)
         pv.SetInfo("interpolation", "constant")
     return spec
