@@ -41,14 +41,14 @@ def test_preview_arrays_match_a_float64_reference():
     ref_n = Rotation.from_quat(q / np.linalg.norm(q, axis=1, keepdims=True)).apply([0.0, 0, 1])
     assert np.abs(a["normals"] - ref_n).max() < 1e-5
     s = np.asarray(f.scales[idx], np.float64)
-    ref_w = 2 * np.sqrt(s[:, 0] * s[:, 1] / fraction)
+    ref_w = 2 * np.sqrt(2 * s[:, 0] * s[:, 1] / fraction)      # disks of radius sqrt(2) sigma
     assert np.allclose(a["widths"], ref_w, rtol=1e-5)
     ref_c = np.clip(0.5 + C0 * np.asarray(f.sh[idx, 0], np.float64), 0, 1)
     assert np.abs(a["colors"] - ref_c).max() < 1e-6
     assert np.array_equal(a["opacities"], np.clip(f.opacities[idx], 0, 1))
     # the points cover the area the whole field covers (each stands for 1/fraction surfels)
     covered = np.pi * (a["widths"].astype(np.float64) / 2) ** 2
-    whole = np.pi * np.prod(np.asarray(f.scales, np.float64), axis=1)
+    whole = 2 * np.pi * np.prod(np.asarray(f.scales, np.float64), axis=1)
     assert covered.sum() == pytest.approx(whole.sum(), rel=0.15)
 
 

@@ -8,9 +8,11 @@ chunk file also holds a Points prim (``/Chunk_<i>_<j>_Preview``, brought into th
 of the surfels:
 
     points          the surfel centres
-    widths          the diameter of a disk of the same area as the surfel's 1-sigma ellipse,
-                    enlarged by 1/sqrt(fraction) so the subset covers the surface the whole
-                    field covers (each point stands in for 1/fraction surfels)
+    widths          the diameter of a disk of the same area as the surfel's ellipse at
+                    sqrt(2) sigma (where the Gaussian falls to 1/e of its peak: about what a
+                    splat renderer shows of it), enlarged by 1/sqrt(fraction) so the subset
+                    covers what the whole field covers (each point stands in for 1/fraction
+                    surfels)
     normals         the disk normals (local +Z rotated by the orientation)
     displayColor    the view-independent colour of the SH DC term (0.5 + C0 dc, clamped)
     displayOpacity  the surfel opacity
@@ -67,7 +69,7 @@ def preview_arrays(field: SurfelField, fraction: float, key=(0, 0)) -> dict[str,
     sampled rows are gathered (no copy of the whole field)."""
     idx = preview_indices(field.n, fraction, key)
     s = np.abs(np.asarray(field.scales[idx], np.float32))
-    widths = 2.0 * np.sqrt(s[:, 0] * s[:, 1] / np.float32(max(float(fraction), 1e-12)))
+    widths = 2.0 * np.sqrt(2.0 * s[:, 0] * s[:, 1] / np.float32(max(float(fraction), 1e-12)))
     dc = np.asarray(field.sh[idx, 0, :], np.float32)
     return {"points": np.ascontiguousarray(field.positions[idx], np.float32),
             "widths": np.ascontiguousarray(widths, np.float32),
