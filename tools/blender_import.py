@@ -127,6 +127,7 @@ def render(path: str, camera: str, resolution: tuple[int, int], only_preview: bo
             o.hide_render = True
     if engine == "eevee":   # colours as authored (emission of displayColor on the points)
         sc.render.engine = "BLENDER_EEVEE_NEXT"
+        sc.eevee.taa_render_samples = 16
         mat = _attribute_material()
         for o in bpy.data.objects:
             if o.type == "POINTCLOUD":
