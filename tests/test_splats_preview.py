@@ -113,6 +113,10 @@ def test_generated_scene_preview_seen_by_plain_usd(small_scene):
         ref = np.clip(0.5 + C0 * field.sh[preview_indices(field.n, DEFAULT_FRACTION, key), 0], 0, 1)
         assert np.abs(np.asarray(p["colors"]) - ref).max() < 1e-5
     assert not [p for p in validation.validate(small_scene) if p.severity == "error"]
+    from lsd3d_usd.inspection import inspect
+    pv = inspect(small_scene)["preview"]
+    assert pv == {"path": SURFEL_PREVIEW_PATH, "prims": len(chunks),
+                  "points": sum(v["preview"] for v in chunks.values())}
 
 
 def test_muting_a_run_mutes_its_preview(small_scene):
