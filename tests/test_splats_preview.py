@@ -156,6 +156,14 @@ def test_fraction_zero_writes_no_preview(tmp_path, cli_error, capsys):
         f = chunkio.chunk_folder(root) / chunkio.chunk_file_name(key)
         assert not Sdf.Layer.FindOrOpen(str(f)).GetPrimAtPath(f"/{preview_prim_name(chunk_prim_name(*key))}")
         assert "preview" not in chunkio.read_chunk_map(root)[key]
+    # a re-run with a preview rewrites the surfel layer (the fraction is one of its inputs)
+    generate_small(out, steps=0, splats={"preview_fraction": 0.2})
+    chunks = chunkio.read_chunk_map(root)
+    assert chunkio.preview_fraction_of(root) == 0.2
+    assert all(v["preview"] == preview_count(v["count"], 0.2) for v in chunks.values())
+    stage = Usd.Stage.Open(str(out / "scene.usda"))
+    assert len(stage.GetPrimAtPath(SURFEL_PREVIEW_PATH).GetChildren()) == len(chunks)
+    assert not [p for p in validation.validate(out) if p.severity == "error"]
     # the setting is a generate option, bounded
     from lsd3d_usd.cli import main
     assert main(["generate", "--list-options"]) == 0
