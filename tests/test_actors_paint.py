@@ -8,7 +8,7 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, Vt
 
 from lsd3d_usd.actors import assets as A
 from lsd3d_usd.actors.compose import add_actors
-from lsd3d_usd.actors.usdio import ActorSet
+from lsd3d_usd.actors.usdio import PAINT_MATERIAL, ActorSet
 from lsd3d_usd.scene import ACTORS_PATH, Scene
 
 MATERIAL_GREY = (0.8, 0.8, 0.8)
@@ -77,8 +77,15 @@ def test_paint_fits_an_asset_with_other_prim_names(scene, layout, tmp_path):
     paints = {}
     for p in actors:
         spec = layer.GetPrimAtPath(p.GetPath())
-        assert not spec.nameChildren, f"{p.GetPath()}: opinions on asset children {spec.nameChildren.keys()}"
+        # nothing authored on the asset's prims: the one child is our own paint material
+        assert list(spec.nameChildren.keys()) == [PAINT_MATERIAL], spec.nameChildren.keys()
+        assert spec.nameChildren[PAINT_MATERIAL].specifier == Sdf.SpecifierDef
         paints[str(p.GetPath())] = _paint(p)
+        # a renderer that shades by material: the paint beats the asset's own material
+        mesh = stage.GetPrimAtPath(p.GetPath().AppendPath("Cube"))
+        mat, _ = UsdShade.MaterialBindingAPI(mesh).ComputeBoundMaterial()
+        assert mat.GetPath() == p.GetPath().AppendChild(PAINT_MATERIAL)
+        assert np.allclose(A._material_colour(mesh)[0], paints[str(p.GetPath())])
     assert len({tuple(v) for v in paints.values()}) >= 2      # per instance
     # the renderer's actor reader: every face of the cube takes its instance's paint
     read = ActorSet(stage)
@@ -105,6 +112,10 @@ def test_library_paint_is_inherited_by_the_body_only(scene, layout, tmp_path):
         cols = {m.name: m.colors[0] for m in a.meshes}
         assert np.allclose(cols["Body"], paints[a.path])
         assert np.allclose(cols["Cabin"], A.GLASS) and np.allclose(cols["Wheels"], A.TYRE)
+        # by material: the body takes the instance's paint, the other parts keep their own
+        for part, want in (("Body", paints[a.path]), ("Cabin", A.GLASS), ("Wheels", A.TYRE)):
+            prim = st.GetPrimAtPath(f"{a.path}/{part}")
+            assert np.allclose(A._material_colour(prim)[0], want), (a.path, part)
 
 
 def test_older_library_assets_are_rewritten(tmp_path):

@@ -61,6 +61,12 @@ def test_blender_imports_a_generated_scene(scene, tmp_path):
     for name, a in rep["actors"].items():
         assert a["meshes"], name
         assert a["animated"] == (roles[name] == "moving"), name
+        # the per-instance paint reaches Blender through the paint material (the body), the
+        # glass and the wheels keep theirs
+        paint = UsdGeom.PrimvarsAPI(next(p for p in stage.Traverse() if p.GetName() == name)
+                                    ).GetPrimvar("displayColor").Get()[0]
+        assert a["meshes"]["Body"]["material"] == pytest.approx(list(paint), abs=1e-4), name
+        assert a["meshes"]["Cabin"]["material"] != a["meshes"]["Body"]["material"]
     # cameras
     cams = [p for p in stage.Traverse() if p.IsA(UsdGeom.Camera)]
     assert len(rep["cameras"]) == len(cams) > 0
@@ -116,3 +122,13 @@ def test_blender_exported_asset_gets_its_paint(tmp_path):
         paints.add(tuple(paint))
         assert a.meshes and all(np.allclose(m.colors, paint) for m in a.meshes), a.path
     assert len(paints) >= 2
+    # and in Blender, through the paint material, stronger than the cube's own
+    rep_path = tmp_path / "report.json"
+    _blender(TOOL, sc.root, "--json", rep_path)
+    rep = json.loads(rep_path.read_text())
+    assert len(rep["actors"]) == len(read)
+    for a in read.actors:
+        paint = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(a.path)).GetPrimvar("displayColor").Get()[0]
+        meshes = rep["actors"][a.path.rsplit("/", 1)[-1]]["meshes"]
+        assert meshes and all(m["material"] == pytest.approx(list(paint), abs=1e-4)
+                              for m in meshes.values()), (a.path, meshes)

@@ -12,7 +12,8 @@ USD libraries in one process do not mix). Prints (or writes with --json) a JSON 
     preview         {chunk: {points, mean_color, mean_radius}}: the Points previews (point
                     cloud objects) under /World/SurfelPreview
     surfels         ParticleField prims (/World/Surfels/Chunk_*) that became more than an empty
-    actors          {actor: {animated, meshes: {name: displayColor or null}}}
+    actors          {actor: {role, animated, meshes: {name: {displayColor, material}}}}: the
+                    mean displayColor attribute and the material's base colour (or null)
     cameras, lights [(name, type)]
     render          {path, covered}: the fraction of pixels an object covers (alpha > 0)
 
@@ -55,6 +56,17 @@ def _colour(mesh_data):
     return vals.reshape(-1, 4)[:, :3].mean(0).round(4).tolist()
 
 
+def _material_colour(mesh_data):
+    """Base colour of the mesh's first material (its Principled BSDF, as the importer makes
+    one of a UsdPreviewSurface), or None."""
+    for mat in mesh_data.materials:
+        if mat and mat.use_nodes:
+            for node in mat.node_tree.nodes:
+                if node.type == "BSDF_PRINCIPLED":
+                    return [round(float(c), 4) for c in node.inputs["Base Color"].default_value[:3]]
+    return None
+
+
 def report(scene_path: str) -> dict:
     bpy.ops.wm.read_factory_settings(use_empty=True)
     # proxy purpose included: the surfel preview is the ParticleField's proxy (Blender's
@@ -92,7 +104,8 @@ def report(scene_path: str) -> dict:
     sc.frame_set(end)
     for o in actors:
         moved = float(np.abs(np.array(o.matrix_world) - first[o.name]).max())
-        meshes = {_base(c.name): _colour(c.data) for c in o.children_recursive if c.type == "MESH"}
+        meshes = {_base(c.name): {"displayColor": _colour(c.data), "material": _material_colour(c.data)}
+                  for c in o.children_recursive if c.type == "MESH"}
         out["actors"][_base(o.name)] = {"role": _base(o.parent.name), "animated": moved > 1e-3,
                                         "meshes": meshes}
     sc.frame_set(start)

@@ -34,7 +34,8 @@ from lsd3d_usd.scene import provenance, save_stage
 from lsd3d_usd.splats.ply import read_ply
 from lsd3d_usd.splats.usdio import is_particle_field, write_surfels
 
-# 2: the paint as an inherited constant primvar on the root (1: a displayColor on Body)
+# 2: the paint as an inherited constant primvar on the root and a material bound to it, the
+# other parts with materials of their own (1: a displayColor on Body)
 ASSET_VERSION = 2
 KIND_ATTR = "lsd3d:actor:kind"
 DIMS_ATTR = "lsd3d:actor:dimensions"
@@ -100,6 +101,9 @@ class AssetInfo:
     dimensions: np.ndarray         # (3,) length, width, height
     meshes: list[MeshData] = field(default_factory=list)
     has_surfels: bool = False
+    # the asset declares its paint as a constant displayColor on its root (inherited by the
+    # parts without a colour of their own): an actor's paint replaces only that
+    paint_slot: bool = False
 
 
 # ------------------------------------------------------------------ geometry
@@ -196,8 +200,11 @@ def write_vehicle_asset(kind: str, path) -> Path:
     name = _prim_name(kind)
     stage, root = _new_asset_stage(name, kind)
     for m in meshes:
-        author_mesh(stage, f"/{name}/{m.name}", m, colour=m.name != "Body")
+        mesh = author_mesh(stage, f"/{name}/{m.name}", m, colour=m.name != "Body")
+        if m.name != "Body":   # for renderers that shade by material (Blender, RTX)
+            bind_preview_material(mesh.GetPrim(), f"/{name}/Materials/{m.name}", m.colors[0])
     set_paint(root.GetPrim(), SPECS[kind].paint)   # inherited by Body
+    bind_preview_material(root.GetPrim(), f"/{name}/Materials/Paint", SPECS[kind].paint)
     dims = dimensions_of(meshes)
     _root_attrs(root.GetPrim(), kind, dims)
     v = np.concatenate([m.vertices for m in meshes])
@@ -213,6 +220,20 @@ def set_paint(prim, rgb) -> None:
     UsdGeom.PrimvarsAPI(prim).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
                                             UsdGeom.Tokens.constant).Set(
         Vt.Vec3fArray([Gf.Vec3f(*map(float, rgb))]))
+
+
+def bind_preview_material(prim, path: str, rgb, strength=UsdShade.Tokens.weakerThanDescendants):
+    """Define a UsdPreviewSurface material of diffuse colour ``rgb`` at ``path`` and bind it to
+    ``prim`` (with ``strength`` over the bindings of its descendants)."""
+    stage = prim.GetStage()
+    mat = UsdShade.Material.Define(stage, path)
+    shader = UsdShade.Shader.Define(stage, f"{path}/Surface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*map(float, rgb)))
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.5)
+    mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(mat, strength)
+    return mat
 
 
 def library_asset_current(path) -> bool:
@@ -389,7 +410,9 @@ def read_asset(path) -> AssetInfo:
                              f"author {DIMS_ATTR} on {root.GetPath()}")
         lo, hi = np.array(r.GetMin()), np.array(r.GetMax())
         dims = np.array([hi[0] - lo[0], hi[1] - lo[1], hi[2]])
-    return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels)
+    pv = UsdGeom.PrimvarsAPI(root).GetPrimvar(UsdGeom.Tokens.primvarsDisplayColor)
+    slot = bool(pv and pv.HasAuthoredValue() and pv.GetInterpolation() == UsdGeom.Tokens.constant)
+    return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels, slot)
 
 
 def library_assets(folder) -> dict[str, Path]:

@@ -96,10 +96,12 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
 
     for pl in places:
         specs.append(ActorSpec(name(pl.kind), "parked", rel[pl.kind], pl.position, pl.yaw,
-                               paint=paint(), extra={"slot": pl.slot}))
+                               paint=paint(), extra={"slot": pl.slot},
+                               paint_slot=infos[pl.kind].paint_slot))
     for i, kind in enumerate(moving_kinds):
         specs.append(ActorSpec(name(kind), "moving", rel[kind], run.position[i], run.yaw[i],
-                               times=run.t, speed=run.speed[i], paint=paint()))
+                               times=run.t, speed=run.speed[i], paint=paint(),
+                               paint_slot=infos[kind].paint_slot))
     tcps = scene_time_codes_per_second(scene)
     info = {"seed": seed, "fps": fps, "seconds": seconds, "model": "IDM"}
     layer = actors_layer(specs, tcps, seconds, info)

@@ -185,8 +185,9 @@ def _root(chunks: Iterable, folder_rel: str, *, define: bool, previews: Iterable
 
 
 def chunk_has_preview(path, key) -> bool:
-    """Whether a chunk file holds the chunk's preview prim."""
-    layer = Sdf.Layer.FindOrOpen(str(path))
+    """Whether a chunk file holds the chunk's preview prim (read afresh: the file may have
+    been rewritten since a layer of it was last opened)."""
+    layer = Sdf.Layer.OpenAsAnonymous(str(path))
     return bool(layer and layer.GetPrimAtPath(f"/{preview_prim_name(chunk_prim_name(*key))}"))
 
 
