@@ -85,7 +85,7 @@ def test_paint_fits_an_asset_with_other_prim_names(scene, layout, tmp_path):
         mesh = stage.GetPrimAtPath(p.GetPath().AppendPath("Cube"))
         mat, _ = UsdShade.MaterialBindingAPI(mesh).ComputeBoundMaterial()
         assert mat.GetPath() == p.GetPath().AppendChild(PAINT_MATERIAL)
-        assert np.allclose(A._material_colour(mesh)[0], paints[str(p.GetPath())])
+        assert np.allclose(A.material_colour(mesh)[0], paints[str(p.GetPath())])
     assert len({tuple(v) for v in paints.values()}) >= 2      # per instance
     # the renderer's actor reader: every face of the cube takes its instance's paint
     read = ActorSet(stage)
@@ -115,7 +115,7 @@ def test_library_paint_is_inherited_by_the_body_only(scene, layout, tmp_path):
         # by material: the body takes the instance's paint, the other parts keep their own
         for part, want in (("Body", paints[a.path]), ("Cabin", A.GLASS), ("Wheels", A.TYRE)):
             prim = st.GetPrimAtPath(f"{a.path}/{part}")
-            assert np.allclose(A._material_colour(prim)[0], want), (a.path, part)
+            assert np.allclose(A.material_colour(prim)[0], want), (a.path, part)
 
 
 def test_older_library_assets_are_rewritten(tmp_path):

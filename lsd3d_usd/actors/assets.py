@@ -343,7 +343,7 @@ def mesh_data_from_prim(prim, M: np.ndarray | None = None) -> MeshData:
     return MeshData(prim.GetName(), pts, faces, face_cols.astype(np.float32))
 
 
-def _material_colour(prim) -> np.ndarray | None:
+def material_colour(prim) -> np.ndarray | None:
     """diffuseColor of the UsdPreviewSurface of the material bound to ``prim`` (its input's
     value; a texture connection is not sampled), or None."""
     material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
@@ -372,7 +372,7 @@ def mesh_colour(prim) -> tuple[np.ndarray, str]:
         own = pv.GetAttr().GetPrim() == prim
         if len(cols):
             return cols, pv.GetInterpolation() if own else UsdGeom.Tokens.constant
-    mat = _material_colour(prim)
+    mat = material_colour(prim)
     if mat is not None:
         return mat, UsdGeom.Tokens.constant
     return np.full((1, 3), 0.5, np.float32), UsdGeom.Tokens.constant
