@@ -170,3 +170,22 @@ def test_fraction_zero_writes_no_preview(tmp_path, cli_error, capsys):
     assert "splats.preview_fraction" in capsys.readouterr().out
     cli_error(["generate", "-o", tmp_path / "x", "--set", "splats.preview_fraction=1.5"],
               "splats.preview_fraction")
+
+
+def test_surfel_files_and_monolithic_layers_get_a_preview(tmp_path, cli_error):
+    from lsd3d_usd.splats.usdio import write_surfel_file
+
+    f = random_field(400, seed=2)
+    path = tmp_path / "s.usdc"
+    write_surfel_file(str(path), f)
+    stage = Usd.Stage.Open(str(path))
+    pts = UsdGeom.Points(stage.GetPrimAtPath(f"{SURFEL_PREVIEW_PATH}/Surfels"))
+    assert len(pts.GetPointsAttr().Get()) == preview_count(400, DEFAULT_FRACTION)
+    surf = stage.GetPrimAtPath("/World/Surfels")
+    assert surf.GetAttribute("purpose").Get() == "render"
+    assert surf.GetRelationship("proxyPrim").GetTargets() == [pts.GetPath()]
+    assert not [p for p in validation.validate(path) if p.severity == "error"]
+    write_surfel_file(str(tmp_path / "none.usdc"), f, preview_fraction=0.0)
+    assert not Usd.Stage.Open(str(tmp_path / "none.usdc")).GetPrimAtPath(SURFEL_PREVIEW_PATH)
+    cli_error(["splats", "import-ply", tmp_path / "x.ply", "-o", tmp_path / "y.usdc",
+               "--preview-fraction", "2"], "--preview-fraction")
