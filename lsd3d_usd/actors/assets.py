@@ -13,7 +13,8 @@ vehicle: ``Body`` (paint), ``Cabin`` (glass) and ``Wheels``. The paint is a cons
 ``primvars:displayColor`` on the asset's root, inherited by every mesh below it that has no
 displayColor of its own (the Body); an actor's per-instance colour is the same primvar on its
 reference root, stronger than the asset's, so it fits any asset whatever its prim names
-(``paint_color``). A user asset is any USD file with a
+(``set_paint``; the actors layer also binds a material of it, actors.usdio). A user asset
+is any USD file with a
 defaultPrim (meshes and/or ParticleField surfels), or a 3DGS/2DGS .ply that
 ``ply_to_asset`` converts to a surfel asset in our schema.
 """
