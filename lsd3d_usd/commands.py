@@ -129,6 +129,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 GROUP_TITLES = {"env": "environment (docs/env.md)", "surfels": "initial surfels",
+                "splats": "surfel preview for other USD tools (docs/usd.md)",
                 "prior": "image prior (docs/priors.md)", "ggds": "GGDS (docs/ggds.md)",
                 "actors": "actors (docs/actors.md)"}
 

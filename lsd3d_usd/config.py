@@ -17,6 +17,7 @@ from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.ggds.priors.registry import PriorConfig
 from lsd3d_usd.limits import CYCLISTS, PEDESTRIANS
 from lsd3d_usd.proxy.chunks import ProxyParams
+from lsd3d_usd.splats.preview import DEFAULT_FRACTION as DEFAULT_PREVIEW_FRACTION
 
 STYLES = ("urban", "suburban", "highway")
 WEATHERS = ("clear", "partly-cloudy", "overcast", "fog", "rain", "snow")   # env.params.WEATHERS
@@ -61,6 +62,15 @@ class SurfelConfig:
 
 
 @dataclass
+class SplatsConfig:
+    preview_fraction: float = option(
+        DEFAULT_PREVIEW_FRACTION, help="fraction of the surfels in the UsdGeom.Points preview "
+        "written beside each chunk's ParticleField, for USD tools without ParticleField "
+        "(Blender, usdview, USD < 26.03; docs/usd.md); 0 = no preview", lo=0.0, hi=1.0,
+        recorded=0.0)
+
+
+@dataclass
 class ActorsConfig:
     enabled: bool = option(True, help="the actors layer (parked and moving vehicles)",
                            negate="--no-actors", alias="actors")
@@ -96,6 +106,7 @@ class GenerateConfig:
     proxy: ProxyParams = field(default_factory=ProxyParams)
     env: EnvConfig = field(default_factory=EnvConfig)
     surfels: SurfelConfig = field(default_factory=SurfelConfig)
+    splats: SplatsConfig = field(default_factory=SplatsConfig)
     prior: PriorConfig = field(default_factory=PriorConfig)
     ggds: GGDSConfig = field(default_factory=GGDSConfig)
     actors: ActorsConfig = field(default_factory=ActorsConfig)

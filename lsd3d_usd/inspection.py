@@ -169,6 +169,20 @@ def schema_note(stage: Usd.Stage) -> dict | None:
             "fallback": fallback}
 
 
+def preview_stats(stage: Usd.Stage) -> dict | None:
+    """The surfel previews (UsdGeom.Points under /World/SurfelPreview, splats.preview) of the
+    loaded chunks: how many prims and points, or None when the stage has none."""
+    root = stage.GetPrimAtPath(scene.SURFEL_PREVIEW_PATH)
+    if not root:
+        return None
+    prims = [p for p in root.GetChildren() if p.IsA(UsdGeom.Points)]
+    points = 0
+    for p in prims:
+        pts = UsdGeom.Points(p).GetPointsAttr().Get()
+        points += len(pts) if pts is not None else 0
+    return {"path": scene.SURFEL_PREVIEW_PATH, "prims": len(prims), "points": points}
+
+
 def inspect(path: str | Path, max_depth: int = 4) -> dict:
     with captured_stderr():
         stage = scene.open_stage(path)
@@ -179,6 +193,7 @@ def inspect(path: str | Path, max_depth: int = 4) -> dict:
                 "size": disk_use(Path(stage.GetRootLayer().realPath)),
                 "prims": prim_tree(stage, max_depth),
                 "surfels": [surfel_stats(p) for p in stage.Traverse() if p.IsA(UsdVol.ParticleField)],
+                "preview": preview_stats(stage),
                 "schema": schema_note(stage)}
 
 
@@ -220,6 +235,10 @@ def format_text(info: dict) -> str:
             for k in ("extent", "opacity", "scale_max", "scale_aspect", "color_dc_mean", "classes"):
                 if k in s:
                     out.append(f"    {k}: {s[k]}")
+    pv = info.get("preview")
+    if pv:
+        out += ["", f"Surfel preview for tools without ParticleField: {pv['path']}: {pv['points']} "
+                    f"points in {pv['prims']} UsdGeom.Points prim(s) (purpose proxy; docs/usd.md)"]
     note = info.get("schema")
     if note:
         how = (f"read the surfel prims as {', '.join(note['fallback'])} with the official attribute "

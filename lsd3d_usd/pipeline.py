@@ -45,7 +45,7 @@ from lsd3d_usd.splats.chunkio import read_chunk_map
 from lsd3d_usd.splats.initial import write_initial_surfels
 from lsd3d_usd.views.scene_cameras import write_scene_cameras
 
-SURFELS_VERSION = "surfels-v6"   # v6: density weights on faces split to 2 m² (splats.initial); v5: drivable lanes only
+SURFELS_VERSION = "surfels-v7"   # v7: Points preview in the chunk files (splats.preview); v6: density weights on faces split to 2 m² (splats.initial); v5: drivable lanes only
 
 
 @dataclass
@@ -129,7 +129,7 @@ def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | N
 
 def _surfels_hash(layout_hash: str, env_hash: str, cfg: GenerateConfig) -> str:
     return content_hash(SURFELS_VERSION, layout_hash, cfg.proxy.as_dict(), env_hash, cfg.seed,
-                 ct.to_dict(cfg.surfels))
+                 ct.to_dict(cfg.surfels), ct.to_dict(cfg.splats))
 
 
 def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
@@ -315,7 +315,9 @@ def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:
         colour=lambda field, V, F: colour_by_light(field, light, V, F), count=c.count, density=c.density,
         max_count=c.max_count, sh_degree=c.sh_degree, seed=p.cfg.seed,
         inputs_hash=p.surfels_hash, progress=run.progress,
-        provenance=S.provenance("surfels", ct.to_dict(c), seed=p.cfg.seed))
+        preview_fraction=p.cfg.splats.preview_fraction,
+        provenance=S.provenance("surfels", {**ct.to_dict(c), "splats": ct.to_dict(p.cfg.splats)},
+                                seed=p.cfg.seed))
     release_free_memory()   # the chunks' temporaries; GGDS workers run beside this process
     sc.add_layer("surfels")
     return {"reused": False, **info, "init_s": round(time.perf_counter() - t0, 2)}
@@ -325,9 +327,7 @@ def _actors_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     """Parked and moving actors as references to the scene's own procedural vehicle assets
     (written once into assets/, so the scene folder is self-contained)."""
     folder = sc.assets_dir
-    missing = [k for k in A.LIBRARY_KINDS if not (folder / f"{k}.usda").is_file()]
-    if missing:
-        A.write_library(folder, missing)
+    A.ensure_library(folder)
     a = p.cfg.actors
     if a.pedestrians or a.cyclists:
         kinds = P.PEDESTRIAN_KINDS + P.CYCLIST_KINDS

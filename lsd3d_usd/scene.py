@@ -45,6 +45,7 @@ WORLD = "/World"
 LAYOUT_PATH = "/World/Layout"
 PROXY_PATH = "/World/Proxy"
 SURFELS_PATH = "/World/Surfels"
+SURFEL_PREVIEW_PATH = "/World/SurfelPreview"   # UsdGeom.Points stand-ins (splats.preview)
 ENV_PATH = "/World/Env"
 ACTORS_PATH = "/World/Actors"
 CAMERAS_PATH = "/World/Cameras"

@@ -9,8 +9,12 @@ instance ``class``, as the proxy meshes) and our attributes
     lsd3d:actor:dimensions  float3  length, width, height (m)
 
 The procedural library (car, van, truck, bus) is a few closed prisms per
-vehicle: ``Body`` (paint, per-instance colour via an over of its displayColor),
-``Cabin`` (glass) and ``Wheels``. A user asset is any USD file with a
+vehicle: ``Body`` (paint), ``Cabin`` (glass) and ``Wheels``. The paint is a constant
+``primvars:displayColor`` on the asset's root, inherited by every mesh below it that has no
+displayColor of its own (the Body); an actor's per-instance colour is the same primvar on its
+reference root, stronger than the asset's, so it fits any asset whatever its prim names
+(``set_paint``; the actors layer also binds a material of it, actors.usdio). A user asset
+is any USD file with a
 defaultPrim (meshes and/or ParticleField surfels), or a 3DGS/2DGS .ply that
 ``ply_to_asset`` converts to a surfel asset in our schema.
 """
@@ -21,7 +25,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdSemantics, Vt
+from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdSemantics, UsdShade, Vt
 
 import lsd3d_usd  # noqa: F401  (schema registration before any stage)
 from lsd3d_usd import semantics
@@ -31,6 +35,9 @@ from lsd3d_usd.scene import provenance, save_stage
 from lsd3d_usd.splats.ply import read_ply
 from lsd3d_usd.splats.usdio import is_particle_field, write_surfels
 
+# 2: the paint as an inherited constant primvar on the root and a material bound to it, the
+# other parts with materials of their own (1: a displayColor on Body)
+ASSET_VERSION = 2
 KIND_ATTR = "lsd3d:actor:kind"
 DIMS_ATTR = "lsd3d:actor:dimensions"
 VEHICLE_CLASS = "vehicle"
@@ -96,6 +103,9 @@ class AssetInfo:
     meshes: list[MeshData] = field(default_factory=list)
     has_surfels: bool = False
     label: str = VEHICLE_CLASS     # its UsdSemantics class (vehicle, pedestrian, cyclist, ...)
+    # the asset declares its paint as a constant displayColor on its root (inherited by the
+    # parts without a colour of their own): an actor's paint replaces only that
+    paint_slot: bool = False
 
 
 # ------------------------------------------------------------------ geometry
@@ -164,7 +174,9 @@ def _new_asset_stage(name: str, kind: str):
     return stage, root
 
 
-def author_mesh(stage, path: str, m: MeshData, cls: str = VEHICLE_CLASS):
+def author_mesh(stage, path: str, m: MeshData, cls: str = VEHICLE_CLASS, colour: bool = True):
+    """A Mesh prim of ``m`` labelled ``cls``; ``colour=False`` leaves its displayColor
+    unauthored (it inherits the paint of an ancestor)."""
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = np.ascontiguousarray(m.vertices, np.float32)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
@@ -173,7 +185,9 @@ def author_mesh(stage, path: str, m: MeshData, cls: str = VEHICLE_CLASS):
     mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
     mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([pts.min(0), pts.max(0)])))
     cols = np.ascontiguousarray(m.colors, np.float32)
-    if np.all(cols == cols[:1]):
+    if not colour:
+        pass
+    elif np.all(cols == cols[:1]):
         mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(Vt.Vec3fArray.FromNumpy(cols[:1]))
     else:
         mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(cols))
@@ -188,13 +202,63 @@ def write_vehicle_asset(kind: str, path) -> Path:
     name = _prim_name(kind)
     stage, root = _new_asset_stage(name, kind)
     for m in meshes:
-        author_mesh(stage, f"/{name}/{m.name}", m)
+        mesh = author_mesh(stage, f"/{name}/{m.name}", m, colour=m.name != "Body")
+        if m.name != "Body":   # for renderers that shade by material (Blender, RTX)
+            bind_preview_material(mesh.GetPrim(), f"/{name}/Materials/{m.name}", m.colors[0])
+    set_paint(root.GetPrim(), SPECS[kind].paint)   # inherited by Body
+    bind_preview_material(root.GetPrim(), f"/{name}/Materials/Paint", SPECS[kind].paint)
     dims = dimensions_of(meshes)
     _root_attrs(root.GetPrim(), kind, dims)
     v = np.concatenate([m.vertices for m in meshes])
     UsdGeom.ModelAPI(root.GetPrim()).SetExtentsHint([tuple(v.min(0)), tuple(v.max(0))])
     stage.GetRootLayer().documentation = f"lsd3d-usd procedural {kind} (Z up, metres, +X forward)"
-    return save_stage(stage, path, provenance("actor-asset", {"kind": kind}))
+    return save_stage(stage, path, provenance("actor-asset", {"kind": kind},
+                                              assetVersion=ASSET_VERSION))
+
+
+def set_paint(prim, rgb) -> None:
+    """A constant displayColor primvar on ``prim``: inherited by every gprim below it that has
+    none of its own (UsdGeomPrimvarsAPI inheritance, as Hydra renders it)."""
+    UsdGeom.PrimvarsAPI(prim).CreatePrimvar("displayColor", Sdf.ValueTypeNames.Color3fArray,
+                                            UsdGeom.Tokens.constant).Set(
+        Vt.Vec3fArray([Gf.Vec3f(*map(float, rgb))]))
+
+
+def bind_preview_material(prim, path: str, rgb, strength=UsdShade.Tokens.weakerThanDescendants):
+    """Define a UsdPreviewSurface material of diffuse colour ``rgb`` at ``path`` and bind it to
+    ``prim`` (with ``strength`` over the bindings of its descendants)."""
+    stage = prim.GetStage()
+    mat = UsdShade.Material.Define(stage, path)
+    shader = UsdShade.Shader.Define(stage, f"{path}/Surface")
+    shader.CreateIdAttr("UsdPreviewSurface")
+    shader.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*map(float, rgb)))
+    shader.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.5)
+    mat.CreateSurfaceOutput().ConnectToSource(shader.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(mat, strength)
+    return mat
+
+
+def library_asset_current(path) -> bool:
+    """Whether a procedural library asset file was written by this asset version (older
+    ones are rewritten: their paint sat on a prim named Body)."""
+    if not Path(path).is_file():
+        return False
+    try:
+        layer = Sdf.Layer.OpenAsAnonymous(str(path), metadataOnly=True)
+    except Exception:   # Tf errors for a corrupt file: rewrite it
+        return False
+    prov = layer.customLayerData.get("lsd3d", {}) if layer else {}
+    return prov.get("assetVersion") == ASSET_VERSION
+
+
+def ensure_library(folder) -> list[str]:
+    """Write the procedural vehicles into ``folder`` where missing or of an older asset
+    version; returns the kinds written."""
+    folder = Path(folder)
+    stale = [k for k in LIBRARY_KINDS if not library_asset_current(folder / f"{k}.usda")]
+    if stale:
+        write_library(folder, stale)
+    return stale
 
 
 def write_library(folder, kinds=LIBRARY_KINDS, fmt: str = "usda") -> dict[str, Path]:
@@ -267,10 +331,7 @@ def mesh_data_from_prim(prim, M: np.ndarray | None = None) -> MeshData:
             owner.append(sel)
     faces = np.concatenate(tris).astype(np.int32) if tris else np.zeros((0, 3), np.int32)
     owner = np.concatenate(owner) if owner else np.zeros(0, np.int64)
-    pv = mesh.GetDisplayColorPrimvar()
-    cols = np.asarray(pv.ComputeFlattened() if pv and pv.HasValue() else [(0.5, 0.5, 0.5)], np.float32)
-    cols = cols.reshape(-1, 3)
-    interp = pv.GetInterpolation() if pv and pv.HasValue() else "constant"
+    cols, interp = mesh_colour(prim)
     if interp == "uniform" and len(cols) == len(counts):
         face_cols = cols[owner]
     elif interp in ("vertex", "varying") and len(cols) == len(pts):
@@ -282,6 +343,41 @@ def mesh_data_from_prim(prim, M: np.ndarray | None = None) -> MeshData:
         if np.linalg.det(M[:3, :3]) < 0:
             faces = faces[:, ::-1].copy()
     return MeshData(prim.GetName(), pts, faces, face_cols.astype(np.float32))
+
+
+def material_colour(prim) -> np.ndarray | None:
+    """diffuseColor of the UsdPreviewSurface of the material bound to ``prim`` (its input's
+    value; a texture connection is not sampled), or None."""
+    material, _ = UsdShade.MaterialBindingAPI(prim).ComputeBoundMaterial()
+    if not material:
+        return None
+    shader = material.ComputeSurfaceSource()[0]
+    if not shader or shader.GetIdAttr().Get() != "UsdPreviewSurface":
+        return None
+    inp = shader.GetInput("diffuseColor")
+    value = inp.Get() if inp else None
+    if value is None and inp:
+        src = inp.GetValueProducingAttributes()
+        value = src[0].Get() if src else None
+    return None if value is None else np.asarray(value, np.float32).reshape(1, 3)
+
+
+def mesh_colour(prim) -> tuple[np.ndarray, str]:
+    """(colours, interpolation) of a gprim, as a USD renderer resolves them: its own
+    displayColor; else a constant displayColor inherited from an ancestor (an actor's
+    per-instance paint on its reference root, an asset's paint on its root); else the
+    diffuseColor of its bound UsdPreviewSurface; else grey 0.5."""
+    api = UsdGeom.PrimvarsAPI(prim)
+    pv = api.FindPrimvarWithInheritance(UsdGeom.Tokens.primvarsDisplayColor)
+    if pv and pv.HasValue():
+        cols = np.asarray(pv.ComputeFlattened(), np.float32).reshape(-1, 3)
+        own = pv.GetAttr().GetPrim() == prim
+        if len(cols):
+            return cols, pv.GetInterpolation() if own else UsdGeom.Tokens.constant
+    mat = material_colour(prim)
+    if mat is not None:
+        return mat, UsdGeom.Tokens.constant
+    return np.full((1, 3), 0.5, np.float32), UsdGeom.Tokens.constant
 
 
 def read_asset(path) -> AssetInfo:
@@ -316,7 +412,10 @@ def read_asset(path) -> AssetInfo:
                              f"author {DIMS_ATTR} on {root.GetPath()}")
         lo, hi = np.array(r.GetMin()), np.array(r.GetMax())
         dims = np.array([hi[0] - lo[0], hi[1] - lo[1], hi[2]])
-    return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels, asset_label(root))
+    pv = UsdGeom.PrimvarsAPI(root).GetPrimvar(UsdGeom.Tokens.primvarsDisplayColor)
+    slot = bool(pv and pv.HasAuthoredValue() and pv.GetInterpolation() == UsdGeom.Tokens.constant)
+    return AssetInfo(p, root.GetName(), kind, dims, meshes, surfels, label=asset_label(root),
+                     paint_slot=slot)
 
 
 def asset_label(root) -> str:

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from pxr import Usd
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.actors import assets as A
@@ -47,9 +48,7 @@ def resolve_library(scene, assets_dir=None, people: bool = False) -> dict[str, P
     if assets_dir is not None:
         return A.library_assets(assets_dir)
     folder = Path(scene.root) / "assets"
-    missing = [k for k in A.LIBRARY_KINDS if not (folder / f"{k}.usda").is_file()]
-    if missing:
-        A.write_library(folder, missing)
+    A.ensure_library(folder)
     if people:
         kinds = P.PEDESTRIAN_KINDS + P.CYCLIST_KINDS
         missing = [k for k in kinds if not (folder / f"{k}.usda").is_file()]
@@ -160,10 +159,12 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
 
     for pl in places:
         specs.append(ActorSpec(name(pl.kind), "parked", rel[pl.kind], pl.position, pl.yaw,
-                               paint=paint(), extra={"slot": pl.slot}))
+                               paint=paint(), extra={"slot": pl.slot},
+                               paint_slot=infos[pl.kind].paint_slot))
     for i, kind in enumerate(moving_kinds):
         specs.append(ActorSpec(name(kind), "moving", rel[kind], run.position[i], run.yaw[i],
-                               times=run.t, speed=run.speed[i], paint=paint()))
+                               times=run.t, speed=run.speed[i], paint=paint(),
+                               paint_slot=infos[kind].paint_slot))
     if street is not None:
         specs += _people_specs(street, moving_kinds, cyc_kinds, ped_kinds, all_infos, rel, name, prng)
     tcps = scene_time_codes_per_second(scene)
@@ -189,6 +190,11 @@ def _people_specs(street, moving_kinds, cyc_kinds, ped_kinds, infos, rel, name, 
     clothing colours and their joints driven by the distance each covers."""
     run, people = street.traffic, street.people
     specs = []
+    parts = {k: _part_paths(infos[k].path) for k in set(cyc_kinds) | set(ped_kinds)}
+
+    def own(kind, d):   # overs only on prims the asset has (a user asset named "adult" too)
+        return {k: v for k, v in d.items() if k in parts[kind]}
+
     dt = float(run.t[1] - run.t[0]) if len(run.t) > 1 else 0.0
     for j, kind in enumerate(cyc_kinds):
         i = len(moving_kinds) + j
@@ -196,16 +202,26 @@ def _people_specs(street, moving_kinds, cyc_kinds, ped_kinds, infos, rel, name, 
         joints = P.cyclist_angles(dist) if kind in P.CYCLIST_KINDS else {}
         specs.append(ActorSpec(name(kind), "moving", rel[kind], run.position[i], run.yaw[i],
                                times=run.t, speed=run.speed[i], group="Cyclists",
-                               colors=_clothes(kind, rng), joints=joints))
+                               colors=own(kind, _clothes(kind, rng)), joints=own(kind, joints)))
     for i, kind in enumerate(ped_kinds):
         joints = (P.gait_angles(people.walked[i], people.speed[i], P.BODIES[kind])
                   if kind in P.BODIES else {})
         state = STATES[int(people.state[i, 0])]
         specs.append(ActorSpec(name(kind), "moving", rel[kind], people.position[i], people.yaw[i],
                                times=run.t, speed=people.speed[i], group="Pedestrians",
-                               colors=_clothes(kind, rng), joints=joints,
+                               colors=own(kind, _clothes(kind, rng)), joints=own(kind, joints),
                                extra={"behaviour": "standing" if state == "stand" else "walking"}))
     return specs
+
+
+def _part_paths(asset_path) -> set[str]:
+    """Paths of the prims below an asset's defaultPrim, relative to it ("LeftLeg/Mesh")."""
+    stage = Usd.Stage.Open(str(asset_path))
+    root = stage.GetDefaultPrim()
+    if not root:
+        return set()
+    base = root.GetPath()
+    return {str(p.GetPath().MakeRelativePath(base)) for p in Usd.PrimRange(root) if p != root}
 
 
 def _clothes(kind: str, rng) -> dict:

@@ -7,8 +7,15 @@ Layer content (authored with Sdf, so nothing needs to resolve while writing)::
                                   xformOp:translate + xformOp:rotateZ (degrees), static
       Moving/<Kind>_<k>           the same, both ops time-sampled (one sample per traffic
                                   step at the scene's timeCodesPerSecond), plus
-                                  lsd3d:actor:speed (m/s) samples
-        Body                      over: primvars:displayColor = per-instance paint
+                                  lsd3d:actor:speed (m/s) samples; primvars:displayColor
+                                  (constant) = per-instance paint, inherited by every mesh
+                                  of the asset that has no displayColor of its own; the
+                                  same paint as a material bound here (PAINT_MATERIAL):
+        lsd3dPaint                Material (UsdPreviewSurface), for renderers that shade by
+                                  material; bound weakerThanDescendants when the asset has a
+                                  paint slot (parts with materials of their own keep them),
+                                  strongerThanDescendants otherwise (the whole asset painted,
+                                  as the inherited displayColor paints it)
 
 The asset files stay where they are (a library folder); the layer only points at them.
 Every actor prim carries ``lsd3d:actor:role`` (parked | moving | ego) and
@@ -30,6 +37,7 @@ from lsd3d_usd.splats.field import SurfelField
 from lsd3d_usd.splats.init import transform_surfels
 from lsd3d_usd.splats.usdio import is_particle_field, read_surfels
 
+PAINT_MATERIAL = "lsd3dPaint"
 ROLE_ATTR = "lsd3d:actor:role"
 ASSET_ATTR = "lsd3d:actor:asset"
 SPEED_ATTR = "lsd3d:actor:speed"
@@ -53,6 +61,7 @@ class ActorSpec:
     colors: dict = field(default_factory=dict)   # part path under the actor -> displayColor over
     joints: dict = field(default_factory=dict)   # joint Xform path -> rotateY degrees (per time)
     group: str | None = None                     # /World/Actors/<group>; default from the role
+    paint_slot: bool = True     # the asset declares a paint slot (assets.AssetInfo.paint_slot)
 
 
 def _spec_attr(prim_spec, name: str, type_name, value=None, uniform=False, custom=True):
@@ -93,10 +102,13 @@ def author_actor(layer, parent_path: str, a: ActorSpec, tcps: float):
             layer.SetTimeSample(rz.path, code, float(Y[k]))
             if sp is not None:
                 layer.SetTimeSample(sp.path, code, float(a.speed[k]))
-    colors = dict(a.colors)
-    if a.paint is not None:
-        colors.setdefault("Body", a.paint)
-    for part, rgb in colors.items():
+    if a.paint is not None:   # on the reference root: no asset prim name assumed
+        pv = _spec_attr(spec, "primvars:displayColor", T.Color3fArray,
+                        Vt.Vec3fArray([Gf.Vec3f(*map(float, a.paint))]), custom=False)
+        pv.SetInfo("interpolation", "constant")
+        _paint_material(layer, spec, a.paint, a.paint_slot)
+    # parts of our own procedural people (compose keeps only parts the asset has)
+    for part, rgb in a.colors.items():
         over = Sdf.CreatePrimInLayer(layer, path.AppendPath(Sdf.Path(part)))
         over.specifier = Sdf.SpecifierOver
         for anc in over.path.GetAncestorsRange():     # the parts between, as overs too
@@ -116,6 +128,26 @@ def author_actor(layer, parent_path: str, a: ActorSpec, tcps: float):
             for k, t in enumerate(np.asarray(a.times, np.float64)):
                 layer.SetTimeSample(rot.path, round(float(t) * tcps, 6), float(ang[k]))
     return spec
+
+
+def _paint_material(layer, spec, rgb, slot: bool) -> None:
+    """A UsdPreviewSurface of colour ``rgb`` defined under the actor prim ``spec`` (ours, not
+    a prim of the asset) and bound to it (Sdf level)."""
+    T = Sdf.ValueTypeNames
+    mat = Sdf.PrimSpec(spec, PAINT_MATERIAL, Sdf.SpecifierDef, "Material")
+    shader = Sdf.PrimSpec(mat, "Surface", Sdf.SpecifierDef, "Shader")
+    _spec_attr(shader, "info:id", T.Token, "UsdPreviewSurface", uniform=True, custom=False)
+    _spec_attr(shader, "inputs:diffuseColor", T.Color3f, Gf.Vec3f(*map(float, rgb)), custom=False)
+    _spec_attr(shader, "inputs:roughness", T.Float, 0.5, custom=False)
+    _spec_attr(shader, "outputs:surface", T.Token, custom=False)
+    out = _spec_attr(mat, "outputs:surface", T.Token, custom=False)
+    out.connectionPathList.Prepend(shader.path.AppendProperty("outputs:surface"))
+    api = spec.GetInfo("apiSchemas") if spec.HasInfo("apiSchemas") else Sdf.TokenListOp()
+    spec.SetInfo("apiSchemas", Sdf.TokenListOp.Create(
+        prependedItems=list(api.prependedItems) + ["MaterialBindingAPI"]))
+    rel = Sdf.RelationshipSpec(spec, "material:binding", custom=False)
+    rel.targetPathList.explicitItems = [mat.path]   # replaces the asset's own binding here
+    rel.SetInfo("bindMaterialAs", "weakerThanDescendants" if slot else "strongerThanDescendants")
 
 
 def scene_time_codes_per_second(scene) -> float:

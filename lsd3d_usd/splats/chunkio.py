@@ -10,6 +10,12 @@ On disk (a scene's layers/ folder)::
                                               payload), one per chunk the run has written
     ggds_<run>_chunks/chunk_<i>_<j>.usdc      over Chunk_<i>_<j>: the optimised attributes
 
+With a preview (splats.preview, ``splats.preview_fraction`` > 0) each chunk file also holds
+``Chunk_<i>_<j>_Preview`` (UsdGeom.Points, purpose proxy), brought in at
+``/World/SurfelPreview/Chunk_<i>_<j>`` by a payload to that prim of the same file; a run's
+chunk file holds an over of it with the run's own preview, and the run layer an over of
+``/World/SurfelPreview/Chunk_<i>_<j>`` with a payload to it.
+
 The initial surfels go to a new folder named by their inputs hash; the root layer, written
 last and atomically, switches to it, and then older folders are removed. A crash mid-way
 leaves the previous root pointing at its own, intact chunks.
@@ -35,6 +41,7 @@ import lsd3d_usd
 from lsd3d_usd import safepaths
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
+    SURFEL_PREVIEW_PATH,
     SURFELS_PATH,
     WORLD,
     author_fallback_prim_types,
@@ -43,6 +50,7 @@ from lsd3d_usd.scene import (
     save_layer,
 )
 from lsd3d_usd.splats.field import SurfelField
+from lsd3d_usd.splats.preview import preview_count, preview_prim_name, write_preview
 from lsd3d_usd.splats.usdio import read_surfels, write_surfels
 
 SEED_CHUNK_ATTR = "lsd3d:seedChunk"
@@ -100,13 +108,17 @@ def _stage():
 
 
 def write_chunk(folder, key, field: SurfelField, provenance: dict | None = None,
-                seed_faces: tuple[np.ndarray, np.ndarray] | None = None) -> Path:
+                seed_faces: tuple[np.ndarray, np.ndarray] | None = None,
+                preview_fraction: float = 0.0) -> Path:
     """The initial surfels of one chunk to ``folder`` (atomic), defaultPrim Chunk_<i>_<j>.
-    ``seed_faces``: (proxy chunk (n, 2), face index (n,)) each surfel was seeded on."""
+    ``seed_faces``: (proxy chunk (n, 2), face index (n,)) each surfel was seeded on.
+    ``preview_fraction`` > 0: also the Points preview of that fraction (splats.preview)."""
 
     name = chunk_prim_name(*key)
     stage = _stage()
     prim = write_surfels(stage, f"/{name}", field)   # + the official APIs and type fallback
+    UsdGeom.Imageable(prim).CreatePurposeAttr(UsdGeom.Tokens.render)
+    write_preview(stage, f"/{preview_prim_name(name)}", field, preview_fraction, key)
     if seed_faces is not None:
         chunks, faces = (np.ascontiguousarray(a, np.int32) for a in seed_faces)
         if chunks.shape != (field.n, 2) or faces.shape != (field.n,):
@@ -120,18 +132,22 @@ def write_chunk(folder, key, field: SurfelField, provenance: dict | None = None,
 
 
 def write_run_chunk(folder, key, field: SurfelField, attributes: tuple[str, ...],
-                    provenance: dict | None = None) -> Path:
-    """One chunk's optimised attributes of a GGDS run: overs only (atomic)."""
+                    provenance: dict | None = None, preview_fraction: float = 0.0) -> Path:
+    """One chunk's optimised attributes of a GGDS run: overs only (atomic); with
+    ``preview_fraction`` > 0 also an over of the chunk's preview with the run's surfels."""
     name = chunk_prim_name(*key)
     stage = _stage()
     prim = write_surfels(stage, f"/{name}", field, over=True, attributes=attributes)
+    if preview_count(field.n, preview_fraction):
+        write_preview(stage, f"/{preview_prim_name(name)}", field, preview_fraction, key, over=True)
     stage.SetDefaultPrim(prim)
     return save_layer(stage.GetRootLayer(), Path(folder) / chunk_file_name(key), provenance)
 
 
-def _root(chunks: Iterable, folder_rel: str, *, define: bool):
+def _root(chunks: Iterable, folder_rel: str, *, define: bool, previews: Iterable = ()):
     """Root layer (Sdf, no composition): /World/Surfels with a payload per chunk; ``define``
-    for the initial surfels (defs), else overs (a run layer)."""
+    for the initial surfels (defs), else overs (a run layer). ``previews``: the chunks whose
+    files hold a preview, each brought in at /World/SurfelPreview/Chunk_<i>_<j>."""
 
     layer = Sdf.Layer.CreateAnonymous(".usdc")
     spec_kind = Sdf.SpecifierDef if define else Sdf.SpecifierOver
@@ -150,23 +166,63 @@ def _root(chunks: Iterable, folder_rel: str, *, define: bool):
         spec = Sdf.PrimSpec(parent, chunk_prim_name(*key), spec_kind,
                             lsd3d_usd.SURFEL_TYPE if define else "")
         spec.payloadList.Prepend(Sdf.Payload(f"./{folder_rel}/{chunk_file_name(key)}"))
+    previews = sorted(previews)
+    if previews:
+        group = Sdf.CreatePrimInLayer(layer, SURFEL_PREVIEW_PATH)
+        group.specifier = spec_kind
+        if define:
+            group.typeName = "Xform"
+        for key in previews:
+            name = chunk_prim_name(*key)
+            spec = Sdf.PrimSpec(group, name, spec_kind, "Points" if define else "")
+            spec.payloadList.Prepend(Sdf.Payload(f"./{folder_rel}/{chunk_file_name(key)}",
+                                                 Sdf.Path(f"/{preview_prim_name(name)}")))
+            if define:   # the surfels name their stand-in (UsdGeomImageable proxyPrim)
+                rel = Sdf.RelationshipSpec(parent.nameChildren[name], UsdGeom.Tokens.proxyPrim,
+                                           custom=False)
+                rel.targetPathList.Prepend(spec.path)
     return layer
 
 
-def chunk_info(key, field: SurfelField, inputs_hash: str = "") -> dict:
+def chunk_has_preview(path, key) -> bool:
+    """Whether a chunk file holds the chunk's preview prim (read afresh: the file may have
+    been rewritten since a layer of it was last opened)."""
+    layer = Sdf.Layer.OpenAsAnonymous(str(path))
+    return bool(layer and layer.GetPrimAtPath(f"/{preview_prim_name(chunk_prim_name(*key))}"))
+
+
+def preview_fraction_of(root_path) -> float:
+    """The preview fraction a surfel root layer was written with (0: none, or older)."""
+    p = Path(root_path)
+    if not p.is_file():
+        return 0.0
+    layer = Sdf.Layer.OpenAsAnonymous(str(p), metadataOnly=True)
+    value = layer.customLayerData.get("lsd3d", {}).get("previewFraction") if layer else None
+    try:
+        return max(0.0, float(value)) if value is not None else 0.0
+    except (TypeError, ValueError):
+        raise InputError(f"{p}: previewFraction {value!r} is not a number") from None
+
+
+def chunk_info(key, field: SurfelField, inputs_hash: str = "", preview_fraction: float = 0.0) -> dict:
     lo = field.positions.min(0) if field.n else np.zeros(3)
     hi = field.positions.max(0) if field.n else np.zeros(3)
-    return {"count": int(field.n), "bounds": [float(v) for v in (*lo, *hi)],
+    info = {"count": int(field.n), "bounds": [float(v) for v in (*lo, *hi)],
             "inputsHash": inputs_hash}
+    if preview_fraction > 0:
+        info["preview"] = preview_count(field.n, preview_fraction)
+    return info
 
 
 def write_root(root_path, folder, chunks: dict, provenance: dict | None = None, *,
                define: bool = True) -> Path:
     """The root layer listing ``chunks`` ({key: chunk_info}) with payloads into ``folder``
-    (beside or below the root), atomically."""
+    (beside or below the root), atomically; a chunk whose info has ``"preview"`` (a point
+    count > 0) also gets its preview's payload."""
     path = Path(root_path).absolute()
     rel = Path(folder).absolute().relative_to(path.parent).as_posix()
-    layer = _root(chunks, rel, define=define)
+    previews = [k for k, v in chunks.items() if v.get("preview")]
+    layer = _root(chunks, rel, define=define, previews=previews)
     prov = dict(provenance or {})
     prov["chunks"] = json.dumps({chunk_prim_name(*k): v for k, v in sorted(chunks.items())})
     prov["chunkFolder"] = rel

@@ -11,6 +11,7 @@ from pxr import Usd, UsdGeom, UsdSemantics
 from lsd3d_usd import limits, scene
 from lsd3d_usd.cliutil import add_limit_option, check_output_path
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.splats.preview import DEFAULT_FRACTION
 
 SCENE_ROOT = "scene.usda"
 
@@ -62,17 +63,19 @@ def _check_output(out, suffixes=USD_SUFFIXES, scene_ok: bool = True) -> None:
     check_output_path(out, "-o", suffixes=suffixes, what=what)
 
 
-def _write_surfels(field, out, prim_path, prov, retire_runs=False):
+def _write_surfels(field, out, prim_path, prov, retire_runs=False,
+                   preview_fraction=DEFAULT_FRACTION):
     """To a stand-alone USD file, or as the surfels layer of a scene folder (refused when GGDS
-    runs were optimised on the scene's current surfels, unless retire_runs)."""
+    runs were optimised on the scene's current surfels, unless retire_runs); with the Points
+    preview of ``preview_fraction`` of the surfels (0 = none; docs/usd.md)."""
     # local import: not loaded for --help
-    from lsd3d_usd.splats.usdio import write_surfel_file, write_surfels
+    from lsd3d_usd.splats.usdio import write_surfel_file, write_surfels_with_preview
 
     if _is_scene(out):
         stage = scene.new_stage()
-        write_surfels(stage, prim_path, field)
+        write_surfels_with_preview(stage, prim_path, field, preview_fraction)
         return scene.Scene.open(out).write_layer("surfels", stage, prov, retire_runs=retire_runs)
-    write_surfel_file(str(out), field, prim_path, prov)
+    write_surfel_file(str(out), field, prim_path, prov, preview_fraction)
     return Path(out)
 
 
@@ -136,6 +139,7 @@ def _init(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.splats.init import mesh_to_surfels
 
+    _check_fraction(args)
     if args.output is not None:
         _check_output(args.output)
     stage = scene.open_stage(args.input)
@@ -164,7 +168,7 @@ def _init(args) -> int:
                                             "sh_degree": args.sh_degree, "root": root,
                                             "triangles": int(len(F))}, seed=args.seed,
                             timings={"init_s": round(dt, 3)})
-    path = _write_surfels(field, out, args.prim, prov, args.retire_runs)
+    path = _write_surfels(field, out, args.prim, prov, args.retire_runs, args.preview_fraction)
     area = float(np.pi * np.sum(field.scales[:, 0].astype(np.float64) * field.scales[:, 1]))
     print(f"{field.n} surfels on {len(F)} triangles ({area:.1f} m^2) in {dt:.2f} s -> {path}")
     return 0
@@ -177,12 +181,14 @@ def _import_ply(args) -> int:
     from lsd3d_usd.hashing import file_hash
     from lsd3d_usd.splats.ply import read_ply
 
+    _check_fraction(args)
     _check_output(args.output)
     field = read_ply(args.input, max_vertices=args.max_vertices)
     digest = file_hash(args.input)
     prov = scene.provenance("splats.import-ply", {"source": str(Path(args.input).name)},
                             inputsHash=f"ply-{digest}")
-    path = _write_surfels(field, args.output, args.prim, prov, args.retire_runs)
+    path = _write_surfels(field, args.output, args.prim, prov, args.retire_runs,
+                          args.preview_fraction)
     print(f"{field.n} surfels (SH degree {field.sh_degree}) -> {path}")
     return 0
 
@@ -208,6 +214,17 @@ def _export_3dgs(args) -> int:
     path = write_gaussian_splat_file(args.output, field, args.out_prim, args.thin, prov)
     print(f"{field.n} surfels -> {path} (ParticleField3DGaussianSplat, thin axis {args.thin} x smaller scale)")
     return 0
+
+
+def _check_fraction(args) -> None:
+    if not 0.0 <= args.preview_fraction <= 1.0:
+        raise InputError(f"--preview-fraction {args.preview_fraction:g}: a fraction in [0, 1]")
+
+
+def _preview_option(q) -> None:
+    q.add_argument("--preview-fraction", type=float, default=DEFAULT_FRACTION, metavar="F",
+                   help="share of the surfels in the UsdGeom.Points preview for USD tools "
+                        f"without ParticleField (docs/usd.md; 0 = none; default {DEFAULT_FRACTION})")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -238,6 +255,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="spherical-harmonics degree of the colour (default 0: view-independent)")
     q.add_argument("--root", help="only meshes under this prim path (default /World/Proxy or the whole stage)")
     q.add_argument("--prim", default="/World/Surfels", help="prim path of the written surfels")
+    _preview_option(q)
     q.set_defaults(func=_init)
 
     q = ss.add_parser("import-ply", help="3DGS/2DGS PLY -> surfel USD",
@@ -251,6 +269,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="replace a scene's surfels even though GGDS runs were optimised on them "
                         "(the runs are muted and marked stale)")
     q.add_argument("--prim", default="/World/Surfels", help="prim path of the written surfels")
+    _preview_option(q)
     add_limit_option(q, limits.PLY_VERTICES)
     q.set_defaults(func=_import_ply)
 

@@ -159,12 +159,13 @@ def _counts(keys, cache, layout, count, density, max_count) -> tuple[dict, dict]
 def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | None,
                           density: float, max_count: int, sh_degree: int = 1, seed: int = 0,
                           inputs_hash: str, provenance: dict | None = None,
-                          progress: bool = False) -> dict:
+                          progress: bool = False, preview_fraction: float = 0.0) -> dict:
     """Seed, colour and write the initial surfels of every proxy chunk to a new chunk folder
     named by ``inputs_hash``, then the surfel root layer ``out_root`` (splats.chunkio), then
     remove the folders of earlier versions. ``colour(field, vertices, faces)`` sets a chunk's
     surfel colours in place, given the proxy of its 3×3 neighbourhood (what can shadow it).
-    Returns a summary."""
+    ``preview_fraction`` > 0: each chunk file also holds a Points preview of that fraction of
+    its surfels (splats.preview). Returns a summary."""
 
     # Chunk folders are written and pruned below: never through a planted link.
     safepaths.check_tree(chunkio.chunks_base(out_root), Path(out_root).absolute().parent,
@@ -193,8 +194,9 @@ def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | 
         field = SurfelField.concat([p[0] for p in parts])
         chunks = np.concatenate([p[1] for p in parts])
         faces = np.concatenate([p[2] for p in parts])
-        chunkio.write_chunk(folder, target, field, seed_faces=(chunks, faces))
-        infos[target] = chunkio.chunk_info(target, field)
+        chunkio.write_chunk(folder, target, field, seed_faces=(chunks, faces),
+                            preview_fraction=preview_fraction)
+        infos[target] = chunkio.chunk_info(target, field, preview_fraction=preview_fraction)
         written_total += field.n
 
     try:
@@ -222,6 +224,8 @@ def write_initial_surfels(proxy_path, layout, out_root, *, colour, count: int | 
             flush(target)
     finally:
         stash.close()   # also after an error: nothing parked is left behind
-    chunkio.write_root(out_root, folder, infos, {**(provenance or {}), "inputsHash": inputs_hash})
+    chunkio.write_root(out_root, folder, infos, {**(provenance or {}), "inputsHash": inputs_hash,
+                                                 "previewFraction": float(preview_fraction)})
     chunkio.prune_chunk_folders(out_root)
-    return {"count": int(written_total), "chunks": len(infos), **areas}
+    return {"count": int(written_total), "chunks": len(infos), **areas,
+            "preview": int(sum(v.get("preview", 0) for v in infos.values()))}

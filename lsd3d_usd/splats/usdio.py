@@ -8,7 +8,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from pxr import Sdf, Usd, UsdVol, Vt
+from pxr import Sdf, Usd, UsdGeom, UsdVol, Vt
 
 import lsd3d_usd
 from lsd3d_usd import scene
@@ -21,6 +21,7 @@ from lsd3d_usd.splats.field import (
     kernel_bounds,
     sh_coeff_count,
 )
+from lsd3d_usd.splats.preview import DEFAULT_FRACTION, write_preview
 
 SH_DEGREE_ATTR = "radiance:sphericalHarmonicsDegree"
 SH_COEFFS_ATTR = "radiance:sphericalHarmonicsCoefficients"
@@ -212,14 +213,39 @@ def check_bulk_target(path, n: int) -> None:
                          "write .usdc (or .usd)")
 
 
+def preview_path_for(prim_path: str) -> str:
+    """Where the Points preview of the surfel prim at ``prim_path`` goes: beside the scene's
+    chunk previews for a prim directly under /World (/World/SurfelPreview/<name>), else a
+    sibling ``<path>_Preview``."""
+    p = Sdf.Path(prim_path)
+    if str(p.GetParentPath()) == scene.WORLD:
+        return f"{scene.SURFEL_PREVIEW_PATH}/{p.name}"
+    return f"{prim_path}_Preview"
+
+
+def write_surfels_with_preview(stage: Usd.Stage, prim_path: str, field: SurfelField,
+                               preview_fraction: float = DEFAULT_FRACTION) -> Usd.Prim:
+    """write_surfels, plus (fraction > 0) the Points preview for USD tools without
+    ParticleField (splats.preview): the surfel prim gets purpose render and names the
+    preview, purpose proxy, as its proxyPrim."""
+    prim = write_surfels(stage, prim_path, field)
+    if write_preview(stage, preview_path_for(prim_path), field, preview_fraction):
+        img = UsdGeom.Imageable(prim)
+        img.CreatePurposeAttr(UsdGeom.Tokens.render)
+        img.CreateProxyPrimRel().SetTargets([Sdf.Path(preview_path_for(prim_path))])
+    return prim
+
+
 def write_surfel_file(path: str, field: SurfelField, prim_path: str = "/World/Surfels",
-                      provenance: dict | None = None) -> None:
-    """Write a stand-alone surfel layer (Z up, metres, defaultPrim /World), atomically.
-    A .usda path is refused above limits.USDA_PARTICLES particles (check_bulk_target)."""
+                      provenance: dict | None = None,
+                      preview_fraction: float = DEFAULT_FRACTION) -> None:
+    """Write a stand-alone surfel layer (Z up, metres, defaultPrim /World) with its Points
+    preview (``preview_fraction``, 0 = none), atomically. A .usda path is refused above
+    limits.USDA_PARTICLES particles (check_bulk_target)."""
 
     check_bulk_target(path, field.n)
     stage = scene.new_stage()
-    write_surfels(stage, prim_path, field)
+    write_surfels_with_preview(stage, prim_path, field, preview_fraction)
     scene.save_stage(stage, path, provenance)
 
 

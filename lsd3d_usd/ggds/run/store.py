@@ -118,7 +118,7 @@ def refresh_run_layer(sc: S.Scene, run: str) -> Path:
     if folder.is_dir():
         for f in sorted(folder.glob("chunk_*.usdc")):
             key = parse_chunk_prim_name(f.stem.replace("chunk_", "Chunk_", 1))
-            infos[key] = {"file": f.name}
+            infos[key] = {"file": f.name, "preview": chunkio.chunk_has_preview(f, key)}
     regions = {name: region_progress(sc, run, name) for name in plan["regions"]}
     totals = run_summary(regions)
     prior = next((r["prior"] for r in regions.values() if r.get("prior")), {})
@@ -252,8 +252,11 @@ class RegionRunStore:
         """The region's surfels into the run's chunk files, its progress beside them, then
         (single process) the run layer."""
         folder = run_chunk_folder(self.scene, self.run)
+        # the run's preview follows the surfel layer's (none when it has none)
+        fraction = chunkio.preview_fraction_of(self.scene.layer_path("surfels"))
         for key, a, b in self.owners:
-            chunkio.write_run_chunk(folder, key, field.rows(a, b), RUN_ATTRIBUTES)
+            chunkio.write_run_chunk(folder, key, field.rows(a, b), RUN_ATTRIBUTES,
+                                    preview_fraction=fraction)
         write_json(self.dir / "progress.json",
                     {**provenance, "keys": [list(k) for k, _, _ in self.owners],
                      "surfels": int(field.n)})
