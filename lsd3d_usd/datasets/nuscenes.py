@@ -1,6 +1,8 @@
 """The nuScenes v1.0 writer: ROOT/<version>/ with the 13 tables (attribute, calibrated_sensor,
 category, ego_pose, instance, log, map, sample, sample_annotation, sample_data, scene, sensor,
-visibility) and lidarseg.json; ROOT/samples/<channel>/ (keyframes) and ROOT/sweeps/<channel>/
+visibility), lidarseg.json and image_annotations.json (per camera and keyframe the tight 2D
+box of each annotated actor's pixels, the devkit's 2D table); an instance row also names the
+actor's prim (``prim``); ROOT/samples/<channel>/ (keyframes) and ROOT/sweeps/<channel>/
 (the frames between) with nuScenes' file names; ROOT/lidarseg/<version>/<token>_lidarseg.bin
 (uint8 category index per point of each keyframe sweep); ROOT/maps/<token>.png (drivable area,
 datasets.maps). One nuScenes scene and log per route.
@@ -44,7 +46,9 @@ class NuScenesWriter:
         self.key = (self.version, p.key)
         self.log_name = f"lsd3d-{p.index:04d}-{p.scene_name}"
         self.rows = {t: [] for t in ("calibrated_sensor", "ego_pose", "sample",
-                                     "sample_annotation", "sample_data", "lidarseg")}
+                                     "sample_annotation", "sample_data", "lidarseg",
+                                     "image_annotations")}
+        self.keyframe_sd = {}        # channel -> sample_data row of the current keyframe
         self.instances = {}          # prim -> instance row (with its category)
         self.last_ann = {}           # prim -> its last annotation row
         self.last_sd = {}            # channel -> its last sample_data row
@@ -150,6 +154,8 @@ class NuScenesWriter:
             last["next"] = tok
         self.last_sd[channel] = row
         self.rows["sample_data"].append(row)
+        if s.keyframe:
+            self.keyframe_sd[channel] = row
         return row
 
     def _annotations(self, s, ts) -> None:
@@ -163,7 +169,8 @@ class NuScenesWriter:
                 inst = self.instances[b["prim"]] = {
                     "token": token(*self.key, "instance", b["prim"]),
                     "category_token": token("category", cat), "nbr_annotations": 0,
-                    "first_annotation_token": "", "last_annotation_token": ""}
+                    "first_annotation_token": "", "last_annotation_token": "",
+                    "prim": b["prim"]}
             atok = token(*self.key, "sample_annotation", b["prim"], ts)
             speed = float(np.linalg.norm(b["velocity_world"]))
             attr = M.attribute(cat, b["role"], speed)
@@ -186,6 +193,25 @@ class NuScenesWriter:
             inst["nbr_annotations"] += 1
             self.last_ann[b["prim"]] = row
             self.rows["sample_annotation"].append(row)
+            self._image_annotations(b, row, cat)
+
+    def _image_annotations(self, b, ann, cat) -> None:
+        """2D boxes per camera (image_annotations.json, the devkit's 2D table): the tight box
+        of the actor's instance pixels, with its visible fraction in that camera."""
+        for channel, e in sorted(b["cameras"].items()):
+            if "box_2d" not in e or channel not in self.keyframe_sd:
+                continue
+            sd = self.keyframe_sd[channel]
+            self.rows["image_annotations"].append({
+                "sample_annotation_token": ann["token"], "sample_data_token": sd["token"],
+                "instance_token": ann["instance_token"], "category_name": cat,
+                "attribute_tokens": ann["attribute_tokens"],
+                "visibility_token": ann["visibility_token"], "filename": sd["filename"],
+                "bbox_corners": [float(v) for v in e["box_2d"]],
+                "num_lidar_pts": ann["num_lidar_pts"], "num_radar_pts": 0,
+                "visible_fraction": float(e["visible_fraction"]), "pixels": int(e["pixels"]),
+                "truncated": float(e["truncated"]),
+                "prev": "", "next": ""})
 
     def end_log(self) -> dict:
         p = self.info.plan
@@ -212,12 +238,13 @@ class NuScenesWriter:
                                for n, d in M.ATTRIBUTES]
         tables["visibility"] = [{"token": t, "level": lv, "description": d}
                                 for t, lv, d in M.VISIBILITY]
-        channels, maps, lidarseg = {}, {}, []
+        channels, maps, lidarseg, image_anns = {}, {}, [], []
         for rec in records:
             for t in ("calibrated_sensor", "ego_pose", "sample", "sample_annotation",
                       "sample_data", "instance", "scene", "log"):
                 tables[t] += rec[t]
             lidarseg += rec["lidarseg"]
+            image_anns += rec["image_annotations"]
             channels.update(rec["channels"])
             for m in rec["map"]:
                 maps.setdefault(m["token"], {**m, "log_tokens": []})["log_tokens"] += \
@@ -232,4 +259,5 @@ class NuScenesWriter:
         if lidarseg:
             (self.root / "lidarseg" / self.version).mkdir(parents=True, exist_ok=True)
             S.atomic_write_text(out / "lidarseg.json", json.dumps(lidarseg, indent=1))
+        S.atomic_write_text(out / "image_annotations.json", json.dumps(image_anns, indent=1))
         return {t: len(v) for t, v in tables.items()}
