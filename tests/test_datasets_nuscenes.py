@@ -218,3 +218,51 @@ def test_devkit_renderers_draw_the_data(nusc, tmp_path):
     for p in outs:
         img = np.asarray(Image.open(p).convert("RGB"))
         assert img.shape[0] > 100 and img.std() > 10, p
+
+
+def _files(root: Path) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and STATE not in p.parts}
+
+
+STATE = ".lsd3d"
+
+
+def test_same_command_gives_the_same_dataset(data):
+    """Tokens, timestamps, tables, images, sweeps and labels: byte for byte."""
+    again = make(data / "scene", data / "again")
+    a, b = _files(data / "ds"), _files(again)
+    assert a.keys() == b.keys()
+    assert [k for k in a if a[k] != b[k]] == []
+    assert any(k.endswith("sample_annotation.json") for k in a)
+
+
+def test_bad_input_is_one_error_line_and_writes_nothing(data, cli_error, tmp_path):
+    scene = data / "scene"
+    base = ["dataset", scene, "--route", ROUTE, "--seconds", "0.5", "--width", "32"]
+    out = tmp_path / "out"
+    cli_error([*base, "-o", out, "--format", "coco"], "unknown dataset format 'coco'",
+              "nuscenes")
+    cli_error([*base[:3], "w_in,j_xx", *base[4:], "-o", out, "--format", "nuscenes"],
+              "'j_xx'", str(scene))
+    cli_error([*base[:3], "w_in,e_out", *base[4:], "-o", out, "--format", "nuscenes"],
+              "'e_out' does not follow lane 'w_in'")
+    cli_error([*base, "-o", scene / "ds", "--format", "nuscenes"], "inside the scene folder")
+    cli_error([*base, "-o", data, "--format", "nuscenes"], "lies inside it")
+    cli_error(["dataset", tmp_path / "nope", "-o", out, "--format", "nuscenes"],
+              "not a scene folder")
+    cli_error([*base, "-o", out, "--format", "nuscenes", "--keyframe-hz", "5"],
+              "--keyframe-hz 5 must divide --camera-hz 12")
+    assert not out.exists() and not (scene / "ds").exists()
+    full = tmp_path / "full"
+    full.mkdir()
+    (full / "mine.txt").write_text("keep")
+    cli_error([*base, "-o", full, "--format", "nuscenes"], "not empty", "--resume",
+              "--overwrite")
+    cli_error([*base, "-o", full, "--format", "nuscenes", "--overwrite"],
+              "not an lsd3d-usd dataset")
+    cli_error([*base, "-o", full, "--format", "nuscenes", "--resume"], "no lsd3d-usd dataset")
+    assert [p.name for p in full.iterdir()] == ["mine.txt"]
+    # a dataset made with other settings is not resumed into
+    cli_error(["dataset", scene, "-o", data / "ds", *ARGS, "--resume", "--seed", "3"],
+              "other settings", "seed")
