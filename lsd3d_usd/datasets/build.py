@@ -199,6 +199,9 @@ def prepare(scenes, out, opt: DatasetOptions):
     if lidar is not None and opt.lidar_hz > lidar.rotation_hz + 1e-9:
         raise InputError(f"--lidar-hz {opt.lidar_hz:g} exceeds the LiDAR's rotation rate "
                          f"{lidar.rotation_hz:g} Hz (one sweep per turn)")
+    if getattr(writer_cls, "needs_lidar", False) and lidar is None:
+        raise InputError(f"--format {opt.format}: needs a LiDAR (--lidar hdl32, waymo_top or a "
+                         "FILE.toml)")
     timeline = Timeline(opt.camera_hz, opt.lidar_hz if lidar is not None else None,
                         opt.keyframe_hz, opt.seconds)
     opt.scenes = [str(r) for r in roots]
