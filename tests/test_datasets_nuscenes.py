@@ -15,6 +15,7 @@ nuscenes = pytest.importorskip("nuscenes", reason="nuscenes-devkit (pip install 
                                                   "nuscenes-devkit==1.2.0; docs/datasets.md)")
 
 VERSION = "v1.0-lsd3d"
+STATE = ".lsd3d"          # the dataset's own state (settings, log records, rig stages)
 ROUTE = "w_in,j_we,e_out"
 ARGS = ["--format", "nuscenes", "--route", ROUTE, "--seconds", "1.5", "--camera-hz", "4",
         "--lidar-hz", "4", "--keyframe-hz", "2", "--width", "160"]
@@ -225,9 +226,6 @@ def _files(root: Path) -> dict:
             if p.is_file() and STATE not in p.parts}
 
 
-STATE = ".lsd3d"
-
-
 def test_same_command_gives_the_same_dataset(data):
     """Tokens, timestamps, tables, images, sweeps and labels: byte for byte."""
     again = make(data / "scene", data / "again")
@@ -266,3 +264,26 @@ def test_bad_input_is_one_error_line_and_writes_nothing(data, cli_error, tmp_pat
     # a dataset made with other settings is not resumed into
     cli_error(["dataset", scene, "-o", data / "ds", *ARGS, "--resume", "--seed", "3"],
               "other settings", "seed")
+
+
+def test_resume_after_kill_continues_and_gives_the_same_dataset(data, tmp_path):
+    """kill -9 after two of the three keyframes; --resume continues after the second (the
+    ticks before it are not rendered again) and the dataset is the uninterrupted one."""
+    import signal
+    import subprocess
+    import sys
+    out = data / "killed"
+    here = Path(__file__).parent
+    r = subprocess.run([sys.executable, str(here / "dataset_faults.py"), "2", "dataset",
+                        str(data / "scene"), "-o", str(out), "--no-progress", *ARGS],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    assert not (out / VERSION / "sample.json").exists()
+    part = json.loads((out / STATE / "logs" / "0000.partial.json").read_text())
+    assert part["next_tick"] == 3            # ticks at 4 Hz, keyframes at ticks 0, 2, 4
+    make(data / "scene", out, "--resume", "--json", str(tmp_path / "summary.json"))
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["resumed_at_tick"] == {"0": 3}
+    a, b = _files(data / "ds"), _files(out)
+    assert a.keys() == b.keys() and [k for k in a if a[k] != b[k]] == []
+    assert not (out / STATE / "logs" / "0000.partial.json").exists()

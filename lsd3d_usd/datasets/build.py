@@ -5,8 +5,10 @@ merge the logs' records into the format's tables.
 The output folder holds, besides the format's files, ROOT/.lsd3d/: dataset.json (the settings
 and the plan: what --resume checks), logs/<k>.json (a finished log's record: its table rows)
 and work/<k>/ (the log's rig.usda). A killed run continues with --resume: finished logs are
-kept, an unfinished one is rendered again from its start (its files are rewritten, byte for
-byte the same), and the tables are merged as an uninterrupted run merges them.
+kept, the ticks of an unfinished log after its last checkpoint are rendered again (their
+files are rewritten, byte for byte the same), and the tables are merged as an uninterrupted run merges them. A writer
+that can checkpoint (nuScenes, KITTI) continues an unfinished log after its last keyframe
+(logs/<k>.partial.json, written after every keyframe); one that cannot (MCAP) starts it again.
 """
 from __future__ import annotations
 
@@ -237,18 +239,28 @@ def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, lo
     records, timing = [], {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "write_s": 0.0}
     counts = timeline.counts()
     done_logs = 0
+    resumable = hasattr(writer, "checkpoint") and hasattr(writer, "restore")
+    resumed_at = {}
     for plan in plans:
         rec_file = state / "logs" / f"{plan.index:04d}.json"
+        part_file = state / "logs" / f"{plan.index:04d}.partial.json"
         if opt.resume and rec_file.is_file():
             records.append(json.loads(rec_file.read_text()))
             done_logs += 1
             continue
+        part = (json.loads(part_file.read_text())
+                if opt.resume and resumable and part_file.is_file() else None)
+        start = part["next_tick"] if part else 0
         info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
                               lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
                               exposure=opt.exposure, tonemap=opt.tonemap,
                               deferrer=deferrer_for(plan.scene) if deferrer_for else None,
-                              log=log)
-        writer.begin_log(info)
+                              start_tick=start, log=log)
+        if part:
+            writer.restore(info, part["writer"])
+            resumed_at[plan.index] = start
+        else:
+            writer.begin_log(info)
         bar = tqdm(total=counts["camera_frames"] + counts["sweeps"], unit="frame",
                    desc=f"dataset {plan.index + 1}/{len(plans)}", disable=not progress)
         t_render = time.perf_counter()
@@ -256,15 +268,19 @@ def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, lo
             t0 = time.perf_counter()
             timing["render_s"] += t0 - t_render
             writer.write(s)
+            if resumable and s.keyframe:
+                S.atomic_write_text(part_file, json.dumps(
+                    {"next_tick": s.tick.index + 1, "writer": writer.checkpoint()}))
             t_render = time.perf_counter()
             timing["write_s"] += t_render - t0
             bar.update(int(bool(s.cameras)) + int(s.lidar is not None))
         bar.close()
         rec = writer.end_log()
         S.atomic_write_text(rec_file, json.dumps(rec))
+        part_file.unlink(missing_ok=True)
         records.append(rec)
     tables = writer.finish(records)
-    return {"logs": len(plans), "resumed_logs": done_logs, "keyframes": counts["keyframes"],
+    return {"logs": len(plans), "resumed_logs": done_logs, "resumed_at_tick": resumed_at, "keyframes": counts["keyframes"],
             "camera_frames": counts["camera_frames"], "sweeps": counts["sweeps"],
             "tables": tables, "timing": timing, "routes": [p.route for p in plans]}
 

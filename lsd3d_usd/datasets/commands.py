@@ -36,6 +36,8 @@ def _dataset(args) -> int:
           f"({summary['resumed_logs']} resumed), {keyframes} keyframes, "
           f"{summary['camera_frames'] * summary['logs']} camera ticks, "
           f"{summary['sweeps'] * summary['logs']} sweeps per LiDAR in {wall:.1f} s")
+    for k, tick in sorted(summary["resumed_at_tick"].items()):
+        print(f"log {k}: resumed at tick {tick} (after its last finished keyframe)")
     for r in summary["routes"]:
         print(f"route {','.join(r)}")
     if args.json:

@@ -91,9 +91,11 @@ class LogInfo:
 
 def drive(plan: LogPlan, work: Path, *, rig: str, lidar, timeline, width: int,
           seed: int = 0, exposure: float = 0.0, tonemap: str = "aces", deferrer=None,
-          stream_radius: float = DEFAULT_STREAM_RADIUS, log=print):
+          stream_radius: float = DEFAULT_STREAM_RADIUS, start_tick: int = 0, log=print):
     """(LogInfo, iterator of Sample) of one log (module doc); ``work``: the log's work folder
-    (rig.usda and the ego's asset)."""
+    (rig.usda and the ego's asset). ``start_tick``: skip the ticks before it (a resumed log;
+    every tick is a pure function of the scene, the plan and the seed, so the rest is the
+    same as in an uninterrupted run)."""
     from lsd3d_usd.layout.usdio import layout_from_stage
     fps = float(timeline.tick_rate)
     stage, paths, track, tcps, notes, ids = build_rig_stage(
@@ -113,16 +115,18 @@ def drive(plan: LogPlan, work: Path, *, rig: str, lidar, timeline, width: int,
                    {c.name: camera_in_ego(c) for c in specs},
                    None if lidar is None else lidar.ego_from_sensor(), list(plan.route))
     return info, _samples(info, stage, by_name, reader, track, tcps, seed, exposure, tonemap,
-                          deferrer)
+                          deferrer, start_tick)
 
 
 def _samples(info: LogInfo, stage, by_name, reader, track, tcps, seed, exposure, tonemap,
-             deferrer):
+             deferrer, start_tick=0):
     lboxes = local_boxes(reader.actors) if reader.actors is not None and len(reader.actors) \
         else None
     lidar_actors = mesh_actors(reader.actors, tcps) if info.lidar is not None else None
     cache = SurfelCache()
     for tick in info.timeline.ticks():
+        if tick.index < start_tick:
+            continue
         t = tick.time
         code = round(t * tcps, 6)
         ego = track.at([t])[0]

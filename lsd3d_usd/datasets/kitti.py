@@ -106,6 +106,13 @@ class KittiWriter:
         write_bytes(t / "calib" / f"{fid}.txt", ("\n".join(calib) + "\n").encode())
         self.ids.append(fid)
 
+    def checkpoint(self) -> dict:
+        return {"ids": self.ids}
+
+    def restore(self, info, state: dict) -> None:
+        self.begin_log(info)
+        self.ids = list(state["ids"])
+
     def end_log(self) -> dict:
         return {"ids": self.ids}
 

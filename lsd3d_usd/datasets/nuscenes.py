@@ -213,6 +213,25 @@ class NuScenesWriter:
                 "truncated": float(e["truncated"]),
                 "prev": "", "next": ""})
 
+    # ---------------------------------------------------------------- resuming
+    def checkpoint(self) -> dict:
+        """The log's state after a keyframe (JSON-able): what ``restore`` continues from."""
+        return {"rows": self.rows, "instances": self.instances}
+
+    def restore(self, info, state: dict) -> None:
+        self.begin_log(info)
+        self.rows = state["rows"]
+        self.instances = state["instances"]
+        cs = {r["token"]: r for r in self.rows["calibrated_sensor"]}
+        self.calib = {c: cs[r["token"]] for c, r in self.calib.items()}
+        self.last_sample = self.rows["sample"][-1] if self.rows["sample"] else None
+        self.last_sd = {}
+        for r in self.rows["sample_data"]:
+            self.last_sd[r["filename"].split("/")[1]] = r
+        ann = {r["token"]: r for r in self.rows["sample_annotation"]}
+        self.last_ann = {prim: ann[i["last_annotation_token"]]
+                         for prim, i in self.instances.items()}
+
     def end_log(self) -> dict:
         p = self.info.plan
         samples = self.rows["sample"]

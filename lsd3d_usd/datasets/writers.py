@@ -9,6 +9,10 @@ options: datasets.build.DatasetOptions) with
                           under root/.lsd3d/logs/ so a resumed or batched run can merge it
     finish(records)       every log's record, in log order: write the tables / indexes
 
+and, optionally, ``checkpoint() -> dict`` (the log's state after a keyframe, JSON-able) and
+``restore(info, state)`` (continue a log from it): with them a resumed run continues a
+killed log after its last keyframe; without them (MCAP, a stream) the log starts again.
+
 Writers only reformat what they are given: they own no rendering, and they keep nothing per
 sample but small rows, so memory stays bounded for any route length. A third-party package
 adds a format by declaring::
