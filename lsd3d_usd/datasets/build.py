@@ -22,8 +22,8 @@ from pathlib import Path
 import numpy as np
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.errors import InputError
 from lsd3d_usd.datasets.drive import LogPlan
+from lsd3d_usd.errors import InputError
 
 STATE = ".lsd3d"
 DEFAULT_VERSION = "v1.0-lsd3d"

@@ -83,7 +83,7 @@ class LogInfo:
     width: int
     timeline: object
     instances: Instances
-    layout: object              # layout.model.Layout or None
+    layout: object              # layout.model.Layout
     ego_from_camera: dict       # channel -> 4x4
     ego_from_lidar: np.ndarray | None
     route: list
@@ -98,7 +98,7 @@ def drive(plan: LogPlan, work: Path, *, rig: str, lidar, timeline, width: int,
     same as in an uninterrupted run)."""
     from lsd3d_usd.layout.usdio import layout_from_stage
     fps = float(timeline.tick_rate)
-    stage, paths, track, tcps, notes, ids = build_rig_stage(
+    stage, paths, track, tcps, notes, _ = build_rig_stage(
         plan.scene, work, rig, route=",".join(plan.route), fps=fps,
         seconds=timeline.n_ticks / fps, seed=seed, load_all=not stream_radius, lidar=lidar)
     for n in notes:
@@ -107,10 +107,7 @@ def drive(plan: LogPlan, work: Path, *, rig: str, lidar, timeline, width: int,
     by_name = {p.rsplit("/", 1)[-1]: p for p in paths}
     reader = SceneReader(stage, stream_radius=stream_radius or None)
     instances = Instances.of(reader.actors)
-    try:
-        layout = layout_from_stage(stage, str(plan.scene))
-    except Exception:          # a scene without a layout: no map
-        layout = None
+    layout = layout_from_stage(stage, str(plan.scene))     # routes need one (build checks)
     info = LogInfo(plan, rig, specs, lidar, int(width), timeline, instances, layout,
                    {c.name: camera_in_ego(c) for c in specs},
                    None if lidar is None else lidar.ego_from_sensor(), list(plan.route))

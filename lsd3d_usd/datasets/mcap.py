@@ -30,7 +30,7 @@ POINT_STRIDE = 20
 
 
 def _fm():
-    import foxglove.messages as fm   # heavy (native): only when writing MCAP
+    import foxglove.messages as fm  # heavy (native): only when writing MCAP
     return fm
 
 
@@ -60,7 +60,7 @@ class McapWriter:
         for stale in self.root.glob(f".{self.name_}.mcap.tmp*"):   # of a killed run
             stale.unlink()
         self.tmp = self.root / f".{self.name_}.mcap.tmp{os.getpid()}"
-        self.f = open(self.tmp, "wb")
+        self.f = open(self.tmp, "wb")  # noqa: SIM115 -- open for the log, closed in end_log
         self.w = Writer(self.f)
         self.w.start(profile="", library="lsd3d-usd")
         self.schemas, self.channels = {}, {}

@@ -18,4 +18,4 @@ def token(*parts) -> str:
 
 
 def timestamp_us(log_index: int, seconds: float) -> int:
-    return EPOCH_US + int(log_index) * LOG_SPACING_US + int(round(float(seconds) * 1e6))
+    return EPOCH_US + int(log_index) * LOG_SPACING_US + round(float(seconds) * 1e6)
