@@ -236,7 +236,8 @@ def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, lo
     S.atomic_write_text(state / "dataset.json", json.dumps(sig, indent=1))
     width = opt.width or RIGS[opt.rig][0].size[0]
     writer = writer_cls(root, opt)
-    records, timing = [], {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "write_s": 0.0}
+    records, timing = [], {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "boxes_s": 0.0,
+                           "write_s": 0.0}
     counts = timeline.counts()
     done_logs = 0
     resumable = hasattr(writer, "checkpoint") and hasattr(writer, "restore")
@@ -267,6 +268,8 @@ def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, lo
         for s in samples:
             t0 = time.perf_counter()
             timing["render_s"] += t0 - t_render
+            for k, v in s.timing.items():
+                timing[k] += v
             writer.write(s)
             if resumable and s.keyframe:
                 S.atomic_write_text(part_file, json.dumps(

@@ -12,6 +12,7 @@ on the ego (x forward, y left, z up for the presets). Poses are 4x4 parent-from-
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -67,6 +68,7 @@ class Sample:
     cameras: list = field(default_factory=list)
     lidar: LidarShot | None = None
     boxes: list = field(default_factory=list)   # views.boxes dicts (+ keyframe entries)
+    timing: dict = field(default_factory=dict)  # seconds: cameras, lidar, boxes
 
     @property
     def keyframe(self) -> bool:
@@ -128,12 +130,16 @@ def _samples(info: LogInfo, stage, by_name, reader, track, tcps, seed, exposure,
         code = round(t * tcps, 6)
         ego = track.at([t])[0]
         s = Sample(tick, t, ego)
+        c0 = time.perf_counter()
         if lboxes is not None:
             s.boxes = actor_boxes(reader.actors, info.instances, lboxes, code, tcps, ego)
+        c1 = time.perf_counter()
         if tick.lidar and info.lidar is not None:
             sw = lidar_sweep(reader, info.lidar, track.at, t, tcps, info.instances,
                              actors=lidar_actors, cache=cache, seed=seed, index=tick.lidar_frame)
             s.lidar = LidarShot(LIDAR_CHANNEL, sw, info.ego_from_lidar)
+        c2 = time.perf_counter()
+        alone = 0.0
         if tick.cameras:
             actors_frame = reader.actors_at(code) if tick.keyframe and s.boxes else None
             for spec in info.cameras:
@@ -145,10 +151,15 @@ def _samples(info: LogInfo, stage, by_name, reader, track, tcps, seed, exposure,
                                             np.asarray(cam.K, np.float64),
                                             info.ego_from_camera[spec.name], frame.labels))
                 if actors_frame is not None:
+                    a0 = time.perf_counter()
                     camera_boxes(s.boxes, cam, spec.name, frame.labels, actors_frame,
                                  info.instances)
+                    alone += time.perf_counter() - a0
         if tick.keyframe:
             _keyframe_stats(s)
+        c3 = time.perf_counter()
+        s.timing = {"boxes_s": c1 - c0 + alone, "lidar_s": c2 - c1,
+                    "cameras_s": c3 - c2 - alone}
         yield s
 
 
