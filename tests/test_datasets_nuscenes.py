@@ -287,3 +287,25 @@ def test_resume_after_kill_continues_and_gives_the_same_dataset(data, tmp_path):
     a, b = _files(data / "ds"), _files(out)
     assert a.keys() == b.keys() and [k for k in a if a[k] != b[k]] == []
     assert not (out / STATE / "logs" / "0000.partial.json").exists()
+
+
+def test_routes_make_logs_of_one_dataset(data, tmp_path):
+    """--routes 2: two distinct seeded routes, two scenes and logs in one dataset sharing the
+    scene's map; another rig and no LiDAR load as well."""
+    from nuscenes.nuscenes import NuScenes
+
+    from lsd3d_usd.cli import main
+    out = tmp_path / "two"
+    assert main(["dataset", str(data / "scene"), "-o", str(out), "--format", "nuscenes",
+                 "--routes", "2", "--seconds", "0.5", "--camera-hz", "2", "--lidar-hz", "2",
+                 "--width", "32", "--rig", "waymo5", "--lidar", "none", "--no-progress"]) == 0
+    nusc = NuScenes(version=VERSION, dataroot=str(out), verbose=False)
+    assert [s["name"] for s in nusc.scene] == ["scene-0000", "scene-0001"]
+    routes = [s["description"].split("route ")[1].split(",")[0] for s in nusc.scene]
+    assert len(set(routes)) == 2
+    assert len(nusc.log) == 2 and len(nusc.map) == 1
+    assert sorted(nusc.map[0]["log_tokens"]) == sorted(lg["token"] for lg in nusc.log)
+    assert {s["channel"] for s in nusc.sensor} == {"Front", "FrontLeft", "FrontRight",
+                                                   "SideLeft", "SideRight"}
+    ts = [nusc.get("sample", s["first_sample_token"])["timestamp"] for s in nusc.scene]
+    assert ts[1] - ts[0] == 3_600_000_000          # logs an hour apart, never overlapping
