@@ -150,7 +150,9 @@ def draw_routes(layout, n: int, length: float, seed: int, where: str) -> list:
                      f"of this kind")
 
 
-def plan_logs(scenes: list[Path], opt: DatasetOptions) -> list[LogPlan]:
+def plan_logs(scenes: list[Path], opt: DatasetOptions, layouts=None) -> list[LogPlan]:
+    """The logs (scene x route) of a dataset; ``layouts``: the scenes' layouts when the
+    scenes are not written yet (a batch plans before it generates)."""
     from lsd3d_usd.views.rig_stage import default_route
     names = [s.name for s in scenes]
     dup = next((n for n in names if names.count(n) > 1), None)
@@ -161,8 +163,8 @@ def plan_logs(scenes: list[Path], opt: DatasetOptions) -> list[LogPlan]:
     if opt.routes is not None and not 1 <= opt.routes <= MAX_ROUTES:
         raise InputError(f"--routes {opt.routes}: must be within 1 .. {MAX_ROUTES}")
     plans = []
-    for sc in scenes:
-        layout = _layout(sc)
+    for k, sc in enumerate(scenes):
+        layout = layouts[k] if layouts is not None else _layout(sc)
         if opt.route is not None:
             routes = [check_route(layout, [r.strip() for r in opt.route.split(",") if r.strip()],
                                   str(sc))]
@@ -210,85 +212,112 @@ def prepare(scenes, out, opt: DatasetOptions):
     return writer_cls, plan_logs(roots, opt), lidar, timeline
 
 
-def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, log=print,
-                  deferrer_for=None) -> dict:
-    """Write the dataset (module doc); a summary dict (logs, samples, tables, timings).
-    ``deferrer_for(scene)``: a views.deferred.Deferrer for --deferred."""
-    from tqdm import tqdm
-
-    from lsd3d_usd.datasets.drive import drive
-    from lsd3d_usd.views.rigs import RIGS
-    writer_cls, plans, lidar, timeline = prepare(scenes, out, opt)
-    root = Path(out)
-    state = root / STATE
-    sig = {**opt.signature(), "logs": [p.key for p in plans]}
-    if opt.resume and (state / "dataset.json").is_file():
+def check_resume(state: Path, sig: dict, out) -> None:
+    if (state / "dataset.json").is_file():
         old = json.loads((state / "dataset.json").read_text())
         diff = sorted(k for k in set(old) | set(sig) if old.get(k) != sig.get(k))
         if diff:
             raise InputError(f"-o {out}: --resume, but the dataset was made with other "
                              f"settings ({diff[0]}: {old.get(diff[0])!r} there, "
                              f"{sig.get(diff[0])!r} now)")
+
+
+def start_dataset(root: Path, opt: DatasetOptions, plans) -> None:
+    """Record the settings and the plan (ROOT/.lsd3d/dataset.json); --overwrite empties the
+    folder first, --resume checks the record."""
+    state = root / STATE
+    sig = {**opt.signature(), "logs": [p.key for p in plans]}
+    if opt.resume:
+        check_resume(state, sig, root)
     if opt.overwrite and root.is_dir():
         for child in root.iterdir():
             shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
     (state / "logs").mkdir(parents=True, exist_ok=True)
     S.atomic_write_text(state / "dataset.json", json.dumps(sig, indent=1))
-    width = opt.width or RIGS[opt.rig][0].size[0]
-    writer = writer_cls(root, opt)
-    records, timing = [], {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "boxes_s": 0.0,
-                           "write_s": 0.0}
-    counts = timeline.counts()
-    done_logs = 0
+
+
+def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timeline, *,
+            progress: bool = False, log=print, deferrer=None, timing=None) -> dict:
+    """Render one log into ``writer`` and keep its record (ROOT/.lsd3d/logs/<k>.json); with
+    --resume a finished log is read back and an unfinished one continues after its last
+    checkpoint. Returns {"record", "resumed_at" (tick or None), "skipped" (bool)}."""
+    from tqdm import tqdm
+
+    from lsd3d_usd.datasets.drive import drive
+    from lsd3d_usd.views.rigs import RIGS
+    state = root / STATE
+    rec_file = state / "logs" / f"{plan.index:04d}.json"
+    part_file = state / "logs" / f"{plan.index:04d}.partial.json"
+    if opt.resume and rec_file.is_file():
+        return {"record": json.loads(rec_file.read_text()), "resumed_at": None, "skipped": True}
     resumable = hasattr(writer, "checkpoint") and hasattr(writer, "restore")
-    resumed_at = {}
-    for plan in plans:
-        rec_file = state / "logs" / f"{plan.index:04d}.json"
-        part_file = state / "logs" / f"{plan.index:04d}.partial.json"
-        if opt.resume and rec_file.is_file():
-            records.append(json.loads(rec_file.read_text()))
-            done_logs += 1
-            continue
-        part = (json.loads(part_file.read_text())
-                if opt.resume and resumable and part_file.is_file() else None)
-        start = part["next_tick"] if part else 0
-        info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
-                              lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
-                              exposure=opt.exposure, tonemap=opt.tonemap,
-                              deferrer=deferrer_for(plan.scene) if deferrer_for else None,
-                              start_tick=start, log=log)
-        if part:
-            writer.restore(info, part["writer"])
-            resumed_at[plan.index] = start
-        else:
-            writer.begin_log(info)
-        bar = tqdm(total=counts["camera_frames"] + counts["sweeps"], unit="frame",
-                   desc=f"dataset {plan.index + 1}/{len(plans)}", disable=not progress)
+    part = (json.loads(part_file.read_text())
+            if opt.resume and resumable and part_file.is_file() else None)
+    start = part["next_tick"] if part else 0
+    width = opt.width or RIGS[opt.rig][0].size[0]
+    info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
+                          lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
+                          exposure=opt.exposure, tonemap=opt.tonemap, deferrer=deferrer,
+                          start_tick=start, log=log)
+    if part:
+        writer.restore(info, part["writer"])
+    else:
+        writer.begin_log(info)
+    timing = timing if timing is not None else {}
+    counts = timeline.counts()
+    bar = tqdm(total=counts["camera_frames"] + counts["sweeps"], unit="frame",
+               desc=f"dataset log {plan.index}", disable=not progress)
+    t_render = time.perf_counter()
+    for s in samples:
+        t0 = time.perf_counter()
+        timing["render_s"] = timing.get("render_s", 0.0) + t0 - t_render
+        for k, v in s.timing.items():
+            timing[k] = timing.get(k, 0.0) + v
+        writer.write(s)
+        if resumable and s.keyframe:
+            S.atomic_write_text(part_file, json.dumps(
+                {"next_tick": s.tick.index + 1, "writer": writer.checkpoint()}))
         t_render = time.perf_counter()
-        for s in samples:
-            t0 = time.perf_counter()
-            timing["render_s"] += t0 - t_render
-            for k, v in s.timing.items():
-                timing[k] += v
-            writer.write(s)
-            if resumable and s.keyframe:
-                S.atomic_write_text(part_file, json.dumps(
-                    {"next_tick": s.tick.index + 1, "writer": writer.checkpoint()}))
-            t_render = time.perf_counter()
-            timing["write_s"] += t_render - t0
-            bar.update(int(bool(s.cameras)) + int(s.lidar is not None))
-        bar.close()
-        rec = writer.end_log()
-        S.atomic_write_text(rec_file, json.dumps(rec))
-        part_file.unlink(missing_ok=True)
-        records.append(rec)
-    tables = writer.finish(records)
-    return {"logs": len(plans), "resumed_logs": done_logs, "resumed_at_tick": resumed_at, "keyframes": counts["keyframes"],
-            "camera_frames": counts["camera_frames"], "sweeps": counts["sweeps"],
-            "tables": tables, "timing": timing, "routes": [p.route for p in plans]}
+        timing["write_s"] = timing.get("write_s", 0.0) + t_render - t0
+        bar.update(int(bool(s.cameras)) + int(s.lidar is not None))
+    bar.close()
+    rec = writer.end_log()
+    S.atomic_write_text(rec_file, json.dumps(rec))
+    part_file.unlink(missing_ok=True)
+    return {"record": rec, "resumed_at": start if part else None, "skipped": False}
 
 
-def main_summary(summary: dict, out, file=sys.stdout) -> None:
-    print(f"{out}: {summary['logs']} log(s), {summary['keyframes']} keyframes, "
-          f"{summary['camera_frames']} camera frames and {summary['sweeps']} sweeps per log",
-          file=file)
+def merge(root: Path, opt: DatasetOptions, writer, n_logs: int) -> dict:
+    """The format's tables from every log's record (all must be finished)."""
+    logs = root / STATE / "logs"
+    missing = [k for k in range(n_logs) if not (logs / f"{k:04d}.json").is_file()]
+    if missing:
+        raise InputError(f"{root}: log {missing[0]} is not finished; run again with --resume")
+    return writer.finish([json.loads((logs / f"{k:04d}.json").read_text())
+                          for k in range(n_logs)])
+
+
+def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, log=print,
+                  deferrer_for=None) -> dict:
+    """Write the dataset (module doc); a summary dict (logs, samples, tables, timings).
+    ``deferrer_for(scene)``: a views.deferred.Deferrer for --deferred."""
+    writer_cls, plans, lidar, timeline = prepare(scenes, out, opt)
+    root = Path(out)
+    start_dataset(root, opt, plans)
+    writer = writer_cls(root, opt)
+    timing = {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "boxes_s": 0.0,
+              "write_s": 0.0}
+    done_logs, resumed_at = 0, {}
+    for plan in plans:
+        got = run_log(root, opt, plan, writer, lidar, timeline, progress=progress, log=log,
+                      deferrer=deferrer_for(plan.scene) if deferrer_for else None,
+                      timing=timing)
+        done_logs += got["skipped"]
+        if got["resumed_at"] is not None:
+            resumed_at[plan.index] = got["resumed_at"]
+    tables = merge(root, opt, writer, len(plans))
+    counts = timeline.counts()
+    return {"logs": len(plans), "resumed_logs": done_logs, "resumed_at_tick": resumed_at,
+            "keyframes": counts["keyframes"], "camera_frames": counts["camera_frames"],
+            "sweeps": counts["sweeps"], "tables": tables, "timing": timing,
+            "routes": [p.route for p in plans]}
