@@ -182,8 +182,8 @@ def plan_logs(scenes: list[Path], opt: DatasetOptions, layouts=None) -> list[Log
     return plans
 
 
-def prepare(scenes, out, opt: DatasetOptions):
-    """Every check before anything is written: (writer class, plans, LiDAR, timeline)."""
+def check_settings(opt: DatasetOptions):
+    """The checks of the settings alone: (writer class, LiDAR model or None, timeline)."""
     from lsd3d_usd.datasets.timeline import Timeline
     from lsd3d_usd.datasets.writers import WRITERS
     from lsd3d_usd.views.rigs import RIGS
@@ -194,10 +194,6 @@ def prepare(scenes, out, opt: DatasetOptions):
         raise InputError(f"--version {opt.version!r}: a folder name like v1.0-lsd3d")
     if opt.width is not None and not 8 <= opt.width <= 8192:
         raise InputError(f"--width {opt.width}: must be within 8 .. 8192")
-    if not scenes:
-        raise InputError("dataset: give at least one SCENE")
-    roots = [scene_root(s) for s in scenes]
-    check_output(Path(out), roots, opt)
     lidar = lidar_of(opt)
     if lidar is not None and opt.lidar_hz > lidar.rotation_hz + 1e-9:
         raise InputError(f"--lidar-hz {opt.lidar_hz:g} exceeds the LiDAR's rotation rate "
@@ -207,6 +203,16 @@ def prepare(scenes, out, opt: DatasetOptions):
                          "FILE.toml)")
     timeline = Timeline(opt.camera_hz, opt.lidar_hz if lidar is not None else None,
                         opt.keyframe_hz, opt.seconds)
+    return writer_cls, lidar, timeline
+
+
+def prepare(scenes, out, opt: DatasetOptions):
+    """Every check before anything is written: (writer class, plans, LiDAR, timeline)."""
+    writer_cls, lidar, timeline = check_settings(opt)
+    if not scenes:
+        raise InputError("dataset: give at least one SCENE")
+    roots = [scene_root(s) for s in scenes]
+    check_output(Path(out), roots, opt)
     opt.scenes = [str(r) for r in roots]
     return writer_cls, plan_logs(roots, opt), lidar, timeline
 
