@@ -76,3 +76,28 @@ def test_a_bad_dataset_table_is_refused_before_any_task(tmp_path, cli_error):
     p.write_text(SPEC.replace('routes = 2', 'routs = 2'))
     cli_error(["batch", p], "dataset: unknown key 'routs'")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.slow        # ~90 s on 2 cores: two batches, one on a fresh Ray instance
+def test_ray_local_cluster_makes_the_same_dataset(tmp_path):
+    """The same spec on a local Ray instance (two CPUs): the same tables as the process pool
+    (tokens and files do not depend on where a log was rendered)."""
+    ray = pytest.importorskip("ray", reason="ray is not installed (optional extra [ray])")
+    from lsd3d_usd.batch.runner import run_batch
+    from lsd3d_usd.batch.spec import load_spec
+    from lsd3d_usd.execution import RayExecutor, make_executor
+    runs = {}
+    for kind in ("ray", "local"):
+        d = tmp_path / kind
+        d.mkdir()
+        (d / "spec.toml").write_text(SPEC)
+        ex = RayExecutor(num_cpus=2) if kind == "ray" else make_executor("local", 2)
+        try:
+            rep = run_batch(load_spec(d / "spec.toml"), ex)
+        finally:
+            ex.close()
+        assert rep.ok, [f.line() for f in rep.failed + rep.blocked]
+        runs[kind] = _files(d / "out" / "ds")
+    assert not ray.is_initialized()
+    a, b = runs["ray"], runs["local"]
+    assert a.keys() == b.keys() and [k for k in a if a[k] != b[k]] == []
