@@ -80,7 +80,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="camera images through the scene's image prior (docs/render.md)")
     m = p.add_mutually_exclusive_group()
     m.add_argument("--resume", action="store_true",
-                   help="continue the dataset in DIR (finished logs are kept)")
+                   help="continue the dataset in DIR: finished logs are kept, an unfinished one "
+                        "continues after its last keyframe (nuscenes, kitti)")
     m.add_argument("--overwrite", action="store_true", help="replace the dataset in DIR")
     p.add_argument("--seed", type=int, default=0, help="seed of routes, traffic and LiDAR noise")
     p.add_argument("--version", default=DEFAULT_VERSION,
