@@ -10,6 +10,8 @@ import pytest
 from conftest import generate_small
 
 ROUTE = "w_in,j_we,e_out"
+ARGS = ["--format", "kitti", "--route", ROUTE, "--seconds", "1.5", "--camera-hz", "2",
+        "--lidar-hz", "2", "--keyframe-hz", "2", "--width", "160", "--no-progress"]
 # boxes nearer than this hold LiDAR returns: hdl32's beams are 1.33 deg apart, 0.9 m at 40 m
 # (a car's height 1.4 m), and it reaches 70 m
 NEAR_M = 40.0
@@ -20,9 +22,7 @@ def kitti(tmp_path_factory):
     from lsd3d_usd.cli import main
     root = tmp_path_factory.mktemp("kitti")
     generate_small(root / "scene", steps=0, actors=True, surfels=100_000)
-    assert main(["dataset", str(root / "scene"), "-o", str(root / "ds"), "--format", "kitti",
-                 "--route", ROUTE, "--seconds", "1.5", "--camera-hz", "2", "--lidar-hz", "2",
-                 "--keyframe-hz", "2", "--width", "160", "--no-progress"]) == 0
+    assert main(["dataset", str(root / "scene"), "-o", str(root / "ds"), *ARGS]) == 0
     return root / "ds"
 
 
@@ -110,3 +110,15 @@ def test_boxes_reproject_onto_their_2d_boxes_and_hold_lidar_points(kitti):
             assert inside.sum() > 0
             with_points += 1
     assert checked >= 2 and with_points >= 1
+
+
+def test_same_command_gives_the_same_files(kitti):
+    from lsd3d_usd.cli import main
+    again = kitti.parent / "again"
+    assert main(["dataset", str(kitti.parent / "scene"), "-o", str(again), *ARGS]) == 0
+
+    def files(root):
+        return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+                if p.is_file() and ".lsd3d" not in p.parts}
+    a, b = files(kitti), files(again)
+    assert len(a) == 13 and a.keys() == b.keys() and [k for k in a if a[k] != b[k]] == []

@@ -10,6 +10,8 @@ from conftest import generate_small
 pytest.importorskip("mcap_protobuf", reason="mcap-protobuf-support")
 
 ROUTE = "w_in,j_we,e_out"
+ARGS = ["--format", "mcap", "--route", ROUTE, "--seconds", "1", "--camera-hz", "4",
+        "--lidar-hz", "2", "--keyframe-hz", "2", "--width", "160", "--no-progress"]
 CAMERAS = ("CAM_FRONT", "CAM_FRONT_LEFT", "CAM_FRONT_RIGHT", "CAM_BACK", "CAM_BACK_LEFT",
            "CAM_BACK_RIGHT")
 
@@ -22,9 +24,7 @@ def recording(tmp_path_factory):
     from lsd3d_usd.cli import main
     root = tmp_path_factory.mktemp("mcap")
     generate_small(root / "scene", steps=0, actors=True, surfels=100_000)
-    assert main(["dataset", str(root / "scene"), "-o", str(root / "ds"), "--format", "mcap",
-                 "--route", ROUTE, "--seconds", "1", "--camera-hz", "4", "--lidar-hz", "2",
-                 "--keyframe-hz", "2", "--width", "160", "--no-progress"]) == 0
+    assert main(["dataset", str(root / "scene"), "-o", str(root / "ds"), *ARGS]) == 0
     files = sorted((root / "ds").glob("*.mcap"))
     assert [f.name for f in files] == ["lsd3d-0000-scene.mcap"]
     msgs = []
@@ -101,3 +101,11 @@ def test_transforms_chain_boxes_into_the_cameras(recording):
                     np.testing.assert_allclose(uv, uv_usd, atol=0.05)
                     seen += int(0 <= uv[0] < cal.width and 0 <= uv[1] < cal.height)
     assert seen >= 4
+
+
+def test_same_command_gives_the_same_recording(recording):
+    from lsd3d_usd.cli import main
+    root, _ = recording
+    assert main(["dataset", str(root / "scene"), "-o", str(root / "again"), *ARGS]) == 0
+    name = "lsd3d-0000-scene.mcap"
+    assert (root / "again" / name).read_bytes() == (root / "ds" / name).read_bytes()
