@@ -163,11 +163,37 @@ LIDAR = Benchmark("LiDAR sweeps: seconds per waymo_top sweep against a camera re
                   "against the proxy mesh, the float64 reference and the camera depth",
                   LidarBench, _lidar_run)
 
+@dataclass
+class DatasetBench:
+    json: str | None = option(None, help="write results as JSON (keys keyframes_per_min, "
+                                         "sensor_frames_per_min, share, seconds_by_part, "
+                                         "peak_rss_mb)", flag="--json", metavar="OUT.json")
+    scene: str | None = option(None, help="scene to drive (default: the README sample "
+                                          "generated with generate's defaults, a few minutes)",
+                               flag="--scene", metavar="SCENE")
+    quick: bool = option(False, help="no GGDS, a 1 s drive at 480 px (a few minutes)",
+                         flag="--quick")
+    seconds: float | None = option(None, help="drive length (default 20, --quick 1)",
+                                   flag="--seconds", lo=0.5, hi=3600.0)
+    width: int | None = option(None, help="camera width (default 1600, --quick 480)",
+                               flag="--width", lo=8, hi=8192)
+
+
+def _dataset_run(c: DatasetBench) -> int:
+    from lsd3d_usd.benchmarks.dataset import main   # heavy: numba, a generate
+    main(json_path=c.json, scene=c.scene, quick=c.quick, seconds=c.seconds, width=c.width)
+    return 0
+
+
+DATASET = Benchmark("dataset throughput: nuScenes samples per minute with nuscenes6 + hdl32 at "
+                    "12 / 20 Hz and each sensor's share", DatasetBench, _dataset_run)
+
 BENCHMARKS = Registry("lsd3d_usd.benchmarks", "benchmark", {
     "render": "lsd3d_usd.bench:RENDER",
     "ggds": "lsd3d_usd.bench:GGDS",
     "scale": "lsd3d_usd.bench:SCALE",
     "lidar": "lsd3d_usd.bench:LIDAR",
+    "dataset": "lsd3d_usd.bench:DATASET",
 })
 
 

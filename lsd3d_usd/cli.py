@@ -23,6 +23,7 @@ COMMAND_MODULES = (
     "lsd3d_usd.proxy.commands",
     "lsd3d_usd.splats.commands",
     "lsd3d_usd.views.commands",
+    "lsd3d_usd.datasets.commands",
     "lsd3d_usd.env.commands",
     "lsd3d_usd.actors.commands",
     "lsd3d_usd.bench",

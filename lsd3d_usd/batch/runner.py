@@ -64,7 +64,11 @@ def run_batch(spec: BatchSpec, executor, retries: int = DEFAULT_RETRIES, progres
         prepared: set[str] = set()
         for tid in todo:
             plan = plan_of[tid]
-            if plan.scene.name not in prepared:
+            if hasattr(plan, "prepare"):             # the dataset (batch.dataset)
+                if "dataset" not in prepared:
+                    plan.prepare()
+                    prepared.add("dataset")
+            elif plan.scene.name not in prepared:
                 prepare_scene(plan)
                 prepared.add(plan.scene.name)
         bar = None

@@ -15,6 +15,10 @@
     layout = "../layouts/hand_crossing.usda"   # relative to the spec file
     prompt = "rainy autumn evening in Seattle"
 
+    [dataset]               # optional: the scenes as one dataset (batch/dataset.py)
+    format = "nuscenes"
+    routes = 10
+
     [[scene]]
     name = "generated-3"
     seed = 3                # no layout: one is generated from seed/extent/style
@@ -112,7 +116,7 @@ RUN_KEYS = {"force": _bool, "region_workers": _int(1)}
 # batch-only keys of a scene (and of [defaults], except name/output)
 SCENE_KEYS = {"name": _str, "output": _path, "split_chunks": _split}
 BATCH_KEYS = {"output": _path, "workers": _int(1), "retries": _int(0), "allowed_outputs": _paths}
-TOP_KEYS = ("batch", "defaults", "scene")
+TOP_KEYS = ("batch", "defaults", "scene", "dataset")
 
 
 @dataclass
@@ -141,6 +145,7 @@ class BatchSpec:
     scenes: list[SceneSpec] = field(default_factory=list)
     workers: int | None = None
     retries: int | None = None
+    dataset: object = None           # batch.dataset.DatasetSpec of a [dataset] table, or None
     executor: str = "local"          # where tasks run (set by the command); a scene's GGDS
     address: str | None = None       # regions use the same executor
 
@@ -267,6 +272,9 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
         if "layout" in merged and not Path(merged["layout"]).is_file():
             raise InputError(f"{where}.layout: no such file: {merged['layout']}")
         spec.scenes.append(SceneSpec(name, out_dir, merged, force, region_workers, split, i))
+    if "dataset" in data:
+        from lsd3d_usd.batch.dataset import parse_dataset
+        spec.dataset = parse_dataset(data["dataset"], f"{w}: dataset", output)
     return spec
 
 

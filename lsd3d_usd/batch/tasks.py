@@ -157,10 +157,15 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
     return plan
 
 
-def plan_batch(spec: BatchSpec) -> list[ScenePlan]:
+def plan_batch(spec: BatchSpec) -> list:
+    """The scenes' plans, then (with a [dataset] table) the dataset's (batch.dataset)."""
     logs = spec.output / ".batch"
     layouts: dict = {}
-    return [plan_scene(sc, logs, spec.executor, spec.address, layouts) for sc in spec.scenes]
+    plans = [plan_scene(sc, logs, spec.executor, spec.address, layouts) for sc in spec.scenes]
+    if spec.dataset is not None:
+        from lsd3d_usd.batch.dataset import plan_dataset
+        plans.append(plan_dataset(spec, plans, Task, logs, read_layout_for))
+    return plans
 
 
 def prepare_scene(plan: ScenePlan) -> None:
@@ -210,13 +215,27 @@ def _run_scene(p: dict, log) -> dict:
                                 p.get("executor", "local"), p.get("address")))
 
 
+def _run_dataset_log(p: dict, log) -> dict:
+    from lsd3d_usd.batch.dataset import run_log_task
+    return run_log_task(p, log)
+
+
+def _run_dataset_merge(p: dict, log) -> dict:
+    from lsd3d_usd.batch.dataset import run_merge_task
+    return run_merge_task(p, log)
+
+
+RUNS = {"chunk": _run_chunk, "scene": _run_scene, "dataset_log": _run_dataset_log,
+        "dataset_merge": _run_dataset_merge}
+
+
 def run_task(payload: dict) -> dict:
     """Execute one task (on a worker). Returns {"result": ..., "seconds": ...}; raises on
     failure with the error as the exception's message."""
     t0 = time.perf_counter()
     with task_log(payload["log"], payload["id"]) as log:
         try:
-            run = _run_chunk if payload["kind"] == "chunk" else _run_scene
+            run = RUNS[payload["kind"]]
             result = run(payload, log)
         except BaseException:
             log(traceback.format_exc())

@@ -1,6 +1,7 @@
 """Boxes of the actors at a frame: each actor's oriented 3D box (the tight box of its geometry
 in its own frame, placed by its transform) with its velocity, and per camera the tight 2D box
-of its instance pixels, the 2D box of its projected 3D box, and how much of it is visible.
+of its instance pixels, the 2D box of its projected 3D box, how much of it is visible, and
+how much of its projected box lies outside the image (``truncated``, 0 to 1).
 
 Velocity: the motion of the box centre over ±VELOCITY_DT seconds (central difference of the
 actor's transforms, which USD interpolates linearly between time samples), in world axes and
@@ -75,9 +76,9 @@ def actor_boxes(actor_set, instances, lboxes, code: float, tcps: float,
     return out
 
 
-def projected_box(camera, corners: np.ndarray):
+def projected_box(camera, corners: np.ndarray, clip: bool = True):
     """[x0, y0, x1, y1] pixel box of a 3D box's part in front of the near plane, clipped to
-    the image; None when none of it is in view."""
+    the image (unless ``clip`` is False); None when none of it is in view."""
     Rc = camera.viewmat[:3, :3]
     tc = camera.viewmat[:3, 3]
     pc = corners @ Rc.T + tc                      # camera frame, z forward
@@ -92,6 +93,8 @@ def projected_box(camera, corners: np.ndarray):
         return None
     P = np.array(pts)
     uv = (P @ camera.K.T)[:, :2] / P[:, 2:3]
+    if not clip:
+        return [float(v) for v in (*uv.min(0), *uv.max(0))]
     x0, y0 = np.clip(uv.min(0), 0, [camera.width, camera.height])
     x1, y1 = np.clip(uv.max(0), 0, [camera.width, camera.height])
     if x1 <= x0 or y1 <= y0:
@@ -111,8 +114,13 @@ def camera_boxes(boxes: list[dict], camera, name: str, labels, actors_frame, ins
         seen = int(mask.sum())
         q = int(np.flatnonzero(instances.ids == b["instance_id"])[0])
         alone = _alone_pixels(actors_frame, q, camera)
+        full = projected_box(camera, box_corners(b), clip=False)
+        area = (full[2] - full[0]) * (full[3] - full[1])
+        inside = (proj[2] - proj[0]) * (proj[3] - proj[1])
         entry = {"box_3d_projected": proj, "pixels": seen, "pixels_alone": alone,
-                 "visible_fraction": round(seen / alone, 4) if alone else 0.0}
+                 "visible_fraction": round(seen / alone, 4) if alone else 0.0,
+                 "truncated": round(float(np.clip(1.0 - inside / area, 0.0, 1.0)), 4)
+                 if area > 0 else 1.0}
         if seen:
             ys, xs = np.nonzero(mask)
             entry["box_2d"] = [int(xs.min()), int(ys.min()), int(xs.max()) + 1, int(ys.max()) + 1]

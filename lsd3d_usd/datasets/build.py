@@ -1,0 +1,328 @@
+"""`lsd3d-usd dataset`: plan a dataset (scenes x routes -> logs), check everything before
+anything is written, render the logs one sample at a time into a registered writer, then
+merge the logs' records into the format's tables.
+
+The output folder holds, besides the format's files, ROOT/.lsd3d/: dataset.json (the settings
+and the plan: what --resume checks), logs/<k>.json (a finished log's record: its table rows)
+and work/<k>/ (the log's rig.usda). A killed run continues with --resume: finished logs are
+kept, the ticks of an unfinished log after its last checkpoint are rendered again (their
+files are rewritten, byte for byte the same), and the tables are merged as an uninterrupted run merges them. A writer
+that can checkpoint (nuScenes, KITTI) continues an unfinished log after its last keyframe
+(logs/<k>.partial.json, written after every keyframe); one that cannot (MCAP) starts it again.
+"""
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from lsd3d_usd import scene as S
+from lsd3d_usd.datasets.drive import LogPlan
+from lsd3d_usd.errors import InputError
+
+STATE = ".lsd3d"
+DEFAULT_VERSION = "v1.0-lsd3d"
+MAX_ROUTES = 1000
+
+
+@dataclass
+class DatasetOptions:
+    format: str = "nuscenes"
+    rig: str = "nuscenes6"
+    lidar: str = "auto"                 # auto (the rig's own) | none | preset | FILE.toml
+    route: str | None = None            # lane ids, comma-separated (every scene)
+    routes: int | None = None           # N distinct seeded routes per scene
+    seconds: float = 20.0
+    camera_hz: float = 12.0
+    lidar_hz: float = 20.0
+    keyframe_hz: float = 2.0
+    deferred: bool = False
+    resume: bool = False
+    overwrite: bool = False
+    seed: int = 0
+    version: str = DEFAULT_VERSION
+    width: int | None = None            # camera image width (default: the rig's native)
+    exposure: float = 0.0
+    tonemap: str = "aces"
+    scenes: list = field(default_factory=list)
+
+    def signature(self) -> dict:
+        """What must match for --resume (everything that changes the output)."""
+        d = asdict(self)
+        for k in ("resume", "overwrite"):
+            d.pop(k)
+        return d
+
+
+def scene_root(scene) -> Path:
+    p = Path(scene)
+    if not (p / S.ROOT_FILE).is_file():
+        raise InputError(f"{scene}: not a scene folder (no {S.ROOT_FILE})")
+    return p.resolve()
+
+
+def check_output(out: Path, scenes: list[Path], opt: DatasetOptions) -> None:
+    if opt.resume and opt.overwrite:
+        raise InputError("--resume and --overwrite exclude each other")
+    o = out.resolve()
+    for sc in scenes:
+        if o == sc or sc in o.parents:
+            raise InputError(f"-o {out}: inside the scene folder {sc}; write the dataset "
+                             "elsewhere (a scene folder holds only the scene)")
+        if o in sc.parents:
+            raise InputError(f"-o {out}: the scene {sc} lies inside it; write the dataset "
+                             "elsewhere")
+    if o.exists() and not o.is_dir():
+        raise InputError(f"-o {out}: exists and is not a folder")
+    if o.is_dir() and any(o.iterdir()):
+        ours = (o / STATE / "dataset.json").is_file()
+        if opt.resume:
+            if not ours:
+                raise InputError(f"-o {out}: --resume, but it holds no lsd3d-usd dataset "
+                                 f"({STATE}/dataset.json)")
+        elif opt.overwrite:
+            if not ours:
+                raise InputError(f"-o {out}: --overwrite, but it holds files that are not an "
+                                 "lsd3d-usd dataset; refusing to delete them")
+        else:
+            raise InputError(f"-o {out}: not empty; give --resume to continue the dataset in "
+                             "it or --overwrite to replace it")
+
+
+def lidar_of(opt: DatasetOptions):
+    from lsd3d_usd.views.rigs import RIG_LIDAR
+    from lsd3d_usd.views.sensors import lidar_model
+    spec = opt.lidar
+    if spec in (None, "auto"):
+        spec = RIG_LIDAR.get(opt.rig)
+    return None if spec in (None, "none") else lidar_model(spec)
+
+
+def _layout(scene: Path):
+    from lsd3d_usd.layout.usdio import layout_from_stage
+    stage = S.open_stage(scene / S.ROOT_FILE, load=False)
+    if not stage.GetPrimAtPath(S.LAYOUT_PATH):
+        raise InputError(f"{scene}: the scene has no layout ({S.LAYOUT_PATH}) to drive routes on")
+    return layout_from_stage(stage, str(scene))
+
+
+def check_route(layout, ids: list, where: str) -> list:
+    from lsd3d_usd.actors.traffic import LaneGraph
+    try:
+        LaneGraph(layout).route_indices(ids)
+    except InputError as e:
+        raise InputError(f"{where}: --route {','.join(ids)}: {str(e).removeprefix('route: ')}") \
+            from None
+    return ids
+
+
+def draw_routes(layout, n: int, length: float, seed: int, where: str) -> list:
+    """``n`` distinct routes: seeded random successor walks from the lanes where traffic
+    enters the graph, each as long as ``length`` (or until no successor is left)."""
+    from lsd3d_usd.layout.lanes import lane_graph
+    rows = lane_graph(layout)
+    if not rows:
+        raise InputError(f"{where}: the layout has no drivable lanes")
+    by_id = {r.id: r for r in rows}
+    starts = sorted(r.id for r in rows if not r.predecessors) or sorted(by_id)
+    rng = np.random.default_rng([int(seed), 0x5EED])
+    got, seen = [], set()
+    for _ in range(50 * n):
+        lid = starts[rng.integers(len(starts))]
+        path, dist = [lid], by_id[lid].length_m
+        while dist < length:
+            nxt = sorted(s for s in by_id[path[-1]].successors if s in by_id and s not in path)
+            if not nxt:
+                break
+            path.append(nxt[rng.integers(len(nxt))])
+            dist += by_id[path[-1]].length_m
+        if tuple(path) not in seen:
+            seen.add(tuple(path))
+            got.append(path)
+            if len(got) == n:
+                return got
+    raise InputError(f"{where}: --routes {n}: the layout has only {len(got)} distinct routes "
+                     f"of this kind")
+
+
+def plan_logs(scenes: list[Path], opt: DatasetOptions, layouts=None) -> list[LogPlan]:
+    """The logs (scene x route) of a dataset; ``layouts``: the scenes' layouts when the
+    scenes are not written yet (a batch plans before it generates)."""
+    from lsd3d_usd.views.rig_stage import default_route
+    names = [s.name for s in scenes]
+    dup = next((n for n in names if names.count(n) > 1), None)
+    if dup:
+        raise InputError(f"two scenes are named {dup!r}: a log is named after its scene folder")
+    if opt.route is not None and opt.routes is not None:
+        raise InputError("--route and --routes exclude each other")
+    if opt.routes is not None and not 1 <= opt.routes <= MAX_ROUTES:
+        raise InputError(f"--routes {opt.routes}: must be within 1 .. {MAX_ROUTES}")
+    plans = []
+    for k, sc in enumerate(scenes):
+        layout = layouts[k] if layouts is not None else _layout(sc)
+        if opt.route is not None:
+            routes = [check_route(layout, [r.strip() for r in opt.route.split(",") if r.strip()],
+                                  str(sc))]
+        elif opt.routes is not None:
+            lanes = layout.drivable_lanes()
+            v = max((ln.speed_limit_mps for ln in lanes), default=10.0)
+            routes = draw_routes(layout, opt.routes, opt.seconds * v, opt.seed, str(sc))
+        else:
+            ids, _ = default_route(layout, opt.seconds)
+            if not ids:
+                raise InputError(f"{sc}: the layout has no drivable lanes")
+            routes = [ids]
+        for r in routes:
+            plans.append(LogPlan(len(plans), sc, sc.name, list(r),
+                                 f"{sc.name}:{','.join(r)}"))
+    return plans
+
+
+def check_settings(opt: DatasetOptions):
+    """The checks of the settings alone: (writer class, LiDAR model or None, timeline)."""
+    from lsd3d_usd.datasets.timeline import Timeline
+    from lsd3d_usd.datasets.writers import WRITERS
+    from lsd3d_usd.views.rigs import RIGS
+    writer_cls = WRITERS.get(opt.format)
+    if opt.rig not in RIGS:
+        raise InputError(f"--rig {opt.rig!r}: known rigs: {', '.join(RIGS)}")
+    if not opt.version or "/" in opt.version or opt.version.startswith("."):
+        raise InputError(f"--version {opt.version!r}: a folder name like v1.0-lsd3d")
+    if opt.width is not None and not 8 <= opt.width <= 8192:
+        raise InputError(f"--width {opt.width}: must be within 8 .. 8192")
+    lidar = lidar_of(opt)
+    if lidar is not None and opt.lidar_hz > lidar.rotation_hz + 1e-9:
+        raise InputError(f"--lidar-hz {opt.lidar_hz:g} exceeds the LiDAR's rotation rate "
+                         f"{lidar.rotation_hz:g} Hz (one sweep per turn)")
+    if getattr(writer_cls, "needs_lidar", False) and lidar is None:
+        raise InputError(f"--format {opt.format}: needs a LiDAR (--lidar hdl32, waymo_top or a "
+                         "FILE.toml)")
+    timeline = Timeline(opt.camera_hz, opt.lidar_hz if lidar is not None else None,
+                        opt.keyframe_hz, opt.seconds)
+    return writer_cls, lidar, timeline
+
+
+def prepare(scenes, out, opt: DatasetOptions):
+    """Every check before anything is written: (writer class, plans, LiDAR, timeline)."""
+    writer_cls, lidar, timeline = check_settings(opt)
+    if not scenes:
+        raise InputError("dataset: give at least one SCENE")
+    roots = [scene_root(s) for s in scenes]
+    check_output(Path(out), roots, opt)
+    opt.scenes = [str(r) for r in roots]
+    return writer_cls, plan_logs(roots, opt), lidar, timeline
+
+
+def check_resume(state: Path, sig: dict, out) -> None:
+    if (state / "dataset.json").is_file():
+        old = json.loads((state / "dataset.json").read_text())
+        diff = sorted(k for k in set(old) | set(sig) if old.get(k) != sig.get(k))
+        if diff:
+            raise InputError(f"-o {out}: --resume, but the dataset was made with other "
+                             f"settings ({diff[0]}: {old.get(diff[0])!r} there, "
+                             f"{sig.get(diff[0])!r} now)")
+
+
+def start_dataset(root: Path, opt: DatasetOptions, plans) -> None:
+    """Record the settings and the plan (ROOT/.lsd3d/dataset.json); --overwrite empties the
+    folder first, --resume checks the record."""
+    state = root / STATE
+    sig = {**opt.signature(), "logs": [p.key for p in plans]}
+    if opt.resume:
+        check_resume(state, sig, root)
+    if opt.overwrite and root.is_dir():
+        for child in root.iterdir():
+            shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+    (state / "logs").mkdir(parents=True, exist_ok=True)
+    S.atomic_write_text(state / "dataset.json", json.dumps(sig, indent=1))
+
+
+def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timeline, *,
+            progress: bool = False, log=print, deferrer=None, timing=None) -> dict:
+    """Render one log into ``writer`` and keep its record (ROOT/.lsd3d/logs/<k>.json); with
+    --resume a finished log is read back and an unfinished one continues after its last
+    checkpoint. Returns {"record", "resumed_at" (tick or None), "skipped" (bool)}."""
+    from tqdm import tqdm
+
+    from lsd3d_usd.datasets.drive import drive
+    from lsd3d_usd.views.rigs import RIGS
+    state = root / STATE
+    rec_file = state / "logs" / f"{plan.index:04d}.json"
+    part_file = state / "logs" / f"{plan.index:04d}.partial.json"
+    if opt.resume and rec_file.is_file():
+        return {"record": json.loads(rec_file.read_text()), "resumed_at": None, "skipped": True}
+    resumable = hasattr(writer, "checkpoint") and hasattr(writer, "restore")
+    part = (json.loads(part_file.read_text())
+            if opt.resume and resumable and part_file.is_file() else None)
+    start = part["next_tick"] if part else 0
+    width = opt.width or RIGS[opt.rig][0].size[0]
+    info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
+                          lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
+                          exposure=opt.exposure, tonemap=opt.tonemap, deferrer=deferrer,
+                          start_tick=start, log=log)
+    if part:
+        writer.restore(info, part["writer"])
+    else:
+        writer.begin_log(info)
+    timing = timing if timing is not None else {}
+    counts = timeline.counts()
+    bar = tqdm(total=counts["camera_frames"] + counts["sweeps"], unit="frame",
+               desc=f"dataset log {plan.index}", disable=not progress)
+    t_render = time.perf_counter()
+    for s in samples:
+        t0 = time.perf_counter()
+        timing["render_s"] = timing.get("render_s", 0.0) + t0 - t_render
+        for k, v in s.timing.items():
+            timing[k] = timing.get(k, 0.0) + v
+        writer.write(s)
+        if resumable and s.keyframe:
+            S.atomic_write_text(part_file, json.dumps(
+                {"next_tick": s.tick.index + 1, "writer": writer.checkpoint()}))
+        t_render = time.perf_counter()
+        timing["write_s"] = timing.get("write_s", 0.0) + t_render - t0
+        bar.update(int(bool(s.cameras)) + int(s.lidar is not None))
+    bar.close()
+    rec = writer.end_log()
+    S.atomic_write_text(rec_file, json.dumps(rec))
+    part_file.unlink(missing_ok=True)
+    return {"record": rec, "resumed_at": start if part else None, "skipped": False}
+
+
+def merge(root: Path, opt: DatasetOptions, writer, n_logs: int) -> dict:
+    """The format's tables from every log's record (all must be finished)."""
+    logs = root / STATE / "logs"
+    missing = [k for k in range(n_logs) if not (logs / f"{k:04d}.json").is_file()]
+    if missing:
+        raise InputError(f"{root}: log {missing[0]} is not finished; run again with --resume")
+    return writer.finish([json.loads((logs / f"{k:04d}.json").read_text())
+                          for k in range(n_logs)])
+
+
+def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, log=print,
+                  deferrer_for=None) -> dict:
+    """Write the dataset (module doc); a summary dict (logs, samples, tables, timings).
+    ``deferrer_for(scene)``: a views.deferred.Deferrer for --deferred."""
+    writer_cls, plans, lidar, timeline = prepare(scenes, out, opt)
+    root = Path(out)
+    start_dataset(root, opt, plans)
+    writer = writer_cls(root, opt)
+    timing = {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "boxes_s": 0.0,
+              "write_s": 0.0}
+    done_logs, resumed_at = 0, {}
+    for plan in plans:
+        got = run_log(root, opt, plan, writer, lidar, timeline, progress=progress, log=log,
+                      deferrer=deferrer_for(plan.scene) if deferrer_for else None,
+                      timing=timing)
+        done_logs += got["skipped"]
+        if got["resumed_at"] is not None:
+            resumed_at[plan.index] = got["resumed_at"]
+    tables = merge(root, opt, writer, len(plans))
+    counts = timeline.counts()
+    return {"logs": len(plans), "resumed_logs": done_logs, "resumed_at_tick": resumed_at,
+            "keyframes": counts["keyframes"], "camera_frames": counts["camera_frames"],
+            "sweeps": counts["sweeps"], "tables": tables, "timing": timing,
+            "routes": [p.route for p in plans]}
