@@ -81,8 +81,11 @@ VISIBILITY = (("1", "v0-40", "visibility of whole object is between 0 and 40%"),
 
 
 def actor_category(cls: str, kind: str) -> str:
+    """The nuScenes category of an actor of class ``cls`` and kind ``kind``."""
     if cls == "vehicle":
         return KIND_CATEGORY.get(kind, "vehicle.car")
+    if cls == "pedestrian" and kind == "child":
+        return "human.pedestrian.child"
     return STUFF_CATEGORY.get(cls, UNLABELLED_CATEGORY)
 
 
