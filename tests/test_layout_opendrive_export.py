@@ -174,3 +174,23 @@ def test_cli_export_and_validate(run_cli, tmp_path):
     r = run_cli("layout", "import", out, "-o", tmp_path / "back.usda")
     assert r.returncode == 0, r.stderr
     assert "14 LaneCenter" in r.stdout
+
+
+def test_segment_distances_match_the_plain_reference():
+    """The KD-tree path of the point-to-polyline distance against trying every pair, on
+    curves, noisy polylines, long-and-short segment mixes and degenerate segments."""
+    rng = np.random.default_rng(7)
+    cases = []
+    s = np.linspace(0, 400, 3000)
+    cases.append((np.c_[s, 20 * np.sin(s / 40)], rng.uniform([-10, -40], [410, 40], (500, 2))))
+    walk = np.cumsum(rng.normal(0, 1, (2000, 2)), axis=0)
+    cases.append((walk, walk[::3] + rng.normal(0, 0.5, (667, 2))))
+    mixed = np.r_[np.c_[np.linspace(0, 1, 1500), np.zeros(1500)], [[500.0, 0.0], [500.0, 300.0]]]
+    cases.append((mixed, rng.uniform([-5, -5], [505, 305], (400, 2))))
+    dup = np.repeat(np.c_[np.linspace(0, 50, 800), np.linspace(0, 5, 800) ** 2], 2, axis=0)
+    cases.append((dup, rng.uniform([0, 0], [50, 25], (600, 2))))       # zero-length segments
+    for pts, q in cases:
+        a, b = pts[:-1], pts[1:]
+        assert len(q) * len(a) > fitting.BRUTE_PAIRS                  # the fast path runs
+        np.testing.assert_allclose(fitting._dist_to_segments(q, a, b),
+                                   fitting.dist_to_segments_brute(q, a, b), rtol=0, atol=1e-12)

@@ -64,8 +64,9 @@ class Primitive:
 
 # ================================================================== distances
 
-def _dist_to_segments(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance of each point q (M, 2) to the nearest of the segments a[k]→b[k] (K, 2)."""
+def dist_to_segments_brute(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of each point q (M, 2) to the nearest of the segments a[k]→b[k] (K, 2), every
+    pair tried (the plain reference; O(M·K))."""
     ab = b - a
     L2 = np.einsum("ij,ij->i", ab, ab)
     out = np.full(len(q), np.inf)
@@ -77,6 +78,39 @@ def _dist_to_segments(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray
         t = np.clip(t, 0.0, 1.0)
         d = aq - t[:, :, None] * ab[None, :, :]
         out[r0:r0 + block] = np.sqrt(np.einsum("mkj,mkj->mk", d, d).min(axis=1))
+    return out
+
+
+BRUTE_PAIRS = 200_000     # below this many point-segment pairs, try them all
+
+
+def _dist_to_segments(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Distance of each point q (M, 2) to the nearest of the segments a[k]→b[k] (K, 2): the
+    same as ``dist_to_segments_brute``, in O((M + K) log K) for polylines of evenly sized
+    segments. The nearest endpoint bounds the answer (d0); a segment within d0 of q has its
+    midpoint within d0 + its half-length, so only those midpoints are tried."""
+    q = np.asarray(q, np.float64)
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    if len(q) * len(a) <= BRUTE_PAIRS or len(a) == 0:
+        return dist_to_segments_brute(q, a, b)
+    from scipy.spatial import cKDTree    # local import: scipy.spatial is slow to import
+    ends = np.vstack([a, b])
+    d0, _ = cKDTree(ends).query(q)
+    mid = 0.5 * (a + b)
+    half = 0.5 * np.hypot(*(b - a).T)
+    cand = cKDTree(mid).query_ball_point(q, d0 + half.max() + 1e-9, return_sorted=False)
+    counts = np.fromiter((len(c) for c in cand), np.int64, len(q))
+    seg = np.fromiter((k for c in cand for k in c), np.int64, int(counts.sum()))
+    row = np.repeat(np.arange(len(q)), counts)
+    ab = b[seg] - a[seg]
+    L2 = np.einsum("ij,ij->i", ab, ab)
+    aq = q[row] - a[seg]
+    t = np.clip(np.einsum("ij,ij->i", aq, ab) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
+    d = aq - t[:, None] * ab
+    dist = np.sqrt(np.einsum("ij,ij->i", d, d))
+    out = d0.copy()                      # every point has at least the segments of its endpoint
+    np.minimum.at(out, row, dist)
     return out
 
 
