@@ -291,3 +291,31 @@ def test_resumed_run_plots_its_initial_surfels(tmp_path, monkeypatch):
     assert seen["before"] and all(np.isfinite(b).all() for b in seen["before"])
     run = S.Scene.open(out).runs()[0]
     assert run.provenance["complete"] and (out / "ggds" / run.name / "before_after.png").is_file()
+
+
+def test_a_run_marked_complete_has_its_summary_and_figures(tmp_path, monkeypatch):
+    """Case 27: the save that marks a run's steps complete comes last, so a kill right after
+    it leaves the run's summary and figures already written (a resume skips complete
+    regions and would never write them), and --resume finishes the run."""
+    from lsd3d_usd.ggds.run import lifecycle
+    from tests.conftest import generate_small
+    real = lifecycle._save
+
+    def killed_after(store, run, prior, inputs, **kw):
+        out = real(store, run, prior, inputs, **kw)
+        if kw.get("final"):
+            raise KeyboardInterrupt      # the process dies right after the final save
+        return out
+    monkeypatch.setattr(lifecycle, "_save", killed_after)
+    out = tmp_path / "S"
+    with pytest.raises(KeyboardInterrupt):
+        generate_small(out, steps=4, checkpoint_every=2, ggds={"held_out": 2})
+    from lsd3d_usd.ggds.run.store import region_progress
+    sc = S.Scene.open(out)
+    run = sc.runs()[0]
+    d = out / "ggds" / run.name
+    assert region_progress(sc, run.name, "").get("complete")
+    assert (d / "summary.json").is_file() and (d / "before_after.png").is_file()
+    # and --resume finishes the run's layer from there
+    generate_small(out, run={"resume": True}, steps=4, checkpoint_every=2, ggds={"held_out": 2})
+    assert S.Scene.open(out).runs()[0].provenance["complete"]

@@ -111,9 +111,11 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     release_free_memory()
     t = time.perf_counter()
     metrics = run.evaluate(inputs.held_out) if inputs.held_out else {}
-    _save(store, run, prior, inputs, metrics=metrics, final=True, keep_checkpoint=keep_checkpoint)
     summary.update(metrics)
     summary["eval_s"] = round(time.perf_counter() - t, 2)
+    # the figures and the summary before the final save that marks the run complete: a run
+    # killed in between is still unfinished (its checkpoint stays) and --resume redoes them
     write_plots(run, inputs.held_out, before, store.plot_dir)
     store.write_summary(summary)
+    _save(store, run, prior, inputs, metrics=metrics, final=True, keep_checkpoint=keep_checkpoint)
     return summary
