@@ -41,6 +41,7 @@ def _files(root: Path) -> dict:
             if p.is_file() and ".lsd3d" not in p.parts}
 
 
+@pytest.mark.slow        # ~100 s on 2 cores: four process-pool tasks, then the command
 def test_batch_makes_the_dataset_the_command_makes(tmp_path):
     from lsd3d_usd.batch.runner import run_batch
     from lsd3d_usd.batch.spec import load_spec

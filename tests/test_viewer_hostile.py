@@ -63,7 +63,7 @@ def test_idle_connections_are_closed_and_connections_bounded(viewer, monkeypatch
     assert idle.recv(1) == b""                      # closed by the server after its timeout
     assert time.monotonic() - t0 < 5
     idle.close()
-    srv._slots = threading.BoundedSemaphore(2)
+    srv.max_connections = 2
     held = [socket.create_connection(srv.server_address, timeout=10) for _ in range(2)]
     time.sleep(0.1)
     extra = socket.create_connection(srv.server_address, timeout=10)

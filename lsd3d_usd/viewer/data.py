@@ -205,7 +205,7 @@ class SceneSource:
         """Static surfels in world space (not actors' or cameras'), one SurfelField per read.
         Today the scene holds one monolithic prim, so this yields one field (or nothing)."""
 
-        f = scene_surfels(stage)
+        f = scene_surfels(stage, check=False)    # problems are listed, not refused (validate's)
         if f is not None and f.n:
             yield f
 

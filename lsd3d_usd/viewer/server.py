@@ -219,7 +219,9 @@ class ViewerServer(ThreadingHTTPServer):
         self.names = {"localhost", host.lower().strip("[]")}
         if allow_remote:
             self.names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
-        self._slots = threading.BoundedSemaphore(int(VIEWER_CONNECTIONS.value))
+        self.max_connections = int(VIEWER_CONNECTIONS.value)
+        self._active = 0                 # connections being served (at most max_connections)
+        self._active_lock = threading.Lock()
 
     def host_allowed(self, header: str | None) -> bool:
         """Whether a request's Host header names this server: loopback names and addresses,
@@ -242,7 +244,7 @@ class ViewerServer(ThreadingHTTPServer):
 
     # bounded workers: one thread per connection, at most VIEWER_CONNECTIONS of them
     def process_request(self, request, client_address):
-        if not self._slots.acquire(blocking=False):
+        if not self._take_slot():
             try:
                 request.sendall(b"HTTP/1.1 503 Service Unavailable\r\nContent-Length: 0\r\n"
                                 b"Connection: close\r\n\r\n")
@@ -253,14 +255,26 @@ class ViewerServer(ThreadingHTTPServer):
         try:
             super().process_request(request, client_address)
         except BaseException:
-            self._slots.release()
+            self._give_slot()
             raise
 
     def process_request_thread(self, request, client_address):
         try:
             super().process_request_thread(request, client_address)
         finally:
-            self._slots.release()
+            self._give_slot()
+
+    def _take_slot(self) -> bool:
+        with self._active_lock:
+            if self._active >= self.max_connections:
+                return False
+            self._active += 1
+            return True
+
+    def _give_slot(self) -> None:
+        # a counter: the bound can change while connections are open (the tests lower it)
+        with self._active_lock:
+            self._active = max(0, self._active - 1)
 
 
 def is_loopback(host: str) -> bool:

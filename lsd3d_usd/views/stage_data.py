@@ -104,9 +104,11 @@ def check_renderable(prim, f: SurfelField, t) -> None:
                              "validate` lists the problems")
 
 
-def scene_surfels(stage, time=None, prims=None):
+def scene_surfels(stage, time=None, prims=None, check: bool = True):
     """The scene's visible surfels in world space as one SurfelField (semantics dropped when
-    the prims' class tables differ), or None when there are none."""
+    the prims' class tables differ), or None when there are none. ``check``: refuse surfels
+    the rasteriser cannot draw (check_renderable); the viewer, which lists a scene's problems
+    and still shows what it can, reads them unchecked."""
 
     t = usd_time(time)
     fields = []
@@ -115,7 +117,8 @@ def scene_surfels(stage, time=None, prims=None):
             continue
         f = read_surfels(prim, t)
         if f.n:
-            check_renderable(prim, f, t)
+            if check:
+                check_renderable(prim, f, t)
             fields.append(transform_surfels(f, _world(prim, t)))
     return SurfelField.concat(fields, drop_mismatched_semantics=True) if fields else None
 
