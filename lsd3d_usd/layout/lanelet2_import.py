@@ -61,7 +61,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout.fitting import _dist_to_segments
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
-from lsd3d_usd.layout.osmxml import bad_location, osmium_errors
+from lsd3d_usd.layout.osmxml import bad_location, header_centre, osmium_errors
 
 MAX_FILE_BYTES = 256 * 1024 * 1024
 MAX_LANELETS = 200_000
@@ -93,15 +93,10 @@ def sniff(path: Path, head: bytes) -> bool:
 def file_origin(path: Path) -> tuple[tuple[float, float], str]:
     """(lat, lon) of the file's own origin and where it came from: the header's bounds, else the
     centre of the nodes' extent (read with osmium)."""
+    centre = header_centre(path)
+    if centre is not None:
+        return centre, "file bounds"
     with osmium_errors(path):
-        reader = osmium.io.Reader(str(path), osmium.osm.osm_entity_bits.NOTHING)
-        try:
-            box = reader.header().box()
-        finally:
-            reader.close()
-        if box.valid():
-            bl, tr = box.bottom_left, box.top_right
-            return ((bl.lat + tr.lat) / 2, (bl.lon + tr.lon) / 2), "file bounds"
         lat0 = lon0 = np.inf
         lat1 = lon1 = -np.inf
         for n in osmium.FileProcessor(str(path), osmium.osm.NODE):

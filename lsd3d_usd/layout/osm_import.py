@@ -57,7 +57,7 @@ from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout import roadnet as R
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
 from lsd3d_usd.layout.lanelet2_import import FAR_ERROR_M, FAR_WARN_M, check_origin
-from lsd3d_usd.layout.osmxml import osmium_errors
+from lsd3d_usd.layout.osmxml import header_centre, osmium_errors
 from lsd3d_usd.layout.osm_features import (clip_area, map_features, point_wanted, record_clip,
                                            sound_highways)
 
@@ -177,16 +177,9 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
         b = options.bbox
         origin, origin_from = ((b[1] + b[3]) / 2, (b[0] + b[2]) / 2), "bbox"
     else:
-        with osmium_errors(p):
-            reader = osmium.io.Reader(str(p), osmium.osm.osm_entity_bits.NOTHING)
-            try:
-                box = reader.header().box()
-            finally:
-                reader.close()
-        if box.valid():
-            origin = ((box.bottom_left.lat + box.top_right.lat) / 2,
-                      (box.bottom_left.lon + box.top_right.lon) / 2)
-            origin_from = "file bounds"
+        centre = header_centre(p)
+        if centre is not None:
+            origin, origin_from = centre, "file bounds"
         elif np.isfinite(ext[0]):
             origin, origin_from = ((ext[0] + ext[2]) / 2, (ext[1] + ext[3]) / 2), "node extent"
         else:

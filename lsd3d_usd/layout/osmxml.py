@@ -63,3 +63,18 @@ def osmium_errors(path: str | Path, reader: str = "osmium"):
         hint = " (the file is truncated or damaged)" if re.search(
             r"EOF|no element found|unclosed|truncated|parsing error", msg, re.I) else ""
         raise InputError(f"{path}: {reader} cannot read it: {msg[:300]}{hint}") from None
+
+
+def header_centre(path: str | Path) -> tuple[float, float] | None:
+    """(lat, lon) of the centre of an OSM file's header bounds, None when it has none (read
+    errors as InputError)."""
+    with osmium_errors(path):
+        reader = osmium.io.Reader(str(path), osmium.osm.osm_entity_bits.NOTHING)
+        try:
+            box = reader.header().box()
+        finally:
+            reader.close()
+    if not box.valid():
+        return None
+    bl, tr = box.bottom_left, box.top_right
+    return (bl.lat + tr.lat) / 2, (bl.lon + tr.lon) / 2

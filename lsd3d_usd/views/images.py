@@ -70,19 +70,7 @@ def write_image(path, pixels: np.ndarray, channels=None, compression: str | None
         spec.channelnames = tuple(channels)
     if compression:
         spec.attribute("compression", compression)
-    tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
-    out = oiio.ImageOutput.create(str(tmp))
-    if out is None or not out.open(str(tmp), spec):
-        raise InputError(f"{path}: cannot write image: {oiio.geterror()}")
-    try:
-        ok = out.write_image(px)
-    finally:
-        out.close()
-    if not ok:
-        tmp.unlink(missing_ok=True)
-        raise InputError(f"{path}: writing failed: {out.geterror()}")
-    os.replace(tmp, path)
-    return path
+    return _write_atomic(path, spec, px)
 
 
 def write_frame(path, frame, fmt: str = "png", exposure: float = 0.0,
@@ -108,12 +96,21 @@ def write_frame(path, frame, fmt: str = "png", exposure: float = 0.0,
         spec.attribute("compression", "zip")
     else:
         raise InputError(f"unknown image format {fmt!r}; choose png or exr")
+    return _write_atomic(path, spec, np.ascontiguousarray(pixels))
+
+
+def _write_atomic(path: Path, spec, px: np.ndarray) -> Path:
+    """Write ``px`` with OpenImageIO ``spec`` to a temporary file beside ``path``, then rename
+    it over ``path`` (a reader never sees half an image); one InputError line on failure."""
+    # local import: not loaded for --help
+    import OpenImageIO as oiio
+
     tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
     out = oiio.ImageOutput.create(str(tmp))
     if out is None or not out.open(str(tmp), spec):
         raise InputError(f"{path}: cannot write image: {oiio.geterror()}")
     try:
-        ok = out.write_image(np.ascontiguousarray(pixels))
+        ok = out.write_image(px)
     finally:
         out.close()
     if not ok:
