@@ -215,13 +215,14 @@ def _feature_bytes(f) -> bytes:
 
 
 def chunk_inputs_hash(local_layout, fixtures: list[Fixture], params: ProxyParams,
-                      key: ChunkKey) -> str:
-    """Content hash of everything a chunk is built from."""
+                      key: ChunkKey, feature_bytes=_feature_bytes) -> str:
+    """Content hash of everything a chunk is built from. ``feature_bytes``: a feature's
+    digest (ProxyBuilder passes a cached _feature_bytes)."""
     h = hashlib.sha256()
     h.update(f"proxy v{PROXY_VERSION} chunk {key} size {local_layout.chunk_size}".encode())
     h.update(repr(params.as_dict()).encode())
     for f in sorted(local_layout.features(), key=lambda f: (type(f).__name__, f.id)):
-        h.update(_feature_bytes(f))
+        h.update(feature_bytes(f))
     for fx in fixtures:
         h.update(repr(fx).encode())
     return h.hexdigest()
@@ -277,6 +278,10 @@ class ProxyBuilder:
         self.size = float(layout.chunk_size)
         self.fixtures = derive_fixtures(layout, self.params)
         self.index = FeatureIndex(layout)
+        # a feature's digest is hashed into every chunk near it (a long lane: dozens); the
+        # builder works on one unchanging layout, whose features it holds (ids stay unique)
+        self._digests: dict[int, bytes] = {}
+        self._areas: dict[int, object] = {}
         self._fixtures_at: dict[ChunkKey, list[Fixture]] = {}
         for f in self.fixtures:
             self._fixtures_at.setdefault(chunk_of(*f.position, self.size), []).append(f)
@@ -284,24 +289,45 @@ class ProxyBuilder:
     def chunks(self, max_chunks: int | None = None) -> list[ChunkKey]:
         return all_chunks(self.layout, max_chunks)
 
+    def feature_bytes(self, f) -> bytes:
+        """_feature_bytes of a feature of this layout, computed once."""
+        d = self._digests.get(id(f))
+        if d is None:
+            d = self._digests[id(f)] = _feature_bytes(f)
+        return d
+
+    def area_of(self, f, points) -> object:
+        """area_from_points(points) of a polygon feature of this layout, computed once (a
+        long sidewalk or road area is near dozens of chunks)."""
+        a = self._areas.get(id(f))
+        if a is None:
+            a = self._areas[id(f)] = area_from_points(points)
+        return a
+
     def inputs(self, key: ChunkKey) -> ChunkInputs:
         i, j = key
         b = chunk_bounds(i, j, self.size)
         local = self.index.near(((b[0], b[1]), (b[2], b[3])), self.params.margin)
         fx = list(self._fixtures_at.get(key, []))
-        return ChunkInputs(key, b, local, fx, chunk_inputs_hash(local, fx, self.params, key))
+        return ChunkInputs(key, b, local, fx, chunk_inputs_hash(local, fx, self.params, key,
+                                                                self.feature_bytes))
 
     def build(self, key: ChunkKey, inputs: ChunkInputs | None = None) -> list[MeshPart]:
         inp = inputs or self.inputs(key)
-        return build_chunk_parts(inp, self.params)
+        return build_chunk_parts(inp, self.params, self.area_of)
 
 
 def _owned(x: float, y: float, b) -> bool:
     return b[0] <= x < b[2] and b[1] <= y < b[3]
 
 
-def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
-    """All mesh parts of one chunk."""
+def _area_of(f, points):
+    return area_from_points(points)
+
+
+def build_chunk_parts(inp: ChunkInputs, params: ProxyParams, area_of=_area_of) -> list[MeshPart]:
+    """All mesh parts of one chunk. ``area_of(feature, points)``: area_from_points of a
+    feature's polygon (ProxyBuilder passes a cached one)."""
     L, b = inp.layout, inp.bounds
     clip = box(*b)
     name = chunk_label(*inp.key)
@@ -311,10 +337,10 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
     areas = ground_areas(
         b, params.margin,
         lanes=[(ln.points, ln.widths, ln.lane_type) for ln in L.lanes],
-        road_areas=[r.polygon for r in L.road_areas],
-        sidewalks=[s.polygon for s in L.sidewalks],
-        vegetation=[z.polygon for z in L.vegetation_zones],
-        buildings=[bd.footprint for bd in L.buildings],
+        road_areas=[area_of(r, r.polygon) for r in L.road_areas],
+        sidewalks=[area_of(s, s.polygon) for s in L.sidewalks],
+        vegetation=[area_of(z, z.polygon) for z in L.vegetation_zones],
+        buildings=[area_of(bd, bd.footprint) for bd in L.buildings],
         style=g, extent=_extent(L))
     parts += ground_parts(areas, name, g)
 
@@ -337,7 +363,7 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
         if fp.is_valid:
             c = fp.centroid
         else:   # a messy footprint: its cleaned area (or its vertices) decide the owner
-            fp = area_from_points(bd.footprint)
+            fp = area_of(bd, bd.footprint)
             c = fp.representative_point() if not fp.is_empty else shapely.Point(bd.footprint[:, :2].mean(0))
         if _owned(c.x, c.y, b):
             add(building_mesh(bd.id, bd.footprint, bd.height_hint, bd.floors_hint,
@@ -346,7 +372,7 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams) -> list[MeshPart]:
         if _owned(t.position[0], t.position[1], b):
             parts += tree_parts(t.id, t.position, t.height_hint, t.crown_radius_hint)
     for z in L.vegetation_zones:
-        parts += zone_shrubs(z.id, area_from_points(z.polygon), z.kind, clip)
+        parts += zone_shrubs(z.id, area_of(z, z.polygon), z.kind, clip)
     for ps in L.parking_spots:
         if ps.occupied and _owned(ps.center[0], ps.center[1], b):
             add(vehicle_part(ps.id, ps.center, ps.heading, ps.length, ps.width))

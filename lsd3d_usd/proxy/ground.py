@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 from shapely.geometry import Polygon, box
+from shapely.geometry.base import BaseGeometry
 
 from lsd3d_usd.configtree import option
 from .mesh import CURB, ROAD, SIDEWALK, TERRAIN, VEGETATION, MeshPart
@@ -54,7 +55,7 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
     """Disjoint areas {road, curb, sidewalk, vegetation, terrain} covering ``chunk_box``.
 
     lanes: (points (N, 2|3), full widths (N,), lane_type). Polygons are (N, 2|3)
-    arrays. Everything may extend beyond the box; pass all features within
+    arrays, or areas already cleaned by ``planar.area_from_points``. Everything may extend beyond the box; pass all features within
     ``margin`` of it so the result near the border does not depend on the chunk.
     ``extent`` (the layout's area): roads leaving it get no curb across their cut end.
     """
@@ -92,7 +93,8 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
 
 
 def _poly(p) -> Polygon:
-    return area_from_points(p)
+    # an already cleaned area (the chunk builder cleans a feature's polygon once) as it is
+    return p if isinstance(p, BaseGeometry) else area_from_points(p)
 
 
 def _grid_cells(geom: Polygon, cell: float) -> list[Polygon]:

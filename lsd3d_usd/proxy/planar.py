@@ -21,6 +21,9 @@ def polygons_of(geom: BaseGeometry | None) -> list[Polygon]:
         return []
     if isinstance(geom, Polygon):
         return [geom] if geom.area > 0 else []
+    if isinstance(geom, MultiPolygon):      # one vectorised step for its many parts
+        parts = shapely.get_parts(geom)
+        return list(parts[shapely.area(parts) > 0])
     if hasattr(geom, "geoms"):
         out = []
         for g in geom.geoms:
@@ -82,11 +85,14 @@ def _sound(poly: Polygon) -> bool:
     return True
 
 
-def _sound_all(polys: list[Polygon]) -> np.ndarray:
+def _sound_all(polys: list[Polygon], valid: bool = False) -> np.ndarray:
     """_sound of every polygon at once (vectorised over all rings: many small pieces, such
-    as the dashes of a line, cost one call instead of one Python loop each)."""
+    as the dashes of a line, cost one call instead of one Python loop each). ``valid``: the
+    polygons are known to be valid (the parts of a geometry found valid), not checked again."""
     arr = np.array(polys, dtype=object)
-    ok = shapely.is_valid(arr) & (shapely.area(arr) > RING_AREA)
+    ok = shapely.area(arr) > RING_AREA
+    if not valid:
+        ok &= shapely.is_valid(arr)
     rings, part = shapely.get_rings(arr, return_index=True)
     if not len(rings):
         return ok
@@ -102,14 +108,18 @@ def _sound_all(polys: list[Polygon]) -> np.ndarray:
     return ok
 
 
-def _clean_pieces(geom: BaseGeometry) -> list[Polygon]:
+def _clean_pieces(geom: BaseGeometry, valid: bool = False) -> tuple[list[Polygon], bool]:
+    """The sound polygons of ``geom`` (see clean_area) and whether they are its own
+    polygons, every one kept as it was. ``valid``: ``geom`` is known to be valid."""
     out: list[Polygon] = []
     polys = polygons_of(geom)
-    sound = _sound_all(polys) if polys else []
+    sound = _sound_all(polys, valid) if polys else []
+    untouched = True
     for poly, ok in zip(polys, sound):
         if ok:
             out.append(poly)
             continue
+        untouched = False
         q = _rebuilt(poly)
         if q is None:
             continue
@@ -124,7 +134,7 @@ def _clean_pieces(geom: BaseGeometry) -> list[Polygon]:
                 continue
             snapped = shapely.set_precision(piece, SNAP_GRID)
             out.extend(p for p in polygons_of(snapped) if _sound(p))
-    return out
+    return out, untouched
 
 
 def _assemble(polys: list[Polygon]) -> BaseGeometry:
@@ -144,14 +154,19 @@ def clean_area(geom: BaseGeometry | None) -> BaseGeometry:
     """
     if geom is None or geom.is_empty:
         return EMPTY
-    if not geom.is_valid:
+    valid = geom.is_valid
+    if not valid:
         geom = shapely.make_valid(geom)
-    pieces = _clean_pieces(geom)
+    pieces, untouched = _clean_pieces(geom, valid)
     result = _assemble(pieces)
+    # the polygons of a valid (multi)polygon, all kept: valid as they stand (not so for
+    # a collection, whose members may overlap)
+    if valid and untouched and isinstance(geom, (Polygon, MultiPolygon)):
+        return result
     if result.is_valid:
         return result
     merged = shapely.union_all(np.array(pieces, dtype=object))
-    result = _assemble(_clean_pieces(merged))
+    result = _assemble(_clean_pieces(merged)[0])
     if result.is_valid:
         return result
     snapped = shapely.set_precision(merged, SNAP_GRID)   # valid output by construction
@@ -167,7 +182,30 @@ def area_from_points(points) -> BaseGeometry:
     return clean_area(Polygon(xy[:, :2]))
 
 
-def _vertex_normals(xy: np.ndarray, miter_limit: float = 4.0) -> tuple[np.ndarray, np.ndarray]:
+MITER_LIMIT = 4.0     # a mitre reaches at most this many half widths from its vertex
+
+
+def _near_span(xy: np.ndarray, within, reach: float) -> tuple[int, int] | None:
+    """The vertex slice [a, b) of a polyline whose quads are all that can meet ``within``.
+
+    A segment's quad lies inside the segment's bounds grown by ``reach`` (the longest
+    mitre), so segments whose grown bounds miss the box are left out; the slice keeps one
+    more vertex at each end, so every kept segment's two mitres are computed from the same
+    neighbours as in the whole polyline (the quads of the kept segments are the whole
+    polyline's, bit for bit). The slice's end segments may be extra: the caller's exact
+    bounds test drops them (their quads still lie in their grown bounds). None: no segment
+    is near.
+    """
+    a, b = xy[:-1], xy[1:]
+    lo, hi = np.minimum(a, b) - reach, np.maximum(a, b) + reach
+    k = np.nonzero((hi[:, 0] >= within[0]) & (lo[:, 0] <= within[2])
+                   & (hi[:, 1] >= within[1]) & (lo[:, 1] <= within[3]))[0]
+    if not len(k):
+        return None
+    return max(int(k[0]) - 1, 0), min(int(k[-1]) + 3, len(xy))
+
+
+def _vertex_normals(xy: np.ndarray, miter_limit: float = MITER_LIMIT) -> tuple[np.ndarray, np.ndarray]:
     """Left unit normals per vertex (miter direction) and the miter scale 1/cos(half angle)."""
     d = np.diff(xy, axis=0)
     seg_len = np.linalg.norm(d, axis=1, keepdims=True)
@@ -209,6 +247,13 @@ def _quads(points: np.ndarray, left, right=None,
     left = np.broadcast_to(np.asarray(left, dtype=np.float64), (len(pts),))[keep_idx]
     right = left if right is None else np.broadcast_to(
         np.asarray(right, dtype=np.float64), (len(pts),))[keep_idx]
+    if within is not None:
+        reach = MITER_LIMIT * max(float(np.abs(left).max()), float(np.abs(right).max()))
+        span = _near_span(xy, within, reach)
+        if span is None:
+            return np.zeros((0, 4, 2))
+        a, b = span
+        xy, left, right = xy[a:b], left[a:b], right[a:b]
     vn, sc = _vertex_normals(xy)
     L = xy + vn * (left * sc)[:, None]
     R = xy - vn * (right * sc)[:, None]
@@ -290,13 +335,40 @@ def _quads_many(lines: list[np.ndarray], half_width: float) -> np.ndarray:
 def ribbons(lines: list[np.ndarray], half_width: float,
             within: tuple[float, float, float, float] | None = None) -> BaseGeometry:
     """The union of the ribbons of many polylines of one half width, in one vectorised step
-    and one union (the dashes of a broken line: one call, not one union per dash)."""
+    and one union (the dashes of a broken line: one call, not one union per dash).
+
+    ``within``: only the quads meeting this box; each line is first cut to the vertices
+    whose quads can meet it (``_near_span``), so a long line costs what lies near the box.
+    """
+    if within is not None:
+        # short lines (dashes, already picked near the box) are taken whole
+        lines = [c for c in (ln if len(ln) <= 16 else _near_part(ln, within, MITER_LIMIT
+                                                                  * abs(half_width))
+                             for ln in lines) if c is not None]
     q = _quads_many(lines, half_width)
     if within is not None and len(q):
         lo, hi = q.min(axis=1), q.max(axis=1)
         q = q[(hi[:, 0] >= within[0]) & (lo[:, 0] <= within[2])
               & (hi[:, 1] >= within[1]) & (lo[:, 1] <= within[3])]
     return _union_quads(q)
+
+
+def _near_part(line: np.ndarray, within, reach: float) -> np.ndarray | None:
+    """The raw vertices of ``line`` (XY) that _quads_many needs for its quads meeting
+    ``within``: a slice starting at a vertex _quads_many keeps, so its repeated-point
+    removal keeps the same vertices inside it as in the whole line."""
+    xy = np.asarray(line, dtype=np.float64)[:, :2]
+    if len(xy) < 2:
+        return xy
+    keep = np.concatenate([[True], ~(np.hypot(*np.diff(xy, axis=0).T) <= 1e-6)])  # as _quads_many
+    kept = np.nonzero(keep)[0]
+    if len(kept) < 2:
+        return xy
+    span = _near_span(xy[kept], within, reach)
+    if span is None:
+        return None
+    a, b = span
+    return xy[kept[a]:(kept[b] if b < len(kept) else len(xy))]
 
 
 def grow(bounds: tuple[float, float, float, float], d: float) -> tuple[float, float, float, float]:
@@ -353,16 +425,15 @@ def dashes(points: np.ndarray, dash: float, gap: float, phase: float = 0.0,
         lo_i = np.clip(seg_of_start, 0, len(seg) - 1)
         hi_i = np.clip(seg_of_end, 0, len(seg) - 1)
         starts = starts[cum[hi_i + 1] - cum[lo_i] > 0]
-    out = []
-    for a in starts:
-        a0, a1 = max(a, 0.0), min(a + dash, s[-1])
-        if a1 - a0 < 1e-3:
-            continue
-        i0, i1 = np.searchsorted(s, a0, side="right"), np.searchsorted(s, a1, side="left")
-        pa = np.array([np.interp(a0, s, xy[:, 0]), np.interp(a0, s, xy[:, 1])])
-        pb = np.array([np.interp(a1, s, xy[:, 0]), np.interp(a1, s, xy[:, 1])])
-        out.append(np.vstack([pa, xy[i0:i1], pb]))
-    return out
+    # every dash's ends and inner vertices at once; each dash: its start, the polyline's
+    # vertices strictly inside it, its end
+    a0, a1 = np.maximum(starts, 0.0), np.minimum(starts + dash, s[-1])
+    ok = ~(a1 - a0 < 1e-3)
+    a0, a1 = a0[ok], a1[ok]
+    i0, i1 = np.searchsorted(s, a0, side="right"), np.searchsorted(s, a1, side="left")
+    pa = np.column_stack([np.interp(a0, s, xy[:, 0]), np.interp(a0, s, xy[:, 1])])
+    pb = np.column_stack([np.interp(a1, s, xy[:, 0]), np.interp(a1, s, xy[:, 1])])
+    return [np.vstack([pa[k:k + 1], xy[i0[k]:i1[k]], pb[k:k + 1]]) for k in range(len(a0))]
 
 
 def triangulate(geom: BaseGeometry) -> tuple[np.ndarray, np.ndarray]:
@@ -377,10 +448,11 @@ def triangulate(geom: BaseGeometry) -> tuple[np.ndarray, np.ndarray]:
     if not polys:
         return empty
     tris = shapely.constrained_delaunay_triangles(np.array(polys, dtype=object))
-    parts = [t for t in shapely.get_parts(tris) if not t.is_empty]
-    if not parts:
+    parts = shapely.get_parts(tris)
+    parts = parts[~shapely.is_empty(parts)]
+    if not len(parts):
         return empty
-    c = shapely.get_coordinates(np.array(parts, dtype=object))
+    c = shapely.get_coordinates(parts)
     m = len(parts)
     tri = c.reshape(m, 4, 2)[:, :3].reshape(-1, 2)
     uniq, inv = np.unique(tri, axis=0, return_inverse=True)

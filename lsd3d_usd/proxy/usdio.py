@@ -51,6 +51,8 @@ ID_ATTR = "lsd3d:proxy:id"
 PART_IDS_ATTR = "lsd3d:proxy:partIds"
 PART_INDEX_PRIMVAR = "lsd3d:partIndex"
 SOLID_ATTR = "lsd3d:proxy:solid"
+LABELS_API = "SemanticsLabelsAPI"     # UsdSemantics.LabelsAPI, multiple-apply
+LABELS_INSTANCE = "class"
 
 
 def chunk_file_name(i: int, j: int) -> str:
@@ -69,38 +71,54 @@ def _class_color(cls: str) -> np.ndarray:
     return np.asarray(CLASS_COLORS[k] if k is not None else (0.5, 0.5, 0.5), dtype=np.float32)
 
 
-def _author_mesh(stage, path: str, cm: ClassMesh, solid: bool):
-    mesh = UsdGeom.Mesh.Define(stage, path)
+def _attr(spec, name: str, type_name, value, uniform: bool = False, custom: bool = False,
+          interpolation: str | None = None):
+    a = Sdf.AttributeSpec(spec, name, type_name,
+                          Sdf.VariabilityUniform if uniform else Sdf.VariabilityVarying, custom)
+    a.default = value
+    if interpolation is not None:
+        a.SetInfo(UsdGeom.Tokens.interpolation, interpolation)
+    return a
+
+
+def _author_mesh(parent, name: str, cm: ClassMesh, solid: bool):
+    """One class mesh as a Mesh prim spec under ``parent``. Authored with Sdf, not through
+    a stage (a chunk's meshes are plain opinions in one new layer; the stage API's
+    notifications cost more than the data): the same specs UsdGeom.Mesh, LabelsAPI.Apply
+    and PrimvarsAPI author (the test compares the two)."""
+    spec = Sdf.PrimSpec(parent, name, Sdf.SpecifierDef, "Mesh")
+    spec.SetInfo(Usd.Tokens.apiSchemas, Sdf.TokenListOp.Create(
+        prependedItems=[f"{LABELS_API}:{LABELS_INSTANCE}"]))
+    T = Sdf.ValueTypeNames
     pts = np.ascontiguousarray(cm.vertices, dtype=np.float32)
-    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(cm.faces), 3, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(
-        np.ascontiguousarray(cm.faces.reshape(-1), dtype=np.int32)))
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateDoubleSidedAttr(False)
     lo, hi = pts.min(0), pts.max(0)
-    mesh.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
-    prim = mesh.GetPrim()
-    labels = UsdSemantics.LabelsAPI.Apply(prim, "class")
-    labels.CreateLabelsAttr(Vt.TokenArray([cm.cls]))
-    prim.CreateAttribute(ID_ATTR, Sdf.ValueTypeNames.String,
-                         variability=Sdf.VariabilityUniform).Set(cm.name)
-    prim.CreateAttribute(PART_IDS_ATTR, Sdf.ValueTypeNames.StringArray,
-                         variability=Sdf.VariabilityUniform).Set(Vt.StringArray(list(cm.part_ids)))
-    prim.CreateAttribute(SOLID_ATTR, Sdf.ValueTypeNames.Bool,
-                         variability=Sdf.VariabilityUniform).Set(bool(solid))
-    pv = UsdGeom.PrimvarsAPI(prim)
-    pv.CreatePrimvar(PART_INDEX_PRIMVAR, Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.uniform).Set(
-        Vt.IntArray.FromNumpy(np.ascontiguousarray(cm.face_part, dtype=np.int32)))
+    _attr(spec, UsdGeom.Tokens.doubleSided, T.Bool, False, uniform=True)
+    _attr(spec, UsdGeom.Tokens.extent, T.Float3Array,
+          Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
+    _attr(spec, UsdGeom.Tokens.faceVertexCounts, T.IntArray,
+          Vt.IntArray.FromNumpy(np.full(len(cm.faces), 3, np.int32)))
+    _attr(spec, UsdGeom.Tokens.faceVertexIndices, T.IntArray,
+          Vt.IntArray.FromNumpy(np.ascontiguousarray(cm.faces.reshape(-1), dtype=np.int32)))
+    _attr(spec, ID_ATTR, T.String, cm.name, uniform=True, custom=True)
+    _attr(spec, PART_IDS_ATTR, T.StringArray, Vt.StringArray(list(cm.part_ids)), uniform=True,
+          custom=True)
+    _attr(spec, SOLID_ATTR, T.Bool, bool(solid), uniform=True, custom=True)
+    _attr(spec, UsdGeom.Tokens.points, T.Point3fArray, Vt.Vec3fArray.FromNumpy(pts))
     base = _class_color(cm.cls)
     if any(c is not None for c in cm.part_colors):
         cols = np.array([base if c is None else c for c in cm.part_colors], dtype=np.float32)
-        mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(
-            Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(cols[cm.face_part])))
+        _attr(spec, "primvars:displayColor", T.Color3fArray,
+              Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(cols[cm.face_part])),
+              interpolation=UsdGeom.Tokens.uniform)
     else:
-        mesh.CreateDisplayColorPrimvar(UsdGeom.Tokens.constant).Set(
-            Vt.Vec3fArray.FromNumpy(base[None, :]))
-    return mesh
+        _attr(spec, "primvars:displayColor", T.Color3fArray, Vt.Vec3fArray.FromNumpy(base[None, :]),
+              interpolation=UsdGeom.Tokens.constant)
+    _attr(spec, f"primvars:{PART_INDEX_PRIMVAR}", T.IntArray,
+          Vt.IntArray.FromNumpy(np.ascontiguousarray(cm.face_part, dtype=np.int32)),
+          interpolation=UsdGeom.Tokens.uniform)
+    _attr(spec, f"semantics:labels:{LABELS_INSTANCE}", T.TokenArray, Vt.TokenArray([cm.cls]))
+    _attr(spec, UsdGeom.Tokens.subdivisionScheme, T.Token, UsdGeom.Tokens.none, uniform=True)
+    return spec
 
 
 def write_chunk_layer(parts: list[MeshPart], key: tuple[int, int], path: str | Path,
@@ -108,25 +126,27 @@ def write_chunk_layer(parts: list[MeshPart], key: tuple[int, int], path: str | P
     """Write one chunk's meshes (merged per class) to its own layer, atomically."""
 
     name = chunk_prim_name(*key)
-    stage = Usd.Stage.CreateInMemory()
-    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.z)
-    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-    root = UsdGeom.Xform.Define(stage, f"/{name}")
-    stage.SetDefaultPrim(root.GetPrim())
+    layer = Sdf.Layer.CreateAnonymous(".usdc")
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.upAxis, UsdGeom.Tokens.z)
+    layer.pseudoRoot.SetInfo(UsdGeom.Tokens.metersPerUnit, 1.0)
     solid_by_cls: dict[str, bool] = {}
     for p in parts:
         solid_by_cls[p.cls] = solid_by_cls.get(p.cls, True) and p.solid
     merged = merge_parts(parts, prefix=f"{name}/")
-    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for cls, cm in merged.items():
-        _author_mesh(stage, f"/{name}/{cls}", cm, solid_by_cls[cls])
-        lo, hi = np.minimum(lo, cm.vertices.min(0)), np.maximum(hi, cm.vertices.max(0))
-    if np.isfinite(lo).all():
-        UsdGeom.ModelAPI(root.GetPrim()).SetExtentsHint([tuple(lo), tuple(hi)])
+    with Sdf.ChangeBlock():        # plain Sdf edits: one notice for the whole chunk
+        root = Sdf.PrimSpec(layer, name, Sdf.SpecifierDef, "Xform")
+        layer.defaultPrim = name
+        lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+        for cls, cm in merged.items():
+            _author_mesh(root, cls, cm, solid_by_cls[cls])
+            lo, hi = np.minimum(lo, cm.vertices.min(0)), np.maximum(hi, cm.vertices.max(0))
+        if np.isfinite(lo).all():
+            _attr(root, UsdGeom.Tokens.extentsHint, Sdf.ValueTypeNames.Float3Array,
+                  Vt.Vec3fArray([tuple(lo), tuple(hi)]))
     prov = provenance("proxy-chunk", params or {}, chunk=[int(key[0]), int(key[1])],
                       inputsHash=inputs_hash,
                       triangles={c: int(cm.n_faces) for c, cm in merged.items()})
-    return save_layer(stage.GetRootLayer(), path, prov)
+    return save_layer(layer, path, prov)
 
 
 def _root_layer(keys: list[tuple[int, int]], folder_name: str):
@@ -209,10 +229,10 @@ class BuildReport:
     triangles: dict[str, int] = field(default_factory=dict)
 
 
-def layout_hash(layout) -> str:
+def layout_hash(layout, feature_bytes=_feature_bytes) -> str:
     h = hashlib.sha256()
     for f in sorted(layout.features(), key=lambda f: (type(f).__name__, f.id)):
-        h.update(_feature_bytes(f))
+        h.update(feature_bytes(f))
     h.update(repr((layout.extent, layout.chunk_size)).encode())
     return h.hexdigest()
 
@@ -277,7 +297,7 @@ def build_proxy_layer(layout, path: str | Path, chunks=None, params=None, force:
             if f.name not in keep:
                 safepaths.unlink(f, folder, "proxy chunk file")
     new_names = {chunk_prim_name(*k): h for k, h in new_map.items()}
-    lhash = layout_hash(layout)
+    lhash = layout_hash(layout, builder.feature_bytes)
     if force or new_names != old_map or not path.is_file() or _root_layout_hash(path) != lhash:
         write_root_layer(path, new_map, pdict, lhash)
         report.root_written = True
