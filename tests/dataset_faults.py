@@ -1,6 +1,6 @@
 """Fault injection for the dataset tests, kept out of the product: run `lsd3d-usd dataset`
-in this process and SIGKILL it (no cleanup, as kill -9) when the nuScenes writer is handed
-the first sample after its Nth keyframe.
+in this process and SIGKILL it (no cleanup, as kill -9) when the writer (any built-in format)
+is handed the first sample after its Nth keyframe.
 
     python tests/dataset_faults.py N dataset SCENE -o DIR ...
 """
@@ -10,17 +10,18 @@ import sys
 
 
 def main(n: int, argv: list) -> int:
-    from lsd3d_usd.datasets import nuscenes
-    write = nuscenes.NuScenesWriter.write
+    from lsd3d_usd.datasets.writers import WRITERS
     seen = [0]
+    for name in ("nuscenes", "kitti", "mcap"):
+        cls = WRITERS.get(name)
 
-    def dying_write(self, s):
-        if seen[0] >= n:
-            os.kill(os.getpid(), signal.SIGKILL)
-        write(self, s)
-        seen[0] += int(s.keyframe)
+        def dying_write(self, s, write=cls.write):
+            if seen[0] >= n:
+                os.kill(os.getpid(), signal.SIGKILL)
+            write(self, s)
+            seen[0] += int(s.keyframe)
 
-    nuscenes.NuScenesWriter.write = dying_write
+        cls.write = dying_write
     from lsd3d_usd.cli import main as cli
     return cli(argv)
 

@@ -112,13 +112,48 @@ def test_boxes_reproject_onto_their_2d_boxes_and_hold_lidar_points(kitti):
     assert checked >= 2 and with_points >= 1
 
 
+def _files(root: Path) -> dict:
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and ".lsd3d" not in p.parts}
+
+
 def test_same_command_gives_the_same_files(kitti):
     from lsd3d_usd.cli import main
     again = kitti.parent / "again"
     assert main(["dataset", str(kitti.parent / "scene"), "-o", str(again), *ARGS]) == 0
-
-    def files(root):
-        return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*"))
-                if p.is_file() and ".lsd3d" not in p.parts}
-    a, b = files(kitti), files(again)
+    a, b = _files(kitti), _files(again)
     assert len(a) == 13 and a.keys() == b.keys() and [k for k in a if a[k] != b[k]] == []
+
+
+def test_resume_after_kill_continues_and_gives_the_same_files(kitti, tmp_path, monkeypatch):
+    """kill -9 after two of the three keyframes: the journal holds one frame id per
+    checkpoint, --resume renders only the third again and ends as the uninterrupted run."""
+    import json
+    import signal
+    import subprocess
+    import sys
+
+    from lsd3d_usd.cli import main
+    from lsd3d_usd.datasets import drive
+    out = kitti.parent / "killed"
+    r = subprocess.run([sys.executable, str(Path(__file__).parent / "dataset_faults.py"), "2",
+                        "dataset", str(kitti.parent / "scene"), "-o", str(out), *ARGS],
+                       check=False, capture_output=True, text=True, timeout=600)
+    assert r.returncode == -signal.SIGKILL, r.stderr
+    logs = out / ".lsd3d" / "logs"
+    journal = (logs / "0000.journal.jsonl").read_text().splitlines()
+    assert [json.loads(ln) for ln in journal] == [{"ids": ["000000"]}, {"ids": ["000001"]}]
+    renders = [0]
+    render = drive.render_scene
+
+    def counting(*a, **k):
+        renders[0] += 1
+        return render(*a, **k)
+
+    monkeypatch.setattr(drive, "render_scene", counting)
+    assert main(["dataset", str(kitti.parent / "scene"), "-o", str(out), *ARGS,
+                 "--resume"]) == 0
+    assert renders[0] == 6                   # the third keyframe's six cameras
+    a, b = _files(kitti), _files(out)
+    assert len(a) == 13 and a.keys() == b.keys() and [k for k in a if a[k] != b[k]] == []
+    assert not (logs / "0000.journal.jsonl").exists()

@@ -266,12 +266,16 @@ def test_bad_input_is_one_error_line_and_writes_nothing(data, cli_error, tmp_pat
               "other settings", "seed")
 
 
-def test_resume_after_kill_continues_and_gives_the_same_dataset(data, tmp_path):
+def test_resume_after_kill_continues_and_gives_the_same_dataset(data, tmp_path, monkeypatch):
     """kill -9 after two of the three keyframes; --resume continues after the second (the
-    ticks before it are not rendered again) and the dataset is the uninterrupted one."""
+    ticks before it are not rendered again) and the dataset is the uninterrupted one. Each
+    checkpoint journals only its keyframe's rows; a torn journal line after the last
+    checkpoint is cut off."""
     import signal
     import subprocess
     import sys
+
+    from lsd3d_usd.datasets import drive
     out = data / "killed"
     here = Path(__file__).parent
     r = subprocess.run([sys.executable, str(here / "dataset_faults.py"), "2", "dataset",
@@ -279,14 +283,32 @@ def test_resume_after_kill_continues_and_gives_the_same_dataset(data, tmp_path):
                        check=False, capture_output=True, text=True, timeout=600)
     assert r.returncode == -signal.SIGKILL, r.stderr
     assert not (out / VERSION / "sample.json").exists()
-    part = json.loads((out / STATE / "logs" / "0000.partial.json").read_text())
+    logs = out / STATE / "logs"
+    part = json.loads((logs / "0000.partial.json").read_text())
     assert part["next_tick"] == 3            # ticks at 4 Hz, keyframes at ticks 0, 2, 4
+    journal = (logs / "0000.journal.jsonl").read_bytes()
+    assert len(journal) == part["journal_bytes"]
+    deltas = [json.loads(ln) for ln in journal.splitlines()]
+    assert [len(d["sample"]) for d in deltas] == [1, 1]        # a keyframe's rows, not all
+    assert len(deltas[1]["calibrated_sensor"]) == 0 < len(deltas[0]["calibrated_sensor"])
+    with open(logs / "0000.journal.jsonl", "ab") as f:
+        f.write(b'{"sample": [{"tok')                          # a line torn by a kill
+    renders = [0]
+    render = drive.render_scene
+
+    def counting(*a, **k):
+        renders[0] += 1
+        return render(*a, **k)
+
+    monkeypatch.setattr(drive, "render_scene", counting)
     make(data / "scene", out, "--resume", "--json", str(tmp_path / "summary.json"))
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["resumed_at_tick"] == {"0": 3}
+    assert renders[0] == 3 * 6               # ticks 3, 4, 5 of the six cameras
     a, b = _files(data / "ds"), _files(out)
     assert a.keys() == b.keys() and [k for k in a if a[k] != b[k]] == []
-    assert not (out / STATE / "logs" / "0000.partial.json").exists()
+    assert not (logs / "0000.partial.json").exists()
+    assert not (logs / "0000.journal.jsonl").exists()
 
 
 def test_routes_make_logs_of_one_dataset(data, tmp_path):

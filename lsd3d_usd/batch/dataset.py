@@ -136,7 +136,8 @@ def run_log_task(p: dict, log) -> dict:
     stamp = logs / f"{lp.index:04d}.inputs"
     if not stamp.is_file() or stamp.read_text() != p["hash"]:
         # other inputs than the log's files were made from: render it from its start
-        for f in (logs / f"{lp.index:04d}.json", logs / f"{lp.index:04d}.partial.json"):
+        for f in (logs / f"{lp.index:04d}.json", logs / f"{lp.index:04d}.partial.json",
+                  logs / f"{lp.index:04d}.journal.jsonl"):
             f.unlink(missing_ok=True)
         stamp.write_text(p["hash"])
     got = run_log(root, opt, lp, writer_cls(root, opt), lidar, timeline, log=log)

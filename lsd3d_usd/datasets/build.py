@@ -6,13 +6,17 @@ The output folder holds, besides the format's files, ROOT/.lsd3d/: dataset.json 
 and the plan: what --resume checks), logs/<k>.json (a finished log's record: its table rows)
 and work/<k>/ (the log's rig.usda). A killed run continues with --resume: finished logs are
 kept, the ticks of an unfinished log after its last checkpoint are rendered again (their
-files are rewritten, byte for byte the same), and the tables are merged as an uninterrupted run merges them. A writer
-that can checkpoint (nuScenes, KITTI) continues an unfinished log after its last keyframe
-(logs/<k>.partial.json, written after every keyframe); one that cannot (MCAP) starts it again.
+files are rewritten, byte for byte the same), and the tables are merged as an uninterrupted
+run merges them. A writer that can checkpoint (nuScenes, KITTI, MCAP) continues an unfinished
+log after its last keyframe: after every keyframe the writer's delta (what the log gained since
+the previous checkpoint) is appended to logs/<k>.journal.jsonl, then logs/<k>.partial.json
+(next tick, the journal's valid length) is replaced, so a checkpoint costs what it adds, not
+what the log holds; a writer without checkpoints starts the log again.
 """
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import time
 from dataclasses import asdict, dataclass, field
@@ -241,6 +245,52 @@ def start_dataset(root: Path, opt: DatasetOptions, plans) -> None:
     S.atomic_write_text(state / "dataset.json", json.dumps(sig, indent=1))
 
 
+class Checkpoints:
+    """A log's checkpoints: an append-only journal of the writer's deltas
+    (logs/<k>.journal.jsonl, one JSON line per keyframe) and logs/<k>.partial.json, replaced
+    after each append, naming the next tick and how many journal bytes are valid. A kill
+    between the two leaves a tail past that length, which ``load`` cuts off."""
+
+    def __init__(self, logs: Path, index: int):
+        self.part = logs / f"{index:04d}.partial.json"
+        self.journal = logs / f"{index:04d}.journal.jsonl"
+        self.size = 0
+        self.bytes_written = 0          # by ``save`` (what the checkpoint benchmark reports)
+
+    def load(self):
+        """(next tick, the writer's deltas in order) of the last checkpoint, or None."""
+        if not self.part.is_file():
+            return None
+        part = json.loads(self.part.read_text())
+        if "journal_bytes" not in part:     # a checkpoint of another layout: start again
+            return None
+        self.size = int(part["journal_bytes"])
+        data = self.journal.read_bytes() if self.journal.is_file() else b""
+        if len(data) < self.size:
+            raise InputError(f"{self.journal}: shorter than its checkpoint "
+                             f"({len(data)} < {self.size} bytes); give --overwrite")
+        if len(data) > self.size:
+            os.truncate(self.journal, self.size)
+            data = data[:self.size]
+        return part["next_tick"], [json.loads(ln) for ln in data.splitlines()]
+
+    def save(self, next_tick: int, delta: dict) -> None:
+        line = (json.dumps(delta) + "\n").encode()
+        with open(self.journal, "ab") as f:
+            f.write(line)
+            f.flush()
+            os.fsync(f.fileno())
+        self.size += len(line)
+        part = json.dumps({"next_tick": next_tick, "journal_bytes": self.size})
+        S.atomic_write_text(self.part, part)
+        self.bytes_written += len(line) + len(part)
+
+    def clear(self) -> None:
+        self.part.unlink(missing_ok=True)       # first: without it the journal is not read
+        self.journal.unlink(missing_ok=True)
+        self.size = 0
+
+
 def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timeline, *,
             progress: bool = False, log=print, deferrer=None, timing=None) -> dict:
     """Render one log into ``writer`` and keep its record (ROOT/.lsd3d/logs/<k>.json); with
@@ -252,20 +302,21 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
     from lsd3d_usd.views.rigs import RIGS
     state = root / STATE
     rec_file = state / "logs" / f"{plan.index:04d}.json"
-    part_file = state / "logs" / f"{plan.index:04d}.partial.json"
     if opt.resume and rec_file.is_file():
         return {"record": json.loads(rec_file.read_text()), "resumed_at": None, "skipped": True}
     resumable = hasattr(writer, "checkpoint") and hasattr(writer, "restore")
-    part = (json.loads(part_file.read_text())
-            if opt.resume and resumable and part_file.is_file() else None)
-    start = part["next_tick"] if part else 0
+    cps = Checkpoints(state / "logs", plan.index)
+    part = cps.load() if opt.resume and resumable else None
+    if part is None:
+        cps.clear()                             # a stale journal of a run not resumed
+    start = part[0] if part else 0
     width = opt.width or RIGS[opt.rig][0].size[0]
     info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
                           lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
                           exposure=opt.exposure, tonemap=opt.tonemap, deferrer=deferrer,
                           start_tick=start, log=log)
     if part:
-        writer.restore(info, part["writer"])
+        writer.restore(info, part[1])
     else:
         writer.begin_log(info)
     timing = timing if timing is not None else {}
@@ -280,15 +331,14 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
             timing[k] = timing.get(k, 0.0) + v
         writer.write(s)
         if resumable and s.keyframe:
-            S.atomic_write_text(part_file, json.dumps(
-                {"next_tick": s.tick.index + 1, "writer": writer.checkpoint()}))
+            cps.save(s.tick.index + 1, writer.checkpoint())
         t_render = time.perf_counter()
         timing["write_s"] = timing.get("write_s", 0.0) + t_render - t0
         bar.update(int(bool(s.cameras)) + int(s.lidar is not None))
     bar.close()
     rec = writer.end_log()
     S.atomic_write_text(rec_file, json.dumps(rec))
-    part_file.unlink(missing_ok=True)
+    cps.clear()
     return {"record": rec, "resumed_at": start if part else None, "skipped": False}
 
 

@@ -81,6 +81,7 @@ class KittiWriter:
         self.cam = info.cameras[0].name
         self.per_log = info.timeline.counts()["keyframes"]
         self.ids = []
+        self.sent = 0                # ids already in a checkpoint
         self.ego_from_cam = info.ego_from_camera[self.cam]
         self.velo_to_cam = np.linalg.inv(self.ego_from_cam) @ info.ego_from_lidar
 
@@ -107,11 +108,14 @@ class KittiWriter:
         self.ids.append(fid)
 
     def checkpoint(self) -> dict:
-        return {"ids": self.ids}
+        """The frame ids written since the previous checkpoint."""
+        delta, self.sent = self.ids[self.sent:], len(self.ids)
+        return {"ids": delta}
 
-    def restore(self, info, state: dict) -> None:
+    def restore(self, info, deltas: list) -> None:
         self.begin_log(info)
-        self.ids = list(state["ids"])
+        self.ids = [i for d in deltas for i in d["ids"]]
+        self.sent = len(self.ids)
 
     def end_log(self) -> dict:
         return {"ids": self.ids}

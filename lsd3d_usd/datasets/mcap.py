@@ -13,7 +13,15 @@ drive opens in Foxglove like a ROS 2 recording:
                                                     3D box), metadata class, kind, prim, speed
 
 Times are the log's microsecond timestamps (datasets.tokens) in nanoseconds. The file is
-written to a temporary name and renamed when the log is done.
+written as ROOT/.<log>.mcap.partial and renamed when the log is done.
+
+Resuming: a checkpoint (after every keyframe) ends the chunk in progress and flushes the file
+to disk, so the recording up to the keyframe is whole chunks in the file, and notes how many
+messages that is. ``restore`` reads the unfinished file's chunks back with the `mcap` stream
+reader and replays their records (schemas, channels, messages, in order; the chunk ends where
+they ended) into a new file, which then goes on from the checkpoint: the same writer calls as
+an uninterrupted run, so the same bytes. What followed the checkpoint (rendered again) and the
+file's torn tail are dropped.
 """
 from __future__ import annotations
 
@@ -52,24 +60,82 @@ class McapWriter:
         self.root = Path(root)
 
     def begin_log(self, info) -> None:
-        from mcap.writer import Writer
-        fm = _fm()
-        self.fm, self.info = fm, info
-        self.name_ = f"lsd3d-{info.plan.index:04d}-{info.plan.scene_name}"
-        self.root.mkdir(parents=True, exist_ok=True)
-        for stale in self.root.glob(f".{self.name_}.mcap.tmp*"):   # of a killed run
+        self._start(info)
+        for stale in self.root.glob(f".{self.name_}.mcap.*"):   # of a killed run
             stale.unlink()
-        self.tmp = self.root / f".{self.name_}.mcap.tmp{os.getpid()}"
-        self.f = open(self.tmp, "wb")  # noqa: SIM115 -- open for the log, closed in end_log
-        self.w = Writer(self.f)
-        self.w.start(profile="", library="lsd3d-usd")
-        self.schemas, self.channels = {}, {}
-        self.counts = {}
+        self._open(self.tmp)
         t0 = self._ns(0.0)
         for c in info.cameras:
             self._log("/tf_static", self._tf("ego", c.name, info.ego_from_camera[c.name], t0), t0)
         if info.lidar is not None:
             self._log("/tf_static", self._tf("ego", "LIDAR_TOP", info.ego_from_lidar, t0), t0)
+
+    def _start(self, info) -> None:
+        self.fm, self.info = _fm(), info
+        self.name_ = f"lsd3d-{info.plan.index:04d}-{info.plan.scene_name}"
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.tmp = self.root / f".{self.name_}.mcap.partial"
+
+    def _open(self, path: Path) -> None:
+        from mcap.writer import Writer
+        self.f = open(path, "wb")  # noqa: SIM115 -- open for the log, closed in end_log
+        self.w = Writer(self.f)
+        self.w.start(profile="", library="lsd3d-usd")
+        self.schemas, self.channels, self.counts = {}, {}, {}
+        self.n_messages = 0
+
+    # ---------------------------------------------------------------- resuming
+    def checkpoint(self) -> dict:
+        """End the chunk, flush the file to disk; the messages so far."""
+        self.w.flush()
+        os.fsync(self.f.fileno())
+        return {"messages": self.n_messages}
+
+    def restore(self, info, deltas: list) -> None:
+        from mcap.exceptions import McapError
+        from mcap.records import Channel, Chunk, Message, Schema
+        from mcap.stream_reader import StreamReader, breakup_chunk
+
+        from lsd3d_usd.errors import InputError
+        self._start(info)
+        want = int(deltas[-1]["messages"])
+        final = self.root / f"{self.name_}.mcap"
+        src = self.tmp if self.tmp.is_file() else final     # killed after the rename
+        new = self.root / f".{self.name_}.mcap.partial.new"
+        self._open(new)
+        topic_of = {}
+        try:
+            with open(src, "rb") as f:
+                for rec in StreamReader(f, emit_chunks=True, validate_crcs=True).records:
+                    if not isinstance(rec, Chunk):
+                        continue
+                    for r in breakup_chunk(rec, validate_crc=True):
+                        if isinstance(r, Schema):
+                            self.schemas[r.name] = self.w.register_schema(r.name, r.encoding,
+                                                                          r.data)
+                        elif isinstance(r, Channel):
+                            self.channels[r.topic] = self.w.register_channel(
+                                r.topic, r.message_encoding, r.schema_id, dict(r.metadata))
+                            topic_of[r.id] = r.topic
+                        elif isinstance(r, Message):
+                            self.w.add_message(r.channel_id, log_time=r.log_time, data=r.data,
+                                               publish_time=r.publish_time, sequence=r.sequence)
+                            t = topic_of[r.channel_id]
+                            self.counts[t] = self.counts.get(t, 0) + 1
+                            self.n_messages += 1
+                    self.w.flush()          # the chunk ends where it ended
+                    if self.n_messages >= want:
+                        break               # before the next record: it may be torn
+        except (OSError, McapError) as e:
+            self.f.close()
+            raise InputError(f"{src}: cannot read the unfinished recording back ({e}); "
+                             "give --overwrite") from None
+        if self.n_messages != want:
+            self.f.close()
+            raise InputError(f"{src}: holds {self.n_messages} messages up to its checkpoint, "
+                             f"not {want}; give --overwrite")
+        os.fsync(self.f.fileno())
+        os.replace(new, self.tmp)
 
     def _ns(self, seconds: float) -> int:
         return timestamp_us(self.info.plan.index, seconds) * 1000
@@ -89,6 +155,7 @@ class McapWriter:
         self.w.add_message(ch, log_time=ns, data=msg.encode(), publish_time=ns,
                            sequence=self.counts.get(topic, 0))
         self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.n_messages += 1
 
     def _tf(self, parent, child, M, ns):
         fm = self.fm

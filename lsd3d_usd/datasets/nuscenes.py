@@ -53,6 +53,7 @@ class NuScenesWriter:
         self.last_ann = {}           # prim -> its last annotation row
         self.last_sd = {}            # channel -> its last sample_data row
         self.last_sample = None
+        self._sent = {}              # table -> rows already in a checkpoint
         self.n_keyframes = info.timeline.counts()["keyframes"]
         self.kf_hz = float(info.timeline.keyframe_hz)
         # the map and the global frame
@@ -214,14 +215,43 @@ class NuScenesWriter:
                 "prev": "", "next": ""})
 
     # ---------------------------------------------------------------- resuming
-    def checkpoint(self) -> dict:
-        """The log's state after a keyframe (JSON-able): what ``restore`` continues from."""
-        return {"rows": self.rows, "instances": self.instances}
+    # A checkpoint is the rows added since the previous one (and the instances first seen):
+    # append-only, so its cost is what the keyframe added. The fields a later row changes
+    # (a row's ``next``, an instance's count and first / last annotation) are not journaled
+    # but derived again in ``restore``. The calibrated_sensor rows go in the first delta,
+    # complete: every sensor fires at keyframe 0 (tick 0), setting the cameras' intrinsics.
+    LINKED = ("sample", "sample_data", "sample_annotation")
 
-    def restore(self, info, state: dict) -> None:
+    def checkpoint(self) -> dict:
+        """The log's rows since the previous checkpoint (JSON-able; ``restore`` takes them)."""
+        sent = self._sent
+        delta = {t: rows[sent.get(t, 0):] for t, rows in self.rows.items()}
+        inst = list(self.instances.values())
+        delta["instance"] = inst[sent.get("instance", 0):]
+        self._sent = {**{t: len(rows) for t, rows in self.rows.items()}, "instance": len(inst)}
+        return delta
+
+    def restore(self, info, deltas: list) -> None:
         self.begin_log(info)
-        self.rows = state["rows"]
-        self.instances = state["instances"]
+        self.rows = {t: [r for d in deltas for r in d[t]] for t in self.rows}
+        for t in self.LINKED:
+            by_tok = {r["token"]: r for r in self.rows[t]}
+            for r in self.rows[t]:
+                r["next"] = ""
+                if r["prev"]:
+                    by_tok[r["prev"]]["next"] = r["token"]
+        insts = [i for d in deltas for i in d["instance"]]
+        by_inst = {}
+        for i in insts:
+            i.update(nbr_annotations=0, first_annotation_token="", last_annotation_token="")
+            by_inst[i["token"]] = i
+        for a in self.rows["sample_annotation"]:
+            i = by_inst[a["instance_token"]]
+            i["nbr_annotations"] += 1
+            i["first_annotation_token"] = i["first_annotation_token"] or a["token"]
+            i["last_annotation_token"] = a["token"]
+        self.instances = {i["prim"]: i for i in insts}
+        self._sent = {**{t: len(rows) for t, rows in self.rows.items()}, "instance": len(insts)}
         cs = {r["token"]: r for r in self.rows["calibrated_sensor"]}
         self.calib = {c: cs[r["token"]] for c, r in self.calib.items()}
         self.last_sample = self.rows["sample"][-1] if self.rows["sample"] else None

@@ -9,9 +9,11 @@ options: datasets.build.DatasetOptions) with
                           under root/.lsd3d/logs/ so a resumed or batched run can merge it
     finish(records)       every log's record, in log order: write the tables / indexes
 
-and, optionally, ``checkpoint() -> dict`` (the log's state after a keyframe, JSON-able) and
-``restore(info, state)`` (continue a log from it): with them a resumed run continues a
-killed log after its last keyframe; without them (MCAP, a stream) the log starts again.
+and, optionally, ``checkpoint() -> dict`` (called after every keyframe: what the log gained
+since the previous checkpoint, JSON-able; its files must be on disk when it returns) and
+``restore(info, deltas)`` (continue a log from its checkpoints' deltas, in order): with them
+a resumed run continues a killed log after its last keyframe (datasets.build.Checkpoints
+journals the deltas, so a checkpoint costs what it adds); without them the log starts again.
 
 Writers only reformat what they are given: they own no rendering, and they keep nothing per
 sample but small rows, so memory stays bounded for any route length. A third-party package
