@@ -9,11 +9,25 @@ from pathlib import Path
 from typing import ClassVar
 
 from lsd3d_usd.configtree import option
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.semantics import CLASSES
 from lsd3d_usd.ggds.losses.terms import LOSSES
 from lsd3d_usd.render.backends import check_backend_name
 
 OMEGA_KINDS = ("uniform", "sds", "signal")   # ggds/losses/image.py: omega(t)
 MAX_RESOLUTION = 8192                        # GGDS render side limit (pixels)
+
+
+GROUND_CLASSES = "road,lane_marking,crosswalk,sidewalk,curb"
+
+
+def check_ground_classes(value: str, where: str) -> str:
+    """A comma-separated list of semantic class names (lsd3d_usd.semantics), or empty."""
+    names = [n.strip() for n in str(value).split(",") if n.strip()]
+    bad = [n for n in names if n not in CLASSES]
+    if bad:
+        raise InputError(f"{where}: unknown class {bad[0]!r} (known: {', '.join(CLASSES)})")
+    return ",".join(names)
 
 
 def _loss_weights() -> dict:
@@ -174,6 +188,13 @@ class GGDSConfig:
                                                       "normal pulls towards the median of the "
                                                       "well-seen surfels of the same class and "
                                                       "facing, not towards zero")
+    ground_classes: str = option(GROUND_CLASSES,
+                                 help="surfels of these classes (comma-separated; empty = "
+                                      "none) stay on the plane of the proxy face they were "
+                                      "seeded on and face its normal: the map's flat ground "
+                                      "is exact geometry, so depth, LiDAR ranges and normals "
+                                      "on it stay the proxy's (ggds/optim/grounding.py)",
+                                 check=check_ground_classes)
     backend: str = option("numba", help="renderer backend of the run (render/backends.py: "
                                         "numba, torch, or a registered one)",
                           check=lambda v, where: check_backend_name(v, where), recorded="numba")

@@ -10,6 +10,7 @@ from lsd3d_usd.configtree import to_dict
 from lsd3d_usd.ggds.optim import params as P
 from lsd3d_usd.ggds.optim.adam import SelectiveAdam, lr_at
 from lsd3d_usd.ggds.optim.antialias import filter_sigma, smooth
+from lsd3d_usd.ggds.optim.grounding import Grounding
 from lsd3d_usd.ggds.optim.strategy import MCMCStrategy
 from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.splats.field import SurfelField
@@ -21,9 +22,14 @@ class RunState:
 
     def __init__(self, field: SurfelField, config: GGDSConfig, cameras, face_index=None):
         self.cfg = config
-        # what the result keeps of the initial field; the rest lives in the parameters
-        self.semantics = (field.semantic_ids, field.semantic_classes)
+        # what the result keeps of the initial field; the rest lives in the parameters (the
+        # ids are the run's own: a relocated surfel takes its source's class)
+        ids = None if field.semantic_ids is None else np.array(field.semantic_ids, copy=True)
+        self.semantics = (ids, field.semantic_classes)
         self.params = P.to_params(field)
+        # flat classes held on their seed planes (optim/grounding.py), None when none is
+        self.grounding = Grounding.of(self.params, ids, field.semantic_classes,
+                                      config.ground_classes)
         for p in self.params.values():
             p.requires_grad_(True)
         k = self.params["sh"].shape[1]
@@ -85,12 +91,25 @@ class RunState:
 
     def field(self) -> SurfelField:
         """The surfels as the renderer sees them (the 3D filter baked in)."""
-        return P.to_field(self.params, *self.semantics, activate=self.activated)
+        ids, classes = self.semantics
+        return P.to_field(self.params, None if ids is None else ids.copy(), classes,
+                          activate=self.activated)
+
+    def ground(self, rows: torch.Tensor) -> None:
+        """Put the updated ``rows`` of grounded classes back on their planes."""
+        if self.grounding is not None:
+            self.grounding.project(self.params, rows)
 
     def track_relocation(self) -> None:
-        """A relocated surfel sits on its source's disk: it inherits the source's seed face
-        and, seen by the same views, its frequency limit."""
+        """A relocated surfel sits on its source's disk: it inherits the source's class, seed
+        face and plane, and, seen by the same views, its frequency limit."""
         dead, src = self.strategy.last_relocation
+        ids = self.semantics[0]
+        if ids is not None:
+            ids[dead.numpy()] = ids[src.numpy()]
+        if self.grounding is not None:
+            self.grounding.relocated(dead, src)
+            self.grounding.project(self.params, dead)
         if self.face_index is not None:
             self.face_index[dead.numpy()] = self.face_index[src.numpy()]
         if self.filter3d is not None:
@@ -111,6 +130,11 @@ class RunState:
             tensors["face_index"] = torch.from_numpy(np.ascontiguousarray(self.face_index))
         if self.filter3d is not None:
             tensors["filter3d"] = self.filter3d.contiguous()
+        if self.semantics[0] is not None:
+            tensors["semantic_ids"] = torch.from_numpy(
+                np.ascontiguousarray(self.semantics[0], dtype=np.int32))
+        if self.grounding is not None:
+            tensors.update(self.grounding.state_tensors())
         meta = {"step": self.step_index, "rng": self.rng.bit_generator.state,
                 "history": list(self.history), "seconds": self.seconds,
                 "config": to_dict(self.cfg), "optimizer": bool(optimizer)}
@@ -139,3 +163,9 @@ class RunState:
             self.face_index = tensors["face_index"].numpy().astype(np.int64).copy()
         if self.filter3d is not None and "filter3d" in tensors:
             self.filter3d = tensors["filter3d"].clone()
+        if self.semantics[0] is not None and "semantic_ids" in tensors:
+            ids = tensors["semantic_ids"].numpy()
+            if ids.shape == self.semantics[0].shape:
+                self.semantics[0][:] = ids
+        if self.grounding is not None:
+            self.grounding.load_state_tensors(tensors)
