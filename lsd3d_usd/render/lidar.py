@@ -45,6 +45,7 @@ TILE_COLS = 8
 TILE_RINGS = 4
 TRACE_TILES = True
 SECTOR_GROUPS = 8        # column groups binned from one origin
+PAIR_SLOTS = 4           # (tile, distance) pairs a surfel's first binning pass can hold
 MAX_COLUMNS = int(LIDAR_COLUMNS.value)
 MAX_RINGS = int(LIDAR_BEAMS.value)
 MAX_RAYS = int(LIDAR_RAYS.value)
@@ -346,20 +347,26 @@ def _candidate_groups(az, w, mid, half_max, full_turn):
 
 @njit(cache=True, parallel=True)
 def _bin(c, rad, oref, dref, sec_org, sec_d, sec_groups, az_mid, az_half, el_lo, el_hi,
-         rings_sorted, mid, half, half_max, full_turn, max_range, counts_only, offsets, tile_of,
-         key):
+         rings_sorted, mid, half, half_max, full_turn, max_range, mode, cap, per, offsets,
+         tile_of, key):
     """Per surfel, the tiles it can reach and the nearest distance it can be met at from
     their rays. Candidate column groups come from the sweep's reference origin with the
     surfel's bounding sphere grown by the spread of all column origins; the tiles of each
     sector (``sec_groups`` consecutive column groups) among them are then tested from the
     sector's own origin, grown by the sector's spread (centimetres on a moving ego, where the
-    whole sweep spreads a metre). counts_only: the number per surfel in tile_of[k]; else
-    (tile, nearest distance) pairs written from offsets[k]."""
+    whole sweep spreads a metre). per[k] gets surfel k's number of (tile, nearest distance)
+    pairs; mode 0 writes no pairs, mode 1 writes them from offsets[k], mode 2 writes the first
+    ``cap`` of them from k * cap (one pass for the many surfels with few pairs)."""
     nr, nc = az_mid.shape
     N = c.shape[0]
     for k in prange(N):
         n = 0
-        p = 0 if counts_only else offsets[k]
+        p = offsets[k] if mode == 1 else k * cap
+        lim = 1 << 62
+        if mode == 2:
+            lim = cap
+        elif mode == 0:
+            lim = 0
         if rad[k] > 0.0:
             near0, _, _, az0, w0, every = _cone(c, rad, k, oref, dref)
             if near0 <= max_range:
@@ -397,34 +404,52 @@ def _bin(c, rad, oref, dref, sec_org, sec_d, sec_groups, az_mid, az_half, el_lo,
                             continue
                         if not anyaz and abs(_wrap(az - az_mid[hh, g])) > az_half[hh, g] + w:
                             continue
-                        if not counts_only:
+                        if n < lim:
                             tile_of[p] = hh * nc + g
                             key[p] = near
                             p += 1
                         n += 1
-        if counts_only:
-            tile_of[k] = n
+        per[k] = n
 
 
 @njit(cache=True)
-def _by_tile(tile_of, key, surfel_of_pair, n_tiles):
-    """Pairs grouped by tile (counting sort), each tile's by nearest distance: (offsets,
-    surfel index, key)."""
-    M = tile_of.shape[0]
+def _by_tile(per, cap, slot_tile, slot_key, over_start, over_tile, over_key, n_tiles):
+    """Pairs grouped by tile (counting sort), in surfel order within a tile: (offsets, surfel
+    index, key). Surfel k's pairs are slots k * cap ... when per[k] <= cap, else the next run
+    of the overflow pairs (over_start: their offsets, surfels with per > cap in order)."""
+    N = per.shape[0]
     counts = np.zeros(n_tiles + 1, np.int64)
-    for p in range(M):
-        counts[tile_of[p] + 1] += 1
+    j = 0
+    for k in range(N):
+        if per[k] <= cap:
+            for i in range(k * cap, k * cap + per[k]):
+                counts[slot_tile[i] + 1] += 1
+        else:
+            for i in range(over_start[j], over_start[j + 1]):
+                counts[over_tile[i] + 1] += 1
+            j += 1
     for t in range(n_tiles):
         counts[t + 1] += counts[t]
     offsets = counts.copy()
     pos = counts[:-1].copy()
+    M = offsets[n_tiles]
     idx = np.empty(M, np.int64)
     kk = np.empty(M, np.float64)
-    for p in range(M):
-        t = tile_of[p]
-        idx[pos[t]] = surfel_of_pair[p]
-        kk[pos[t]] = key[p]
-        pos[t] += 1
+    j = 0
+    for k in range(N):
+        if per[k] <= cap:
+            for i in range(k * cap, k * cap + per[k]):
+                t = slot_tile[i]
+                idx[pos[t]] = k
+                kk[pos[t]] = slot_key[i]
+                pos[t] += 1
+        else:
+            for i in range(over_start[j], over_start[j + 1]):
+                t = over_tile[i]
+                idx[pos[t]] = k
+                kk[pos[t]] = over_key[i]
+                pos[t] += 1
+            j += 1
     return offsets, idx, kk
 
 
@@ -700,15 +725,24 @@ def cast_surfels(surfels, origins, dirs, *, min_range: float, max_range: float,
     args = (c, rad, oref, dref, sec_org, sec_d, SECTOR_GROUPS, az_mid, az_half, el_lo, el_hi,
             rings_sorted, mid, half, half_max, full, float(max_range))
     t0 = time.perf_counter()
-    per = np.zeros(len(c), np.int64)
-    _bin(*args, True, per, per, np.zeros(0))
-    starts = np.zeros(len(c) + 1, np.int64)
-    np.cumsum(per, out=starts[1:])
-    tile_of = np.empty(starts[-1], np.int64)
-    key = np.empty(starts[-1], np.float64)
-    _bin(*args, False, starts, tile_of, key)
-    surfel_of_pair = np.repeat(np.arange(len(c), dtype=np.int64), per)
-    offsets, idx, key = _by_tile(tile_of, key, surfel_of_pair, az_mid.size)
+    # one pass writes up to PAIR_SLOTS pairs per surfel (most have one or two); the few with
+    # more are binned again, alone, into a buffer of their exact size
+    N = len(c)
+    per = np.zeros(N, np.int64)
+    slot_tile = np.empty(N * PAIR_SLOTS, np.int64)
+    slot_key = np.empty(N * PAIR_SLOTS, np.float64)
+    _bin(*args, 2, PAIR_SLOTS, per, per, slot_tile, slot_key)
+    over = np.flatnonzero(per > PAIR_SLOTS)
+    over_start = np.zeros(len(over) + 1, np.int64)
+    np.cumsum(per[over], out=over_start[1:])
+    over_tile = np.empty(over_start[-1], np.int64)
+    over_key = np.empty(over_start[-1], np.float64)
+    if len(over):
+        oc, orad = np.ascontiguousarray(c[over]), np.ascontiguousarray(rad[over])
+        _bin(oc, orad, *args[2:], 1, 0, np.zeros(len(over), np.int64), over_start,
+             over_tile, over_key)
+    offsets, idx, key = _by_tile(per, PAIR_SLOTS, slot_tile, slot_key, over_start, over_tile,
+                                 over_key, az_mid.size)
     _sort_tiles(offsets, idx, key)
     t1 = time.perf_counter()
     (_trace_tiles if TRACE_TILES else _trace)(dirs, origins, surfels.packed, offsets, idx, key, tc, tr, float(min_range),
