@@ -19,47 +19,17 @@ import json
 import os
 import shutil
 import time
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.datasets.drive import LogPlan
+from lsd3d_usd.datasets.options import DEFAULT_VERSION, DatasetOptions  # noqa: F401  (re-exported)
 from lsd3d_usd.errors import InputError
 
 STATE = ".lsd3d"
-DEFAULT_VERSION = "v1.0-lsd3d"
 MAX_ROUTES = 1000
-
-
-@dataclass
-class DatasetOptions:
-    format: str = "nuscenes"
-    rig: str = "nuscenes6"
-    lidar: str = "auto"                 # auto (the rig's own) | none | preset | FILE.toml
-    route: str | None = None            # lane ids, comma-separated (every scene)
-    routes: int | None = None           # N distinct seeded routes per scene
-    seconds: float = 20.0
-    camera_hz: float = 12.0
-    lidar_hz: float = 20.0
-    keyframe_hz: float = 2.0
-    deferred: bool = False
-    resume: bool = False
-    overwrite: bool = False
-    seed: int = 0
-    version: str = DEFAULT_VERSION
-    width: int | None = None            # camera image width (default: the rig's native)
-    exposure: float = 0.0
-    tonemap: str = "aces"
-    scenes: list = field(default_factory=list)
-
-    def signature(self) -> dict:
-        """What must match for --resume (everything that changes the output)."""
-        d = asdict(self)
-        for k in ("resume", "overwrite"):
-            d.pop(k)
-        return d
 
 
 def scene_root(scene) -> Path:

@@ -7,7 +7,7 @@ import json
 import sys
 import time
 
-from lsd3d_usd.datasets.build import DEFAULT_VERSION, DatasetOptions
+from lsd3d_usd.datasets.options import DEFAULT_VERSION, DatasetOptions
 
 
 def _dataset(args) -> int:
