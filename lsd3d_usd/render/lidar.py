@@ -367,7 +367,10 @@ def _bin(c, rad, oref, dref, sec_org, sec_d, sec_groups, az_mid, az_half, el_lo,
             lim = cap
         elif mode == 0:
             lim = 0
-        if rad[k] > 0.0:
+        # beyond range from every origin: rejected before _cone's trigonometry
+        wx, wy, wz = c[k, 0] - oref[0], c[k, 1] - oref[1], c[k, 2] - oref[2]
+        reach = max_range + rad[k] + dref
+        if rad[k] > 0.0 and wx * wx + wy * wy + wz * wz <= reach * reach:
             near0, _, _, az0, w0, every = _cone(c, rad, k, oref, dref)
             if near0 <= max_range:
                 if every:
