@@ -29,6 +29,7 @@ def test_poses_heights_pitch_and_looking_down_at_the_layout(layout):
     ground = float(np.median(np.concatenate([ln.points[:, 2] for ln in layout.drivable_lanes()])))
     (x0, y0), (x1, y1) = layout.bounds()
     fps = building_footprints(layout)
+    solids = [(fp, b.height_hint) for fp, b in zip(fps, layout.buildings)]
     for v in views:
         c = v.camera.center
         assert c[2] - ground == pytest.approx(v.height_m, abs=0.5)
@@ -40,6 +41,10 @@ def test_poses_heights_pitch_and_looking_down_at_the_layout(layout):
         hit = c + f * (ground - c[2]) / f[2]
         assert x0 <= hit[0] <= x1 and y0 <= hit[1] <= y1
         assert (v.camera.width, v.camera.height) == (64, 48)
+        # no building stands between the camera and the point it looks at
+        for t in np.linspace(0.05, 0.95, 19):
+            p = c + t * (hit - c)
+            assert not any(p[2] < top and inside_building(p, [fp]) for fp, top in solids)
     # view k of every height looks at the same lane point
     for k in range(6):
         hits = []

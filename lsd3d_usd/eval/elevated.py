@@ -9,9 +9,11 @@ and the terrain seen from above are never measured. These views are (seeded):
   azimuth, so the heights differ by height (and pitch) rather than by which part of the scene
   they show. Pitch is uniform in ``pitch_deg`` (degrees below the horizon); the camera stands
   h / tan(pitch) back from the target, so its optical axis hits the target exactly.
-  A camera outside the layout's XY bounds or inside a building footprint is redrawn (another
-  azimuth and pitch, up to 50 times); if none fits, it takes the steepest pitch from the side
-  of the layout's centre (inside the bounds for any layout wider than 2 h / tan(max pitch)).
+  A camera outside the layout's XY bounds, inside a building footprint, or whose sight line
+  to the target passes through a building (below its eave height + ROOF_MARGIN_M) is redrawn
+  (another azimuth and pitch, up to 50 times): the view shows the target, not a wall next to
+  the camera. If none fits, it takes the steepest pitch from the side of the layout's centre
+  (inside the bounds for any layout wider than 2 h / tan(max pitch)).
 - the scene's own Overview cameras (/World/Cameras/Overview/*, written by `generate`:
   views.scene_cameras), in their own group ``"overview"``, not in the nearest height bin:
   they frame the whole layout from 60-200 m (the Top one straight down), well above the
@@ -34,6 +36,8 @@ DEFAULT_PITCH = (20.0, 60.0)
 OVERVIEW = "overview"
 OVERVIEW_PATH = f"{S.CAMERAS_PATH}/Overview"
 ATTEMPTS = 50
+ROOF_MARGIN_M = 3.0     # parapets and pitched roofs rise above the eave height (proxy.buildings)
+SIGHT_SAMPLES = 24
 
 
 @dataclass
@@ -113,9 +117,17 @@ def elevated_views(layout, heights, per_height: int, pitch_deg, seed: int, width
     (x0, y0), (x1, y1) = layout.bounds()
     centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
     fps = building_footprints(layout)
+    solids = [(fp, float(np.min(b.footprint[:, 2])) + b.height_hint + ROOF_MARGIN_M)
+              for fp, b in zip(fps, layout.buildings or [])]
 
-    def fits(e):
-        return x0 <= e[0] <= x1 and y0 <= e[1] <= y1 and not inside_building(e, fps)
+    def fits(e, tgt):
+        if not (x0 <= e[0] <= x1 and y0 <= e[1] <= y1) or inside_building(e, fps):
+            return False
+        for s in np.linspace(0.0, 1.0, SIGHT_SAMPLES, endpoint=False)[1:]:
+            p = e + s * (tgt - e)
+            if any(p[2] < top and inside_building(p, [fp]) for fp, top in solids):
+                return False
+        return True
 
     out = []
     for h in heights:
@@ -124,7 +136,7 @@ def elevated_views(layout, heights, per_height: int, pitch_deg, seed: int, width
             tgt, az, pitch = targets[k], azimuths[k], rng.uniform(lo, hi)
             eye = _eye(tgt, h, pitch, az)
             for _attempt in range(ATTEMPTS):
-                if fits(eye):
+                if fits(eye, tgt):
                     break
                 az, pitch = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(lo, hi)
                 eye = _eye(tgt, h, pitch, az)
