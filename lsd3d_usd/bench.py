@@ -55,7 +55,9 @@ class GGDSBench:
                                          "psnr_heldout_2x, fd_novel_over_content, "
                                          "fd_prior_novel_over_content, fd_novel_over_prior, "
                                          "psnr_novel, depth_rel_err, normal_err_deg, "
-                                         "off_surface_frac, timing, quality)", flag="--json",
+                                         "off_surface_frac, psnr_overview, "
+                                         "elevated_psnr_db_per_height, "
+                                         "elevated_fd_over_prior, timing, quality)", flag="--json",
                               metavar="OUT.json")
     quick: bool = option(False, help="small subset (a couple of minutes)", flag="--quick")
     layout: str | None = option(None, help="layout for the timing chunk and the quality run "

@@ -39,6 +39,12 @@ def test_quality_run_reports_fd_over_content(tmp_path):
     assert all(len(v) == 1 for v in res["fd_prior_novel_over_content_per_seed"].values())
     assert res["fd_novel_over_prior"] == pytest.approx(
         max(ratios[b] / prior[b] for b in ratios), rel=1e-2)
+    heights = res["elevated_fd_over_prior_per_height"]
+    assert set(heights) == {"5", "15", "30", "overview"}
+    assert res["elevated_fd_over_prior"] == pytest.approx(max(heights.values()), abs=1e-3)
+    assert set(res["psnr_overview_per_camera"]) == {"Top", "SouthWest", "SouthEast", "NorthEast",
+                                                   "NorthWest"}
+    assert math.isfinite(res["psnr_overview"])
 
 
 def test_fd_seeds_below_one_is_refused_before_any_work(capsys, monkeypatch):
@@ -78,3 +84,31 @@ def test_fd_ratios_are_seed_means(monkeypatch, tmp_path):
     assert res["fd_prior_novel_over_content_per_bin"] == {"0.5": 0.3, "8": 1.3}
     assert res["fd_novel_over_prior"] == pytest.approx(max(0.35 / 0.3, 1.4 / 1.3))
     assert res["fd_content"] == 100.0 and res["eval_geometry_seen"] == {"seed": 0}
+
+
+def test_fd_ratios_carry_novel_elevated(monkeypatch, tmp_path):
+    """eval's novel_elevated in bench ggds: its ratios are seed means, the scene's over the
+    prior's the largest over the groups; the Overview cameras' PSNR is seed 0's."""
+    from lsd3d_usd.benchmarks import ggds as B
+
+    def elevated(seed):
+        return {"5": {"fd": 1.0, "fd_over_content": 1.0 + seed, "prior_fd_over_content": 1.0,
+                      "psnr_db": {"mean": 20.0 + seed}},
+                "overview": {"fd": 1.0, "fd_over_content": 3.0, "prior_fd_over_content": 2.0,
+                             "psnr_db": {"mean": 18.0},
+                             "psnr_db_per_camera": {"Top": 17.0 + seed, "SouthWest": 19.0}},
+                "heldout_lane": {"psnr_db": {"mean": 25.0}}}
+
+    def fake(o):
+        return {"fd_effnet_lite0": {"seen_vs_novel": {"per_bin": {"1": {"value": 1.0}}},
+                                    "seen_vs_heldout_lane": {"value": 1.0}},
+                "geometry": {"seen": {"all": {}}}, "novel_elevated": elevated(o.cfg.seed)}
+    monkeypatch.setattr(B, "evaluate", fake)
+    res = B.fd_ratios(tmp_path, 2)
+    assert res["novel_elevated"] == elevated(0)
+    assert res["elevated_psnr_db_per_height"] == {"5": 20.5, "overview": 18.0}
+    assert res["elevated_fd_over_content_per_height"] == {"5": 1.5, "overview": 3.0}
+    assert res["elevated_fd_over_prior_per_height"] == {"5": 1.5, "overview": 1.5}
+    assert res["elevated_fd_over_prior"] == pytest.approx(1.5)
+    assert res["psnr_overview_per_camera"] == {"Top": 17.0, "SouthWest": 19.0}
+    assert res["psnr_overview"] == pytest.approx(18.0) and res["elevated_psnr_heldout_lane"] == 25.0

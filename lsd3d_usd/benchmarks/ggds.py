@@ -124,7 +124,10 @@ def quality(layout_path, *, steps=None, surfels=None, resolution=(480, 270), pro
         f"off-surface {100 * res['off_surface_frac']:.3f} %, {res['s_per_step']:.2f} s/step"
         + (f", fd novel/content max {res['fd_novel_over_content']:.2f}" if fd else "")
         + (f" (the prior's own images: {res['fd_prior_novel_over_content']:.2f})"
-           if "fd_prior_novel_over_content" in res else ""))
+           if "fd_prior_novel_over_content" in res else "")
+        + (f", Overview cameras PSNR {res['psnr_overview']:.2f} dB" if "psnr_overview" in res else "")
+        + (f", elevated fd / the prior's max {res['elevated_fd_over_prior']:.2f}"
+           if "elevated_fd_over_prior" in res else ""))
     return res
 
 
@@ -190,7 +193,11 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
     than a change of place does. The same ratio of the prior's own images of the same views
     (eval's prior baseline) says what a scene reproducing its prior exactly would score;
     fd_novel_over_prior is the largest over the bins of scene / prior (both seed means).
-    fd_novel_per_bin, fd_content and eval_geometry_seen are eval seed 0's."""
+    fd_novel_per_bin, fd_content and eval_geometry_seen are eval seed 0's. The elevated
+    family (eval's novel_elevated) likewise: elevated_* (elevated_psnr_db_per_height,
+    elevated_fd_over_content_per_height, elevated_prior_fd_over_content_per_height and
+    elevated_fd_over_prior, largest over the heights and the Overview group); the Overview
+    cameras' PSNR (the same cameras at every seed) is seed 0's."""
     runs = []
     for seed in range(seeds):
         with tempfile.TemporaryDirectory() as tmp:
@@ -218,6 +225,41 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
                                                        for b, v in per_seed.items()}
         out["fd_prior_novel_over_content"] = max(prior.values())
         out["fd_novel_over_prior"] = max(mean[b] / max(prior[b], 1e-12) for b in bins)
+    out.update(_elevated_keys([r.get("novel_elevated") or {} for r in runs]))
+    return out
+
+
+def _elevated_keys(elev: list) -> dict:
+    """bench ggds's keys of eval's novel_elevated over the eval seeds (fd_ratios)."""
+    groups = [g for g in elev[0] if g != "heldout_lane"]
+    if not groups:
+        return {}
+
+    def mean(key, sub=None):
+        vals = {g: [e[g][key] if sub is None else e[g].get(key, {}).get(sub) for e in elev]
+                for g in groups}
+        return {g: float(np.mean(v)) for g, v in vals.items() if v and None not in v}
+    out = {"novel_elevated": elev[0]}
+    psnr = mean("psnr_db", "mean")
+    if psnr:
+        out["elevated_psnr_db_per_height"] = {g: round(v, 3) for g, v in psnr.items()}
+    lane = elev[0].get("heldout_lane", {}).get("psnr_db", {}).get("mean")
+    if lane is not None:
+        out["elevated_psnr_heldout_lane"] = lane
+    ov = elev[0].get("overview", {}).get("psnr_db_per_camera")
+    if ov:
+        out["psnr_overview_per_camera"] = ov
+        out["psnr_overview"] = round(float(np.mean(list(ov.values()))), 3)
+    if all("fd_over_content" in e[g] for e in elev for g in groups):
+        scene = mean("fd_over_content")
+        out["elevated_fd_over_content_per_height"] = {g: round(v, 3) for g, v in scene.items()}
+        if all("prior_fd_over_content" in e[g] for e in elev for g in groups):
+            prior = mean("prior_fd_over_content")
+            out["elevated_prior_fd_over_content_per_height"] = {g: round(v, 3)
+                                                                for g, v in prior.items()}
+            ratio = {g: scene[g] / max(prior[g], 1e-12) for g in groups}
+            out["elevated_fd_over_prior_per_height"] = {g: round(v, 3) for g, v in ratio.items()}
+            out["elevated_fd_over_prior"] = max(ratio.values())
     return out
 
 
@@ -254,6 +296,9 @@ def main(json_path=None, *, quick=False, layout=None, steps=None, fd=True, strip
               "fd_novel_over_content": q.get("fd_novel_over_content"),
               "fd_prior_novel_over_content": q.get("fd_prior_novel_over_content"),
               "fd_novel_over_prior": q.get("fd_novel_over_prior"),
+              "psnr_overview": q.get("psnr_overview"),
+              "elevated_psnr_db_per_height": q.get("elevated_psnr_db_per_height"),
+              "elevated_fd_over_prior": q.get("elevated_fd_over_prior"),
               "depth_rel_err": q["depth_rel_err"], "normal_err_deg": q["normal_err_deg"],
               "off_surface_frac": q["off_surface_frac"], "timing": timing, "quality": q,
               "quality_runs": runs}

@@ -41,6 +41,7 @@ def _eval(args) -> int:
         rows = ", ".join(f"{b} m {pb['scene_novel_over_content'][b]:.2f} / {v:.2f}"
                          for b, v in pb["prior_novel_over_content"].items())
         print(f"fd_effnet_lite0 novel over content change, scene / the prior's own images: {rows}")
+    _print_elevated(res.get("novel_elevated") or {})
     if "vs_reference" in res["fd_effnet_lite0"]:
         r = res["fd_effnet_lite0"]["vs_reference"]
         print(f"fd_effnet_lite0 vs reference: seen {r['seen']['value']:.2f}, novel {r['novel']['value']:.2f}")
@@ -70,6 +71,21 @@ def _eval(args) -> int:
     if args.json:
         print(f"json: {args.json}")
     return 0
+
+
+def _print_elevated(ne: dict) -> None:
+    parts = []
+    for group, r in ne.items():
+        if group == "heldout_lane":
+            continue
+        psnr = r.get("psnr_db", {}).get("mean")
+        parts.append(f"{group if group == 'overview' else group + ' m'} "
+                     + (f"PSNR {psnr:.2f} dB, " if psnr is not None else "") + f"fd {r['fd']:.1f}"
+                     + (f" ({r['fd_over_prior']:.2f}x the prior's ratio)" if "fd_over_prior" in r else ""))
+    if parts:
+        lane = ne.get("heldout_lane", {}).get("psnr_db", {}).get("mean")
+        print("elevated views: " + "; ".join(parts)
+              + (f" (held-out lane views PSNR {lane:.2f} dB)" if lane is not None else ""))
 
 
 def _pct(x) -> str:

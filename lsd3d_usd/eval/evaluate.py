@@ -24,6 +24,7 @@ from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.eval import elevated as E
 from lsd3d_usd.eval import geometry as G
 from lsd3d_usd.eval import metrics as M
 from lsd3d_usd.eval import models, report
@@ -33,7 +34,8 @@ from lsd3d_usd.eval.options import EvalConfig
 from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
 from lsd3d_usd.eval.render import render_view
 from lsd3d_usd.eval.seams import paired_matched_drop
-from lsd3d_usd.eval.seams_eval import reference_frames, seam_stats, seams_reference
+from lsd3d_usd.eval.seams_eval import (pooled_psnr, reference_frames, seam_stats,
+                                       seams_reference, view_errors)
 from lsd3d_usd.ggds.losses.effnet import EffNetFeatureExtractor
 from lsd3d_usd.ggds.priors.scene import load_scene_prior
 from lsd3d_usd.layout.usdio import read_layout
@@ -62,8 +64,9 @@ def eval_options(scene, **settings) -> EvalOptions:
     """EvalOptions with ``settings`` split between run control (out_dir, progress, log) and
     the EvalConfig keys (n_seen=3, bins=(1, 4), deferred={"enabled": True}, ...)."""
     run = {k: settings.pop(k) for k in ("out_dir", "progress", "log") if k in settings}
-    if isinstance(settings.get("bins"), (tuple, list)):
-        settings["bins"] = ",".join(f"{b:g}" for b in settings["bins"])
+    for key in ("bins", "heights", "pitch"):
+        if isinstance(settings.get(key), (tuple, list)):
+            settings[key] = ",".join(f"{b:g}" for b in settings[key])
     cfg = ct.apply(EvalConfig(), ct.flatten(settings, EvalConfig, ""), "",
                    ct.flag_names(EvalConfig))
     return EvalOptions(scene=Path(scene), cfg=cfg, **run)
@@ -156,13 +159,19 @@ def evaluate(o: EvalOptions) -> dict:
     novel = V.novel_views(seen_sel, o.cfg.bin_values(), o.cfg.per_bin, o.cfg.seed + 1, layout,
                           train_centres=[v.camera.center for v in seen.views])
     heldout = V.heldout_lane_views(layout, n_held, w, h, o.cfg.seed, seen_sel)
+    centres = [v.camera.center for v in seen.views]
+    elev = E.elevated_views(layout, o.cfg.height_values(), o.cfg.per_height, o.cfg.pitch_range(),
+                            o.cfg.seed + 2, w, h, V.fov_of(seen_sel), train_centres=centres)
+    if o.cfg.overview:
+        elev += E.overview_views(stage, layout, w, h, train_centres=centres)
     traj, traj_info = V.lane_trajectory(layout, o.cfg.frames, o.cfg.step_m, w, h)
     seams_ref = None
     if o.cfg.seams_reference is not None:   # checked before any rendering: a bad one fails at once
         seams_ref = seams_reference(o.cfg.seams_reference, sc, seen.run, (PV, PF, PC))
     timings["load_s"] = time.perf_counter() - t
     o.log(f"eval: {surfels.n:,} surfels; seen: {seen.source}; {len(seen_sel)} seen + "
-          f"{len(novel)} novel views ({len(o.cfg.bin_values())} bins) + {len(traj)} trajectory frames at {w}x{h}")
+          f"{len(novel)} novel views ({len(o.cfg.bin_values())} bins) + {len(elev)} elevated views + "
+          f"{len(traj)} trajectory frames at {w}x{h}")
 
     # --- seen + novel renders, geometry against the proxy
     t = time.perf_counter()
@@ -170,7 +179,7 @@ def evaluate(o: EvalOptions) -> dict:
     seen_img, seen_frames, seen_gb, novel_img = [], [], [], []
     mv_err = {b: [] for b in o.cfg.bin_values()}
     mv_shared = {b: [] for b in o.cfg.bin_values()}
-    bar = _bar(len(seen_sel) + len(novel) + len(heldout) + len(traj), "eval render", o)
+    bar = _bar(len(seen_sel) + len(novel) + len(heldout) + len(elev) + len(traj), "eval render", o)
     dfr = DeferredImages()
     for v in seen_sel:
         fr = render_view(surfels, env, v.camera)
@@ -206,6 +215,14 @@ def evaluate(o: EvalOptions) -> dict:
         heldout_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
         if base is not None:
             base.add("heldout", fr["rgb"], cam)
+        bar.update(1)
+    elev_img, elev_frames = [], []
+    for ev in elev:
+        fr = render_view(surfels, env, ev.camera)
+        elev_frames.append({"rgb": fr["rgb"]})    # all the PSNR needs
+        elev_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
+        if base is not None:
+            base.add("elevated", fr["rgb"], ev.camera)
         bar.update(1)
     timings["render_seen_novel_s"] = time.perf_counter() - t
 
@@ -257,9 +274,13 @@ def evaluate(o: EvalOptions) -> dict:
                                             for b in o.cfg.bin_values()}}}
     if heldout_img:
         fd_out["seen_vs_heldout_lane"] = fd(f_seen, embed(heldout_img)).to_json()
+    groups = list(dict.fromkeys(ev.group for ev in elev))   # heights, then overview
+    groups_arr = np.array([ev.group for ev in elev])
+    f_elev = embed(elev_img) if elev_img else None
     if base is not None:
         fd_out["prior_baseline"] = baseline_fd(fd, embed, base.images, o.cfg.bin_values(), bins_arr, fd_out,
-                                               base.sp)
+                                               base.sp, elevated=(groups, groups_arr, f_elev)
+                                               if elev else None)
     n_ref = 0
     if ref_imgs is not None:
         f_ref = embed(ref_imgs)
@@ -267,6 +288,9 @@ def evaluate(o: EvalOptions) -> dict:
         fd_out["vs_reference"] = {
             "seen": fd(f_seen, f_ref).to_json(), "novel": fd(f_novel, f_ref).to_json(),
             "novel_per_bin": {f"{b:g}": fd(f_novel[bins_arr == b], f_ref).to_json() for b in o.cfg.bin_values()}}
+        if elev:
+            fd_out["vs_reference"]["elevated_per_height"] = {
+                g: fd(f_elev[groups_arr == g], f_ref).to_json() for g in groups}
     deferred = None
     if deferrer is not None:
         f_dseen, f_dnovel = embed(dfr.images["seen"]), embed(dfr.images["novel"])
@@ -286,7 +310,17 @@ def evaluate(o: EvalOptions) -> dict:
                     "raw": fd(f_raw, f_target).to_json(),
                     "deferred": fd(np.concatenate([f_dseen, f_dnovel]), f_target).to_json()}},
             "temporal_warp_err": d_temporal}
+    fd_elev = {g: fd(f_seen, f_elev[groups_arr == g]) for g in groups}
     timings["features_fd_s"] = time.perf_counter() - t
+
+    # --- elevated views (and the held-out lane views, for scale) against the run's targets
+    t = time.perf_counter()
+    errs, psnr_why = (None, None)
+    if elev:
+        errs, psnr_why = view_errors(sc, seen.run, (PV, PF, PC), list(heldout) + [ev.camera for ev in elev],
+                                     heldout_frames + elev_frames)
+    novel_elevated = _novel_elevated(elev, groups, errs, len(heldout), fd_elev, fd_out)
+    timings["elevated_psnr_s"] = time.perf_counter() - t
 
     # --- seams between chunks
     t = time.perf_counter()
@@ -342,6 +376,8 @@ def evaluate(o: EvalOptions) -> dict:
         unavailable.append({"metric": "seams", "reason": why})
     if ref_why:
         unavailable.append({"metric": "seams.vs_reference", "reason": ref_why})
+    if psnr_why:
+        unavailable.append({"metric": "novel_elevated.psnr_db", "reason": psnr_why})
     if base_why:
         unavailable.append({"metric": "fd_effnet_lite0.prior_baseline", "reason": base_why})
     timings["total_s"] = time.perf_counter() - t_start
@@ -355,10 +391,15 @@ def evaluate(o: EvalOptions) -> dict:
         "tonemap": o.cfg.tonemap,
         "seed": o.cfg.seed,
         "bins_m": [float(b) for b in o.cfg.bin_values()],
+        "heights_m": [float(x) for x in o.cfg.height_values()],
+        "pitch_deg": [float(x) for x in o.cfg.pitch_range()],
         "counts": {"train_views": len(seen.views), "seen": len(seen_sel), "novel": len(novel),
                    "novel_per_bin": o.cfg.per_bin, "heldout_lane": len(heldout),
-                   "trajectory_frames": len(traj), "reference": n_ref},
+                   "trajectory_frames": len(traj), "reference": n_ref, "elevated": len(elev),
+                   "elevated_per_height": o.cfg.per_height,
+                   "overview": sum(ev.group == E.OVERVIEW for ev in elev)},
         "novel_views": {f"{b:g}": _bin_stats([nv for nv in novel if nv.bin_m == b]) for b in o.cfg.bin_values()},
+        "novel_elevated": novel_elevated,
         "fd_effnet_lite0": fd_out,
         "geometry": {"seen": agree["seen"].result(), "novel": agree["novel"].result()},
         "multiview_depth_err": multiview,
@@ -372,7 +413,8 @@ def evaluate(o: EvalOptions) -> dict:
     t = time.perf_counter()
     files = report.write_report(out_dir, result, sc, seen_img, novel_img, novel, traj_img,
                                 seen_frames=seen_frames, seen_gb=seen_gb,
-                                deferred=dfr if deferrer is not None else None)
+                                deferred=dfr if deferrer is not None else None,
+                                elevated=(elev, elev_img))
     result["timings"]["report_s"] = round(time.perf_counter() - t, 2)
     result["files"] = {k: str(v) for k, v in files.items()}
     report.write_json(out_dir / "eval.json", result)
@@ -415,3 +457,46 @@ def _bin_stats(nvs: list) -> dict:
     yaw = np.abs([nv.yaw_deg for nv in nvs])
     return {"count": len(nvs), "nearest_train_m_median": round(float(np.median(near)), 3),
             "abs_yaw_deg_median": round(float(np.median(yaw)), 2)}
+
+
+def _psnr_stats(vals: list) -> dict:
+    if not vals:
+        return {}
+    a = np.asarray(vals, np.float64)
+    return {"mean": round(float(a.mean()), 3), "median": round(float(np.median(a)), 3),
+            "min": round(float(a.min()), 3), "max": round(float(a.max()), 3), "views": len(a)}
+
+
+def _novel_elevated(elev: list, groups: list, errs, n_held: int, fd_elev: dict, fd_out: dict) -> dict:
+    """The ``novel_elevated`` entry: per height (and "overview") the pose medians, PSNR
+    against the run's held-out targets (errs: (sse, values) of the held-out lane views, then
+    the elevated ones; None when there are no targets), FD seen vs elevated and its ratios;
+    "heldout_lane": the same PSNR of the lane views, the scale to read them against."""
+    psnr = [pooled_psnr([e]) for e in errs] if errs is not None else None
+    content = fd_out.get("seen_vs_heldout_lane", {}).get("value")
+    pb = fd_out.get("prior_baseline", {}).get("elevated")
+    out = {}
+    for g in groups:
+        idx = [i for i, ev in enumerate(elev) if ev.group == g]
+        r = fd_elev[g]
+        row = {"views": len(idx), **E.group_stats([elev[i] for i in idx]),
+               "fd": round(r.value, 6), "fd_n": [r.n1, r.n2]}
+        if psnr is not None:
+            vals = [psnr[n_held + i] for i in idx]
+            row["psnr_db"] = _psnr_stats(vals)
+            if g == E.OVERVIEW:
+                row["psnr_db_per_camera"] = {elev[i].name: round(v, 3) for i, v in zip(idx, vals)}
+        if content:
+            row["fd_over_content"] = round(r.value / max(content, 1e-12), 4)
+        if pb is not None:
+            prior = pb["prior_elevated_over_content"][g]
+            row["prior_fd_over_content"] = prior
+            if content:
+                row["fd_over_prior"] = round(row["fd_over_content"] / max(prior, 1e-12), 4)
+            row["fd_vs_prior_images"] = pb["scene_vs_prior_images"][g]["value"]
+        if "elevated_per_height" in fd_out.get("vs_reference", {}):
+            row["fd_vs_reference"] = fd_out["vs_reference"]["elevated_per_height"][g]["value"]
+        out[g] = row
+    if psnr is not None and n_held:
+        out["heldout_lane"] = {"psnr_db": _psnr_stats(psnr[:n_held])}
+    return out

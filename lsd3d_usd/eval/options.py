@@ -8,6 +8,7 @@ from pathlib import Path
 
 from lsd3d_usd.configtree import option
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.eval.elevated import DEFAULT_HEIGHTS, DEFAULT_PITCH, parse_heights, parse_pitch
 from lsd3d_usd.eval.views import DEFAULT_BINS
 from lsd3d_usd.views.images import TONEMAPS
 from lsd3d_usd.views.options import DeferredConfig
@@ -29,6 +30,16 @@ def parse_bins(text: str, where: str = "--bins") -> tuple[float, ...]:
 
 def _check_bins(v: str, where: str) -> str:
     parse_bins(v, where)
+    return v
+
+
+def _check_heights(v: str, where: str) -> str:
+    parse_heights(v, where)
+    return v
+
+
+def _check_pitch(v: str, where: str) -> str:
+    parse_pitch(v, where)
     return v
 
 
@@ -56,6 +67,19 @@ class EvalConfig:
     bins: str = option(",".join(f"{b:g}" for b in DEFAULT_BINS),
                        help="novel-view distances from the training cameras in metres",
                        flag="--bins", check=_check_bins)
+    heights: str = option(",".join(f"{h:g}" for h in DEFAULT_HEIGHTS),
+                          help="heights in metres of the elevated novel views (above the road "
+                               "point each looks at; novel_elevated in the JSON)",
+                          flag="--heights", check=_check_heights)
+    per_height: int = option(4, help="elevated views per height (0 = none; the Overview "
+                                     "cameras still count unless --no-overview)",
+                             flag="--per-height", lo=0, hi=100_000)
+    pitch: str = option(",".join(f"{p:g}" for p in DEFAULT_PITCH),
+                        help="MIN,MAX degrees below the horizon of the elevated views",
+                        flag="--pitch", check=_check_pitch, metavar="MIN,MAX")
+    overview: bool = option(True, help="score the scene's Overview cameras (/World/Cameras/"
+                                       "Overview/*) with the elevated views",
+                            negate="--no-overview")
     resolution: tuple[int, int] = option((320, 180), help="render size WxH", flag="--resolution",
                                          lo=16, hi=8192, metavar="WxH")
     frames: int = option(24, help="trajectory frames for the temporal check", flag="--frames",
@@ -87,3 +111,9 @@ class EvalConfig:
 
     def bin_values(self) -> tuple[float, ...]:
         return parse_bins(self.bins)
+
+    def height_values(self) -> tuple[float, ...]:
+        return parse_heights(self.heights)
+
+    def pitch_range(self) -> tuple[float, float]:
+        return parse_pitch(self.pitch)

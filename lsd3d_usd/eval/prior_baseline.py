@@ -55,7 +55,7 @@ class PriorImages:
                                    override="--no-prior-baseline")
         self.deferrer = Deferrer(self.sp, 1.0, DEFAULT_STEPS)
         self.display = display
-        self.images = {"seen": [], "novel": [], "heldout": []}
+        self.images = {"seen": [], "novel": [], "heldout": [], "elevated": []}
         self.seconds = time.perf_counter() - t
 
     def add(self, kind: str, rgb: np.ndarray, camera) -> None:
@@ -68,15 +68,29 @@ class PriorImages:
         self.seconds += time.perf_counter() - t
 
 
-def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, sp) -> dict:
-    """``images``: the prior's display images {"seen", "novel", "heldout"} (novel in the order
-    of ``bins_arr``); ``scene_fd``: eval's fd_effnet_lite0 of the scene (with
-    seen_vs_heldout_lane); ``sp``: the ScenePrior. ``fd(a, b)`` -> FDResult. Returns the
-    ``prior_baseline`` entry."""
+def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, sp,
+                elevated=None) -> dict:
+    """``images``: the prior's display images {"seen", "novel", "heldout", "elevated"} (novel
+    in the order of ``bins_arr``); ``scene_fd``: eval's fd_effnet_lite0 of the scene (with
+    seen_vs_heldout_lane); ``sp``: the ScenePrior. ``fd(a, b)`` -> FDResult. ``elevated``:
+    (group keys, group of each elevated view, the scene's features of those views), or None.
+    Returns the ``prior_baseline`` entry."""
     f_seen, f_novel = embed(images["seen"]), embed(images["novel"])
     content = fd(f_seen, embed(images["heldout"]))
     per_bin = {f"{b:g}": fd(f_seen, f_novel[bins_arr == b]) for b in bins}
     prior_ratio = {k: r.value / max(content.value, 1e-12) for k, r in per_bin.items()}
+    extra = {}
+    if elevated is not None and images["elevated"]:
+        groups, groups_arr, f_scene = elevated
+        f_elev = embed(images["elevated"])
+        per_group = {g: fd(f_seen, f_elev[groups_arr == g]) for g in groups}
+        # the scene's elevated images against the prior's own images of the same cameras
+        vs_prior = {g: fd(f_scene[groups_arr == g], f_elev[groups_arr == g]) for g in groups}
+        extra["elevated"] = {
+            "seen_vs_elevated": {g: r.to_json() for g, r in per_group.items()},
+            "prior_elevated_over_content": {g: round(r.value / max(content.value, 1e-12), 4)
+                                            for g, r in per_group.items()},
+            "scene_vs_prior_images": {g: r.to_json() for g, r in vs_prior.items()}}
     scene_content = scene_fd["seen_vs_heldout_lane"]["value"]
     scene_ratio = {k: v["value"] / max(scene_content, 1e-12)
                    for k, v in scene_fd["seen_vs_novel"]["per_bin"].items()}
@@ -90,4 +104,5 @@ def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, sp) -> 
         "scene_novel_over_content": {k: round(v, 4) for k, v in scene_ratio.items()},
         "scene_over_prior": {k: round(scene_ratio[k] / max(prior_ratio[k], 1e-12), 4)
                              for k in prior_ratio},
+        **extra,
     }

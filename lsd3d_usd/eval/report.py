@@ -55,6 +55,31 @@ def contact_sheet(path: Path, seen_img, novel_img, novel, bins, rows: int = 4) -
     return _save_fig(fig, path)
 
 
+def elevated_sheet(path: Path, views, images, cols: int = 4) -> Path:
+    """The elevated views: one row per height (and one of the Overview cameras)."""
+    plt = _plt()
+    groups = list(dict.fromkeys(v.group for v in views))
+    rows = [[i for i, v in enumerate(views) if v.group == g][:cols] for g in groups]
+    cols = max(len(r) for r in rows)
+    h, w = images[0].shape[:2]
+    fig, ax = plt.subplots(len(rows), cols, figsize=(2.2 * cols, 2.2 * len(rows) * h / w + 0.4),
+                           squeeze=False)
+    for r, (g, idx) in enumerate(zip(groups, rows)):
+        for c in range(cols):
+            a = ax[r, c]
+            a.set_xticks([]); a.set_yticks([])
+            if c < len(idx):
+                v = views[idx[c]]
+                a.imshow(images[idx[c]])
+                a.set_title(v.name if g == "overview" else f"{v.height_m:g} m, {v.pitch_deg:.0f}° down",
+                            fontsize=8)
+            else:
+                a.axis("off")
+        ax[r, 0].set_ylabel(g if g == "overview" else f"{g} m", fontsize=9)
+    fig.tight_layout(pad=0.3)
+    return _save_fig(fig, path)
+
+
 def fd_plot(path: Path, result: dict) -> Path:
     plt = _plt()
     fd = result["fd_effnet_lite0"]
@@ -198,6 +223,41 @@ def _seams_html(result) -> str:
                    "pixels"], rows) + drop
 
 
+def _elevated_html(result) -> str:
+    ne = result.get("novel_elevated") or {}
+    groups = [g for g in ne if g != "heldout_lane"]
+    if not groups:
+        return "<p>no elevated views (--per-height 0 and no Overview cameras)</p>"
+
+    def ps(row, k):
+        return _fmt(row.get("psnr_db", {}).get(k), digits=2)
+    rows = []
+    for g in groups:
+        r = ne[g]
+        rows.append([f"{g} m" if g != "overview" else "Overview cameras", r["views"],
+                     _fmt(r.get("height_m_median"), digits=1), _fmt(r.get("pitch_deg_median"), digits=1),
+                     ps(r, "mean"), ps(r, "min"), _fmt(r["fd"]), _fmt(r.get("fd_over_content")),
+                     _fmt(r.get("prior_fd_over_content")), _fmt(r.get("fd_over_prior"))])
+    if "heldout_lane" in ne:
+        h = ne["heldout_lane"]
+        rows.append(["held-out lane views (for scale)", h["psnr_db"].get("views", ""), "", "",
+                     ps(h, "mean"), ps(h, "min"), "", "", "", ""])
+    out = ("<p>Cameras 5-30 m above a lane point they look down at (and the scene's Overview "
+           "cameras): PSNR of the render against the GGDS run's held-out target of the same "
+           "view, FD of their features against the seen views', over the content change "
+           "(seen vs other on-lane views), for the scene and for the prior's own images of "
+           "the same cameras.</p>"
+           + _table(["height", "views", "height (median m)", "pitch (median °)",
+                     "PSNR vs prior (dB, mean)", "PSNR (min)", "FD vs seen", "FD / content",
+                     "prior's FD / content", "scene / prior"], rows))
+    per_cam = (ne.get("overview") or {}).get("psnr_db_per_camera")
+    if per_cam:
+        out += "<h3>Overview cameras</h3>" + _table(
+            ["camera", "PSNR vs prior (dB)"], [[html.escape(k), _fmt(v, digits=2)]
+                                               for k, v in per_cam.items()])
+    return out
+
+
 def _table(header, rows) -> str:
     th = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
@@ -298,6 +358,7 @@ img{{max-width:100%}}code{{background:#f4f4f4}}</style></head><body>
 {html.escape(', '.join(result['composed_layers']))}; tone map {html.escape(result['tonemap'])};
 seed {result['seed']}.</p>
 <h2>Seen and novel views</h2>{img('contact_sheet', 'contact sheet')}
+<h2>Elevated views (novel_elevated)</h2>{_elevated_html(result)}{img('elevated', 'elevated views')}
 <h2>Fréchet distance of EfficientNet-Lite0 features (fd_effnet_lite0; not FID)</h2>
 {fd_table}{img('fd_plot', 'FD by distance')}{ref}
 <h2>Geometry against the proxy</h2>{geo}{img('geometry', 'geometry panel')}
@@ -313,7 +374,7 @@ seed {result['seed']}.</p>
 
 
 def write_report(out_dir: Path, result: dict, sc, seen_img, novel_img, novel, traj_img, *,
-                 seen_frames, seen_gb, deferred=None) -> dict:
+                 seen_frames, seen_gb, deferred=None, elevated=None) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {"contact_sheet": contact_sheet(out_dir / "eval_contact_sheet.png", seen_img, novel_img,
@@ -325,6 +386,8 @@ def write_report(out_dir: Path, result: dict, sc, seen_img, novel_img, novel, tr
                                         result["temporal_warp_err"],
                                         result["deferred"]["temporal_warp_err"]
                                         if deferred is not None else None)}
+    if elevated is not None and elevated[0]:
+        files["elevated"] = elevated_sheet(out_dir / "eval_elevated.png", *elevated)
     if deferred is not None:
         files["deferred"] = deferred_sheet(out_dir / "eval_deferred.png", seen_img, deferred, traj_img)
     if result.get("run"):

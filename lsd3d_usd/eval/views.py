@@ -181,6 +181,14 @@ def novel_views(sources: list, bins, per_bin: int, seed: int, layout=None,
     return out
 
 
+def fov_of(like: list) -> float:
+    """Horizontal field of view in degrees of ``like[0]`` (GGDS's default without views)."""
+    if not like:
+        return GGDS_FOV_DEG
+    c = like[0].camera
+    return float(np.degrees(2.0 * np.arctan(0.5 * c.width / c.fx)))
+
+
 def heldout_lane_views(layout, n: int, width: int, height: int, seed: int, like: list) -> list:
     """`n` fresh on-lane cameras (GGDS's lane sampler, another seed, no off-lane views) with
     the intrinsics of `like[0]`: views of other places in the scene, from the same kind of
@@ -188,11 +196,8 @@ def heldout_lane_views(layout, n: int, width: int, height: int, seed: int, like:
     much FD a mere change of content gives at the same sample counts."""
     if n <= 0:
         return []
-    fov = GGDS_FOV_DEG
-    if like:
-        c = like[0].camera
-        fov = float(np.degrees(2.0 * np.arctan(0.5 * c.width / c.fx)))
-    views = sample_views(layout, n, width, height, seed=seed + 104729, novel_frac=0.0, fov_deg=fov)
+    views = sample_views(layout, n, width, height, seed=seed + 104729, novel_frac=0.0,
+                         fov_deg=fov_of(like))
     return [v.camera for v in views]
 
 
