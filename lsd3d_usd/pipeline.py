@@ -111,6 +111,10 @@ def check_config(cfg: GenerateConfig, run: RunOptions | None = None) -> dict | N
         if f is not None and not Path(f).is_file():
             raise InputError(f"{flag} {f}: no such file (LPIPS loads local weights only; "
                              "nothing is downloaded)")
+    lo, hi = g.elevated_heights
+    if lo > hi:
+        raise InputError(f"ggds.elevated_heights {lo:g}x{hi:g}: the lower height exceeds the "
+                         "upper")
     if g.steps == 0 and not (run and run.resume):
         return None
     check_prior(cfg.prior)

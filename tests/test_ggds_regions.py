@@ -252,12 +252,21 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
         [v.camera.center.tolist() for v in views]                       # deterministic
     whole = Region(((0, 0),), "")          # a whole-scene region: ggds.world_init_views
     assert region_fit_views(layout, g, 0, whole) == []
-    assert len(region_fit_views(layout, replace(g, world_init_views=0.5), 0, whole)) == 64
+    half = region_fit_views(layout, replace(g, world_init_views=0.5), 0, whole)
+    # 0.5 x 128 views sampled like the training views, and 0.5 x elevated_frac x 128 elevated
+    assert [v.kind for v in half] == ["lane"] * 48 + ["novel"] * 16 + ["elevated"] * 8
     off = replace(g, regions=replace(g.regions, fit_margin_m=20.0))
     assert region_fit_views(layout, off, 0, region) == []
     # world_init_views: as many views again sampled like the training views (inside the
     # training margin), ahead of the ones beyond it, which stay as they were
     both = region_fit_views(layout, replace(g, world_init_views=1.0), 0, region)
+    elevated = [v for v in both if v.kind == "elevated"]
+    assert len(elevated) == 5               # elevated_frac x views_per_chunk, inside the margin
+    for v in elevated:      # each looks at a lane point inside the training margin
+        c, f = v.camera.center, v.camera.pose[:3, 2]
+        x, y = (c + f * (v.camera.center[2] - v.offset_m - c[2]) / f[2])[:2]
+        assert -20 - 0.6 <= x <= 120 + 0.6 and -20 - 0.6 <= y <= 120 + 0.6
+    both = [v for v in both if v.kind != "elevated"]
     assert len(both) == 40 + len(views)
     assert [v.camera.center.tolist() for v in both[40:]] == \
         [v.camera.center.tolist() for v in views]

@@ -28,16 +28,14 @@ from pxr import UsdGeom
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.eval.views import _polyline_at, building_footprints, inside_building
+from lsd3d_usd.conditioning.elevated import Obstacles, place
+from lsd3d_usd.eval.views import _polyline_at
 from lsd3d_usd.render.camera import Camera, from_usd, look_at
 
 DEFAULT_HEIGHTS = (5.0, 15.0, 30.0)
 DEFAULT_PITCH = (20.0, 60.0)
 OVERVIEW = "overview"
 OVERVIEW_PATH = f"{S.CAMERAS_PATH}/Overview"
-ATTEMPTS = 50
-ROOF_MARGIN_M = 3.0     # parapets and pitched roofs rise above the eave height (proxy.buildings)
-SIGHT_SAMPLES = 24
 
 
 @dataclass
@@ -99,11 +97,6 @@ def _lane_targets(layout, n: int, rng) -> np.ndarray:
     return np.array([_polyline_at(pts[i], np.array([si - cum[i]]))[0] for i, si in zip(k, s)])
 
 
-def _eye(target, h, pitch_deg, az):
-    back = h / np.tan(np.radians(pitch_deg))
-    return target + np.array([-back * np.cos(az), -back * np.sin(az), h])
-
-
 def elevated_views(layout, heights, per_height: int, pitch_deg, seed: int, width: int,
                    height: int, fov_deg: float, train_centres=None) -> list[ElevatedView]:
     """``per_height`` elevated views per height (module doc); ``train_centres`` (N, 3), if
@@ -114,36 +107,14 @@ def elevated_views(layout, heights, per_height: int, pitch_deg, seed: int, width
     lo, hi = pitch_deg
     targets = _lane_targets(layout, per_height, rng)
     azimuths = rng.uniform(0.0, 2.0 * np.pi, per_height)
-    (x0, y0), (x1, y1) = layout.bounds()
-    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2])
-    fps = building_footprints(layout)
-    solids = [(fp, float(np.min(b.footprint[:, 2])) + b.height_hint + ROOF_MARGIN_M)
-              for fp, b in zip(fps, layout.buildings or [])]
-
-    def fits(e, tgt):
-        if not (x0 <= e[0] <= x1 and y0 <= e[1] <= y1) or inside_building(e, fps):
-            return False
-        for s in np.linspace(0.0, 1.0, SIGHT_SAMPLES, endpoint=False)[1:]:
-            p = e + s * (tgt - e)
-            if any(p[2] < top and inside_building(p, [fp]) for fp, top in solids):
-                return False
-        return True
-
+    obstacles = Obstacles(layout)
     out = []
     for h in heights:
         h = float(h)
         for k in range(per_height):
-            tgt, az, pitch = targets[k], azimuths[k], rng.uniform(lo, hi)
-            eye = _eye(tgt, h, pitch, az)
-            for _attempt in range(ATTEMPTS):
-                if fits(eye, tgt):
-                    break
-                az, pitch = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(lo, hi)
-                eye = _eye(tgt, h, pitch, az)
-            else:   # stand on the layout's side of the target, as steep as allowed
-                d = tgt[:2] - centre
-                az, pitch = (float(np.arctan2(d[1], d[0])) if np.hypot(*d) > 1e-9 else 0.0), hi
-                eye = _eye(tgt, h, pitch, az)
+            tgt = targets[k]
+            eye, _, pitch = place(rng, tgt, h, (lo, hi), obstacles, azimuths[k],
+                                  rng.uniform(lo, hi))
             cam = Camera.from_fov(width, height, fov_deg, pose=look_at(eye, tgt), near=0.1,
                                   far=max(1000.0, 20.0 * h))
             out.append(ElevatedView(cam, height_key(h), f"h{height_key(h)}_{k}", h,

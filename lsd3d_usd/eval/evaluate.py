@@ -24,6 +24,7 @@ from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.conditioning.elevated import ELEVATED
 from lsd3d_usd.eval import elevated as E
 from lsd3d_usd.eval import geometry as G
 from lsd3d_usd.eval import metrics as M
@@ -154,8 +155,11 @@ def evaluate(o: EvalOptions) -> dict:
     PV, PF, PC = proxy_arrays(sc.layer_path("proxy"))
     w, h = o.cfg.resolution
     seen = V.seen_views(sc, layout, o.cfg.run, w, h)
-    pick = V.pick(len(seen.views), o.cfg.n_seen, o.cfg.seed)
-    seen_sel = [seen.views[i] for i in pick]
+    # the eye-height families (seen, novel bins, held-out lane) compare with the views GGDS
+    # trained on at eye height; its elevated views count for the elevated family's distances
+    ground = [v for v in seen.views if v.kind != ELEVATED]
+    pick = V.pick(len(ground), o.cfg.n_seen, o.cfg.seed)
+    seen_sel = [ground[i] for i in pick]
     novel = V.novel_views(seen_sel, o.cfg.bin_values(), o.cfg.per_bin, o.cfg.seed + 1, layout,
                           train_centres=[v.camera.center for v in seen.views])
     heldout = V.heldout_lane_views(layout, n_held, w, h, o.cfg.seed, seen_sel)

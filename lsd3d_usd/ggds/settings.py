@@ -144,6 +144,19 @@ class GGDSConfig:
                                                   "1.2-3 m high) or 'displaced' (a lane view "
                                                   "moved 0.5-8 m as eval's novel views are)",
                               choices=("lane_offset", "displaced"))
+    elevated_frac: float = option(0.125, help="elevated training views (above the road, "
+                                              "looking down: conditioning.elevated), as a "
+                                              "fraction of --views, added to them; the "
+                                              "colour start fits to as many more per "
+                                              "world_init_views (0 = none)", lo=0.0, hi=10.0)
+    elevated_heights: tuple[float, float] = option((4.0, 40.0), help="heights of the "
+                                                   "elevated views over a lane, log-uniform "
+                                                   "between these (metres)", lo=0.1,
+                                                   hi=10_000.0, metavar="LOxHI")
+    elevated_overview_frac: float = option(0.25, help="share of the elevated views of a "
+                                                      "whole-scene run that frame the layout "
+                                                      "from above, as its Overview cameras "
+                                                      "do", lo=0.0, hi=1.0)
     stratified_views: bool = option(True, help="training views placed one per equal part of "
                                                 "the lanes' length (else drawn independently)",
                                     recorded=False)

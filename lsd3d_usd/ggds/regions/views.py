@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lsd3d_usd import scene as S
+from lsd3d_usd.conditioning.elevated import sample_elevated_views
 from lsd3d_usd.conditioning.views import lane_length_inside, sample_views
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.regions.plan import Region, region_seed
@@ -31,9 +32,21 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     views = sample_views(layout, n_views, w, h, seed=rseed, novel_frac=g.novel_frac,
                          fov_deg=g.fov_deg, region=around, clip=not whole,
                          novel_style=g.novel_style, stratified=g.stratified_views)
+    views += elevated(layout, g, int(round(g.elevated_frac * n_views)), rseed + 31337, around,
+                      whole)
     held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
                         fov_deg=g.fov_deg, region=bounds, clip=not whole)
     return views, held
+
+
+def elevated(layout, g, n: int, seed: int, around, whole: bool) -> list:
+    """``n`` elevated views of config ``g`` (conditioning.elevated): over lanes inside
+    ``around`` (clipped to it for a chunk region), and for a whole-scene region a share
+    framing the layout."""
+    w, h = g.resolution
+    return sample_elevated_views(layout, n, w, h, seed=seed, fov_deg=g.fov_deg,
+                                 heights=g.elevated_heights, region=around, clip=not whole,
+                                 overview_frac=g.elevated_overview_frac if whole else 0.0)
 
 
 def neighbour_views(layout, g, seed: int, region: Region, chunks) -> list:
@@ -90,12 +103,20 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
                                 novel_style=g.novel_style, stratified=g.stratified_views)
         except InputError:      # no lane within ``around``
             return []
+    n_elev = int(round(g.world_init_views * g.elevated_frac
+                       * (g.views if not region.name else r.views_per_chunk * len(region.keys))))
     if not region.name:
-        return sample(int(round(g.world_init_views * g.views)), rseed + 104729)
+        return (sample(int(round(g.world_init_views * g.views)), rseed + 104729)
+                + elevated(layout, g, n_elev, rseed + 27644437, None, True))
     x0, y0, x1, y1 = region.bounds(float(layout.chunk_size))
     m, inner = r.fit_margin_m, r.view_margin_m
+    box = (x0 - inner, y0 - inner, x1 + inner, y1 + inner)
     views = sample(int(round(g.world_init_views * r.views_per_chunk * len(region.keys))),
-                   rseed + 15485863, (x0 - inner, y0 - inner, x1 + inner, y1 + inner))
+                   rseed + 15485863, box)
+    try:
+        views += elevated(layout, g, n_elev, rseed + 27644437, box, False)
+    except InputError:      # no lane within the box
+        pass
     if m <= inner:
         return views
     outer = sample(int(round(r.fit_view_frac * r.views_per_chunk * len(region.keys))),

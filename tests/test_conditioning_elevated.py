@@ -1,0 +1,92 @@
+"""GGDS's elevated training views (conditioning.elevated): seeded, at the heights and pitches
+asked, looking at lane points past no building, clipped to a chunk region, a share framing the
+layout; they join a region's training views after the eye-height ones."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from conftest import LAYOUT
+from lsd3d_usd.conditioning.elevated import ELEVATED, Obstacles, sample_elevated_views
+from lsd3d_usd.conditioning.views import _inside
+from lsd3d_usd.layout.usdio import read_layout
+
+
+@pytest.fixture(scope="module")
+def layout():
+    return read_layout(LAYOUT)
+
+
+def _pitch(cam) -> float:
+    return float(np.degrees(np.arcsin(-cam.pose[2, 2])))
+
+
+def _aim(v):
+    """Where the optical axis meets the plane of the lane point the view looks at."""
+    c, f = v.camera.center, v.camera.pose[:3, 2]
+    z = c[2] - v.offset_m
+    return c + f * (z - c[2]) / f[2]
+
+
+def test_views_over_lanes_heights_pitch_and_clear_sight(layout):
+    views = sample_elevated_views(layout, 24, 64, 36, seed=3, heights=(4.0, 40.0),
+                                  pitch_deg=(25.0, 70.0))
+    assert len(views) == 24 and all(v.kind == ELEVATED for v in views)
+    obstacles = Obstacles(layout)
+    lanes = {ln.id: ln for ln in layout.drivable_lanes()}
+    for v in views:
+        assert 4.0 - 1e-9 <= v.offset_m <= 40.0 + 1e-9
+        assert 25.0 - 1e-6 <= _pitch(v.camera) <= 70.0 + 1e-6
+        aim = _aim(v)
+        # the point looked at lies on the lane the view names (within its sampling step)
+        pts = lanes[v.lane_id].points
+        seg_d = min(np.linalg.norm(pts[:, :2] - aim[:2], axis=1))
+        assert seg_d < np.max(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1)) + 1e-6
+        assert obstacles.clear(v.camera.center, aim)
+        assert not _inside(v.camera.center, obstacles.paths)
+    # heights spread over the range (log-uniform): some low, some high
+    h = np.array([v.offset_m for v in views])
+    assert h.min() < 10.0 and h.max() > 20.0
+
+
+def test_seeded(layout):
+    def poses(seed):
+        return np.stack([v.camera.pose for v in
+                         sample_elevated_views(layout, 8, 64, 36, seed=seed, overview_frac=0.25)])
+    np.testing.assert_array_equal(poses(1), poses(1))
+    assert not np.allclose(poses(1), poses(2))
+
+
+def test_a_share_frames_the_layout_and_none_in_a_chunk_region(layout):
+    views = sample_elevated_views(layout, 16, 64, 36, seed=0, overview_frac=0.25)
+    frame = [v for v in views if v.lane_id == ""]
+    assert len(frame) == 4
+    (x0, y0), (x1, y1) = layout.bounds()
+    diag = np.hypot(x1 - x0, y1 - y0)
+    for v in frame:     # far above, looking at the middle of the layout
+        c = v.camera.center
+        assert c[2] > 0.25 * diag
+        aim = _aim(v)
+        assert abs(aim[0] - (x0 + x1) / 2) <= 0.25 * (x1 - x0) + 1e-6
+        assert abs(aim[1] - (y0 + y1) / 2) <= 0.25 * (y1 - y0) + 1e-6
+    box = (0.0, 0.0, 40.0, 40.0)
+    clipped = sample_elevated_views(layout, 12, 64, 36, seed=0, overview_frac=0.25, region=box,
+                                    clip=True)
+    assert len(clipped) == 12 and all(v.lane_id for v in clipped)
+    for v in clipped:
+        x, y = _aim(v)[:2]
+        assert -0.6 <= x <= 40.6 and -0.6 <= y <= 40.6
+
+
+def test_they_join_the_training_views_and_held_out_views_stay_at_eye_height(layout):
+    from lsd3d_usd.ggds.regions.plan import Region
+    from lsd3d_usd.ggds.regions.views import region_views
+    from lsd3d_usd.ggds.settings import GGDSConfig
+    g = GGDSConfig(resolution=(48, 32), views=32)
+    whole = Region(((0, 0),), "")
+    views, held = region_views(layout, g, 0, whole)
+    kinds = [v.kind for v in views]
+    assert kinds.count(ELEVATED) == 4 and len(views) == 36        # 32 + 0.125 x 32
+    assert ELEVATED not in {v.kind for v in held}
+    none, _ = region_views(layout, replace(g, elevated_frac=0.0), 0, whole)
+    assert [v.camera.pose.tolist() for v in none] == [v.camera.pose.tolist() for v in views[:32]]
