@@ -78,11 +78,12 @@ def test_a_share_frames_the_layout_and_none_in_a_chunk_region(layout):
         assert -0.6 <= x <= 40.6 and -0.6 <= y <= 40.6
 
 
-def test_they_join_the_training_views_and_held_out_views_stay_at_eye_height(layout):
+def test_with_elevated_train_they_join_the_training_views_held_out_views_stay_at_eye_height(
+        layout):
     from lsd3d_usd.ggds.regions.plan import Region
     from lsd3d_usd.ggds.regions.views import region_views
     from lsd3d_usd.ggds.settings import GGDSConfig
-    g = GGDSConfig(resolution=(48, 32), views=32)
+    g = GGDSConfig(resolution=(48, 32), views=32, elevated_train=True)
     whole = Region(((0, 0),), "")
     views, held = region_views(layout, g, 0, whole)
     kinds = [v.kind for v in views]
@@ -90,3 +91,24 @@ def test_they_join_the_training_views_and_held_out_views_stay_at_eye_height(layo
     assert ELEVATED not in {v.kind for v in held}
     none, _ = region_views(layout, replace(g, elevated_frac=0.0), 0, whole)
     assert [v.camera.pose.tolist() for v in none] == [v.camera.pose.tolist() for v in views[:32]]
+
+
+def test_without_elevated_train_the_colour_start_fits_to_the_same_views(layout):
+    from lsd3d_usd.ggds.regions.plan import Region
+    from lsd3d_usd.ggds.regions.views import region_fit_views, region_views
+    from lsd3d_usd.ggds.settings import GGDSConfig
+    g = GGDSConfig(resolution=(48, 32), views=32, world_init_views=0.5, elevated_train=True)
+    whole = Region(((0, 0),), "")
+    trained, _ = region_views(layout, g, 0, whole)
+    fit_only = replace(g, elevated_train=False)
+    assert GGDSConfig().elevated_train is False              # the default
+    views, _ = region_views(layout, fit_only, 0, whole)
+    assert [v.kind for v in views].count(ELEVATED) == 0 and len(views) == 32
+    fits = [v for v in region_fit_views(layout, fit_only, 0, whole) if v.kind == ELEVATED]
+    # the 4 views it would have trained on, then 0.5 x 0.125 x 32 = 2 more for the fit
+    assert len(fits) == 6
+    assert [v.camera.pose.tolist() for v in fits[:4]] == \
+        [v.camera.pose.tolist() for v in trained if v.kind == ELEVATED]
+    assert [v.camera.pose.tolist() for v in fits[4:]] == \
+        [v.camera.pose.tolist() for v in region_fit_views(layout, g, 0, whole)
+         if v.kind == ELEVATED]

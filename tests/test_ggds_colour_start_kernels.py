@@ -10,7 +10,7 @@ from lsd3d_usd.render.sh import sh_basis
 
 
 def reference_add_view(A, b, count, positions, scales, normals, camera, target, depth, *,
-                       rel_tol=0.02, abs_tol=0.02, max_radius=4, min_weight=0.05):
+                       rel_tol=0.02, abs_tol=0.02, max_radius=4, min_weight=0.05, weight=1.0):
     """ViewFit's model surfel by surfel in float64, the box mean by explicit window sums."""
     H, W = depth.shape
     degree = int(round(np.sqrt(A.shape[1]))) - 1
@@ -30,7 +30,7 @@ def reference_add_view(A, b, count, positions, scales, normals, camera, target, 
         s = scales[n].astype(np.float64)
         cos = abs(float(normals[n].astype(np.float64) @ d))
         sigma_px = np.sqrt(s[0] * s[1]) * f / z
-        w = max(np.pi * s[0] * s[1] * cos * f * f / z ** 2, min_weight)
+        w = max(np.pi * s[0] * s[1] * cos * f * f / z ** 2, min_weight) * weight
         r = int(np.clip(np.round(0.7 * sigma_px), 0, max_radius))
         win = target[max(j - r, 0):j + r + 1, max(i - r, 0):i + r + 1].astype(np.float64)
         col = win.reshape(-1, 3).mean(0)
@@ -68,9 +68,10 @@ def test_kernel_matches_float64_reference(degree):
     fit = ViewFit(len(pos), degree)
     S = (degree + 1) ** 2
     A, b, count = np.zeros((len(pos), S, S)), np.zeros((len(pos), S, 3)), np.zeros(len(pos), int)
-    for k in range(2):   # accumulates across views
-        got = fit.add_view(pos, scales, nrm, cam, torch.from_numpy(target), depth)
-        want = reference_add_view(A, b, count, pos, scales, nrm, cam, target, depth)
+    for weight in (1.0, 0.25):   # accumulates across views, each view's samples weighted
+        got = fit.add_view(pos, scales, nrm, cam, torch.from_numpy(target), depth, weight=weight)
+        want = reference_add_view(A, b, count, pos, scales, nrm, cam, target, depth,
+                                  weight=weight)
         assert got == want
     assert 0 < want < len(pos)                     # some seen, some not (off-image, occluded)
     np.testing.assert_array_equal(fit.count, count)

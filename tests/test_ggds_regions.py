@@ -238,7 +238,7 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     from dataclasses import replace
     layout = read_layout(LAYOUT)
     g = GGDSConfig(resolution=(48, 32))
-    g = replace(g, world_init_views=0.0,
+    g = replace(g, world_init_views=0.0, elevated_train=True,    # (fit-only elevated: below)
                 regions=replace(g.regions, views_per_chunk=40, fit_view_frac=1.0))
     region = Region(((0, 0),), "chunk_0_0")
     views = region_fit_views(layout, g, 0, region)
@@ -266,6 +266,13 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
         c, f = v.camera.center, v.camera.pose[:3, 2]
         x, y = (c + f * (v.camera.center[2] - v.offset_m - c[2]) / f[2])[:2]
         assert -20 - 0.6 <= x <= 120 + 0.6 and -20 - 0.6 <= y <= 120 + 0.6
+    # not trained on (the default): the colour start fits to the 5 region_views would train
+    # on too, then to the 5 above
+    fit_only = region_fit_views(layout, replace(g, world_init_views=1.0, elevated_train=False),
+                                0, region)
+    assert [v.camera.pose.tolist() for v in fit_only if v.kind == "elevated"][5:] == \
+        [v.camera.pose.tolist() for v in elevated]
+    assert sum(v.kind == "elevated" for v in fit_only) == 10
     both = [v for v in both if v.kind != "elevated"]
     assert len(both) == 40 + len(views)
     assert [v.camera.center.tolist() for v in both[40:]] == \

@@ -144,11 +144,18 @@ class GGDSConfig:
                                                   "1.2-3 m high) or 'displaced' (a lane view "
                                                   "moved 0.5-8 m as eval's novel views are)",
                               choices=("lane_offset", "displaced"))
-    elevated_frac: float = option(0.125, help="elevated training views (above the road, "
-                                              "looking down: conditioning.elevated), as a "
-                                              "fraction of --views, added to them; the "
-                                              "colour start fits to as many more per "
+    elevated_frac: float = option(0.125, help="elevated views (above the road, looking "
+                                              "down: conditioning.elevated) as a fraction "
+                                              "of --views: the colour start fits to them "
+                                              "(GGDS trains on them too with "
+                                              "elevated_train), and to as many more per "
                                               "world_init_views (0 = none)", lo=0.0, hi=10.0)
+    elevated_train: bool = option(False, help="train on the elevated views (else the colour "
+                                             "start alone fits to them)")
+    elevated_fit_weight: float = option(0.1, help="weight of the elevated views' samples in "
+                                                  "the colour start against the eye-height "
+                                                  "views' (a surfel both see keeps mostly the "
+                                                  "colour seen from the road)", lo=1e-3, hi=1.0)
     elevated_heights: tuple[float, float] = option((4.0, 40.0), help="heights of the "
                                                    "elevated views over a lane, log-uniform "
                                                    "between these (metres)", lo=0.1,

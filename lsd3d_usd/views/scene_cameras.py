@@ -12,8 +12,9 @@ views and a few overviews as UsdGeom.Camera prims under /World/Cameras, so usdvi
     /World/Cameras/Overview/<SouthWest|SouthEast|NorthEast|NorthWest>
                                           35 degrees down from each corner, framing the layout
 
-Each camera carries ``lsd3d:camera:kind`` (lane | novel | overview) and, for the GGDS views,
-``lsd3d:camera:lane`` (the lane it was sampled along) and ``lsd3d:camera:region`` (the GGDS
+Each camera carries ``lsd3d:camera:kind`` (lane | novel | elevated | overview) and, for the
+GGDS views, ``lsd3d:camera:lane`` (the lane it was sampled along; "" for an elevated view
+framing the whole layout) and ``lsd3d:camera:region`` (the GGDS
 region: "" for the whole scene, else chunk_<i>_<j>).
 """
 from __future__ import annotations

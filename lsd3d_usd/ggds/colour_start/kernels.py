@@ -29,7 +29,8 @@ def summed_area(image: np.ndarray) -> np.ndarray:
 
 @njit(inline="always")
 def _add_sample(n, positions, scales, normals, viewmat, centre, fx, fy, cx, cy, near, f,
-                depth, table, rel_tol, abs_tol, max_radius, min_weight, degree, basis, A, b):
+                depth, table, rel_tol, abs_tol, max_radius, min_weight, view_weight, degree, basis,
+                A, b):
     """Surfel n's sample of this view into A[n], b[n]; False when the view does not see it."""
     H, W = depth.shape
     px, py, pz = float(positions[n, 0]), float(positions[n, 1]), float(positions[n, 2])
@@ -53,7 +54,7 @@ def _add_sample(n, positions, scales, normals, viewmat, centre, fx, fy, cx, cy, 
     s0, s1 = float(scales[n, 0]), float(scales[n, 1])
     cos = abs(float(normals[n, 0]) * dx + float(normals[n, 1]) * dy + float(normals[n, 2]) * dz)
     sigma_px = math.sqrt(s0 * s1) * f / z
-    weight = max(math.pi * s0 * s1 * cos * f * f / (z * z), min_weight)
+    weight = max(math.pi * s0 * s1 * cos * f * f / (z * z), min_weight) * view_weight
     r = min(max(int(np.round(0.7 * sigma_px)), 0), max_radius)
     # the target's mean over the (2r+1)² window clipped to the image
     j0, j1 = max(j - r, 0), min(j + r + 1, H)
@@ -74,12 +75,12 @@ def _add_sample(n, positions, scales, normals, viewmat, centre, fx, fy, cx, cy, 
 
 @njit(parallel=True, cache=True)
 def accumulate_view(positions, scales, normals, viewmat, centre, fx, fy, cx, cy, near,
-                    depth, table, rel_tol, abs_tol, max_radius, min_weight, degree,
-                    A, b, count):
+                    depth, table, rel_tol, abs_tol, max_radius, min_weight, view_weight,
+                    degree, A, b, count):
     """Add one view's samples to A (N,S,S), b (N,S,3), count (N,) in place (worldfit.ViewFit
     has the model); returns how many surfels the view saw. positions/scales/normals: (N,3),
     (N,2), (N,3) any float type; viewmat (4,4), centre (3,) float64; depth (H,W) with inf
-    where empty; table: summed_area of the target."""
+    where empty; table: summed_area of the target; view_weight scales every sample."""
     N = positions.shape[0]
     f = math.sqrt(fx * fy)
     seen = np.zeros(N, np.uint8)
@@ -89,7 +90,7 @@ def accumulate_view(positions, scales, normals, viewmat, centre, fx, fy, cx, cy,
         for n in range(blk * N // nblocks, (blk + 1) * N // nblocks):
             if _add_sample(n, positions, scales, normals, viewmat, centre, fx, fy, cx, cy,
                            near, f, depth, table, rel_tol, abs_tol, max_radius, min_weight,
-                           degree, basis, A, b):
+                           view_weight, degree, basis, A, b):
                 count[n] += 1
                 seen[n] = 1
     return int(seen.sum())

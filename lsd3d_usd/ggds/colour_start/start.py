@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from lsd3d_usd.conditioning.elevated import ELEVATED
 from lsd3d_usd.ggds.colour_start.worldfit import ViewFit, facing_ids, fit_sh, zonal_slopes
 from lsd3d_usd.memtune import release_free_memory
 from lsd3d_usd.render.sh import sh_degree_of
@@ -48,18 +49,20 @@ def colour_start(state, views, context, prior, cond, fit_views=()) -> bool:
         if i and i % TRIM_EVERY_VIEWS == 0:
             release_free_memory()
         fit_only = i >= n_train   # used once; a training view's G-buffer and target
+        view = fit_views[i - n_train] if fit_only else views.views[i]
+        weight = c.elevated_fit_weight if view.kind == ELEVATED else 1.0
         if fit_only:              # stay cached for the steps
-            cam = fit_views[i - n_train].camera
+            cam = view.camera
             # no finer G-buffer: the fit averages a target over each surfel's disk
             # anyway (README sample: the same held-out PSNR, 30 s less)
             gb = cond.unpack(cond.packed(cam), key=(views.key, "fit", i), fine=False)
         else:
-            cam, gb = views.views[i].camera, views.get(i).gbuffer
+            cam, gb = view.camera, views.get(i).gbuffer
         target = prior.target(torch.zeros(cam.height, cam.width, 3), gb, env, 1.0,
                               n_steps=c.n_denoise, seed=c.seed)
-        fit.add_view(f.positions, f.scales, normals, cam, target, gb.depth.numpy())
+        fit.add_view(f.positions, f.scales, normals, cam, target, gb.depth.numpy(), weight=weight)
         if ctx_fit is not None:
-            ctx_fit.add_view(*ctx, cam, target, gb.depth.numpy())
+            ctx_fit.add_view(*ctx, cam, target, gb.depth.numpy(), weight=weight)
         if fit_only:
             prior.forget([gb.key])
     slopes = ctx_slopes = None

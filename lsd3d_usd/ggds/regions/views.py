@@ -32,11 +32,18 @@ def region_views(layout, g, seed: int, region: Region) -> tuple[list, list]:
     views = sample_views(layout, n_views, w, h, seed=rseed, novel_frac=g.novel_frac,
                          fov_deg=g.fov_deg, region=around, clip=not whole,
                          novel_style=g.novel_style, stratified=g.stratified_views)
-    views += elevated(layout, g, int(round(g.elevated_frac * n_views)), rseed + 31337, around,
-                      whole)
+    if g.elevated_train:
+        views += training_elevated(layout, g, rseed, n_views, around, whole)
     held = sample_views(layout, g.held_out, w, h, seed=rseed + 7919, novel_frac=0.5,
                         fov_deg=g.fov_deg, region=bounds, clip=not whole)
     return views, held
+
+
+def training_elevated(layout, g, rseed: int, n_views: int, around, whole: bool) -> list:
+    """The ``elevated_frac × n_views`` elevated views of a region (seed ``rseed``): trained on
+    with ``elevated_train``, else fitted to by the colour start only (region_fit_views)."""
+    return elevated(layout, g, int(round(g.elevated_frac * n_views)), rseed + 31337, around,
+                    whole)
 
 
 def elevated(layout, g, n: int, seed: int, around, whole: bool) -> list:
@@ -106,14 +113,18 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
     n_elev = int(round(g.world_init_views * g.elevated_frac
                        * (g.views if not region.name else r.views_per_chunk * len(region.keys))))
     if not region.name:
-        return (sample(int(round(g.world_init_views * g.views)), rseed + 104729)
-                + elevated(layout, g, n_elev, rseed + 27644437, None, True))
+        views = sample(int(round(g.world_init_views * g.views)), rseed + 104729)
+        if not g.elevated_train:
+            views += training_elevated(layout, g, rseed, g.views, None, True)
+        return views + elevated(layout, g, n_elev, rseed + 27644437, None, True)
     x0, y0, x1, y1 = region.bounds(float(layout.chunk_size))
     m, inner = r.fit_margin_m, r.view_margin_m
     box = (x0 - inner, y0 - inner, x1 + inner, y1 + inner)
-    views = sample(int(round(g.world_init_views * r.views_per_chunk * len(region.keys))),
-                   rseed + 15485863, box)
+    n_chunk = r.views_per_chunk * len(region.keys)
+    views = sample(int(round(g.world_init_views * n_chunk)), rseed + 15485863, box)
     try:
+        if not g.elevated_train:    # region_views' around: the same box
+            views += training_elevated(layout, g, rseed, n_chunk, box, False)
         views += elevated(layout, g, n_elev, rseed + 27644437, box, False)
     except InputError:      # no lane within the box
         pass
