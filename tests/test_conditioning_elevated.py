@@ -10,15 +10,12 @@ from conftest import LAYOUT
 from lsd3d_usd.conditioning.elevated import ELEVATED, Obstacles, sample_elevated_views
 from lsd3d_usd.conditioning.views import _inside
 from lsd3d_usd.layout.usdio import read_layout
+from test_eval_elevated import _pitch
 
 
 @pytest.fixture(scope="module")
 def layout():
     return read_layout(LAYOUT)
-
-
-def _pitch(cam) -> float:
-    return float(np.degrees(np.arcsin(-cam.pose[2, 2])))
 
 
 def _aim(v):
