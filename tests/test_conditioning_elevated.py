@@ -109,3 +109,12 @@ def test_without_elevated_train_the_colour_start_fits_to_the_same_views(layout):
     assert [v.camera.pose.tolist() for v in fits[4:]] == \
         [v.camera.pose.tolist() for v in region_fit_views(layout, g, 0, whole)
          if v.kind == ELEVATED]
+
+
+def test_heights_the_wrong_way_round_are_one_error_naming_the_key():
+    from lsd3d_usd.config import generate_config
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.pipeline import check_config
+    cfg = generate_config(layout=LAYOUT, ggds={"elevated_heights": (40.0, 4.0)})
+    with pytest.raises(InputError, match=r"ggds\.elevated_heights 40x4"):
+        check_config(cfg)
