@@ -92,11 +92,14 @@ def neighbour_views(layout, g, seed: int, region: Region, chunks) -> list:
 def region_fit_views(layout, g, seed: int, region: Region) -> list:
     """Extra views for a region's world-space colour start (never trained on). A whole-scene
     region: ``world_init_views`` × its training views, sampled like them (more directions per
-    surfel for the fit). A chunk region: the same, and of ``fit_view_frac × views_per_chunk`` per chunk sampled on lanes up to
-    ``fit_margin_m`` outside it, those standing beyond the training views' margin (a surfel
-    near a border is seen by a whole-scene fit from both sides and from afar; the region's
-    training views reach only ``view_margin_m`` across, so without these its colour would be
-    fitted from one side)."""
+    surfel for the fit). A chunk region: the same, and of ``fit_view_frac × views_per_chunk``
+    per chunk sampled on lanes up to ``fit_margin_m`` outside it, those standing beyond the
+    training views' margin (a surfel near a border is seen by a whole-scene fit from both
+    sides and from afar; the region's training views reach only ``view_margin_m`` across, so
+    without these its colour would be fitted from one side). Either kind also gets elevated
+    views (conditioning.elevated): with ``elevated_train`` off, the ones region_views would
+    otherwise train on (so the colour start alone sees them), and in any case
+    ``world_init_views × elevated_frac`` × its training views more."""
     r = g.regions
     w, h = g.resolution
     rseed = region_seed(seed, region)
