@@ -1,4 +1,4 @@
-"""GGDS's elevated training views (conditioning.elevated): seeded, at the heights and pitches
+"""GGDS's elevated views (conditioning.elevated): seeded, at the heights and pitches
 asked, looking at lane points past no building, clipped to a chunk region, a share framing the
 layout; they join a region's training views after the eye-height ones."""
 from dataclasses import replace

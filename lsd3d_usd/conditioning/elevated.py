@@ -1,5 +1,6 @@
-"""Cameras above the road, looking down at it: GGDS's elevated training views and the poses
-eval's elevated family shares with them.
+"""Cameras above the road, looking down at it: GGDS's elevated views (the colour start fits
+to them; the steps train on them with ``ggds.elevated_train``) and the placement eval's
+elevated family shares with them.
 
 A drone, a chase camera or a scene's own Overview cameras see roofs, the tops of façades and
 the terrain from above, which views at eye height along the lanes never do; a scene trained on
@@ -22,6 +23,7 @@ import numpy as np
 
 from lsd3d_usd.conditioning.views import (View, _building_paths, _inside, _inside_arcs, _lanes,
                                           _point_on, _strata)
+from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import Camera, look_at
 
 ELEVATED = "elevated"              # View.kind of these views
@@ -96,6 +98,8 @@ def sample_elevated_views(layout, n: int, width: int, height: int, *, seed: int,
     if clip and region is not None:
         arcs = _inside_arcs(lanes, region)
         lengths = np.array([float(len(a)) for a in arcs])
+        if lengths.sum() <= 0:
+            raise InputError(f"elevated views: no drivable lane inside the region {region}")
     else:
         arcs = None
         lengths = np.array([max(ln.length(), 1e-6) for ln in lanes])

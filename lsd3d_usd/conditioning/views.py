@@ -30,9 +30,10 @@ MAX_HEADING_DEG = 45.0     # ... and at most this
 @dataclass
 class View:
     camera: Camera
-    kind: str          # "lane" | "novel" | "held_out"
+    kind: str          # "lane" | "novel" | "held_out" | "elevated" (conditioning.elevated)
     lane_id: str
-    offset_m: float    # lateral distance from the lane centreline
+    offset_m: float    # lateral distance from the lane centreline; elevated: height above
+                       # the point looked at
 
     def to_json(self) -> dict:
         c = self.camera

@@ -155,8 +155,10 @@ def evaluate(o: EvalOptions) -> dict:
     PV, PF, PC = proxy_arrays(sc.layer_path("proxy"))
     w, h = o.cfg.resolution
     seen = V.seen_views(sc, layout, o.cfg.run, w, h)
-    # the eye-height families (seen, novel bins, held-out lane) compare with the views GGDS
-    # trained on at eye height; its elevated views count for the elevated family's distances
+    # the seen family (and the novel and held-out views placed from it) are the views GGDS
+    # trained on at eye height; elevated training views (ggds.elevated_train) still count as
+    # training cameras for every family's nearest-camera distance. Views the colour start
+    # alone fitted to are not recorded in the run, so they count for none.
     ground = [v for v in seen.views if v.kind != ELEVATED]
     pick = V.pick(len(ground), o.cfg.n_seen, o.cfg.seed)
     seen_sel = [ground[i] for i in pick]

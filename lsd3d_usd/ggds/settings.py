@@ -149,7 +149,10 @@ class GGDSConfig:
                                               "of --views: the colour start fits to them "
                                               "(GGDS trains on them too with "
                                               "elevated_train), and to as many more per "
-                                              "world_init_views (0 = none)", lo=0.0, hi=10.0)
+                                              "world_init_views; of views_per_chunk × its "
+                                              "chunks in a chunk region; nothing without the "
+                                              "colour start (world_init) unless trained on "
+                                              "(0 = none)", lo=0.0, hi=10.0, recorded=0.0)
     elevated_train: bool = option(False, help="train on the elevated views (else the colour "
                                              "start alone fits to them)")
     elevated_fit_weight: float = option(0.1, help="weight of the elevated views' samples in "
