@@ -118,3 +118,10 @@ def test_heights_the_wrong_way_round_are_one_error_naming_the_key():
     cfg = generate_config(layout=LAYOUT, ggds={"elevated_heights": (40.0, 4.0)})
     with pytest.raises(InputError, match=r"ggds\.elevated_heights 40x4"):
         check_config(cfg)
+
+
+def test_a_region_with_no_lane_inside_is_an_input_error(layout):
+    from lsd3d_usd.errors import InputError
+    with pytest.raises(InputError, match="lane"):
+        sample_elevated_views(layout, 4, 64, 36, seed=0, region=(5000.0, 5000.0, 5010.0, 5010.0),
+                              clip=True)
