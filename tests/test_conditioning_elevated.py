@@ -8,7 +8,7 @@ import pytest
 
 from conftest import LAYOUT
 from lsd3d_usd.conditioning.elevated import ELEVATED, Obstacles, sample_elevated_views
-from lsd3d_usd.conditioning.views import _inside
+from lsd3d_usd.conditioning.views import inside_paths
 from lsd3d_usd.layout.usdio import read_layout
 from test_eval_elevated import _pitch
 
@@ -40,7 +40,7 @@ def test_views_over_lanes_heights_pitch_and_clear_sight(layout):
         seg_d = min(np.linalg.norm(pts[:, :2] - aim[:2], axis=1))
         assert seg_d < np.max(np.linalg.norm(np.diff(pts[:, :2], axis=0), axis=1)) + 1e-6
         assert obstacles.clear(v.camera.center, aim)
-        assert not _inside(v.camera.center, obstacles.paths)
+        assert not inside_paths(v.camera.center, obstacles.paths)
     # heights spread over the range (log-uniform): some low, some high
     h = np.array([v.offset_m for v in views])
     assert h.min() < 10.0 and h.max() > 20.0

@@ -21,8 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from lsd3d_usd.conditioning.views import (View, _building_paths, _inside, _inside_arcs, _lanes,
-                                          _point_on, _strata)
+from lsd3d_usd.conditioning.views import (View, _inside_arcs, _lanes, _point_on, _strata,
+                                          building_paths, inside_paths)
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import Camera, look_at
 
@@ -43,18 +43,19 @@ class Obstacles:
         (self.x0, self.y0), (self.x1, self.y1) = layout.bounds()
         self.centre = np.array([(self.x0 + self.x1) / 2, (self.y0 + self.y1) / 2])
         buildings = getattr(layout, "buildings", None) or []
-        self.paths = _building_paths(layout)
+        self.paths = building_paths(layout)
         self.tops = [float(np.min(np.asarray(b.footprint)[:, 2])) + b.height_hint + ROOF_MARGIN_M
                      for b in buildings]
 
     def clear(self, eye, target) -> bool:
         if not (self.x0 <= eye[0] <= self.x1 and self.y0 <= eye[1] <= self.y1):
             return False
-        if _inside(eye, self.paths):
+        if inside_paths(eye, self.paths):
             return False
         for s in np.linspace(0.0, 1.0, SIGHT_SAMPLES, endpoint=False)[1:]:
             p = eye + s * (target - eye)
-            if any(p[2] < top and _inside(p, [path]) for path, top in zip(self.paths, self.tops)):
+            if any(p[2] < top and inside_paths(p, [path])
+                   for path, top in zip(self.paths, self.tops)):
                 return False
         return True
 

@@ -109,7 +109,8 @@ def _strata(rng: np.random.Generator, n: int, lengths: np.ndarray) -> list[tuple
     return [(int(a), float(b)) for a, b in zip(li, f)]
 
 
-def _building_paths(layout):
+def building_paths(layout) -> list:
+    """(footprint path, XY min, XY max) per building of ``layout`` (inside_paths tests them)."""
     # local import: not loaded for --help
     from matplotlib.path import Path as MPath
     out = []
@@ -119,7 +120,8 @@ def _building_paths(layout):
     return out
 
 
-def _inside(p, paths) -> bool:
+def inside_paths(p, paths) -> bool:
+    """Whether point ``p``'s XY lies inside one of ``paths`` (building_paths)."""
     return any(np.all(p[:2] >= lo) and np.all(p[:2] <= hi) and path.contains_point(p[:2])
                for path, lo, hi in paths)
 
@@ -135,7 +137,7 @@ def displace(rng: np.random.Generator, eye: np.ndarray, fwd2: np.ndarray, d: flo
         phi = rng.uniform(0.0, 2.0 * np.pi)
         xy = horiz * (np.cos(phi) * fwd2 + np.sin(phi) * left)
         new = eye + np.array([xy[0], xy[1], dz])
-        if not _inside(new, paths):
+        if not inside_paths(new, paths):
             break
     max_yaw = np.radians(min(HEADING_DEG_PER_M * d, MAX_HEADING_DEG))
     return new, float(rng.uniform(-max_yaw, max_yaw))
@@ -162,7 +164,7 @@ def sample_views(layout, n: int, width: int, height: int, *, seed: int = 0, fov_
     if not novel_max_m >= 0.5:
         raise InputError(f"novel_max_m must be >= 0.5 m, got {novel_max_m}")
     rng = np.random.default_rng(seed)
-    paths = _building_paths(layout) if novel_style == "displaced" else ()
+    paths = building_paths(layout) if novel_style == "displaced" else ()
     lanes = _lanes(layout, region)
     if clip and region is not None:
         arcs = _inside_arcs(lanes, region)

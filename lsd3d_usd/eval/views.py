@@ -20,7 +20,7 @@ import numpy as np
 from pxr import Sdf
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.conditioning.views import View, sample_views
+from lsd3d_usd.conditioning.views import View, building_paths, inside_paths, sample_views
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.render.camera import Camera, look_at
@@ -110,22 +110,15 @@ def pick(n_total: int, n: int, seed: int) -> np.ndarray:
     return np.sort(np.random.default_rng(seed).choice(n_total, n, replace=False))
 
 
-def building_footprints(layout):
-    # local import: not loaded for --help
-    from matplotlib.path import Path as MPath
-    out = []
-    for b in getattr(layout, "buildings", []) or []:
-        fp = np.asarray(b.footprint, np.float64)[:, :2]
-        out.append((MPath(fp), float(fp[:, 0].min()), float(fp[:, 0].max()),
-                    float(fp[:, 1].min()), float(fp[:, 1].max())))
-    return out
+def building_footprints(layout) -> list:
+    """The layout's building footprints as conditioning.views tests them (training views
+    and elevated views avoid the same buildings)."""
+    return building_paths(layout)
 
 
 def inside_building(p, footprints) -> bool:
-    for path, x0, x1, y0, y1 in footprints:
-        if x0 <= p[0] <= x1 and y0 <= p[1] <= y1 and path.contains_point((p[0], p[1])):
-            return True
-    return False
+    """Whether point ``p``'s XY lies inside one of ``footprints`` (building_footprints)."""
+    return inside_paths(np.asarray(p, np.float64), footprints)
 
 
 def _yawed_pose(pose: np.ndarray, centre: np.ndarray, yaw: float) -> np.ndarray:

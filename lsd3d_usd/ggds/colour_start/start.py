@@ -3,9 +3,9 @@ step, when the prior is world-consistent (Prior.shade_at; the procedural prior i
 diffusion prior is not).
 
 A per-surfel least-squares fit to the t = 1 targets of the training views (and the extra fit
-views) that see it, each view's samples weighted 1, or ``ggds.elevated_fit_weight`` for an
-elevated view (``View.kind``; every view passed in has one) (worldfit.ViewFit; each training view's target is computed once and cached
-by the prior, as the steps would ask for it), and for surfels none sees, to the prior
+views) that see it (worldfit.ViewFit; each training view's target is computed once and cached
+by the prior, as the steps would ask for it), each view's samples weighted 1, or
+``ggds.elevated_fit_weight`` for an elevated view (``View.kind``), and for surfels none sees, to the prior
 evaluated in 3D over its disk from the nearest cameras (worldfit.fit_sh). With a frozen
 context whose rows still carry class colours, those rows are fitted the same way.
 """
@@ -49,10 +49,11 @@ def colour_start(state, views, context, prior, cond, fit_views=()) -> bool:
     for i in range(n_train + len(fit_views)):
         if i and i % TRIM_EVERY_VIEWS == 0:
             release_free_memory()
-        view = fit_views[i - n_train] if i >= n_train else views.views[i]
+        # a fit view is used once; a training view's G-buffer and target stay cached
+        fit_only = i >= n_train
+        view = fit_views[i - n_train] if fit_only else views.views[i]
         weight = c.elevated_fit_weight if view.kind == ELEVATED else 1.0
-        fit_only = i >= n_train   # used once; a training view's G-buffer and target
-        if fit_only:              # stay cached for the steps
+        if fit_only:
             cam = view.camera
             # no finer G-buffer: the fit averages a target over each surfel's disk
             # anyway (README sample: the same held-out PSNR, 30 s less)

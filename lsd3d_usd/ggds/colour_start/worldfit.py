@@ -279,9 +279,8 @@ class ViewFit:
                  target, depth, *, rel_tol: float = 0.02, abs_tol: float = 0.02,
                  max_radius: int = 4, min_weight: float = 0.05, weight: float = 1.0) -> int:
         """Add one view's samples, each weighted ``weight`` × its own weight; returns how
-        many surfels it saw. ``target`` (H,W,3) and
-        ``depth`` (H,W: camera z, inf where empty) are the view's; positions may be float32
-        (widened per surfel)."""
+        many surfels it saw. ``target`` (H,W,3) and ``depth`` (H,W: camera z, inf where empty)
+        are the view's; positions may be float32 (widened per surfel)."""
         tgt = target.numpy() if isinstance(target, torch.Tensor) else np.asarray(target)
         dep = np.asarray(depth)
         if dep.shape != tgt.shape[:2] or tgt.ndim != 3 or tgt.shape[2] != 3:
@@ -296,8 +295,7 @@ class ViewFit:
             np.ascontiguousarray(camera.center, np.float64), float(camera.fx), float(camera.fy),
             float(camera.cx), float(camera.cy), float(camera.near), dep, summed_area(tgt),
             float(rel_tol), float(abs_tol), int(max_radius), float(min_weight), float(weight),
-            self.degree,
-            self.A, self.b, self.count)
+            self.degree, self.A, self.b, self.count)
 
     def solve(self, normals: np.ndarray, ridge: float, ridge_tangent: float,
               block: int = 65536, *, slopes: tuple | None = None):

@@ -113,27 +113,27 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
                                 novel_style=g.novel_style, stratified=g.stratified_views)
         except InputError:      # no lane within ``around``
             return []
-    n_elev = int(round(g.world_init_views * g.elevated_frac
-                       * (g.views if not region.name else r.views_per_chunk * len(region.keys))))
-    if not region.name:
-        views = sample(int(round(g.world_init_views * g.views)), rseed + 104729)
+    whole = not region.name
+    n_train = g.views if whole else r.views_per_chunk * len(region.keys)   # region_views'
+    n_elev = int(round(g.world_init_views * g.elevated_frac * n_train))
+    if whole:
+        views = sample(int(round(g.world_init_views * n_train)), rseed + 104729)
         if not g.elevated_train:
-            views += training_elevated(layout, g, rseed, g.views, None, True)
+            views += training_elevated(layout, g, rseed, n_train, None, True)
         return views + elevated(layout, g, n_elev, rseed + 27644437, None, True)
     x0, y0, x1, y1 = region.bounds(float(layout.chunk_size))
     m, inner = r.fit_margin_m, r.view_margin_m
-    box = (x0 - inner, y0 - inner, x1 + inner, y1 + inner)
-    n_chunk = r.views_per_chunk * len(region.keys)
-    views = sample(int(round(g.world_init_views * n_chunk)), rseed + 15485863, box)
+    box = (x0 - inner, y0 - inner, x1 + inner, y1 + inner)   # region_views' ``around``
+    views = sample(int(round(g.world_init_views * n_train)), rseed + 15485863, box)
     try:
-        if not g.elevated_train:    # region_views' around: the same box
-            views += training_elevated(layout, g, rseed, n_chunk, box, False)
+        if not g.elevated_train:
+            views += training_elevated(layout, g, rseed, n_train, box, False)
         views += elevated(layout, g, n_elev, rseed + 27644437, box, False)
     except InputError:      # no lane within the box
         pass
     if m <= inner:
         return views
-    outer = sample(int(round(r.fit_view_frac * r.views_per_chunk * len(region.keys))),
+    outer = sample(int(round(r.fit_view_frac * n_train)),
                    rseed + 104729, (x0 - m, y0 - m, x1 + m, y1 + m))
     return views + [v for v in outer if not (x0 - inner <= v.camera.center[0] <= x1 + inner
                                              and y0 - inner <= v.camera.center[1] <= y1 + inner)]
