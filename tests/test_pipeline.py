@@ -126,6 +126,11 @@ def test_ggds_writes_overs_and_survives_interrupt(tmp_path, monkeypatch):
     assert [p for p in validation.validate(out) if p.severity == "error"] == []
     summary = generate(opts(out, steps=6, resume=True))
     assert summary["ggds"]["steps"] == 6
+    # where the time outside the steps went: each part once, together within the wall time
+    g = summary["ggds"]
+    ph = g["phases_s"]
+    assert set(ph) == {"inputs", "init", "colour_start", "eval", "plots", "write"}
+    assert min(ph.values()) >= 0 and sum(ph.values()) <= g["wall_s"] + 0.1
     layer = Sdf.Layer.FindOrOpen(str(runs[0].path))
     spec = layer.GetPrimAtPath(S.SURFELS_PATH)
     assert spec.specifier == Sdf.SpecifierOver and not spec.attributes

@@ -3,16 +3,18 @@ shadow map (conditioning.shadow); the compact form GGDS keeps per training view
 (PackedGBuffer) and the per-face lookup tables that unpack it (FaceTable)."""
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Callable, Hashable, Optional
 
 import numpy as np
 import torch
+from numba import njit, prange
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.conditioning.shadow import ShadowMap
 from lsd3d_usd.render.camera import Camera, pixel_directions
-from lsd3d_usd.render.gbuffer import face_normals, pixel_positions, render_depth
+from lsd3d_usd.render.gbuffer import face_normals, render_depth
 
 
 @dataclass
@@ -146,14 +148,64 @@ class PackedGBuffer:
 
 def pack_view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray,
                       shadow: ShadowMap | None = None) -> PackedGBuffer:
+    """The view's PackedGBuffer: the proxy rasterised (render.gbuffer.render_depth), then each
+    pixel's world position and sun visibility in one pass (_pack_pixels; the same formulas as
+    render.gbuffer.pixel_positions and ShadowMap.visibility, which the tests hold it to)."""
     zbuf, fid = render_depth(vertices, faces, camera)
-    hit = fid >= 0
-    pos = pixel_positions(camera, zbuf, fid)
-    sun = None
+    H, W = zbuf.shape
+    depth = np.empty((H, W), np.float32)
+    face = np.empty((H, W), np.int32)
+    pos = np.empty((H, W, 3), np.float32)
+    sun = np.ones((H, W), np.bool_)
+    cam = np.array([camera.fx, camera.fy, camera.cx, camera.cy])
     if shadow is not None:
-        vis = shadow.visibility(pos)            # nan where empty: lit there
-        sun = torch.from_numpy(np.where(hit, vis, 1.0) > 0.5)
-    return PackedGBuffer(
-        camera, depth=torch.from_numpy(zbuf.astype(np.float32)),
-        face=torch.from_numpy(fid.astype(np.int32)),
-        world_pos=torch.from_numpy(np.nan_to_num(pos, nan=0.0).astype(np.float32)), sun=sun)
+        sv = shadow.camera.viewmat
+        sc = shadow.camera
+        light = np.array([sc.fx, sc.fy, sc.cx, sc.cy, shadow.bias])
+        sdepth = np.ascontiguousarray(shadow.depth)
+    else:
+        sv, light, sdepth = np.eye(4), np.zeros(5), np.zeros((0, 0), np.float32)
+    _pack_pixels(zbuf, fid, cam, np.ascontiguousarray(camera.pose, np.float64),
+                 np.ascontiguousarray(sv, np.float64), light, sdepth, shadow is not None,
+                 depth, face, pos, sun)
+    return PackedGBuffer(camera, depth=torch.from_numpy(depth), face=torch.from_numpy(face),
+                         world_pos=torch.from_numpy(pos),
+                         sun=torch.from_numpy(sun) if shadow is not None else None)
+
+
+@njit(parallel=True, cache=True)
+def _pack_pixels(zbuf, fid, cam, pose, sv, light, sdepth, shadowed, depth, face, pos, sun):
+    """Per pixel: depth and face as float32 / int32; the world position of the pixel ray at
+    its depth (float64 inside, 0 where empty); whether the sun's shadow map sees it (texel
+    depth not nearer than the point's light-view z less the bias; lit where empty or off
+    the map)."""
+    H, W = zbuf.shape
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    SH, SW = sdepth.shape[0], sdepth.shape[1]
+    for j in prange(H):
+        for i in range(W):
+            z = zbuf[j, i]
+            f = fid[j, i]
+            depth[j, i] = z
+            face[j, i] = f
+            if f < 0:
+                pos[j, i, 0] = pos[j, i, 1] = pos[j, i, 2] = 0.0
+                continue
+            dx = (i + 0.5 - cx) / fx * z
+            dy = (j + 0.5 - cy) / fy * z
+            px = pose[0, 0] * dx + pose[0, 1] * dy + pose[0, 2] * z + pose[0, 3]
+            py = pose[1, 0] * dx + pose[1, 1] * dy + pose[1, 2] * z + pose[1, 3]
+            pz = pose[2, 0] * dx + pose[2, 1] * dy + pose[2, 2] * z + pose[2, 3]
+            pos[j, i, 0], pos[j, i, 1], pos[j, i, 2] = px, py, pz
+            if not shadowed or not (math.isfinite(px) and math.isfinite(py) and math.isfinite(pz)):
+                continue
+            qx = sv[0, 0] * px + sv[0, 1] * py + sv[0, 2] * pz + sv[0, 3]
+            qy = sv[1, 0] * px + sv[1, 1] * py + sv[1, 2] * pz + sv[1, 3]
+            qz = sv[2, 0] * px + sv[2, 1] * py + sv[2, 2] * pz + sv[2, 3]
+            u = light[0] * qx / qz + light[2]
+            v = light[1] * qy / qz + light[3]
+            if not (math.isfinite(u) and math.isfinite(v)):
+                continue
+            ti, tj = math.floor(u), math.floor(v)
+            if 0 <= ti < SW and 0 <= tj < SH and sdepth[int(tj), int(ti)] < qz - light[4]:
+                sun[j, i] = False

@@ -45,6 +45,7 @@ TILE_COLS = 8
 TILE_RINGS = 4
 TRACE_TILES = True
 SECTOR_GROUPS = 8        # column groups binned from one origin
+SPREAD_PRIME = 1000003   # _spread's multiplier: a prime, so coprime with any tile count it is not
 PAIR_SLOTS = 4           # (tile, distance) pairs a surfel's first binning pass can hold
 MAX_COLUMNS = int(LIDAR_COLUMNS.value)
 MAX_RINGS = int(LIDAR_BEAMS.value)
@@ -456,14 +457,44 @@ def _by_tile(per, cap, slot_tile, slot_key, over_start, over_tile, over_key, n_t
     return offsets, idx, kk
 
 
+@njit(cache=True, inline="always")
+def _spread(q, n):
+    """A permutation of 0..n-1 that scatters every run of q over all of it: a parallel loop
+    hands each thread a run of q, and the tiles' work is anything but even (the ground's
+    ring groups hold most pairs, the sky's none)."""
+    q, n = np.int64(q), np.int64(n)
+    if n < 2 or n % SPREAD_PRIME == 0:
+        return q
+    return (q * SPREAD_PRIME) % n
+
+
 @njit(cache=True, parallel=True)
 def _sort_tiles(offsets, idx, key):
-    for t in prange(offsets.shape[0] - 1):
+    """Each tile's pairs ordered by key, ties in surfel order. A pair's key (a distance >= 0,
+    whose float64 bits order as integers) is rounded down to clear the low bits that then
+    hold its place in the tile, and the one integer array is sorted: several times faster
+    than an argsort with its gathers, and the rounded keys stay conservative bounds (the
+    trace stops at the first key beyond its returns, so the keys it reads must not fall)."""
+    bits = key.view(np.int64)
+    n = offsets.shape[0] - 1
+    for q in prange(n):
+        t = _spread(q, n)
         a, b = offsets[t], offsets[t + 1]
-        if b - a > 1:
-            order = np.argsort(key[a:b], kind="mergesort")
-            idx[a:b] = idx[a:b][order]
-            key[a:b] = key[a:b][order]
+        m = b - a
+        if m > 1:
+            s = 1
+            while (1 << s) < m:
+                s += 1
+            low = (np.int64(1) << s) - 1
+            packed = np.empty(m, np.int64)
+            for i in range(m):
+                packed[i] = (bits[a + i] & ~low) | i
+            packed.sort()
+            ids = idx[a:b].copy()
+            for i in range(m):
+                p = packed[i]
+                idx[a + i] = ids[p & low]
+                bits[a + i] = p & ~low
 
 
 # ----------------------------------------------------------------------------- tracing
@@ -523,7 +554,8 @@ def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t,
     R, C = dirs.shape[0], dirs.shape[1]
     nr, nc = (R + tr - 1) // tr, (C + tc - 1) // tc
     Q_MAX = 2.0 * 6.2
-    for t_ in prange(nr * nc):
+    for q_ in prange(nr * nc):
+        t_ = _spread(q_, nr * nc)
         h, g = t_ // nc, t_ % nc
         lo, hi = offsets[t_], offsets[t_ + 1]
         i0, i1 = h * tr, min(R, (h + 1) * tr)

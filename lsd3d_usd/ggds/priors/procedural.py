@@ -166,7 +166,9 @@ class ProceduralPrior(Prior):
         F = spec + (1 - spec) * (1 - cos_v) ** 5
         r = V - 2 * (V * n).sum(-1, keepdim=True) * n
         refl_w = F * torch.maximum(mirror, (1 - rough) ** 2)
-        refl = self.sky(r, env) * refl_w[..., None]
+        # the sky is looked up where it is seen: reflected on surfaces, straight on background
+        refl = torch.zeros(valid.shape + (3,), device=dev)
+        refl[valid] = self.sky(r[valid], env) * refl_w[valid][:, None]
         h = torch.nn.functional.normalize(sdir - V, dim=-1)
         alpha = (2.0 / rough ** 2 - 2.0).clamp(1.0, 2000.0)
         lobe = (alpha + 8) / (8 * math.pi) * (n * h).sum(-1).clamp_min(0) ** alpha
@@ -176,8 +178,7 @@ class ProceduralPrior(Prior):
             dist = (gb.world_pos.to(torch.float64) - gb.camera_position.to(torch.float64)).norm(dim=-1).float()
             T = torch.exp(-env.fog_density * torch.nan_to_num(dist, nan=0.0, posinf=1e9))[..., None]
             col = col * T + env.fog_color.to(dev) * (1 - T)
-        bg = self.sky(V, env)
-        col = torch.where(valid[..., None], col, bg)
+        col[~valid] = self.sky(V[~valid], env)
         return (col * env.exposure).clamp(0, 1).float()
 
     def render_view(self, gb: GBuffer, env: PriorEnv) -> torch.Tensor:

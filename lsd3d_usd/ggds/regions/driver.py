@@ -81,6 +81,12 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
     if in_process:
         rss.append(peak_rss_mb())
     summary["worker_peak_rss_mb"] = max(rss) if rss else None
+    phases = {}         # seconds outside the steps, summed over the regions (run_ggds)
+    for t in tasks.values():
+        for k, v in (t.get("phases_s") or {}).items():
+            phases[k] = round(phases.get(k, 0.0) + v, 2)
+    if phases:
+        summary["phases_s"] = phases
     if any(plan["regions"]):   # chunk regions (a whole-scene region is the summary itself)
         summary["per_region"] = {
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",
@@ -92,7 +98,7 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
 
 
 TASK_FIGURES = ("wall_s", "cpu_s", "context", "context_colour_start", "views",
-                "neighbour_views", "fit_views", "peak_rss_mb")
+                "neighbour_views", "fit_views", "peak_rss_mb", "phases_s")
 
 
 def _record_task(sc, run: str, region: str, summary: dict) -> None:

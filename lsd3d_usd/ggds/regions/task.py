@@ -64,6 +64,7 @@ def run_region(job: RegionJob, *, term_state=None, progress: bool = False, log=N
     """Optimise one region. Returns its summary. ``refresh``: rewrite the run layer after each
     write (a single process; a pool's driver does it instead)."""
     log = log or (lambda *a: None)
+    t_start = time.perf_counter()
     sc = S.Scene(job.scene)
     region = Region(tuple(tuple(k) for k in job.keys), job.region)
     g = ct.from_dict(GGDSConfig, job.ggds)
@@ -117,6 +118,7 @@ def run_region(job: RegionJob, *, term_state=None, progress: bool = False, log=N
     resume = store.has_checkpoint()
     prior = make_prior(ct.from_dict(PriorConfig, job.prior), seed=seed)
     t0, c0 = time.perf_counter(), cpu_seconds()
+    inputs_s = t0 - t_start
     summary = run_ggds(inputs, prior, g, store, resume=resume, stop_at=job.stop_at,
                        keep_checkpoint=job.keep_checkpoint, term_state=term_state,
                        progress=progress, log=log)
@@ -125,6 +127,8 @@ def run_region(job: RegionJob, *, term_state=None, progress: bool = False, log=N
                    wall_s=round(time.perf_counter() - t0, 2), views=len(views),
                    neighbour_views=shared, fit_views=len(fit_views),
                    cpu_s=round(cpu_seconds() - c0, 2))
+    # the region's inputs (surfels, proxy, views, conditioning) before the run
+    summary["phases_s"] = {"inputs": round(inputs_s, 2), **summary.get("phases_s", {})}
     return summary
 
 

@@ -49,12 +49,16 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     one). stop_at: stop after this many steps in all (the run stays resumable).
     keep_checkpoint: keep the resumable state of a finished run (default: dropped, the layer
     holds the result). term_state: already built loss-term state (e.g. a loaded LPIPS net).
-    Returns the run summary (also written by the store).
+    Returns the run summary (also written by the store); its ``phases_s`` gives the seconds
+    spent outside the steps: ``init`` (the run's state, loss terms, the "before" renders),
+    ``colour_start``, ``eval`` (held-out views), ``plots`` and ``write`` (the final layer).
 
     The run takes over ``inputs.field`` and ``inputs.context``: once its parameters hold them
     they are set to None here, so a caller that keeps no other reference frees them (a
     region's initial surfels and band are ~0.2 GB each per million)."""
     n_surfels = int(inputs.field.n)
+    phases = {}        # seconds of each part outside the steps (summary "phases_s")
+    t = time.perf_counter()
     run = GGDSRun(inputs, prior, config, term_state=term_state)
     inputs.field = inputs.context = None
     store.write_views(inputs.views)
@@ -62,6 +66,8 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     # too, so a resumed run's before_after.png still shows where it started
     with torch.no_grad():
         before = [render_rgb(run, v) for v in inputs.held_out[:BEFORE_AFTER_VIEWS]]
+    phases["init"] = time.perf_counter() - t
+    t = time.perf_counter()
     if resume:
         tensors, meta = store.load_checkpoint()
         run.restore(tensors, meta)
@@ -72,6 +78,7 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
             # its least-squares temporaries (hundreds of MB) would otherwise stay resident
             # as free heap beside the steps' own buffers (memtune keeps up to 1 GiB)
             release_free_memory()
+    phases["colour_start"] = time.perf_counter() - t
     target = config.steps if stop_at is None else min(int(stop_at), config.steps)
     interrupted = False
     bar = None
@@ -101,7 +108,8 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     summary = {"run": store.name, "steps": run.step_index, "seconds": round(run.seconds, 1),
                "s_per_step": round(run.seconds / max(run.step_index, 1), 3),
                "surfels": n_surfels, "complete": run.step_index >= config.steps,
-               "context_colour_start": run.context_started}
+               "context_colour_start": run.context_started,
+               "phases_s": {k: round(v, 2) for k, v in phases.items()}}
     if not summary["complete"]:
         _save(store, run, prior, inputs)
         log(f"ggds: stopped at step {run.step_index} of {config.steps}; continue with --resume")
@@ -112,10 +120,16 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     t = time.perf_counter()
     metrics = run.evaluate(inputs.held_out) if inputs.held_out else {}
     summary.update(metrics)
-    summary["eval_s"] = round(time.perf_counter() - t, 2)
+    summary["eval_s"] = phases["eval"] = time.perf_counter() - t
+    t = time.perf_counter()
     # the figures and the summary before the final save that marks the run complete: a run
     # killed in between is still unfinished (its checkpoint stays) and --resume redoes them
     write_plots(run, inputs.held_out, before, store.plot_dir)
+    phases["plots"] = time.perf_counter() - t
+    summary["eval_s"] = round(summary["eval_s"], 2)
+    summary["phases_s"] = {k: round(v, 2) for k, v in phases.items()}
     store.write_summary(summary)
+    t = time.perf_counter()
     _save(store, run, prior, inputs, metrics=metrics, final=True, keep_checkpoint=keep_checkpoint)
+    summary["phases_s"]["write"] = round(time.perf_counter() - t, 2)
     return summary
