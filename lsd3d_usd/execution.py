@@ -24,6 +24,7 @@ import os
 import signal
 import socket
 import sys
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
 from concurrent.futures import wait as futures_wait
@@ -54,8 +55,9 @@ def task_log(path, label: str):
 
 def probe(payload: dict) -> dict:
     """A task that reports where it ran: the worker's host, pid and peak memory (checks a pool
-    or a cluster before sending it real work)."""
-
+    or a cluster before sending it real work); ``payload["sleep"]`` seconds first, if given
+    (a task that is still running when the tests need one)."""
+    time.sleep(float(payload.get("sleep", 0.0)))
     return {"host": socket.gethostname(), "pid": os.getpid(), "peak_rss_mb": peak_rss_mb(),
             "threads": int(os.environ.get("OMP_NUM_THREADS", "0") or 0)}
 
@@ -72,6 +74,18 @@ def _init_worker(threads: int) -> None:
         os.environ[var] = str(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     atexit.register(_quiet_exit)
+    threading.Thread(target=_exit_with_driver, args=(os.getppid(),), daemon=True,
+                     name="exit-with-driver").start()
+
+
+def _exit_with_driver(driver: int, every_s: float = 0.5) -> None:
+    """A pool worker ends within ``every_s`` of its driver's death (killed, crashed): a pool
+    worker only notices when its task returns, and an orphan would go on writing into the
+    output that the next run of the same command is already redoing."""
+    while True:
+        time.sleep(every_s)
+        if os.getppid() != driver:
+            os._exit(1)
 
 
 def _quiet_exit() -> None:

@@ -267,3 +267,61 @@ def test_a_task_given_threads_runs_with_them_the_rest_with_the_pools_share():
         assert got == {"share": ex.threads, "more": ex.threads * 2}
     finally:
         ex.close()
+
+
+def _children(pid: int) -> list[int]:
+    """Live (not zombie) processes whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                fields = (d / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid and fields[0] != "Z":
+                out.append(int(d.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    try:
+        return (Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_pool_workers_end_when_their_driver_is_killed():
+    """A batch driver killed with SIGKILL leaves no worker behind still running its task (and
+    writing into the output the next run redoes): each worker ends within a second or so."""
+    import signal
+    import subprocess
+    import sys
+    import time
+    code = ("from lsd3d_usd.execution import LocalExecutor\n"
+            "ex = LocalExecutor(2)\n"
+            "for k in range(2):\n"
+            "    ex.submit(k, {'target': 'lsd3d_usd.execution:probe', 'sleep': 120})\n"
+            "print('submitted', flush=True)\n"
+            "ex.poll(300)\n")
+    driver = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert driver.stdout.readline().strip() == "submitted"
+        deadline = time.monotonic() + 120
+        workers = []
+        while len(workers) < 2 and time.monotonic() < deadline:
+            # the pool's spawn also starts a resource tracker: workers are the others
+            workers = [p for p in _children(driver.pid)
+                       if "resource_tracker" not in (Path("/proc") / str(p) / "cmdline").read_text()]
+            time.sleep(0.2)
+        assert len(workers) == 2
+        time.sleep(3.0)              # the workers are inside their task now
+        driver.send_signal(signal.SIGKILL)
+        driver.wait(30)
+        deadline = time.monotonic() + 15
+        while any(_alive(p) for p in workers) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not any(_alive(p) for p in workers)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
