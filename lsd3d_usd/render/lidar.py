@@ -554,8 +554,7 @@ def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t,
     R, C = dirs.shape[0], dirs.shape[1]
     nr, nc = (R + tr - 1) // tr, (C + tc - 1) // tc
     Q_MAX = 2.0 * 6.2
-    for q_ in prange(nr * nc):
-        t_ = _spread(q_, nr * nc)
+    for t_ in prange(nr * nc):      # in order: neighbouring tiles share their surfels
         h, g = t_ // nc, t_ % nc
         lo, hi = offsets[t_], offsets[t_ + 1]
         i0, i1 = h * tr, min(R, (h + 1) * tr)
