@@ -37,6 +37,19 @@ def test_sample_spec_parses_and_plans():
     assert all(t.kind == "chunk" and not t.deps for t in plans[2].tasks[:4])
 
 
+def test_corridor_dataset_sample_plans_ten_logs_after_its_scene():
+    """samples/batch/corridor_dataset.toml (docs/datasets.md's measured batch): the README's
+    1 km corridor, its chunks, the scene after them, ten logs after the scene, one merge."""
+    spec = load_spec(ROOT / "samples" / "batch" / "corridor_dataset.toml")
+    tasks = [t for p in plan_batch(spec) for t in p.tasks]
+    kinds = [t.kind for t in tasks]
+    assert kinds.count("chunk") == 10 and kinds.count("scene") == 1
+    assert kinds.count("dataset_log") == 10 and kinds.count("dataset_merge") == 1
+    logs = [t for t in tasks if t.kind == "dataset_log"]
+    assert all(tuple(t.deps) == ("corridor/scene",) for t in logs)
+    assert set(tasks[-1].deps) == {t.id for t in logs}
+
+
 def test_defaults_merge_relative_paths_and_output(tmp_path):
     (tmp_path / "lay").mkdir()
     (tmp_path / "lay" / "x.usda").write_bytes(LAYOUT.read_bytes())
