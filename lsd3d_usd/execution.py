@@ -56,7 +56,10 @@ def task_log(path, label: str):
 def probe(payload: dict) -> dict:
     """A task that reports where it ran: the worker's host, pid and peak memory (checks a pool
     or a cluster before sending it real work); ``payload["sleep"]`` seconds first, if given
-    (a task that is still running when the tests need one)."""
+    (a task that is still running when the tests need one), after creating the file
+    ``payload["started"]`` names, if given (how a test knows the task has begun)."""
+    if payload.get("started"):
+        Path(payload["started"]).touch()
     time.sleep(float(payload.get("sleep", 0.0)))
     return {"host": socket.gethostname(), "pid": os.getpid(), "peak_rss_mb": peak_rss_mb(),
             "threads": int(os.environ.get("OMP_NUM_THREADS", "0") or 0)}
@@ -67,14 +70,16 @@ def describe(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {msg}" if msg else type(exc).__name__
 
 
-def _init_worker(threads: int) -> None:
+def _init_worker(threads: int, driver: int | None = None) -> None:
     """Runs first in every pool worker (spawned, so nothing heavy is imported yet): share the
-    cores between workers, and leave Ctrl-C to the driver (which stops the pool)."""
+    cores between workers, leave Ctrl-C to the driver (which stops the pool), and end with the
+    driver (pid ``driver``, given by it: a worker whose driver died while it was starting must
+    not take that for its parent)."""
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
         os.environ[var] = str(threads)
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     atexit.register(_quiet_exit)
-    threading.Thread(target=_exit_with_driver, args=(os.getppid(),), daemon=True,
+    threading.Thread(target=_exit_with_driver, args=(driver or os.getppid(),), daemon=True,
                      name="exit-with-driver").start()
 
 
@@ -126,7 +131,7 @@ class LocalExecutor:
 
     def _new_pool(self, n: int, threads: int | None = None) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(max_workers=n, mp_context=self._ctx, initializer=_init_worker,
-                                   initargs=(threads or self.threads,),
+                                   initargs=(threads or self.threads, os.getpid()),
                                    max_tasks_per_child=self.tasks_per_worker)
 
     def submit(self, key, payload: dict, isolated: bool = False,

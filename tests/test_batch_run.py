@@ -291,31 +291,31 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
-def test_pool_workers_end_when_their_driver_is_killed():
+def test_pool_workers_end_when_their_driver_is_killed(tmp_path):
     """A batch driver killed with SIGKILL leaves no worker behind still running its task (and
     writing into the output the next run redoes): each worker ends within a second or so."""
     import signal
     import subprocess
     import sys
     import time
+    marks = [tmp_path / f"started{k}" for k in range(2)]
     code = ("from lsd3d_usd.execution import LocalExecutor\n"
             "ex = LocalExecutor(2)\n"
-            "for k in range(2):\n"
-            "    ex.submit(k, {'target': 'lsd3d_usd.execution:probe', 'sleep': 120})\n"
-            "print('submitted', flush=True)\n"
+            f"for k, m in enumerate({[str(m) for m in marks]!r}):\n"
+            "    ex.submit(k, {'target': 'lsd3d_usd.execution:probe', 'sleep': 120,"
+            " 'started': m})\n"
             "ex.poll(300)\n")
-    driver = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    driver = subprocess.Popen([sys.executable, "-c", code])
+    workers = []
     try:
-        assert driver.stdout.readline().strip() == "submitted"
-        deadline = time.monotonic() + 120
-        workers = []
-        while len(workers) < 2 and time.monotonic() < deadline:
-            # the pool's spawn also starts a resource tracker: workers are the others
-            workers = [p for p in _children(driver.pid)
-                       if "resource_tracker" not in (Path("/proc") / str(p) / "cmdline").read_text()]
+        deadline = time.monotonic() + 180
+        while not all(m.exists() for m in marks) and time.monotonic() < deadline:
             time.sleep(0.2)
+        assert all(m.exists() for m in marks)          # both tasks are running
+        # the pool's spawn also starts a resource tracker: the workers are the others
+        workers = [p for p in _children(driver.pid)
+                   if "resource_tracker" not in (Path("/proc") / str(p) / "cmdline").read_text()]
         assert len(workers) == 2
-        time.sleep(3.0)              # the workers are inside their task now
         driver.send_signal(signal.SIGKILL)
         driver.wait(30)
         deadline = time.monotonic() + 15
@@ -325,3 +325,9 @@ def test_pool_workers_end_when_their_driver_is_killed():
     finally:
         if driver.poll() is None:
             driver.kill()
+        for p in workers:           # a failed run must not leave them sleeping
+            try:
+                if _alive(p) and "spawn_main" in (Path("/proc") / str(p) / "cmdline").read_text():
+                    os.kill(p, signal.SIGKILL)
+            except OSError:
+                pass

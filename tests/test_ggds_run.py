@@ -268,6 +268,20 @@ def test_packed_view_gbuffer_unpacks_to_the_full_gbuffer():
     vis = shadow.visibility(np.where(ref.mask[..., None], ref.position, np.nan))
     np.testing.assert_array_equal(gb.sun_visibility.numpy(), np.where(ref.mask, vis, 1.0))
     assert 0 < gb.sun_visibility[torch.from_numpy(ref.mask)].mean() < 1   # shadow and sun both
+    # no shadow map: no sun visibility (all lit), the same positions
+    from lsd3d_usd.conditioning.gbuffer import pack_view_gbuffer
+    bare = pack_view_gbuffer(cam, V, F, None)
+    assert bare.sun is None and torch.equal(bare.world_pos, gb.world_pos)
+    # a map of one wall's two faces: the pixels off it are lit, the ones it shades are not,
+    # as ShadowMap.visibility says
+    used, sub = np.unique(F[6:8], return_inverse=True)
+    part = shadow_map(V[used], sub.reshape(-1, 3), np.array([0.2, 0.6, 0.5]), resolution=64)
+    uv, _ = part.camera.project(ref.position[ref.mask])
+    assert ((uv < 0) | (uv >= 64)).any(axis=1).sum() > 100        # many pixels off the map
+    vis = part.visibility(np.where(ref.mask[..., None], ref.position, np.nan))
+    assert (vis[ref.mask] == 0).sum() > 100                        # and many it shades
+    np.testing.assert_array_equal(pack_view_gbuffer(cam, V, F, part).sun.numpy(),
+                                  np.where(ref.mask, vis, 1.0) > 0.5)
 
 
 def test_training_view_gbuffers_are_keyed_so_the_prior_renders_each_view_once():

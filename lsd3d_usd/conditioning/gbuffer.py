@@ -204,8 +204,8 @@ def _pack_pixels(zbuf, fid, cam, pose, sv, light, sdepth, shadowed, depth, face,
             qz = sv[2, 0] * px + sv[2, 1] * py + sv[2, 2] * pz + sv[2, 3]
             u = light[0] * qx / qz + light[2]
             v = light[1] * qy / qz + light[3]
-            if not (math.isfinite(u) and math.isfinite(v)):
+            # on the map as floats first (nan fails too): no huge float is made an integer
+            if not (0.0 <= u < SW and 0.0 <= v < SH):
                 continue
-            ti, tj = math.floor(u), math.floor(v)
-            if 0 <= ti < SW and 0 <= tj < SH and sdepth[int(tj), int(ti)] < qz - light[4]:
+            if sdepth[int(math.floor(v)), int(math.floor(u))] < qz - light[4]:
                 sun[j, i] = False

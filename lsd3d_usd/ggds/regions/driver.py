@@ -81,12 +81,14 @@ def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
     if in_process:
         rss.append(peak_rss_mb())
     summary["worker_peak_rss_mb"] = max(rss) if rss else None
-    phases = {}         # seconds outside the steps, summed over the regions (run_ggds)
+    # seconds outside the steps (run_ggds' phases_s) summed over the regions: CPU-side
+    # totals, which exceed the wall time when regions ran side by side or in earlier calls
+    spent = {}
     for t in tasks.values():
         for k, v in (t.get("phases_s") or {}).items():
-            phases[k] = round(phases.get(k, 0.0) + v, 2)
-    if phases:
-        summary["phases_s"] = phases
+            spent[k] = round(spent.get(k, 0.0) + v, 2)
+    if spent:
+        summary["phases_s"] = spent
     if any(plan["regions"]):   # chunk regions (a whole-scene region is the summary itself)
         summary["per_region"] = {
             k: {**{kk: v.get(kk) for kk in ("stepsDone", "complete", "surfels", "seconds",

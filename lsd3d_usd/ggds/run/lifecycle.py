@@ -51,7 +51,9 @@ def run_ggds(inputs: GGDSInputs, prior, config: GGDSConfig, store, *, resume: bo
     holds the result). term_state: already built loss-term state (e.g. a loaded LPIPS net).
     Returns the run summary (also written by the store); its ``phases_s`` gives the seconds
     spent outside the steps: ``init`` (the run's state, loss terms, the "before" renders),
-    ``colour_start``, ``eval`` (held-out views), ``plots`` and ``write`` (the final layer).
+    ``colour_start`` (on a resume: restoring the checkpoint), ``eval`` (held-out views),
+    ``plots`` and ``write`` (the final layer; measured after the store wrote the summary, so
+    only the returned one has it).
 
     The run takes over ``inputs.field`` and ``inputs.context``: once its parameters hold them
     they are set to None here, so a caller that keeps no other reference frees them (a
