@@ -13,7 +13,7 @@ from numba import njit, prange
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.conditioning.shadow import ShadowMap
-from lsd3d_usd.render.camera import Camera, pixel_directions
+from lsd3d_usd.render.camera import Camera
 from lsd3d_usd.render.gbuffer import face_normals, render_depth
 
 
@@ -135,15 +135,46 @@ class PackedGBuffer:
     sun: torch.Tensor | None       # (H,W) bool lit by the sun (1 where empty), None: all lit
 
     def unpack(self, faces: FaceTable, key: Hashable | None = None, fine=None) -> GBuffer:
-        """``faces``: the proxy's FaceTable; ``key``, ``fine``: GBuffer.key, GBuffer.fine."""
-        empty = len(faces.classes) - 1
-        f = torch.where(self.face >= 0, self.face, empty).long()
+        """``faces``: the proxy's FaceTable; ``key``, ``fine``: GBuffer.key, GBuffer.fine.
+        Normals, classes and view directions in one pass (_unpack_pixels: the formulas of
+        render.camera.pixel_directions, in float64, each direction rounded to float32)."""
+        H, W = self.face.shape
+        normal = np.empty((H, W, 3), np.float32)
+        semantic = np.empty((H, W), np.int64)
+        dirs = np.empty((H, W, 3), np.float32)
+        c = self.camera
+        _unpack_pixels(self.face.numpy(), faces.normals.numpy(), faces.classes.numpy(),
+                       np.array([c.fx, c.fy, c.cx, c.cy]), np.ascontiguousarray(c.pose[:3, :3]),
+                       normal, semantic, dirs)
         return GBuffer(
-            depth=self.depth, normal=faces.normals[f], semantic=faces.classes[f],
-            world_pos=self.world_pos,
-            view_dirs=torch.from_numpy(pixel_directions(self.camera).astype(np.float32)),
+            depth=self.depth, normal=torch.from_numpy(normal),
+            semantic=torch.from_numpy(semantic), world_pos=self.world_pos,
+            view_dirs=torch.from_numpy(dirs),
             camera_position=torch.from_numpy(self.camera.center.astype(np.float32)),
             sun_visibility=None if self.sun is None else self.sun.float(), key=key, fine=fine)
+
+
+@njit(parallel=True, cache=True)
+def _unpack_pixels(face, normals, classes, cam, R, normal, semantic, dirs):
+    """Per pixel: its face's normal and class (the table's last row where empty) and the unit
+    world direction of its ray."""
+    H, W = face.shape
+    empty = classes.shape[0] - 1
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    for j in prange(H):
+        y = (j + 0.5 - cy) / fy
+        for i in range(W):
+            f = face[j, i]
+            if f < 0:
+                f = empty
+            normal[j, i, 0], normal[j, i, 1], normal[j, i, 2] = normals[f, 0], normals[f, 1], normals[f, 2]
+            semantic[j, i] = classes[f]
+            x = (i + 0.5 - cx) / fx
+            dx = x * R[0, 0] + y * R[0, 1] + R[0, 2]
+            dy = x * R[1, 0] + y * R[1, 1] + R[1, 2]
+            dz = x * R[2, 0] + y * R[2, 1] + R[2, 2]
+            n = math.sqrt(dx * dx + dy * dy + dz * dz)
+            dirs[j, i, 0], dirs[j, i, 1], dirs[j, i, 2] = dx / n, dy / n, dz / n
 
 
 def pack_view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray,
