@@ -229,7 +229,22 @@ def _hit_packed(ox, oy, oz, dx, dy, dz, P, p):
 
 
 # ----------------------------------------------------------------------------- binning
-@njit(cache=True)
+@njit(cache=True, parallel=True)
+def rotate_columns(rot, d):
+    """(R, C, 3) directions: each column's ``d[:, c]`` (sensor frame) turned by its pose's
+    rotation ``rot[c]`` (3, 3) — a sweep's rays in the world, the products summed in axis
+    order (as an einsum does, in float64)."""
+    R, C = d.shape[0], d.shape[1]
+    out = np.empty((R, C, 3))
+    for r in prange(R):
+        for c in range(C):
+            x, y, z = d[r, c, 0], d[r, c, 1], d[r, c, 2]
+            for i in range(3):
+                out[r, c, i] = rot[c, i, 0] * x + rot[c, i, 1] * y + rot[c, i, 2] * z
+    return out
+
+
+@njit(cache=True, parallel=True)
 def _tile_bounds(dirs, tc, tr):
     """Per tile (ring group, column group): the world azimuth of its middle ray, the largest
     azimuth difference of its rays from it, and the elevation range of its rays."""
@@ -239,7 +254,7 @@ def _tile_bounds(dirs, tc, tr):
     az_half = np.zeros((nr, nc))
     el_lo = np.zeros((nr, nc))
     el_hi = np.zeros((nr, nc))
-    for h in range(nr):
+    for h in prange(nr):
         i0, i1 = h * tr, min(R, (h + 1) * tr)
         for g in range(nc):
             j0, j1 = g * tc, min(C, (g + 1) * tc)

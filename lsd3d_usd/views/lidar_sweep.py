@@ -24,7 +24,8 @@ import numpy as np
 from pxr import Gf, Sdf, UsdGeom
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.render.lidar import LidarModel, MeshActors, RayHits, cast, surfel_frames
+from lsd3d_usd.render.lidar import (LidarModel, MeshActors, RayHits, cast, rotate_columns,
+                                     surfel_frames)
 from lsd3d_usd.semantics import CLASS_ID
 from lsd3d_usd.views import labels as L
 from lsd3d_usd.views.frame import surfel_codes
@@ -133,7 +134,7 @@ def cast_sweep(model: LidarModel, poses: np.ndarray, frames, actors: MeshActors 
     """Rays of the model from column poses ``poses`` (C, 4, 4) against ``frames``
     (surfel_frames) and the mesh actors: render.lidar.cast."""
     d = model.directions()                                     # (R, C, 3) sensor frame
-    dirs = np.einsum("cij,rcj->rci", poses[:, :3, :3], d)
+    dirs = rotate_columns(np.ascontiguousarray(poses[:, :3, :3]), np.ascontiguousarray(d))
     origins = poses[:, :3, 3]
     return cast(frames, actors, origins, dirs, t0 + model.column_times(),
                 min_range=model.min_range, max_range=model.max_range), origins, dirs
