@@ -10,7 +10,7 @@ from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import elevated as E
 from lsd3d_usd.eval.evaluate import eval_options, evaluate
-from lsd3d_usd.eval.views import building_footprints, inside_building
+from lsd3d_usd.conditioning.views import building_paths, inside_paths
 from lsd3d_usd.layout.usdio import read_layout
 
 
@@ -28,14 +28,14 @@ def test_poses_heights_pitch_and_looking_down_at_the_layout(layout):
     assert [v.group for v in views] == ["5"] * 6 + ["15"] * 6 + ["30"] * 6
     ground = float(np.median(np.concatenate([ln.points[:, 2] for ln in layout.drivable_lanes()])))
     (x0, y0), (x1, y1) = layout.bounds()
-    fps = building_footprints(layout)
+    fps = building_paths(layout)
     solids = [(fp, b.height_hint) for fp, b in zip(fps, layout.buildings)]
     for v in views:
         c = v.camera.center
         assert c[2] - ground == pytest.approx(v.height_m, abs=0.5)
         assert 20.0 - 1e-6 <= _pitch(v.camera) <= 60.0 + 1e-6
         assert _pitch(v.camera) == pytest.approx(v.pitch_deg, abs=1e-6)
-        assert x0 <= c[0] <= x1 and y0 <= c[1] <= y1 and not inside_building(c, fps)
+        assert x0 <= c[0] <= x1 and y0 <= c[1] <= y1 and not inside_paths(c, fps)
         # the optical axis meets the ground inside the layout: the camera looks at the scene
         f = v.camera.pose[:3, 2]
         hit = c + f * (ground - c[2]) / f[2]
@@ -44,7 +44,7 @@ def test_poses_heights_pitch_and_looking_down_at_the_layout(layout):
         # no building stands between the camera and the point it looks at
         for t in np.linspace(0.05, 0.95, 19):
             p = c + t * (hit - c)
-            assert not any(p[2] < top and inside_building(p, [fp]) for fp, top in solids)
+            assert not any(p[2] < top and inside_paths(p, [fp]) for fp, top in solids)
     # view k of every height looks at the same lane point
     for k in range(6):
         hits = []

@@ -8,7 +8,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import geometry as G
 from lsd3d_usd.eval import temporal as T
 from lsd3d_usd.eval import views as V
-from lsd3d_usd.conditioning.views import sample_views
+from lsd3d_usd.conditioning.views import building_paths, inside_paths, sample_views
 from lsd3d_usd.layout.usdio import read_layout
 from lsd3d_usd.render.camera import Camera, look_at
 from lsd3d_usd.render.gbuffer import render_gbuffer
@@ -136,7 +136,7 @@ def test_novel_views_distances_headings_and_determinism(layout):
     nv = V.novel_views(seen, bins, 7, seed=11, layout=layout)
     assert len(nv) == 21
     assert [n.bin_m for n in nv] == [0.5] * 7 + [2.0] * 7 + [8.0] * 7
-    fps = V.building_footprints(layout)
+    fps = building_paths(layout)
     for i, n in enumerate(nv):
         src = seen[n.source].camera
         assert n.source == i % 7 % 6
@@ -148,7 +148,7 @@ def test_novel_views_distances_headings_and_determinism(layout):
         np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
         # heading turned about z only: the pitch of the optical axis is unchanged
         assert n.view.camera.pose[2, 2] == pytest.approx(src.pose[2, 2], abs=1e-12)
-        assert not V.inside_building(n.view.camera.center, fps)
+        assert not inside_paths(n.view.camera.center, fps)
         assert n.nearest_train_m <= n.bin_m + 1e-9
     again = V.novel_views(seen, bins, 7, seed=11, layout=layout)
     assert all(np.array_equal(a.view.camera.pose, b.view.camera.pose) for a, b in zip(nv, again))

@@ -32,7 +32,8 @@ def _batch(args) -> int:
             print(f"scene {sc.name}: {sc.output}")
         for plan in plan_batch(spec):
             for t in plan.tasks:
-                names = list(t.deps) if len(t.deps) <= 3 else [*t.deps[:2], f"... {len(t.deps)} tasks"]
+                names = (list(t.deps) if len(t.deps) <= 3
+                         else [*t.deps[:2], f"... {len(t.deps)} tasks"])
                 deps = f" (after {', '.join(names)})" if t.deps else ""
                 print(f"{t.id:40s} {t.kind:6s} {t.inputs_hash}{deps}")
         return 0

@@ -167,7 +167,8 @@ def _unpack_pixels(face, normals, classes, cam, R, normal, semantic, dirs):
             f = face[j, i]
             if f < 0:
                 f = empty
-            normal[j, i, 0], normal[j, i, 1], normal[j, i, 2] = normals[f, 0], normals[f, 1], normals[f, 2]
+            for a in range(3):
+                normal[j, i, a] = normals[f, a]
             semantic[j, i] = classes[f]
             x = (i + 0.5 - cx) / fx
             dx = x * R[0, 0] + y * R[0, 1] + R[0, 2]

@@ -12,7 +12,8 @@ and the terrain seen from above are never measured. These views are (seeded):
   A camera outside the layout's XY bounds, inside a building footprint, or whose sight line
   to the target passes through a building (below its eave height +
   conditioning.elevated.ROOF_MARGIN_M) is redrawn (another azimuth and pitch, up to 50
-  times): the view shows the target, not a wall next to the camera. If none fits, it takes the steepest pitch from the side of the layout's centre
+  times): the view shows the target, not a wall next to the camera. If none fits, it takes
+  the steepest pitch from the side of the layout's centre
   (inside the bounds for any layout wider than 2 h / tan(max pitch)).
 - the scene's own Overview cameras (/World/Cameras/Overview/*, written by `generate`:
   views.scene_cameras), in their own group ``"overview"``, not in the nearest height bin:

@@ -110,17 +110,6 @@ def pick(n_total: int, n: int, seed: int) -> np.ndarray:
     return np.sort(np.random.default_rng(seed).choice(n_total, n, replace=False))
 
 
-def building_footprints(layout) -> list:
-    """The layout's building footprints as conditioning.views tests them (training views
-    and elevated views avoid the same buildings)."""
-    return building_paths(layout)
-
-
-def inside_building(p, footprints) -> bool:
-    """Whether point ``p``'s XY lies inside one of ``footprints`` (building_footprints)."""
-    return inside_paths(np.asarray(p, np.float64), footprints)
-
-
 def _yawed_pose(pose: np.ndarray, centre: np.ndarray, yaw: float) -> np.ndarray:
     """`pose` turned by `yaw` (radians, about world Z) and moved to `centre`."""
     c, s = np.cos(yaw), np.sin(yaw)
@@ -142,7 +131,7 @@ def novel_views(sources: list, bins, per_bin: int, seed: int, layout=None,
     rng = np.random.default_rng(seed)
     centres = np.asarray(train_centres if train_centres is not None
                          else [v.camera.center for v in sources], np.float64)
-    fps = building_footprints(layout) if layout is not None else []
+    fps = building_paths(layout) if layout is not None else []
     out = []
     for d in bins:
         d = float(d)
@@ -162,7 +151,7 @@ def novel_views(sources: list, bins, per_bin: int, seed: int, layout=None,
                 phi = rng.uniform(0.0, 2.0 * np.pi)
                 disp = horiz * (np.cos(phi) * fwd + np.sin(phi) * left) + np.array([0.0, 0.0, dz])
                 centre = cam.center + disp
-                if not inside_building(centre, fps):
+                if not inside_paths(centre, fps):
                     break
             yaw = rng.uniform(-max_yaw, max_yaw)
             new = Camera(cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,

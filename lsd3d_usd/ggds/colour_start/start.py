@@ -5,8 +5,8 @@ diffusion prior is not).
 A per-surfel least-squares fit to the t = 1 targets of the training views (and the extra fit
 views) that see it (worldfit.ViewFit; each training view's target is computed once and cached
 by the prior, as the steps would ask for it), each view's samples weighted 1, or
-``ggds.elevated_fit_weight`` for an elevated view (``View.kind``), and for surfels none sees, to the prior
-evaluated in 3D over its disk from the nearest cameras (worldfit.fit_sh). With a frozen
+``ggds.elevated_fit_weight`` for an elevated view (``View.kind``), and for surfels none
+sees, to the prior evaluated in 3D over its disk from the nearest cameras (worldfit.fit_sh). With a frozen
 context whose rows still carry class colours, those rows are fitted the same way.
 """
 from __future__ import annotations
