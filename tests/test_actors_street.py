@@ -18,7 +18,7 @@ from lsd3d_usd.actors import people as P
 from lsd3d_usd.actors.pedestrians import WalkParams, obb_overlap
 from lsd3d_usd.actors.sidewalks import build_walkable
 from lsd3d_usd.actors.street import STATES, StreetParams, simulate_street
-from lsd3d_usd.actors.traffic import LaneGraph
+from lsd3d_usd.layout.routes import LaneGraph
 from lsd3d_usd.layout.model import Crosswalk, LaneCenter, Layout
 
 SAMPLE = Path(__file__).resolve().parents[1] / "samples" / "layouts" / "hand_crossing.usda"

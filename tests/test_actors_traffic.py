@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 from shapely.geometry import LineString, Point
 
-from lsd3d_usd.actors.traffic import IDMParams, LaneGraph, Simulation, constant_speed_route, simulate
+from lsd3d_usd.actors.traffic import IDMParams, Simulation, simulate
+from lsd3d_usd.layout.routes import LaneGraph, constant_speed_route
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout.model import LaneCenter, Layout
 

@@ -9,6 +9,7 @@ import lsd3d_usd  # noqa: F401
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import lanes as LN
 from lsd3d_usd.layout import model as m
+from lsd3d_usd.layout import routes as R
 from lsd3d_usd.layout.usdio import read_layout
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples" / "layouts"
@@ -26,7 +27,7 @@ def test_drivable_is_one_definition():
     L.add(_lane("dot", [[1, 1], [1, 1]]))
     assert [ln.id for ln in L.drivable_lanes()] == [f"{t}_lane" for t in m.DRIVABLE_TYPES]
     # every consumer sees the same lanes: traffic, GGDS cameras, surfel density
-    from lsd3d_usd.actors.traffic import LaneGraph
+    from lsd3d_usd.layout.routes import LaneGraph
     from lsd3d_usd.conditioning.views import sample_views
     from lsd3d_usd.splats.importance import lane_samples
     assert LaneGraph(L).ids == [ln.id for ln in L.drivable_lanes()]
@@ -36,13 +37,13 @@ def test_drivable_is_one_definition():
 
 def test_longest_route_on_the_crossing():
     L = read_layout(SAMPLES / "hand_crossing.usda")
-    ids, length = LN.longest_route(L)
+    ids, length = R.longest_route(L)
     assert length == pytest.approx(120.0) and len(ids) == 3
     assert all(b in L.lane_by_id(a).successors for a, b in zip(ids, ids[1:]))
-    assert LN.longest_route(L) == (ids, length)                         # deterministic
-    short, s_len = LN.longest_route(L, max_length=60.0)
+    assert R.longest_route(L) == (ids, length)                         # deterministic
+    short, s_len = R.longest_route(L, max_length=60.0)
     assert 60.0 <= s_len < 120.0 and len(short) == 2
-    assert LN.longest_route(m.Layout()) == ([], 0.0)
+    assert R.longest_route(m.Layout()) == ([], 0.0)
 
 
 def test_longest_route_survives_loops_and_budget():
@@ -50,13 +51,13 @@ def test_longest_route_survives_loops_and_budget():
     corners = [(0, 0), (10, 0), (10, 10), (0, 10)]
     for k in range(4):
         L.add(_lane(f"r{k}", [corners[k], corners[(k + 1) % 4]], successors=[f"r{(k + 1) % 4}"]))
-    ids, length = LN.longest_route(L)
+    ids, length = R.longest_route(L)
     assert ids == ["r0", "r1", "r2", "r3"] and length == pytest.approx(40.0)   # no lane twice
-    assert len(LN.longest_route(L, budget=2)[0]) == 2
+    assert len(R.longest_route(L, budget=2)[0]) == 2
 
 
 def test_route_errors_name_valid_ids():
-    from lsd3d_usd.actors.traffic import LaneGraph
+    from lsd3d_usd.layout.routes import LaneGraph
     L = read_layout(SAMPLES / "hand_crossing.usda")
     L.add(_lane("park_1", [[-40, -5.5], [-20, -5.5]], lane_type="parking", speed_limit_mps=0.0))
     g = LaneGraph(L)

@@ -8,7 +8,7 @@ import pytest
 
 from conftest import ROOT
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.layout import lanes as lane_graph
+from lsd3d_usd.layout import routes as lane_graph
 from lsd3d_usd.layout import opendrive as od
 from lsd3d_usd.layout import opendrive_export
 

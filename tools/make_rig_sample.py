@@ -65,7 +65,7 @@ def build_scene(root: Path, seed: int = 3, extent=(200.0, 200.0), n_surfels: int
 def pick_route(layout, min_length: float = 60.0) -> list[str]:
     """A drivable route through at least one junction: the longest non-junction lane, its
     first successor, and that lane's first successor."""
-    from lsd3d_usd.actors.traffic import LaneGraph
+    from lsd3d_usd.layout.routes import LaneGraph
     g = LaneGraph(layout)
     order = np.argsort(-g.length)
     for i in order:

@@ -13,7 +13,7 @@ import numpy as np
 from shapely import STRtree
 from shapely.geometry import Polygon
 
-from lsd3d_usd.actors.traffic import LaneGeom
+from lsd3d_usd.layout.routes import LaneGeom
 
 KIND_WEIGHTS = {"car": 0.72, "van": 0.18, "truck": 0.05, "bus": 0.05}
 CLEARANCE = 0.3          # m kept free around every parked footprint

@@ -16,8 +16,9 @@ import shapely
 
 from lsd3d_usd.actors.pedestrians import CROSS, STAND, WAIT, WALK, Pedestrians, WalkParams, Walker
 from lsd3d_usd.actors.sidewalks import Walkable, build_walkable
-from lsd3d_usd.actors.traffic import IDMParams, LaneGraph, Simulation, TrafficRun
+from lsd3d_usd.actors.traffic import IDMParams, Simulation, TrafficRun
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.layout.routes import LaneGraph
 from lsd3d_usd.limits import CYCLISTS, PEDESTRIANS
 
 STATES = (WALK, WAIT, CROSS, STAND)
@@ -77,7 +78,7 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
         raise InputError(f"actors: at most {MAX_PEDESTRIANS} pedestrians and {MAX_CYCLISTS} cyclists "
                          f"(asked for {len(pedestrians)} and {len(cyclists)})")
     sim = Simulation(layout, seed, params.idm, graph if graph is not None else
-                     LaneGraph(layout, params.idm, bike_lanes=True))
+                     LaneGraph(layout, params.idm.conflict_distance, bike_lanes=True))
     w = walkable if walkable is not None else build_walkable(
         layout, params.walk.track_offset, params.walk.stand_offset)
     if getattr(sim.g, "crossings_of", None) is not w:      # a graph reused over seeds keeps them

@@ -30,14 +30,12 @@ Arrays in, arrays out: `simulate` returns a `TrafficRun` sampled at ``fps``.
 """
 from __future__ import annotations
 
-import bisect
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.layout.lanes import route_hint
+from lsd3d_usd.layout.routes import LaneGraph
 
 
 @dataclass(frozen=True)
@@ -55,68 +53,6 @@ class IDMParams:
     speed_factor: tuple = (0.8, 1.0)
     crosswalk_headway: float = 0.5   # s a pedestrian adds to a vehicle's braking distance
     crosswalk_buffer: float = 2.0    # m more it keeps from a vehicle before stepping out
-
-
-class LaneGeom:
-    """Arc-length parameterisation of one lane's centre line (direction of travel)."""
-
-    def __init__(self, lane):
-        pts = np.asarray(lane.points, np.float64)
-        if lane.direction == "backward":
-            pts = pts[::-1]
-        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        keep = np.concatenate([[True], seg > 1e-9])
-        self.points = pts[keep]
-        self.cum = np.concatenate([[0.0], np.cumsum(seg[seg > 1e-9])])
-        self.length = float(self.cum[-1])
-        self.id = lane.id
-        self.limit = float(lane.speed_limit_mps)
-        self.is_junction = bool(lane.is_junction)
-        self.bike = lane.lane_type == "bike"
-        w = np.asarray(lane.widths, np.float64) if lane.widths is not None and len(lane.widths) else \
-            np.full(len(lane.points), 3.5)
-        self.width = float(np.min(w))
-
-    def pose2d(self, s: float, offset: float = 0.0, half: float = 1.0) -> tuple[float, float, float]:
-        """(x, y, yaw) at one arc length, ``offset`` m to the left: the scalar fast path of
-        `point` / `heading` / `offset_point` (same values) for per-step queries."""
-        if not hasattr(self, "_cum_list"):
-            self._cum_list = self.cum.tolist()
-            self._xy_list = self.points[:, :2].tolist()
-        x, y = self._xy2(s)
-        ax, ay = self._xy2(max(s - half, 0.0))
-        bx, by = self._xy2(min(s + half, self.length))
-        yaw = math.atan2(by - ay, bx - ax)
-        if offset:
-            x, y = x - math.sin(yaw) * offset, y + math.cos(yaw) * offset
-        return x, y, yaw
-
-    def _xy2(self, s: float) -> tuple[float, float]:
-        cum, xy = self._cum_list, self._xy_list
-        s = min(max(s, 0.0), self.length)
-        j = min(max(bisect.bisect_right(cum, s) - 1, 0), len(cum) - 2)
-        d = cum[j + 1] - cum[j]
-        f = (s - cum[j]) / d if d > 0 else 0.0
-        return xy[j][0] + f * (xy[j + 1][0] - xy[j][0]), xy[j][1] + f * (xy[j + 1][1] - xy[j][1])
-
-    def offset_point(self, s, offset) -> np.ndarray:
-        """The point ``offset`` m to the left of the centre line (negative: right) at s."""
-        p = self.point(s)
-        h = self.heading(s)
-        off = np.asarray(offset, np.float64)
-        return p + np.stack([-np.sin(h) * off, np.cos(h) * off, np.zeros_like(h * off)], axis=-1)
-
-    def point(self, s) -> np.ndarray:
-        s = np.clip(np.asarray(s, np.float64), 0.0, self.length)
-        return np.stack([np.interp(s, self.cum, self.points[:, k]) for k in range(3)], axis=-1)
-
-    def heading(self, s, half: float = 1.0) -> np.ndarray:
-        """Yaw (radians) of the chord over s +- half (smooth through polyline vertices)."""
-        s = np.asarray(s, np.float64)
-        a = self.point(np.maximum(s - half, 0.0))
-        b = self.point(np.minimum(s + half, self.length))
-        d = b - a
-        return np.arctan2(d[..., 1], d[..., 0])
 
 
 @dataclass
@@ -141,108 +77,6 @@ class TrafficRun:
     @property
     def n(self) -> int:
         return int(self.position.shape[0])
-
-
-class LaneGraph:
-    """Drivable lanes of a layout (`Layout.drivable_lanes`, the one definition) with successor
-    indices and junction conflict sets; with ``bike_lanes`` also the layout's bike lanes, for
-    cyclists (a car never chooses one)."""
-
-    def __init__(self, layout, params: IDMParams = IDMParams(), bike_lanes: bool = False):
-        self.layout = layout
-        drivable = {id(ln) for ln in layout.drivable_lanes()}
-        lanes = [ln for ln in layout.lanes if id(ln) in drivable or (
-            bike_lanes and ln.lane_type == "bike" and ln.speed_limit_mps > 0 and ln.length() > 1e-6)]
-        self.geoms = [LaneGeom(ln) for ln in lanes]
-        self.ids = [g.id for g in self.geoms]
-        self.index = {lid: i for i, lid in enumerate(self.ids)}
-        self.succ = [[self.index[s] for s in ln.successors if s in self.index] for ln in lanes]
-        self.pred = [[self.index[p] for p in ln.predecessors if p in self.index] for ln in lanes]
-        self.length = np.array([g.length for g in self.geoms])
-        self.limit = np.array([g.limit for g in self.geoms])
-        self.junction = np.array([g.is_junction for g in self.geoms], bool)
-        self.bike = np.array([g.bike for g in self.geoms], bool)
-        self.width = np.array([g.width for g in self.geoms])
-        self.conflicts = self._conflicts(params.conflict_distance)
-        self.crossings: list[list] = [[] for _ in self.geoms]   # per lane: (crosswalk, s_in, s_out)
-        self.crossings_of = None       # what the crossings were computed for (street's walkable)
-        self.n_crosswalks = 0
-
-    def set_crosswalks(self, polygons) -> None:
-        """For every lane, the arc-length interval where the lane's width touches each
-        crosswalk polygon (shapely): ``crossings[lane] = [(k, s_in, s_out), ...]``."""
-        self.crossings = [[] for _ in self.geoms]
-        self.n_crosswalks = 0
-        if not hasattr(self, "_bounds"):
-            self._bounds = [(g.points[:, :2].min(0), g.points[:, :2].max(0)) for g in self.geoms]
-        for poly in polygons:
-            self.add_crosswalk(poly)
-
-    def add_crosswalk(self, poly, step: float = 0.25) -> int:
-        """Add one crossing polygon (a crosswalk, or a mid-block crossing while it lasts);
-        returns its index."""
-        import shapely
-        k = self.n_crosswalks
-        self.n_crosswalks += 1
-        x0, y0, x1, y1 = poly.bounds
-        for i, g in enumerate(self.geoms):
-            pad = self.width[i] / 2
-            lo, hi = self._bounds[i]
-            if lo[0] > x1 + pad or hi[0] < x0 - pad or lo[1] > y1 + pad or hi[1] < y0 - pad:
-                continue
-            s = np.linspace(0.0, g.length, max(2, int(np.ceil(g.length / step)) + 1))
-            p = g.point(s)
-            inside = shapely.dwithin(poly, shapely.points(p[:, 0], p[:, 1]), pad)
-            if inside.any():
-                idx = np.flatnonzero(inside)
-                self.crossings[i].append((k, float(s[max(idx[0] - 1, 0)]),
-                                          float(s[min(idx[-1] + 1, len(s) - 1)])))
-        return k
-
-    def truncate_crosswalks(self, n: int) -> None:
-        """Forget the crossing polygons from index ``n`` on (a run's mid-block crossings)."""
-        if self.n_crosswalks > n:
-            self.crossings = [[c for c in row if c[0] < n] for row in self.crossings]
-            self.n_crosswalks = n
-
-    def _conflicts(self, dist: float) -> list[set]:
-        """For each junction lane: the other junction lanes whose centre lines come within
-        ``dist`` (crossing, merging or diverging paths)."""
-        out = [set() for _ in self.geoms]
-        J = np.flatnonzero(self.junction)
-        if len(J) < 2:
-            return out
-        samples = {}
-        for j in J:
-            g = self.geoms[j]
-            n = max(2, int(np.ceil(g.length / 0.5)) + 1)
-            samples[j] = g.point(np.linspace(0.0, g.length, n))[:, :2]
-        lo = {j: samples[j].min(0) - dist for j in J}
-        hi = {j: samples[j].max(0) + dist for j in J}
-        for a_i, a in enumerate(J):
-            for b in J[a_i + 1:]:
-                if np.any(lo[a] > hi[b]) or np.any(lo[b] > hi[a]):
-                    continue
-                d = np.linalg.norm(samples[a][:, None, :] - samples[b][None, :, :], axis=2)
-                if d.min() < dist:
-                    out[a].add(int(b))
-                    out[b].add(int(a))
-        return out
-
-    def route_indices(self, lane_ids) -> list[int]:
-        """Validate a route: known drivable lanes, each the successor of the one before."""
-        idx = []
-        for k, lid in enumerate(lane_ids):
-            if lid not in self.index or self.bike[self.index[lid]]:
-                raise InputError(f"route: {route_hint(self.layout, lid)}")
-            i = self.index[lid]
-            if idx and i not in self.succ[idx[-1]]:
-                raise InputError(f"route: lane {lid!r} does not follow lane {lane_ids[k - 1]!r} "
-                                 f"(successors: {', '.join(self.ids[j] for j in self.succ[idx[-1]]) or 'none'})")
-            idx.append(i)
-        if not idx:
-            raise InputError("route: no lanes given")
-        return idx
 
 
 @dataclass
@@ -272,7 +106,7 @@ def _idm(v, v0, gap, dv, p: IDMParams) -> float:
 class Simulation:
     def __init__(self, layout, seed: int, params: IDMParams = IDMParams(), graph: LaneGraph | None = None):
         self.p = params
-        self.g = graph if graph is not None else LaneGraph(layout, params)
+        self.g = graph if graph is not None else LaneGraph(layout, params.conflict_distance)
         self.rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x1D3]))
         self.seed = int(seed)
         self.veh: list[_Vehicle] = []
@@ -610,21 +444,3 @@ def simulate(layout, lengths, seed: int = 0, seconds: float = 8.0, fps: float = 
         sim.add_ego(sim.g.route_indices(list(ego_route)), ego_length)
     sim.spawn(list(lengths))
     return sim.run(seconds, fps)
-
-
-def constant_speed_route(layout, lane_ids, speed: float, times) -> tuple[np.ndarray, np.ndarray]:
-    """(positions (n,3), yaw (n,)) at ``times`` driving ``lane_ids`` at ``speed`` from the
-    start of the first lane; the car stops at the end of the last lane."""
-    g = LaneGraph(layout)
-    idx = g.route_indices(list(lane_ids))
-    if not speed > 0:
-        raise InputError(f"route: speed must be > 0, got {speed}")
-    cum = np.concatenate([[0.0], np.cumsum(g.length[idx])])
-    d = np.clip(np.asarray(times, np.float64) * speed, 0.0, cum[-1])
-    pos, yaw = np.zeros((len(d), 3)), np.zeros(len(d))
-    for k, dk in enumerate(d):
-        j = min(int(np.searchsorted(cum, dk, side="right")) - 1, len(idx) - 1)
-        geom = g.geoms[idx[j]]
-        pos[k] = geom.point(dk - cum[j])
-        yaw[k] = geom.heading(dk - cum[j])
-    return pos, np.unwrap(yaw)

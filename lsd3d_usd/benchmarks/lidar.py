@@ -33,7 +33,7 @@ from lsd3d_usd.views import labels as L
 from lsd3d_usd.views.ego import frame_times, track_from_route
 from lsd3d_usd.views.frame import composite, render_surfels
 from lsd3d_usd.views.lidar_sweep import SurfelCache, sweep
-from lsd3d_usd.views.rig_stage import default_route
+from lsd3d_usd.layout.routes import default_route
 from lsd3d_usd.views.sensors import PRESETS
 from lsd3d_usd.views.stage_data import ActorFrame, SceneReader
 

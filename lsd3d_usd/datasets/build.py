@@ -85,7 +85,7 @@ def _layout(scene: Path):
 
 
 def check_route(layout, ids: list, where: str) -> list:
-    from lsd3d_usd.actors.traffic import LaneGraph
+    from lsd3d_usd.layout.routes import LaneGraph
     try:
         LaneGraph(layout).route_indices(ids)
     except InputError as e:
@@ -95,38 +95,18 @@ def check_route(layout, ids: list, where: str) -> list:
 
 
 def draw_routes(layout, n: int, length: float, seed: int, where: str) -> list:
-    """``n`` distinct routes: seeded random successor walks from the lanes where traffic
-    enters the graph, each as long as ``length`` (or until no successor is left)."""
-    from lsd3d_usd.layout.lanes import lane_graph
-    rows = lane_graph(layout)
-    if not rows:
-        raise InputError(f"{where}: the layout has no drivable lanes")
-    by_id = {r.id: r for r in rows}
-    starts = sorted(r.id for r in rows if not r.predecessors) or sorted(by_id)
-    rng = np.random.default_rng([int(seed), 0x5EED])
-    got, seen = [], set()
-    for _ in range(50 * n):
-        lid = starts[rng.integers(len(starts))]
-        path, dist = [lid], by_id[lid].length_m
-        while dist < length:
-            nxt = sorted(s for s in by_id[path[-1]].successors if s in by_id and s not in path)
-            if not nxt:
-                break
-            path.append(nxt[rng.integers(len(nxt))])
-            dist += by_id[path[-1]].length_m
-        if tuple(path) not in seen:
-            seen.add(tuple(path))
-            got.append(path)
-            if len(got) == n:
-                return got
-    raise InputError(f"{where}: --routes {n}: the layout has only {len(got)} distinct routes "
-                     f"of this kind")
+    """``n`` distinct routes (`routes.random_routes`), errors prefixed with ``where``."""
+    from lsd3d_usd.layout.routes import random_routes
+    try:
+        return random_routes(layout, n, length, seed)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
 
 
 def plan_logs(scenes: list[Path], opt: DatasetOptions, layouts=None) -> list[LogPlan]:
     """The logs (scene x route) of a dataset; ``layouts``: the scenes' layouts when the
     scenes are not written yet (a batch plans before it generates)."""
-    from lsd3d_usd.views.rig_stage import default_route
+    from lsd3d_usd.layout.routes import default_route, parse_route
     names = [s.name for s in scenes]
     dup = next((n for n in names if names.count(n) > 1), None)
     if dup:
@@ -139,7 +119,7 @@ def plan_logs(scenes: list[Path], opt: DatasetOptions, layouts=None) -> list[Log
     for k, sc in enumerate(scenes):
         layout = layouts[k] if layouts is not None else _layout(sc)
         if opt.route is not None:
-            routes = [check_route(layout, [r.strip() for r in opt.route.split(",") if r.strip()],
+            routes = [check_route(layout, parse_route(opt.route),
                                   str(sc))]
         elif opt.routes is not None:
             lanes = layout.drivable_lanes()

@@ -262,11 +262,12 @@ def _info(args) -> int:
 def _lanes(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.layout import lanes, usdio
+    from lsd3d_usd.layout.routes import longest_route
     if args.png:
         check_output_path(args.png, "--png", suffixes=(".png",), what="PNG file")
     layout = usdio.read_layout(args.input)
     rows = lanes.lane_graph(layout)
-    route = lanes.longest_route(layout)
+    route = longest_route(layout)
     if args.png:
         lanes.draw_lanes(layout, args.png, title=f"{args.input}: drivable lanes")
     if args.json:

@@ -1,12 +1,8 @@
-"""The drivable lane graph of a layout (model.Layout.drivable_lanes, linked by successors):
-a listing, a top view with lane ids, routes along it, and valid ids to name in errors.
-
-A route is a list of lane ids, each a successor of the one before (what `render --rig
---route` and the traffic model's ego take).
+"""`layout lanes`: the drivable lane graph of a layout (`routes.LaneGraph`) as a listing and
+as a top view with lane ids. Routes along it live in `routes`.
 """
 from __future__ import annotations
 
-import difflib
 import io
 from dataclasses import dataclass
 from pathlib import Path
@@ -16,9 +12,8 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from lsd3d_usd.layout.model import DRIVABLE_TYPES, Layout
+from lsd3d_usd.layout.routes import LaneGraph
 from lsd3d_usd.scene import atomic_write_bytes
-
-ROUTE_SEARCH_BUDGET = 20_000   # lane expansions of the route search (large maps stay < 1 s)
 
 
 @dataclass
@@ -41,73 +36,12 @@ class LaneRow:
 
 
 def lane_graph(layout: Layout) -> list[LaneRow]:
-    """The drivable lanes in layout order, with their drivable successors / predecessors."""
-    lanes = layout.drivable_lanes()
-    ids = {ln.id for ln in lanes}
-    return [LaneRow(ln.id, ln.lane_type, ln.length(), ln.speed_limit_mps, ln.is_junction,
-                    ln.road_id, [s for s in ln.successors if s in ids],
-                    [p for p in ln.predecessors if p in ids]) for ln in lanes]
-
-
-def longest_route(layout: Layout, max_length: float | None = None,
-                  budget: int = ROUTE_SEARCH_BUDGET) -> tuple[list[str], float]:
-    """(lane ids, length in m) of the longest drivable successor path that repeats no lane,
-    searched depth-first from the lanes where traffic enters the graph (no drivable
-    predecessor; every lane when the graph has none), ids in sorted order, for at most
-    ``budget`` lane expansions. With ``max_length`` the first path reaching it is returned
-    (a clip needs no more). Deterministic; ([], 0.0) without drivable lanes."""
-    rows = lane_graph(layout)
-    if not rows:
-        return [], 0.0
-    by_id = {r.id: r for r in rows}
-    starts = sorted(r.id for r in rows if not r.predecessors) or sorted(by_id)
-    best: tuple[list[str], float] = ([], -1.0)
-    expansions = 0
-    for start in starts:
-        stack = [(start, [start], by_id[start].length_m)]
-        while stack:
-            lid, path, length = stack.pop()
-            expansions += 1
-            if length > best[1]:
-                best = (path, length)
-                if max_length is not None and length >= max_length:
-                    return best
-            if expansions >= budget:
-                return best
-            on_path = set(path)
-            # reversed: the smallest successor id is expanded first
-            for nxt in sorted(by_id[lid].successors, reverse=True):
-                if nxt not in on_path:
-                    stack.append((nxt, path + [nxt], length + by_id[nxt].length_m))
-    return best
-
-
-def similar_ids(layout: Layout, lane_id: str, k: int = 6) -> tuple[str, list[str]]:
-    """What to tell a user who named ``lane_id`` in a route: (why it is not drivable, up to
-    ``k`` valid drivable ids near it — spatially for a lane of another type, by spelling for
-    an unknown id, else the first ids)."""
-    rows = layout.drivable_lanes()
-    ids = [ln.id for ln in rows]
-    other = next((ln for ln in layout.lanes if ln.id == lane_id), None)
-    if other is not None:
-        why = (f"is a {other.lane_type} lane (a car drives lanes of type "
-               f"{', '.join(DRIVABLE_TYPES)})" if other.lane_type not in DRIVABLE_TYPES
-               else "has no length or a speed limit of 0")
-        if rows:
-            here = np.asarray(other.points)[:, :2]
-            d = [float(np.min(np.linalg.norm(np.asarray(ln.points)[:, None, :2] - here[None], axis=2)))
-                 for ln in rows]
-            return why, [ids[i] for i in np.argsort(d, kind="stable")[:k]]
-        return why, []
-    close = difflib.get_close_matches(lane_id, ids, n=k, cutoff=0.5)
-    return "is not a lane of the layout", close or sorted(ids)[:k]
-
-
-def route_hint(layout: Layout, lane_id: str) -> str:
-    """One clause for an error about ``lane_id``: why, and valid ids to try."""
-    why, near = similar_ids(layout, lane_id)
-    nearby = f"; drivable lanes nearby: {', '.join(near)}" if near else "; the layout has no drivable lanes"
-    return f"lane {lane_id!r} {why}{nearby} (all: `lsd3d-usd layout lanes LAYOUT_OR_SCENE`)"
+    """The drivable lanes in layout order, with their drivable successors / predecessors
+    (the rows of `routes.LaneGraph`)."""
+    g = LaneGraph(layout)
+    return [LaneRow(ln.id, ln.lane_type, float(g.length[i]), ln.speed_limit_mps, ln.is_junction,
+                    ln.road_id, [g.ids[j] for j in g.succ[i]], [g.ids[j] for j in g.pred[i]])
+            for i, ln in enumerate(g.lanes)]
 
 
 def format_lanes(rows: list[LaneRow], route: tuple[list[str], float], where: str) -> str:

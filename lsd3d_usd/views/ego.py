@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from lsd3d_usd.actors import traffic as T
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.layout.routes import constant_speed_route
 
 
 @dataclass
@@ -75,7 +76,7 @@ def track_from_route(layout, lane_ids, times, speed: float | None = None, seed: 
     (or within CROSSWALK_REACH of it)."""
     times = np.asarray(times, np.float64)
     if speed is not None:
-        pos, yaw = T.constant_speed_route(layout, lane_ids, speed, times)
+        pos, yaw = constant_speed_route(layout, lane_ids, speed, times)
         return EgoTrack(times, pos, yaw_rotations(yaw))
     fps = 1.0 / (times[1] - times[0]) if len(times) > 1 else 10.0
     sim = T.Simulation(layout, seed)

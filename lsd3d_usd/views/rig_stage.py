@@ -20,7 +20,7 @@ from lsd3d_usd import scene as S
 from lsd3d_usd.actors.assets import relative_asset_path, write_vehicle_asset
 from lsd3d_usd.actors.usdio import ROLE_ATTR, ActorSpec, actor_label, author_actor
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.layout.lanes import longest_route
+from lsd3d_usd.layout.routes import default_route
 from lsd3d_usd.layout.usdio import layout_from_stage
 from lsd3d_usd.render.camera import to_usd
 from lsd3d_usd.scene import ACTORS_PATH, ASSETS_DIR, CAMERAS_PATH, new_stage
@@ -84,17 +84,6 @@ def rig_layer(rig, track: EgoTrack, tcps: float, ego_asset: str | None = None, l
                          ActorSpec("Ego_000", "ego", ego_asset, track.positions, track.yaws(),
                                    times=track.times), tcps)
     return layer, paths
-
-
-def default_route(layout, seconds: float, speed: float | None = None) -> tuple[list[str], float]:
-    """(lane ids, length) the rig drives when no route is given: the longest drivable
-    successor path, cut once it covers the clip at ``speed`` (default: the fastest lane
-    limit, which IDM does not exceed). Empty without drivable lanes."""
-    lanes = layout.drivable_lanes()
-    if not lanes:
-        return [], 0.0
-    v = speed if speed is not None else max(ln.speed_limit_mps for ln in lanes)
-    return longest_route(layout, max_length=float(seconds) * float(v))
 
 
 def scene_pedestrians(stage, tcps: float):
