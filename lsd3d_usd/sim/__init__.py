@@ -1,0 +1,1 @@
+"""lsd3d_usd.sim"""
