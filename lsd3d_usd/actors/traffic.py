@@ -94,6 +94,10 @@ class _Vehicle:
     v_max: float = np.inf  # own top speed (cyclists)
     offset: float = 0.0    # lateral offset from the lane centre (m, + left)
     width: float = 1.8
+    # moved from outside (a closed-loop ego): never stepped here; `pose` is its own, and
+    # lane -1 while it is on no lane
+    external: bool = False
+    pose_override: tuple | None = None
 
 
 def _idm(v, v0, gap, dv, p: IDMParams) -> float:
@@ -288,6 +292,8 @@ class Simulation:
         vehicle heading across it can stop before it at its comfortable deceleration."""
         p = self.p
         for me in self.veh:
+            if me.lane < 0:
+                continue
             for c, d_in, d_out in self._crossings_ahead(me, 150.0):
                 if c != cw:
                     continue
@@ -305,7 +311,7 @@ class Simulation:
         """Junction reservations, nearest-to-the-lane-end first."""
         want = []
         for i, me in enumerate(self.veh):
-            if not me.plan or not self.g.junction[me.plan[0]] or me.plan[0] in me.holds:
+            if me.lane < 0 or not me.plan or not self.g.junction[me.plan[0]] or me.plan[0] in me.holds:
                 continue
             if self.g.junction[me.lane]:
                 continue
@@ -326,7 +332,7 @@ class Simulation:
             for j, o in enumerate(self.veh):
                 if j == i:
                     continue
-                held = set(o.holds) | ({o.lane} if self.g.junction[o.lane] else set())
+                held = set(o.holds) | ({o.lane} if o.lane >= 0 and self.g.junction[o.lane] else set())
                 for c in chain:
                     if held & self.g.conflicts[c]:
                         blocked = True
@@ -338,6 +344,9 @@ class Simulation:
                     me.holds[c] = -1
 
     def _release(self, me: _Vehicle) -> None:
+        if me.lane < 0:
+            me.holds.clear()
+            return
         for lane in list(me.holds):
             if lane == me.lane:
                 continue
@@ -351,6 +360,8 @@ class Simulation:
         acc = np.zeros(len(self.veh))
         bound = np.full(len(self.veh), np.inf)
         for i, me in enumerate(self.veh):
+            if me.external:
+                continue
             horizon = max(120.0, me.v * 8.0)
             gap, v_lead = self._ahead(i, horizon)
             cw_gap = self._crosswalk_gap(me, horizon)
@@ -366,6 +377,8 @@ class Simulation:
                 p.a_max * (1 - (me.v / max(v0, 0.1)) ** p.delta)
             bound[i] = gap - p.min_gap if np.isfinite(gap) else np.inf
         for i, me in enumerate(self.veh):
+            if me.external:
+                continue
             a = max(acc[i], -p.b_max)
             v_new = max(0.0, me.v + a * dt)
             ds = 0.5 * (me.v + v_new) * dt
@@ -393,8 +406,56 @@ class Simulation:
 
     # ---- run
     def pose(self, me: _Vehicle) -> tuple[float, float, float]:
-        """(x, y, yaw) of a vehicle now."""
+        """(x, y, yaw) of a vehicle now (box centre)."""
+        if me.pose_override is not None:
+            return me.pose_override
         return self.g.geoms[me.lane].pose2d(me.s, me.offset)
+
+    def add_external(self, length: float, width: float) -> _Vehicle:
+        """A vehicle moved from outside (the closed-loop ego): the others follow it, yield to
+        it and stop behind it; `place_external` sets where it is before each step."""
+        v = _Vehicle(float(length), -1, 0.0, 0.0, 1.0, [], [], {}, free=False, width=float(width),
+                     external=True)
+        self.veh.insert(0, v)
+        return v
+
+    def place_external(self, v: _Vehicle, pose: tuple, speed: float, lane: int = -1,
+                       s: float = 0.0, plan=()) -> None:
+        """Where the external vehicle ``v`` is now: its box centre pose (x, y, yaw), speed, and
+        the lane (index, -1 for none) and arc length its centre projects to, with the lanes
+        it will drive next (``plan``, for junction reservations)."""
+        if lane != v.lane:
+            v.holds = {k: c for k, c in v.holds.items() if k in plan or k == lane}
+            if lane >= 0 and self.g.junction[lane]:
+                v.holds[lane] = -1
+        v.pose_override = tuple(float(c) for c in pose)
+        v.v, v.lane, v.s = float(speed), int(lane), float(s)
+        v.plan = [int(k) for k in plan][:2]
+
+    def must_stop_before(self, v: _Vehicle, horizon: float = 120.0) -> float:
+        """Bumper distance the vehicle ``v`` must stop within by the model's rules (a junction
+        it holds no reservation for, an occupied crosswalk), inf when none."""
+        if v.lane < 0:
+            return np.inf
+        best = self._crosswalk_gap(v, horizon)
+        dist = self.g.length[v.lane] - v.s
+        prev = v.lane
+        for nxt in v.plan:
+            if dist - v.length / 2 > horizon:
+                break
+            if self._must_stop(v, prev, nxt):
+                best = min(best, dist - v.length / 2 - self.p.stop_margin)
+                break
+            dist += self.g.length[nxt]
+            prev = nxt
+        return best
+
+    def leader(self, i: int, horizon: float = 120.0) -> tuple[float, float]:
+        """(bumper gap, speed) of the vehicle ahead of vehicle i along its lane and plan
+        (inf, 0 when none); the wall of a lane end without a reservation counts as one."""
+        if self.veh[i].lane < 0:
+            return np.inf, 0.0
+        return self._ahead(i, horizon)
 
     def run(self, seconds: float, fps: float, on_step=None, on_sample=None) -> TrafficRun:
         """Run for ``seconds``, sampling every 1/fps s. ``on_step(sim, dt)`` is called before
