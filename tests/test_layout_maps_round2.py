@@ -83,3 +83,93 @@ def test_opendrive_records_from_zero_do_not_warn(tmp_path):
     L, msgs = read_warn(write_xodr(tmp_path, s2=0, elev='<elevation s="0" a="10" b="0" c="0" d="0"/>'))
     assert not [m for m in msgs if "held" in m]
     assert at_x(L.lane_by_id("7_0_-2"), 0.0)[2] == pytest.approx(3.5)
+
+
+# ------------------------------------------------------------------ Lanelet2
+
+L2_ORIGIN = (49.0, 8.4)
+
+
+def l2_latlon(x, y):
+    """lat, lon of the point at (x, y) on the ellipsoid's surface, in the ENU frame about
+    L2_ORIGIN (lanelet2's own projector, iterated onto height 0)."""
+    from lanelet2.core import BasicPoint3d, GPSPoint
+    from lanelet2.io import Origin
+    from lanelet2.projection import LocalCartesianProjector
+    pr = LocalCartesianProjector(Origin(*L2_ORIGIN))
+    z = 0.0
+    for _ in range(3):
+        g = pr.reverse(BasicPoint3d(x, y, z))
+        z = pr.forward(GPSPoint(g.lat, g.lon, 0.0)).z
+    return g.lat, g.lon
+
+
+def write_l2(tmp_path, xs=(0, 1000, 2000, 3000), ele=0.0, sign=None, name="m.osm"):
+    """One straight 3.5 m lanelet along +x; ``sign``: the subtype of a traffic sign rule."""
+    nodes, ways, rels = [], [], []
+    nid = [0]
+
+    def node(x, y):
+        nid[0] += 1
+        lat, lon = l2_latlon(x, y)
+        nodes.append(f'<node id="{nid[0]}" lat="{lat:.12f}" lon="{lon:.12f}" version="1">'
+                     f'<tag k="ele" v="{ele}"/></node>')
+        return nid[0]
+
+    def way(wid, refs, **tags):
+        nd = "".join(f'<nd ref="{r}"/>' for r in refs)
+        tg = "".join(f'<tag k="{k}" v="{v}"/>' for k, v in tags.items())
+        ways.append(f'<way id="{wid}" version="1">{nd}{tg}</way>')
+
+    way(1001, [node(x, 1.75) for x in xs], type="line_thin", subtype="solid")
+    way(1002, [node(x, -1.75) for x in xs], type="line_thin", subtype="solid")
+    reg = ""
+    if sign:
+        way(1003, [node(40, -3), node(40, -3.5)], type="traffic_sign", subtype=sign)
+        rels.append('<relation id="3001" version="1"><member type="way" ref="1003" role="refers"/>'
+                    '<tag k="type" v="regulatory_element"/><tag k="subtype" v="traffic_sign"/>'
+                    '</relation>')
+        reg = '<member type="relation" ref="3001" role="regulatory_element"/>'
+    rels.append('<relation id="2001" version="1"><member type="way" ref="1001" role="left"/>'
+                f'<member type="way" ref="1002" role="right"/>{reg}<tag k="type" v="lanelet"/>'
+                '<tag k="subtype" v="road"/><tag k="location" v="urban"/>'
+                '<tag k="one_way" v="yes"/></relation>')
+    p = tmp_path / name
+    p.write_text('<?xml version="1.0" encoding="UTF-8"?>\n<osm version="0.6" generator="test">'
+                 + "".join(nodes + ways + rels) + "</osm>\n")
+    return p
+
+
+def read_map(p, **kw):
+    from lsd3d_usd.layout import importers
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        L, imp = importers.read_map(p, importers.ImportOptions(**kw))
+    return L, imp, [str(x.message) for x in w]
+
+
+def test_lanelet2_flat_map_stays_flat_3km(tmp_path):
+    pytest.importorskip("lanelet2")
+    L, imp, _ = read_map(write_l2(tmp_path), origin=L2_ORIGIN)
+    assert imp.name == "lanelet2"
+    pts = L.lanes[0].points
+    # ele is the map's z: no sag by the Earth's curvature (it was 0.70 m at 3 km)
+    assert np.abs(pts[:, 2]).max() < 0.01
+    assert pts[-1, 0] == pytest.approx(3000, abs=0.005) and pts[-1, 1] == pytest.approx(0, abs=0.005)
+
+
+def test_lanelet2_ele_is_z_and_the_plan_keeps_its_scale(tmp_path):
+    pytest.importorskip("lanelet2")
+    L, _, _ = read_map(write_l2(tmp_path, xs=(0, 425, 850), ele=520.0), origin=L2_ORIGIN)
+    pts = L.lanes[0].points
+    assert np.allclose(pts[:, 2], 520.0, atol=0.01)
+    # not shrunk by 520 m / R (7 cm at 850 m)
+    assert pts[-1, 0] == pytest.approx(850, abs=0.005)
+
+
+def test_lanelet2_autoware_stop_sign(tmp_path):
+    pytest.importorskip("lanelet2")
+    L, _, _ = read_map(write_l2(tmp_path, xs=(0, 100), sign="stop_sign"), origin=L2_ORIGIN)
+    assert len(L.stop_signs) == 1 and not L.traffic_signs
+    assert L.stop_signs[0].lane_ids == [L.lanes[0].id]
+    assert np.allclose(L.stop_signs[0].position[:2], [40, -3], atol=0.005)
