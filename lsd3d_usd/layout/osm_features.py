@@ -181,24 +181,44 @@ def sound_highways(path, roads, xy_of: dict, options: ImportOptions) -> list:
             _warn(f"{path}: way {wid}: a highway of {len(refs)} node(s) at one position; skipped",
                   options)
             continue
-        # One pass with a stack (linear time): a node where the way turns back is dropped,
-        # and the turn at the node before it is looked at again.
+        # One pass with a stack (linear time): at a node b where the way turns back (a, b, c)
+        # the node whose removal shortens the way most is dropped: b (a spike), or the way's
+        # first node a / last node c when that is the outlier (dropping b there kept the
+        # outlier and dropped the good nodes one by one). Then the turn before is looked at
+        # again.
         spikes = []
         limit = np.cos(np.radians(SPIKE_DEG))
         stack = keep[:1]
+        last = keep[-1]
         for r in keep[1:]:
             while len(stack) >= 2:
                 a, b, c = xy_of[stack[-2]], xy_of[stack[-1]], xy_of[r]
                 u, v = b - a, c - b
                 if np.dot(u, v) / max(np.hypot(*u) * np.hypot(*v), 1e-12) >= limit:
                     break
-                spikes.append(stack.pop())
-            stack.append(r)
+                lu, lv = np.hypot(*u), np.hypot(*v)
+                gain_b = lu + lv - np.hypot(*(c - a))
+                gain_a = lu if len(stack) == 2 else -1.0
+                gain_c = lv if r == last else -1.0
+                if gain_c > max(gain_a, gain_b):
+                    spikes.append(r)
+                    r = None
+                    break
+                spikes.append(stack.pop(-2 if gain_a > gain_b else -1))
+            if r is not None:
+                stack.append(r)
         keep = stack
         if spikes:
+            def length(ids):
+                q = np.array([xy_of[i] for i in ids])
+                return float(np.hypot(*np.diff(q, axis=0).T).sum())
+
+            ends = {refs[0]: " (its first node)", refs[-1]: " (its last node)"}
+            named = ", ".join(f"{x}{ends.get(x, '')}" for x in spikes[:3])
             _warn(f"{path}: way {wid}: turns back on itself at node {spikes[0]}"
-                  f"{f' (and {len(spikes) - 1} more)' if len(spikes) > 1 else ''}; node(s) "
-                  "dropped from the way (repaired)", options)
+                  f"{f' (and {len(spikes) - 1} more)' if len(spikes) > 1 else ''}; dropped node(s) "
+                  f"{named}{' ...' if len(spikes) > 3 else ''}, length {length(refs):.0f} m -> "
+                  f"{length(keep):.0f} m (repaired)", options)
             dropped = set(spikes)
             refs = [r for r in refs if r not in dropped]
         out.append((wid, t, refs))
