@@ -90,13 +90,13 @@ def test_opendrive_records_from_zero_do_not_warn(tmp_path):
 L2_ORIGIN = (49.0, 8.4)
 
 
-def l2_latlon(x, y):
+def l2_latlon(x, y, origin=L2_ORIGIN):
     """lat, lon of the point at (x, y) on the ellipsoid's surface, in the ENU frame about
-    L2_ORIGIN (lanelet2's own projector, iterated onto height 0)."""
+    ``origin`` (lanelet2's own projector, iterated onto height 0)."""
     from lanelet2.core import BasicPoint3d, GPSPoint
     from lanelet2.io import Origin
     from lanelet2.projection import LocalCartesianProjector
-    pr = LocalCartesianProjector(Origin(*L2_ORIGIN))
+    pr = LocalCartesianProjector(Origin(*origin))
     z = 0.0
     for _ in range(3):
         g = pr.reverse(BasicPoint3d(x, y, z))
@@ -173,3 +173,86 @@ def test_lanelet2_autoware_stop_sign(tmp_path):
     assert len(L.stop_signs) == 1 and not L.traffic_signs
     assert L.stop_signs[0].lane_ids == [L.lanes[0].id]
     assert np.allclose(L.stop_signs[0].position[:2], [40, -3], atol=0.005)
+
+
+# ------------------------------------------------------------------ OpenStreetMap
+
+def write_osm(tmp_path, nodes, ways, name="m.osm", origin=L2_ORIGIN):
+    """nodes: [(id, x, y, tags)] in metres about L2_ORIGIN; ways: [(id, [refs], tags)]."""
+    def tags(t):
+        return "".join(f'<tag k="{k}" v="{v}"/>' for k, v in t.items())
+    out = []
+    for nid, x, y, t in nodes:
+        lat, lon = l2_latlon(x, y, origin)
+        out.append(f'<node id="{nid}" version="1" lat="{lat:.10f}" lon="{lon:.10f}">{tags(t)}</node>')
+    for wid, refs, t in ways:
+        out.append(f'<way id="{wid}" version="1">' + "".join(f'<nd ref="{r}"/>' for r in refs)
+                   + tags(t) + "</way>")
+    p = tmp_path / name
+    p.write_text('<?xml version="1.0"?>\n<osm version="0.6">\n' + "\n".join(out) + "\n</osm>\n")
+    return p
+
+
+def test_osm_first_node_outlier_is_dropped_and_the_road_kept(tmp_path):
+    # a 100 m road whose first node lies 1 km past its end
+    nodes = [(1, 1100, 0, {})] + [(k + 2, 20 * k, 0, {}) for k in range(6)]
+    p = write_osm(tmp_path, nodes, [(7, [n[0] for n in nodes], {"highway": "residential"})])
+    L, _, msgs = read_map(p, origin=L2_ORIGIN)
+    xs = np.concatenate([ln.points[:, 0] for ln in L.lanes])
+    assert xs.min() == pytest.approx(0, abs=0.01) and xs.max() == pytest.approx(100, abs=0.01)
+    assert all(ln.length() == pytest.approx(100, abs=0.01) for ln in L.lanes)
+    rep = [x for x in msgs if "way 7" in x]
+    assert len(rep) == 1 and "dropped node(s) 1 (its first node)" in rep[0], msgs
+    assert "at node 2;" in rep[0] and "1200 m -> 100 m" in rep[0]
+
+
+def test_osm_last_node_outlier_is_dropped(tmp_path):
+    nodes = [(k + 1, 20 * k, 0, {}) for k in range(6)] + [(9, -1000, 0, {})]
+    p = write_osm(tmp_path, nodes, [(7, [n[0] for n in nodes], {"highway": "residential"})])
+    L, _, msgs = read_map(p, origin=L2_ORIGIN)
+    assert all(ln.length() == pytest.approx(100, abs=0.01) for ln in L.lanes)
+    assert any("dropped node(s) 9 (its last node)" in x for x in msgs), msgs
+
+
+# ------------------------------------------------------------------ command line
+
+ROAD = [(k + 1, 20 * k - 50, 0, {}) for k in range(6)], [(7, [1, 2, 3, 4, 5, 6], {"highway": "residential"})]
+
+
+@pytest.mark.parametrize("form", ["space", "equals"])
+def test_cli_negative_origin(tmp_path, capsys, form):
+    from lsd3d_usd.cli import main
+    o = (-23.36, -119.73)
+    p = write_osm(tmp_path, *ROAD, origin=o)
+    flag = ["--origin", "-23.36,-119.73"] if form == "space" else ["--origin=-23.36,-119.73"]
+    assert main(["layout", "import", str(p), *flag, "-o", str(tmp_path / "o.usda")]) == 0
+    out = capsys.readouterr().out
+    assert "origin lat -23.3600000, lon -119.7300000 (from --origin)" in out
+
+
+def test_cli_negative_bbox(tmp_path, capsys):
+    from lsd3d_usd.cli import main
+    from lsd3d_usd.layout import usdio
+    p = write_osm(tmp_path, *ROAD, origin=(51.5, 0.0))
+    assert main(["layout", "import", str(p), "--bbox", "-0.001,51.499,0.001,51.501",
+                 "-o", str(tmp_path / "o.usda")]) == 0
+    assert "(the centre of --bbox)" in capsys.readouterr().out
+    src = usdio.read_layout(tmp_path / "o.usda").metadata["source"]
+    assert src["bbox"] == [-0.001, 51.499, 0.001, 51.501]
+
+
+def test_cli_negative_value_parses_and_a_missing_value_still_fails():
+    from lsd3d_usd.cli import build_parser
+    args = build_parser().parse_args(["layout", "import", "m.osm", "--origin", "-1.5,-2",
+                                      "-o", "o.usda"])
+    assert args.origin == "-1.5,-2"
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["layout", "import", "m.osm", "--origin", "--bbox", "1,2,3,4"])
+
+
+def test_import_summary_says_where_the_origin_came_from(tmp_path, capsys):
+    from lsd3d_usd.cli import main
+    p = write_osm(tmp_path, *ROAD)      # no <bounds>
+    assert main(["layout", "import", str(p), "-o", str(tmp_path / "o.usda")]) == 0
+    out = capsys.readouterr().out
+    assert "(the centre of its nodes' extent: the file has no <bounds>; pass --origin" in out

@@ -186,7 +186,7 @@ def sound_highways(path, roads, xy_of: dict, options: ImportOptions) -> list:
         # first node a / last node c when that is the outlier (dropping b there kept the
         # outlier and dropped the good nodes one by one). Then the turn before is looked at
         # again.
-        spikes = []
+        spikes, turns = [], []
         limit = np.cos(np.radians(SPIKE_DEG))
         stack = keep[:1]
         last = keep[-1]
@@ -196,6 +196,7 @@ def sound_highways(path, roads, xy_of: dict, options: ImportOptions) -> list:
                 u, v = b - a, c - b
                 if np.dot(u, v) / max(np.hypot(*u) * np.hypot(*v), 1e-12) >= limit:
                     break
+                turns.append(stack[-1])
                 lu, lv = np.hypot(*u), np.hypot(*v)
                 gain_b = lu + lv - np.hypot(*(c - a))
                 gain_a = lu if len(stack) == 2 else -1.0
@@ -215,8 +216,8 @@ def sound_highways(path, roads, xy_of: dict, options: ImportOptions) -> list:
 
             ends = {refs[0]: " (its first node)", refs[-1]: " (its last node)"}
             named = ", ".join(f"{x}{ends.get(x, '')}" for x in spikes[:3])
-            _warn(f"{path}: way {wid}: turns back on itself at node {spikes[0]}"
-                  f"{f' (and {len(spikes) - 1} more)' if len(spikes) > 1 else ''}; dropped node(s) "
+            _warn(f"{path}: way {wid}: turns back on itself at node {turns[0]}"
+                  f"{f' (and {len(turns) - 1} more)' if len(turns) > 1 else ''}; dropped node(s) "
                   f"{named}{' ...' if len(spikes) > 3 else ''}, length {length(refs):.0f} m -> "
                   f"{length(keep):.0f} m (repaired)", options)
             dropped = set(spikes)
