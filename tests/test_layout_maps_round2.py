@@ -256,3 +256,15 @@ def test_import_summary_says_where_the_origin_came_from(tmp_path, capsys):
     assert main(["layout", "import", str(p), "-o", str(tmp_path / "o.usda")]) == 0
     out = capsys.readouterr().out
     assert "(the centre of its nodes' extent: the file has no <bounds>; pass --origin" in out
+
+
+def test_osm_crossing_node_on_a_crossing_way_is_one_crosswalk(tmp_path):
+    nodes = [(1, -50, 0, {}), (2, 0, 0, {"highway": "crossing"}), (3, 50, 0, {}),
+             (4, 0, -8, {}), (5, 0, 8, {})]
+    ways = [(7, [1, 2, 3], {"highway": "residential"}),
+            (8, [4, 2, 5], {"highway": "footway", "footway": "crossing"})]
+    L, _, _ = read_map(write_osm(tmp_path, nodes, ways), origin=L2_ORIGIN)
+    assert [c.id for c in L.crosswalks] == ["crossingway8"]
+    # a crossing node alone still gives its crosswalk
+    L, _, _ = read_map(write_osm(tmp_path, nodes[:3], ways[:1], name="n.osm"), origin=L2_ORIGIN)
+    assert [c.id for c in L.crosswalks] == ["crossing2"]

@@ -339,6 +339,7 @@ def map_features(path, points, ways, coords, clip, layout, xy, options: ImportOp
                               height=1.0))
     from lsd3d_usd.layout.osm_import import _num
     surface = None
+    way_walks = []     # (node ids, polygon) of crossing ways' crosswalks
     for wid, t, refs in ways:
         kind = t.get("barrier")
         crossing = t.get("footway") == "crossing" or (t.get("highway") == "footway"
@@ -359,6 +360,7 @@ def map_features(path, points, ways, coords, clip, layout, xy, options: ImportOp
                 ring = np.asarray(shapely.geometry.polygon.orient(poly, 1.0).exterior.coords)[:-1]
                 layout.add(m.Crosswalk(f"crossingway{wid}" + (f"_{k}" if k else ""),
                                        polygon=np.column_stack([ring, np.zeros(len(ring))])))
+                way_walks.append((set(refs), poly))
         elif kind == "hedge":
             h = _num(t.get("height"))
             layout.add(m.Hedge(f"hedge{wid}", points=p3, height=h if h and h < 20 else HEDGE[0],
@@ -368,3 +370,25 @@ def map_features(path, points, ways, coords, clip, layout, xy, options: ImportOp
             h = _num(t.get("height"))
             layout.add(m.Barrier(f"barrier{wid}", points=p3, kind=bkind,
                                  height=h if h and 0 < h < 50 else dh, width=dw))
+    if way_walks:
+        _drop_doubled_crossings(layout, way_walks)
+
+
+def _drop_doubled_crossings(layout, way_walks) -> None:
+    """A crossing is often mapped twice: a ``highway=crossing`` node on the road and a
+    ``footway=crossing`` way through it. The way's crosswalk (the mapped line) is kept; the
+    node's is dropped when the node is on that way or the two overlap by half or more."""
+    def doubled(cw) -> bool:
+        if not cw.id.startswith("crossing") or cw.id.startswith("crossingway"):
+            return False
+        nid = cw.id[len("crossing"):]
+        node = Polygon(cw.polygon[:, :2])
+        for refs, poly in way_walks:
+            if (nid.isdigit() and int(nid) in refs) or (
+                    node.is_valid and node.area > 0
+                    and node.intersection(poly).area >= 0.5 * min(node.area, poly.area)):
+                return True
+        return False
+
+    layout.crosswalks = [cw for cw in layout.crosswalks if not doubled(cw)]
+    layout.reindex()
