@@ -1,7 +1,8 @@
 """Lanelet2 map (.osm) → layout model, read with the ``lanelet2`` package's own IO,
 projector, traffic rules and routing graph.
 
-- The map is projected with ``LocalCartesianProjector`` (east-north-up around the origin, metres).
+- The map is projected with ``LocalCartesianProjector`` (east-north-up around the origin, metres)
+  on the ellipsoid; a node's ``ele`` is its z (the map's own height, ``_ele_as_z``).
   Origin: ``--origin LAT,LON``; else the ``<bounds>`` of the file's header (its centre); else the
   centre of the nodes' extent. The origin goes into the layout's metadata and provenance.
 - Lanelets that vehicles may use (German traffic rules of lanelet2, participant vehicle) become
