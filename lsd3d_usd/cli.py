@@ -44,7 +44,25 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
+    _negative_values_everywhere(parser)
     return parser
+
+
+def _negative_values_everywhere(parser) -> None:
+    """Every (sub)parser takes '-23.36,119.73' or '-0.001,...' as a value: southern
+    latitudes, western longitudes, negative chunk indices and pitches were read as unknown
+    flags ("expected one argument"); only the '--origin=-23.36,...' form worked."""
+    from lsd3d_usd.cliutil import accept_negative_values
+    seen, todo = set(), [parser]
+    while todo:
+        p = todo.pop()
+        if id(p) in seen:
+            continue
+        seen.add(id(p))
+        accept_negative_values(p)
+        for a in p._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                todo.extend(a.choices.values())
 
 
 def main(argv: list[str] | None = None) -> int:

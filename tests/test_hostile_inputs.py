@@ -217,7 +217,8 @@ def test_osm_way_over_the_node_limit_is_skipped_by_name(tmp_path, cli_error, cap
 
 
 def _spikes_reference(pts, limit_deg):
-    """The plain repair: drop the first node where the way turns back, start again."""
+    """The plain repair: at the first node where the way turns back drop it (or the way's end
+    beside it when that shortens the way more), start again."""
     keep = list(range(len(pts)))
     lim = np.cos(np.radians(limit_deg))
     changed = True
@@ -227,7 +228,14 @@ def _spikes_reference(pts, limit_deg):
             u = pts[keep[i]] - pts[keep[i - 1]]
             v = pts[keep[i + 1]] - pts[keep[i]]
             if np.dot(u, v) / max(np.hypot(*u) * np.hypot(*v), 1e-12) < lim:
-                del keep[i]
+                # the node whose removal shortens the way most: the middle one, or an end
+                gain = {i: np.hypot(*u) + np.hypot(*v)
+                        - np.hypot(*(pts[keep[i + 1]] - pts[keep[i - 1]]))}
+                if i - 1 == 0:
+                    gain[0] = np.hypot(*u)
+                if i + 1 == len(keep) - 1:
+                    gain[i + 1] = np.hypot(*v)
+                del keep[max(gain, key=lambda k: (gain[k], k == i))]
                 changed = True
                 break
     return keep

@@ -181,7 +181,26 @@ def _import(args) -> int:
         "layout.import", params, timings={"import_s": round(time.perf_counter() - t0, 3)}))
     _print_summary(layout, path)
     print(importers.reach_line(layout))
+    if "origin" in src:
+        print(_origin_line(src))
     return 0
+
+
+_ORIGIN_FROM = {
+    "flag": "from --origin",
+    "bbox": "the centre of --bbox",
+    "file bounds": "the centre of the file's <bounds>",
+    # the case that surprises: another layout of the same map can sit hundreds of metres away
+    "node extent": "the centre of its nodes' extent: the file has no <bounds>; pass --origin "
+                   "LAT,LON to share another layout's origin",
+}
+
+
+def _origin_line(src: dict) -> str:
+    """Where the layout's (0, 0) lies on the Earth and where that origin came from."""
+    lat, lon = src["origin"][:2]
+    how = src.get("originFrom", "")
+    return f"origin lat {lat:.7f}, lon {lon:.7f} ({_ORIGIN_FROM.get(how, how or 'unknown')})"
 
 
 def _export(args) -> int:

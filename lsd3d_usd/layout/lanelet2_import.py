@@ -1,7 +1,8 @@
 """Lanelet2 map (.osm) → layout model, read with the ``lanelet2`` package's own IO,
 projector, traffic rules and routing graph.
 
-- The map is projected with ``LocalCartesianProjector`` (east-north-up around the origin, metres).
+- The map is projected with ``LocalCartesianProjector`` (east-north-up around the origin, metres)
+  on the ellipsoid; a node's ``ele`` is its z (the map's own height, ``_ele_as_z``).
   Origin: ``--origin LAT,LON``; else the ``<bounds>`` of the file's header (its centre); else the
   centre of the nodes' extent. The origin goes into the layout's metadata and provenance.
 - Lanelets that vehicles may use (German traffic rules of lanelet2, participant vehicle) become
@@ -67,7 +68,8 @@ MAX_FILE_BYTES = 256 * 1024 * 1024
 MAX_LANELETS = 200_000
 FAR_WARN_M = 10_000.0        # float32 USD points keep ~1 mm only this close to the origin
 FAR_ERROR_M = 100_000.0
-STOP_SIGN_TYPES = re.compile(r"(^|[:_])(stop|de206|r1-1|206)$", re.IGNORECASE)
+# stop_sign: Autoware's subtype of the traffic_sign line string
+STOP_SIGN_TYPES = re.compile(r"(^|[:_])(stop|stop_sign|de206|r1-1|206)$", re.IGNORECASE)
 _LANELET_TAG = re.compile(rb"""<tag\s+k\s*=\s*["']type["']\s+v\s*=\s*["']lanelet["']""")
 
 
@@ -164,6 +166,7 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
         lmap, errors = lanelet2.io.loadRobust(str(p), projector)
     except RuntimeError as e:
         raise InputError(f"{path}: lanelet2 cannot read it: {e}") from None
+    _ele_as_z(lmap, projector)
     bad_ids = set()
     for err in errors:
         err = err.strip().lstrip("- \t")
@@ -264,6 +267,19 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
     attach_origin(layout, "lanelet2 origin (LocalCartesianProjector)")
     layout.reindex()
     return layout
+
+
+def _ele_as_z(lmap, projector) -> None:
+    """Lanelet2 / Autoware ``ele`` is the map's own z, not a height above the ellipsoid:
+    LocalCartesianProjector's 3D east-north-up made a flat map sag by d²/2R (0.79 m at
+    3.2 km) and scaled the plan by (1 + ele/R). Each point is put back on the tangent-plane
+    frame of the ellipsoid's surface (the layout's geoReference) with z = ele. The round trip
+    through ``reverse`` recovers the node's lat, lon and ele exactly."""
+    from lanelet2.core import BasicPoint3d, GPSPoint
+    for pt in lmap.pointLayer:
+        g = projector.reverse(BasicPoint3d(pt.x, pt.y, pt.z))
+        q = projector.forward(GPSPoint(g.lat, g.lon, 0.0))
+        pt.x, pt.y, pt.z = q.x, q.y, g.alt
 
 
 def _line_strings(path, lmap, lanelets, drive, layout, options) -> None:

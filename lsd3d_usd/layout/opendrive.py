@@ -287,19 +287,37 @@ POLY3_TABLE_MAX = 2_000_000   # arc-length table of a poly3 (~13 per metre at th
 # ================================================================ polynomials
 
 class _Piecewise:
-    """Piecewise cubic a + b ds + c ds² + d ds³ with records starting at ``starts``."""
+    """Piecewise cubic a + b ds + c ds² + d ds³ with records starting at ``starts``.
+
+    Before the first record the first record's value ``a`` holds: extrapolating its cubic
+    backwards gave shoulders 40 m wide and elevations off by metres (other readers hold too).
+    """
 
     def __init__(self, records: list[tuple[float, float, float, float, float]]):
         records = sorted(records, key=lambda r: r[0]) or [(0.0, 0.0, 0.0, 0.0, 0.0)]
         self.starts = np.array([r[0] for r in records])
         self.coef = np.array([r[1:] for r in records])
 
+    @property
+    def late_start(self) -> float | None:
+        """The first record's start when it lies after 0 (so its value is held before it)."""
+        return float(self.starts[0]) if self.starts[0] > LATE_START_EPS else None
+
     def __call__(self, s):
         s = np.asarray(s, dtype=np.float64)
         idx = np.clip(np.searchsorted(self.starts, s, side="right") - 1, 0, len(self.starts) - 1)
-        ds = s - self.starts[idx]
+        ds = np.maximum(s - self.starts[idx], 0.0)
         a, b, c, d = self.coef[idx].T
         return a + b * ds + c * ds**2 + d * ds**3
+
+
+# a first record starting later than this is "late" (below it the held value is the same)
+LATE_START_EPS = 1e-6
+
+
+def _late_note(late: list[str]) -> str:
+    return ("records start after s = 0, so their first value is held before them "
+            "(not extrapolated): " + ", ".join(late))
 
 
 def _records(parent, tag, s_attr="s"):
@@ -384,10 +402,16 @@ def _parse_road(el) -> _Road:
     lateral = _kid(el, "lateralProfile")
     superelevation = None
     notes = []
+    late = []              # records held before their start, named in one warning per road
+    for name, pw in (("laneOffset", offset), ("elevation", elevation)):
+        if pw.late_start is not None:
+            late.append(f"<{name}> s={pw.late_start:g}")
     if lateral is not None:
         sup = _records(lateral, "superelevation")
         if sup:
             superelevation = _Piecewise(sup)
+            if superelevation.late_start is not None:
+                late.append(f"<superelevation> s={superelevation.late_start:g}")
         ignored = sorted({_local(c) for c in lateral if isinstance(c.tag, str)} - {"superelevation"})
         if ignored:
             notes.append("lateral " + ", ".join(f"<{n}>" for n in ignored)
@@ -415,6 +439,9 @@ def _parse_road(el) -> _Road:
                 widths = _records(ln, "width", "sOffset")
                 if not widths and _kids(ln, "border"):
                     raise _RoadError(f"lane {lid}: <border> lane geometry is not supported")
+                if widths and min(w[0] for w in widths) > LATE_START_EPS:
+                    late.append(f"<width> of lane {lid} in laneSection s={s0:g} "
+                                f"sOffset={min(w[0] for w in widths):g}")
                 link = _kid(ln, "link")
                 pred = _kid(link, "predecessor") if link is not None else None
                 succ = _kid(link, "successor") if link is not None else None
@@ -436,6 +463,8 @@ def _parse_road(el) -> _Road:
         sections.append(_Section(s0, s1, side["left"], side["right"], cmarks))
     if not sections:
         raise _RoadError("no lane section of positive length")
+    if late:
+        notes.append(_late_note(late))
     links = {}
     link = _kid(el, "link")
     for kind in ("predecessor", "successor"):

@@ -181,24 +181,45 @@ def sound_highways(path, roads, xy_of: dict, options: ImportOptions) -> list:
             _warn(f"{path}: way {wid}: a highway of {len(refs)} node(s) at one position; skipped",
                   options)
             continue
-        # One pass with a stack (linear time): a node where the way turns back is dropped,
-        # and the turn at the node before it is looked at again.
-        spikes = []
+        # One pass with a stack (linear time): at a node b where the way turns back (a, b, c)
+        # the node whose removal shortens the way most is dropped: b (a spike), or the way's
+        # first node a / last node c when that is the outlier (dropping b there kept the
+        # outlier and dropped the good nodes one by one). Then the turn before is looked at
+        # again.
+        spikes, turns = [], []
         limit = np.cos(np.radians(SPIKE_DEG))
         stack = keep[:1]
+        last = keep[-1]
         for r in keep[1:]:
             while len(stack) >= 2:
                 a, b, c = xy_of[stack[-2]], xy_of[stack[-1]], xy_of[r]
                 u, v = b - a, c - b
                 if np.dot(u, v) / max(np.hypot(*u) * np.hypot(*v), 1e-12) >= limit:
                     break
-                spikes.append(stack.pop())
-            stack.append(r)
+                turns.append(stack[-1])
+                lu, lv = np.hypot(*u), np.hypot(*v)
+                gain_b = lu + lv - np.hypot(*(c - a))
+                gain_a = lu if len(stack) == 2 else -1.0
+                gain_c = lv if r == last else -1.0
+                if gain_c > max(gain_a, gain_b):
+                    spikes.append(r)
+                    r = None
+                    break
+                spikes.append(stack.pop(-2 if gain_a > gain_b else -1))
+            if r is not None:
+                stack.append(r)
         keep = stack
         if spikes:
-            _warn(f"{path}: way {wid}: turns back on itself at node {spikes[0]}"
-                  f"{f' (and {len(spikes) - 1} more)' if len(spikes) > 1 else ''}; node(s) "
-                  "dropped from the way (repaired)", options)
+            def length(ids):
+                q = np.array([xy_of[i] for i in ids])
+                return float(np.hypot(*np.diff(q, axis=0).T).sum())
+
+            ends = {refs[0]: " (its first node)", refs[-1]: " (its last node)"}
+            named = ", ".join(f"{x}{ends.get(x, '')}" for x in spikes[:3])
+            _warn(f"{path}: way {wid}: turns back on itself at node {turns[0]}"
+                  f"{f' (and {len(turns) - 1} more)' if len(turns) > 1 else ''}; dropped node(s) "
+                  f"{named}{' ...' if len(spikes) > 3 else ''}, length {length(refs):.0f} m -> "
+                  f"{length(keep):.0f} m (repaired)", options)
             dropped = set(spikes)
             refs = [r for r in refs if r not in dropped]
         out.append((wid, t, refs))
@@ -318,6 +339,7 @@ def map_features(path, points, ways, coords, clip, layout, xy, options: ImportOp
                               height=1.0))
     from lsd3d_usd.layout.osm_import import _num
     surface = None
+    way_walks = []     # (node ids, polygon) of crossing ways' crosswalks
     for wid, t, refs in ways:
         kind = t.get("barrier")
         crossing = t.get("footway") == "crossing" or (t.get("highway") == "footway"
@@ -338,6 +360,7 @@ def map_features(path, points, ways, coords, clip, layout, xy, options: ImportOp
                 ring = np.asarray(shapely.geometry.polygon.orient(poly, 1.0).exterior.coords)[:-1]
                 layout.add(m.Crosswalk(f"crossingway{wid}" + (f"_{k}" if k else ""),
                                        polygon=np.column_stack([ring, np.zeros(len(ring))])))
+                way_walks.append((set(refs), poly))
         elif kind == "hedge":
             h = _num(t.get("height"))
             layout.add(m.Hedge(f"hedge{wid}", points=p3, height=h if h and h < 20 else HEDGE[0],
@@ -347,3 +370,25 @@ def map_features(path, points, ways, coords, clip, layout, xy, options: ImportOp
             h = _num(t.get("height"))
             layout.add(m.Barrier(f"barrier{wid}", points=p3, kind=bkind,
                                  height=h if h and 0 < h < 50 else dh, width=dw))
+    if way_walks:
+        _drop_doubled_crossings(layout, way_walks)
+
+
+def _drop_doubled_crossings(layout, way_walks) -> None:
+    """A crossing is often mapped twice: a ``highway=crossing`` node on the road and a
+    ``footway=crossing`` way through it. The way's crosswalk (the mapped line) is kept; the
+    node's is dropped when the node is on that way or the two overlap by half or more."""
+    def doubled(cw) -> bool:
+        if not cw.id.startswith("crossing") or cw.id.startswith("crossingway"):
+            return False
+        nid = cw.id[len("crossing"):]
+        node = Polygon(cw.polygon[:, :2])
+        for refs, poly in way_walks:
+            if (nid.isdigit() and int(nid) in refs) or (
+                    node.is_valid and node.area > 0
+                    and node.intersection(poly).area >= 0.5 * min(node.area, poly.area)):
+                return True
+        return False
+
+    layout.crosswalks = [cw for cw in layout.crosswalks if not doubled(cw)]
+    layout.reindex()
