@@ -65,6 +65,66 @@ class StreetRun:
     seed: int = 0
 
 
+class Street:
+    """The street stepped one step at a time: an IDM `traffic.Simulation` of vehicles and
+    cyclists and a `pedestrians.Pedestrians` crowd, set up from (layout, seed) exactly as
+    `simulate_street` does. ``ego`` = (length, width, (x, y, yaw), lane, s): an external
+    vehicle (the closed-loop ego, `Simulation.add_external`) placed before anyone spawns, with
+    ``ego_clearance`` m kept free around it; the others follow it, yield to it and stop for
+    it. `step(dt)` moves the people (against the vehicles as they stand), then the vehicles."""
+
+    def __init__(self, layout, vehicles=(), cyclists=(), pedestrians=(), seed: int = 0,
+                 params: StreetParams = StreetParams(), walkable: Walkable | None = None,
+                 graph: LaneGraph | None = None, ego=None, ego_clearance: float = 10.0):
+        if len(pedestrians) > MAX_PEDESTRIANS or len(cyclists) > MAX_CYCLISTS:
+            raise InputError(f"actors: at most {MAX_PEDESTRIANS} pedestrians and {MAX_CYCLISTS} cyclists "
+                             f"(asked for {len(pedestrians)} and {len(cyclists)})")
+        self.seed = int(seed)
+        sim = self.sim = Simulation(layout, seed, params.idm, graph if graph is not None else
+                                    LaneGraph(layout, params.idm.conflict_distance, bike_lanes=True))
+        w = self.walkable = walkable if walkable is not None else build_walkable(
+            layout, params.walk.track_offset, params.walk.stand_offset)
+        if getattr(sim.g, "crossings_of", None) is not w:      # a graph reused over seeds keeps them
+            sim.g.set_crosswalks([c.polygon for c in w.crosswalks])
+            sim.g.crossings_of = w
+        sim.g.truncate_crosswalks(len(w.crosswalks))          # no mid-block crossing of another run
+        self.ego = None
+        if ego is not None:
+            length, width, pose, lane, s = ego
+            self.ego = sim.add_external(length + 2 * ego_clearance, width)
+            sim.place_external(self.ego, pose, 0.0, lane, s)
+        if vehicles:
+            sim.spawn([float(L) for L, _ in vehicles])
+            for v, (_, W) in zip([v for v in sim.veh if not v.external], vehicles):
+                v.width = float(W)
+        self.n_motor = len(sim.veh)
+        rng_c = np.random.default_rng(np.random.SeedSequence([int(seed), 0xC1C]))
+        specs = [(float(L), float(W), float(rng_c.uniform(*params.cyclist_speed))) for L, W in cyclists]
+        sim.spawn_cyclists(specs, edge=params.cyclist_edge)
+        rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9ED]))
+        self.crowd = Pedestrians(w, rng, params.walk, add_crossing=sim.g.add_crosswalk)
+        _spawn_people(self.crowd, sim, pedestrians, rng)
+        if self.ego is not None:
+            self.ego.length = float(ego[0])
+        sim.occupied = self.crowd.occupied()
+
+    def move_people(self, sim: Simulation, dt: float) -> None:
+        """The people's part of a step (`Simulation.run`'s on_step)."""
+        self.crowd.step(dt, vehicle_boxes(sim), sim.crosswalk_clear)
+        sim.occupied = self.crowd.occupied()
+
+    def step(self, dt: float) -> None:
+        self.move_people(self.sim, dt)
+        self.sim.step(dt)
+
+    def vehicle_z(self, me) -> float:
+        """Ground height under a vehicle on its lane (0 off the lanes)."""
+        if me.lane < 0:
+            return 0.0
+        g = self.sim.g.geoms[me.lane]
+        return float(np.interp(min(max(me.s, 0.0), g.length), g.cum, g.points[:, 2]))
+
+
 def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int = 0,
                     seconds: float = 8.0, fps: float = 10.0,
                     params: StreetParams = StreetParams(), walkable: Walkable | None = None,
@@ -74,28 +134,8 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
     actors than asked are placed when the layout has no room (the run says how many).
     ``walkable`` / ``graph`` (a ``LaneGraph(layout, bike_lanes=True)``) may be passed in to
     reuse them over many seeds."""
-    if len(pedestrians) > MAX_PEDESTRIANS or len(cyclists) > MAX_CYCLISTS:
-        raise InputError(f"actors: at most {MAX_PEDESTRIANS} pedestrians and {MAX_CYCLISTS} cyclists "
-                         f"(asked for {len(pedestrians)} and {len(cyclists)})")
-    sim = Simulation(layout, seed, params.idm, graph if graph is not None else
-                     LaneGraph(layout, params.idm.conflict_distance, bike_lanes=True))
-    w = walkable if walkable is not None else build_walkable(
-        layout, params.walk.track_offset, params.walk.stand_offset)
-    if getattr(sim.g, "crossings_of", None) is not w:      # a graph reused over seeds keeps them
-        sim.g.set_crosswalks([c.polygon for c in w.crosswalks])
-        sim.g.crossings_of = w
-    sim.g.truncate_crosswalks(len(w.crosswalks))          # no mid-block crossing of another run
-    if vehicles:
-        sim.spawn([float(L) for L, _ in vehicles])
-        for v, (_, W) in zip(sim.veh, vehicles):
-            v.width = float(W)
-    n_motor = len(sim.veh)
-    rng_c = np.random.default_rng(np.random.SeedSequence([int(seed), 0xC1C]))
-    specs = [(float(L), float(W), float(rng_c.uniform(*params.cyclist_speed))) for L, W in cyclists]
-    sim.spawn_cyclists(specs, edge=params.cyclist_edge)
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9ED]))
-    crowd = Pedestrians(w, rng, params.walk, add_crossing=sim.g.add_crosswalk)
-    _spawn_people(crowd, sim, pedestrians, rng)
+    street = Street(layout, vehicles, cyclists, pedestrians, seed, params, walkable, graph)
+    sim, crowd, w, n_motor = street.sim, street.crowd, street.walkable, street.n_motor
 
     n_t = int(round(seconds * fps)) + 1
     n_p = len(crowd.people)
@@ -107,10 +147,6 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
     CW = np.full((n_p, n_t), -1, np.int32)
     occ = []
 
-    def on_step(s: Simulation, dt: float) -> None:
-        crowd.step(dt, vehicle_boxes(s), s.crosswalk_clear)
-        s.occupied = crowd.occupied()
-
     def on_sample(s: Simulation, k: int) -> None:
         for i, p in enumerate(crowd.people):
             P[i, k], Y[i, k], V[i, k], D[i, k] = p.xy, p.yaw, p.v, p.walked
@@ -118,8 +154,7 @@ def simulate_street(layout, vehicles=(), cyclists=(), pedestrians=(), seed: int 
             CW[i, k] = p.crosswalk if p.state in (WAIT, CROSS) else -1
         occ.append(crowd.occupied())
 
-    sim.occupied = crowd.occupied()
-    run = sim.run(seconds, fps, on_step=on_step, on_sample=on_sample)
+    run = sim.run(seconds, fps, on_step=street.move_people, on_sample=on_sample)
     run.cyclist[:n_motor] = False
     for i in range(n_p):
         Y[i] = np.unwrap(Y[i])

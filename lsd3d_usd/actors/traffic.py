@@ -200,6 +200,8 @@ class Simulation:
     def _spawn_ok(self, lane, s, L, spacing, offset: float = 0.0) -> bool:
         p = self.g.geoms[lane].offset_point(s, offset) if offset else self.g.geoms[lane].point(s)
         for o in self.veh:
+            if o.lane < 0:
+                continue
             if o.lane == lane and abs(o.s - s) < (o.length + L) / 2 + spacing:
                 return False
             q = self.g.geoms[o.lane].offset_point(o.s, o.offset) if o.offset else self.g.geoms[o.lane].point(o.s)
