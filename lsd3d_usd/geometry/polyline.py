@@ -90,14 +90,15 @@ def nearest_point(points: np.ndarray, q) -> tuple[float, float, np.ndarray, np.n
     segment) on a polyline, in XY; the first nearest segment wins a tie."""
     a, b = points[:-1, :2], points[1:, :2]
     d = b - a
-    L2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-18)
+    sq = np.einsum("ij,ij->i", d, d)
+    L2 = np.maximum(sq, 1e-18)              # a zero-length segment: t = 0, direction 0
     t = np.clip(np.einsum("ij,ij->i", q - a, d) / L2, 0.0, 1.0)
     c = a + t[:, None] * d
     dist = np.hypot(*(c - q).T)
     k = int(np.argmin(dist))
-    seg = np.sqrt(L2)
+    seg = np.sqrt(sq)                        # unfloored: zero-length segments add no length
     s = float(seg[:k].sum() + t[k] * seg[k])
-    return float(dist[k]), s, c[k], d[k] / seg[k]
+    return float(dist[k]), s, c[k], d[k] / np.sqrt(L2[k])
 
 
 def distance_to_segments_brute(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
