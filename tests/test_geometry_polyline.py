@@ -57,7 +57,8 @@ def ref_nearest(points, q):
     s0 = 0.0
     for a, b in zip(points[:, :2], points[1:, :2]):
         L = math.dist(a, b)
-        t = 0.0 if L == 0 else min(max(((q[0] - a[0]) * (b[0] - a[0]) + (q[1] - a[1]) * (b[1] - a[1])) / L**2, 0), 1)
+        dot = (q[0] - a[0]) * (b[0] - a[0]) + (q[1] - a[1]) * (b[1] - a[1])
+        t = 0.0 if L == 0 else min(max(dot / L**2, 0), 1)
         c = a + t * (b - a)
         d = math.dist(c, q)
         if best is None or d < best[0] - 1e-12:
