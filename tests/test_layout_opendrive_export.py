@@ -10,7 +10,7 @@ import pytest
 from lxml import etree
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.layout import fitting
+from lsd3d_usd.geometry import polyline as P
 from lsd3d_usd.layout import generator as G
 from lsd3d_usd.layout import importers, opendrive
 from lsd3d_usd.layout import model as m
@@ -25,7 +25,7 @@ _spec.loader.exec_module(make_maps)
 
 def polyline_distance(a: np.ndarray, b: np.ndarray) -> float:
     """Max distance of a's vertices to polyline b."""
-    return float(fitting._dist_to_segments(a[:, :2], b[:-1, :2], b[1:, :2]).max())
+    return float(P.distance_to_segments(a[:, :2], b[:-1, :2], b[1:, :2]).max())
 
 
 def check_round_trip(L: m.Layout, path: Path) -> dict:
@@ -191,6 +191,6 @@ def test_segment_distances_match_the_plain_reference():
     cases.append((dup, rng.uniform([0, 0], [50, 25], (600, 2))))       # zero-length segments
     for pts, q in cases:
         a, b = pts[:-1], pts[1:]
-        assert len(q) * len(a) > fitting.BRUTE_PAIRS                  # the fast path runs
-        np.testing.assert_allclose(fitting._dist_to_segments(q, a, b),
-                                   fitting.dist_to_segments_brute(q, a, b), rtol=0, atol=1e-12)
+        assert len(q) * len(a) > P.BRUTE_PAIRS                  # the fast path runs
+        np.testing.assert_allclose(P.distance_to_segments(q, a, b),
+                                   P.distance_to_segments_brute(q, a, b), rtol=0, atol=1e-12)

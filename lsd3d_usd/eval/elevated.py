@@ -29,8 +29,8 @@ from pxr import UsdGeom
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.geometry.polyline import point_at
 from lsd3d_usd.conditioning.elevated import Obstacles, place
-from lsd3d_usd.eval.views import _polyline_at
 from lsd3d_usd.render.camera import Camera, from_usd, look_at
 
 DEFAULT_HEIGHTS = (5.0, 15.0, 30.0)
@@ -95,7 +95,7 @@ def _lane_targets(layout, n: int, rng) -> np.ndarray:
     cum = np.concatenate([[0.0], np.cumsum(lengths)])
     s = rng.uniform(0.0, cum[-1], n)
     k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(lanes) - 1)
-    return np.array([_polyline_at(pts[i], np.array([si - cum[i]]))[0] for i, si in zip(k, s)])
+    return np.array([point_at(pts[i], np.array([si - cum[i]]))[0] for i, si in zip(k, s)])
 
 
 def elevated_views(layout, heights, per_height: int, pitch_deg, seed: int, width: int,

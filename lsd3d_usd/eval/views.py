@@ -22,6 +22,7 @@ from pxr import Sdf
 from lsd3d_usd import scene as S
 from lsd3d_usd.conditioning.views import View, building_paths, inside_paths, sample_views
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.geometry.polyline import point_at
 from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.render.camera import Camera, look_at
 
@@ -184,19 +185,6 @@ def heldout_lane_views(layout, n: int, width: int, height: int, seed: int, like:
 
 
 # ------------------------------------------------------------------ trajectory
-def _polyline_at(points: np.ndarray, s: np.ndarray):
-    seg = np.diff(points, axis=0)
-    length = np.linalg.norm(seg, axis=1)
-    keep = length > 1e-9
-    points = np.concatenate([points[:1], points[1:][keep]])
-    seg, length = seg[keep], length[keep]
-    cum = np.concatenate([[0.0], np.cumsum(length)])
-    s = np.clip(s, 0.0, cum[-1])
-    k = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
-    f = ((s - cum[k]) / length[k])[:, None]
-    return points[k] + f * seg[k]
-
-
 def lane_trajectory(layout, n_frames: int, step_m: float, width: int, height: int, *,
                     fov_deg: float = GGDS_FOV_DEG, eye_height: float = 1.6, pitch_deg: float = -4.0,
                     look_ahead_m: float = 4.0) -> tuple[list[Camera], dict]:
@@ -216,8 +204,8 @@ def lane_trajectory(layout, n_frames: int, step_m: float, width: int, height: in
     span = step_m * (n_frames - 1)
     s0 = max(0.5 * (L - span), 0.0)
     s = s0 + step_m * np.arange(n_frames)
-    p = _polyline_at(pts, s)
-    ahead = _polyline_at(pts, s + look_ahead_m) - _polyline_at(pts, s - look_ahead_m)
+    p = point_at(pts, s)
+    ahead = point_at(pts, s + look_ahead_m) - point_at(pts, s - look_ahead_m)
     cams = []
     pitch = np.radians(pitch_deg)
     for i in range(n_frames):

@@ -92,20 +92,6 @@ def hermite(p0, t0, p1, t1, tol: float = ARC_TOLERANCE) -> np.ndarray:
     return pts
 
 
-def offset_polyline(points: np.ndarray, offset: float) -> np.ndarray:
-    """Offset a polyline to the left by ``offset`` (miter at vertices; fine for gentle bends)."""
-    d = np.diff(points, axis=0)
-    seg_n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.linalg.norm(d, axis=1)[:, None]
-    n = np.empty_like(points)
-    n[0], n[-1] = seg_n[0], seg_n[-1]
-    if len(points) > 2:
-        mid = seg_n[:-1] + seg_n[1:]
-        mid /= np.linalg.norm(mid, axis=1)[:, None]
-        cos_half = np.einsum("ij,ij->i", mid, seg_n[1:])
-        n[1:-1] = mid / np.maximum(cos_half, 0.2)[:, None]
-    return points + offset * n
-
-
 def fillet(node: np.ndarray, d_in: np.ndarray, d_out: np.ndarray, radius: float):
     """Fillet between the lines node+s*d_in and node+s*d_out (unit arm directions
     pointing away from the node). Travel enters along -d_in and leaves along d_out.

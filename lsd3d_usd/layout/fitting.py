@@ -20,6 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize_scalar
 
+from lsd3d_usd.geometry.polyline import distance_to_segments
+
 DENSE_SPACING = 0.2      # m between curve samples in the two-way distance check
 MAX_DENSE = 20000        # samples per check (a 4 km span at 0.2 m)
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(16)
@@ -64,63 +66,13 @@ class Primitive:
 
 # ================================================================== distances
 
-def dist_to_segments_brute(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance of each point q (M, 2) to the nearest of the segments a[k]→b[k] (K, 2), every
-    pair tried (the plain reference; O(M·K))."""
-    ab = b - a
-    L2 = np.einsum("ij,ij->i", ab, ab)
-    out = np.full(len(q), np.inf)
-    block = max(1, 2_000_000 // max(len(a), 1))          # bound the M×K temporaries
-    for r0 in range(0, len(q), block):
-        qq = q[r0:r0 + block]
-        aq = qq[:, None, :] - a[None, :, :]
-        t = np.einsum("mkj,kj->mk", aq, ab) / np.where(L2 > 0, L2, 1.0)[None, :]
-        t = np.clip(t, 0.0, 1.0)
-        d = aq - t[:, :, None] * ab[None, :, :]
-        out[r0:r0 + block] = np.sqrt(np.einsum("mkj,mkj->mk", d, d).min(axis=1))
-    return out
-
-
-BRUTE_PAIRS = 200_000     # below this many point-segment pairs, try them all
-
-
-def _dist_to_segments(q: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Distance of each point q (M, 2) to the nearest of the segments a[k]→b[k] (K, 2): the
-    same as ``dist_to_segments_brute``, in O((M + K) log K) for polylines of evenly sized
-    segments. The nearest endpoint bounds the answer (d0); a segment within d0 of q has its
-    midpoint within d0 + its half-length, so only those midpoints are tried."""
-    q = np.asarray(q, np.float64)
-    a = np.asarray(a, np.float64)
-    b = np.asarray(b, np.float64)
-    if len(q) * len(a) <= BRUTE_PAIRS or len(a) == 0:
-        return dist_to_segments_brute(q, a, b)
-    from scipy.spatial import cKDTree    # local import: scipy.spatial is slow to import
-    ends = np.vstack([a, b])
-    d0, _ = cKDTree(ends).query(q)
-    mid = 0.5 * (a + b)
-    half = 0.5 * np.hypot(*(b - a).T)
-    cand = cKDTree(mid).query_ball_point(q, d0 + half.max() + 1e-9, return_sorted=False)
-    counts = np.fromiter((len(c) for c in cand), np.int64, len(q))
-    seg = np.fromiter((k for c in cand for k in c), np.int64, int(counts.sum()))
-    row = np.repeat(np.arange(len(q)), counts)
-    ab = b[seg] - a[seg]
-    L2 = np.einsum("ij,ij->i", ab, ab)
-    aq = q[row] - a[seg]
-    t = np.clip(np.einsum("ij,ij->i", aq, ab) / np.where(L2 > 0, L2, 1.0), 0.0, 1.0)
-    d = aq - t[:, None] * ab
-    dist = np.sqrt(np.einsum("ij,ij->i", d, d))
-    out = d0.copy()                      # every point has at least the segments of its endpoint
-    np.minimum.at(out, row, dist)
-    return out
-
-
 def deviation(prim: Primitive, pts: np.ndarray) -> tuple[float, float]:
     """(max distance of the curve to the polyline ``pts``, max distance of its vertices to the
     curve); the curve is sampled every DENSE_SPACING m."""
     n = int(min(MAX_DENSE, max(32, 4 * len(pts), np.ceil(prim.length / DENSE_SPACING) + 1)))
     curve = prim.eval(np.linspace(0.0, prim.length, n))
-    d1 = _dist_to_segments(curve, pts[:-1], pts[1:]).max()
-    d2 = _dist_to_segments(pts, curve[:-1], curve[1:]).max()
+    d1 = distance_to_segments(curve, pts[:-1], pts[1:]).max()
+    d2 = distance_to_segments(pts, curve[:-1], curve[1:]).max()
     return float(d1), float(d2)
 
 

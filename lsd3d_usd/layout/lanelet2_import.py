@@ -59,8 +59,9 @@ from lanelet2.projection import LocalCartesianProjector
 from shapely.geometry import Polygon
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.geometry.polyline import (clean_ring, distance_to_polyline,
+                                           distance_to_segments, resample)
 from lsd3d_usd.layout import model as m
-from lsd3d_usd.layout.fitting import _dist_to_segments
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
 from lsd3d_usd.layout.osmxml import bad_location, header_centre, osmium_errors
 
@@ -121,26 +122,9 @@ def _arr(ls) -> np.ndarray:
     return np.array([[p.x, p.y, p.z] for p in ls], dtype=np.float64).reshape(-1, 3)
 
 
-def _dist_to_polyline(q: np.ndarray, line: np.ndarray) -> np.ndarray:
-    if len(line) == 1:
-        return np.hypot(*(q[:, :2] - line[0, :2]).T)
-    return _dist_to_segments(q[:, :2], line[:-1, :2], line[1:, :2])
-
-
 def _ring(ll) -> np.ndarray:
     """Polygon of a lanelet: left bound, then the right bound backwards."""
     return np.concatenate([_arr(ll.leftBound), _arr(ll.rightBound)[::-1]])
-
-
-def _clean_ring(poly: np.ndarray) -> np.ndarray | None:
-    keep = np.ones(len(poly), bool)
-    keep[1:] = np.hypot(*np.diff(poly[:, :2], axis=0).T) > 1e-9
-    poly = poly[keep]
-    if len(poly) > 3 and np.allclose(poly[0, :2], poly[-1, :2]):
-        poly = poly[:-1]
-    if len(poly) < 3 or abs(m.polygon_area(poly)) < 1e-6:
-        return None
-    return poly if m.polygon_area(poly) > 0 else poly[::-1].copy()
 
 
 def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.Layout:
@@ -226,7 +210,7 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
             if len(c) < 2:
                 _warn(f"{path}: lanelet {ll.id}: zero-length centre line; skipped", options)
                 continue
-            w = _dist_to_polyline(c, left_b) + _dist_to_polyline(c, right_b)
+            w = distance_to_polyline(c, left_b) + distance_to_polyline(c, right_b)
             lane_type = {"bus_lane": "bus", "bicycle_lane": "bike"}.get(sub, "driving" if kind == "vehicle" else "bike")
             layout.add(m.LaneCenter(
                 lid(ll), points=c, widths=w, lane_type=lane_type,
@@ -237,15 +221,15 @@ def read_lanelet2(path: str | Path, options: ImportOptions | None = None) -> m.L
                 left_neighbors=[lid(x) for x in (g.left(ll), g.adjacentLeft(ll)) if x is not None],
                 right_neighbors=[lid(x) for x in (g.right(ll), g.adjacentRight(ll)) if x is not None],
                 road_id=_attr(ll, "road_id")))
-            ring = _clean_ring(np.concatenate([left_b, right_b[::-1]])) if ll.id in drive else None
+            ring = clean_ring(np.concatenate([left_b, right_b[::-1]])) if ll.id in drive else None
             if ring is not None:
                 layout.add(m.RoadArea(f"area_ll{ll.id}", polygon=ring))
         elif sub == "crosswalk":
-            ring = _clean_ring(_ring(ll))
+            ring = clean_ring(_ring(ll))
             if ring is not None:
                 layout.add(m.Crosswalk(f"crosswalk_ll{ll.id}", polygon=ring))
         elif sub in ("walkway", "shared_walkway"):
-            ring = _clean_ring(_ring(ll))
+            ring = clean_ring(_ring(ll))
             if ring is not None:
                 layout.add(m.Sidewalk(f"walk_ll{ll.id}", polygon=ring))
     if not layout.lanes:
@@ -363,7 +347,7 @@ def _areas(path, lmap, layout, options, far) -> None:
         sub = a["subtype"] if "subtype" in a else ""
         if sub not in ("building", "vegetation", "traffic_island", "parking", "walkway"):
             continue
-        ring = _clean_ring(np.array([[p.x, p.y, p.z] for p in ar.outerBoundPolygon()]))
+        ring = clean_ring(np.array([[p.x, p.y, p.z] for p in ar.outerBoundPolygon()]))
         if ring is None:
             _warn(f"{path}: area {ar.id}: degenerate outer bound; skipped", options)
             continue
@@ -446,24 +430,18 @@ def _cut(line: np.ndarray, a: float, b: float) -> np.ndarray:
 def _excess(short_b: np.ndarray, long_b: np.ndarray, diff: float) -> float:
     """How much two bounds differ in length beyond what parallel bounds around the shorter
     one's turn differ by (their distance times its net change of heading)."""
-    from lsd3d_usd.layout.fitting import _dist_to_segments
     if len(short_b) < 2 or len(long_b) < 2:
         return 0.0
     d = np.diff(short_b[:, :2], axis=0)
     d = d[np.hypot(*d.T) > 1e-9]
     turn = float(np.abs(np.sum(np.angle(np.exp(1j * np.diff(np.arctan2(d[:, 1], d[:, 0]))))))) \
         if len(d) > 1 else 0.0
-    width = float(np.median(_dist_to_segments(short_b[:, :2], long_b[:-1, :2], long_b[1:, :2])))
+    width = float(np.median(distance_to_segments(short_b[:, :2], long_b[:-1, :2], long_b[1:, :2])))
     return diff - width * turn
 
 
 def _midline(left: np.ndarray, right: np.ndarray, n: int | None = None) -> np.ndarray:
     """Centre line of two bounds: the mean of points at equal fractions of their lengths."""
-    def resample(line, t):
-        seg = np.hypot(*np.diff(line[:, :2], axis=0).T)
-        s = np.concatenate([[0.0], np.cumsum(seg)])
-        s = s / s[-1] if s[-1] > 0 else s
-        return np.column_stack([np.interp(t, s, line[:, k]) for k in range(3)])
     n = n or max(len(left), len(right), 2)
     t = np.linspace(0.0, 1.0, n)
     return (resample(left, t) + resample(right, t)) / 2

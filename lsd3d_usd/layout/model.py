@@ -33,6 +33,7 @@ from typing import Iterator
 import numpy as np
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.geometry.polyline import signed_area
 from lsd3d_usd.limits import COORDINATE, LAYOUT_EXTENT
 
 DEFAULT_LANE_WIDTH = 3.5          # m, used when a lane has no widths
@@ -93,10 +94,7 @@ def _check_choice(value: str, choices: tuple[str, ...], what: str) -> str:
     return value
 
 
-def polygon_area(polygon: np.ndarray) -> float:
-    """Signed area of an implicitly closed polygon's XY projection (> 0 if CCW)."""
-    x, y = polygon[:, 0], polygon[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+polygon_area = signed_area     # the layout's name for it
 
 
 def polyline_length(points: np.ndarray) -> float:

@@ -40,6 +40,7 @@ import warnings
 import numpy as np
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.geometry.polyline import clean_ring
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout.signcodes import sign_kind
 
@@ -105,17 +106,6 @@ def _box(c: np.ndarray, yaw: float, length: float, width: float) -> np.ndarray:
     v = np.array([-np.sin(yaw), np.cos(yaw)]) * width / 2
     xy = np.stack([c[:2] - u - v, c[:2] + u - v, c[:2] + u + v, c[:2] - u + v])
     return np.column_stack([xy, np.full(4, c[2])])
-
-
-def _ccw(poly: np.ndarray) -> np.ndarray | None:
-    keep = np.ones(len(poly), bool)
-    keep[1:] = np.hypot(*np.diff(poly[:, :2], axis=0).T) > 1e-9
-    poly = poly[keep]
-    if len(poly) > 3 and np.allclose(poly[0, :2], poly[-1, :2]):
-        poly = poly[:-1]
-    if len(poly) < 3 or abs(m.polygon_area(poly)) < 1e-6:
-        return None
-    return poly if m.polygon_area(poly) > 0 else poly[::-1].copy()
 
 
 def _outline(obj, place: _Place, origin: np.ndarray, yaw: float) -> tuple[np.ndarray, float] | None:
@@ -206,7 +196,7 @@ def _object(obj, oid, road, place: _Place, counts: dict) -> list:
 def _single(fid, t_low, sub, name, c, yaw, length, width, radius, height, outline) -> list:
     poly = None
     if outline is not None:
-        poly = _ccw(outline[0])
+        poly = clean_ring(outline[0])
         height = height or outline[1]
     elif length > 0 and width > 0:
         poly = _box(c, yaw, length, width)
@@ -302,7 +292,7 @@ def _repeat(rp, fid, t_low, sub, name, road, place: _Place, base) -> list:
         w = lerp(w_a, w_b, f)
         if np.all(w > 0):
             left, right = place.xy(ss, tt + w / 2), place.xy(ss[::-1], (tt - w / 2)[::-1])
-            poly = _ccw(np.vstack([left, right]))
+            poly = clean_ring(np.vstack([left, right]))
             if poly is not None and t_low in ("vegetation", "trafficisland", "crosswalk",
                                               "building"):
                 return _single(fid, t_low, sub, name, line[0], 0.0, 0, 0, 0, max(h_a, h_b),

@@ -32,6 +32,7 @@ import shapely
 from shapely.geometry import LineString, Point, Polygon
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.geometry.polyline import nearest_point
 from lsd3d_usd.layout import model as m
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning
 
@@ -228,26 +229,12 @@ def sound_highways(path, roads, xy_of: dict, options: ImportOptions) -> list:
 
 # ================================================================ signals and furniture
 
-def _dist_along(ln, q: np.ndarray) -> tuple[float, float, np.ndarray, np.ndarray]:
-    """(distance from q, arc length at the nearest point, that point, unit direction)."""
-    a, b = ln.points[:-1, :2], ln.points[1:, :2]
-    d = b - a
-    L2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-18)
-    t = np.clip(np.einsum("ij,ij->i", q - a, d) / L2, 0.0, 1.0)
-    c = a + t[:, None] * d
-    dist = np.hypot(*(c - q).T)
-    k = int(np.argmin(dist))
-    seg = np.sqrt(L2)
-    s = float(seg[:k].sum() + t[k] * seg[k])
-    return float(dist[k]), s, c[k], d[k] / seg[k]
-
-
 def _roadside(lanes, q: np.ndarray) -> tuple[np.ndarray, float]:
     """Beside the rightmost of ``lanes`` (one direction) at their point nearest q: the ground
     point and the heading facing their traffic."""
     best = None
     for ln in lanes:
-        _, _, c, u = _dist_along(ln, q)
+        _, _, c, u = nearest_point(ln.points, q)
         right = np.array([u[1], -u[0]])
         off = float(np.dot(c - q, right)) + float(ln.widths.max()) / 2
         if best is None or off > best[0]:
@@ -274,7 +261,7 @@ def _signal_sites(layout, q: np.ndarray, direction: str | None):
     ending = []
     for ln in drive:
         if np.hypot(*(ln.points[-1, :2] - q)) < JUNCTION_REACH_M:
-            _, s, _, _ = _dist_along(ln, q)
+            _, s, _, _ = nearest_point(ln.points, q)
             if s >= ln.length() - 1e-6:       # q lies ahead of the lane's end
                 ending.append(ln)
     if ending:
@@ -283,7 +270,7 @@ def _signal_sites(layout, q: np.ndarray, direction: str | None):
             pos, yaw = _roadside(lanes, ends)
             yield lanes, pos, yaw
         return
-    passing = [ln for ln in drive if _dist_along(ln, q)[0] < float(ln.widths.max()) * 3]
+    passing = [ln for ln in drive if nearest_point(ln.points, q)[0] < float(ln.widths.max()) * 3]
     for (road, side), lanes in sorted(_groups(passing).items()):
         if direction in ("forward", "backward") and side != direction[0]:
             continue
@@ -307,7 +294,8 @@ def map_features(path, points, ways, coords, clip, layout, xy, options: ImportOp
             if t.get("direction") not in ("forward", "backward") and len(sites) > 1:
                 # the approach to the nearer junction: lanes that lead on, ending soonest
                 sites.sort(key=lambda st: (not any(ln.successors for ln in st[0]),
-                                           min(ln.length() - _dist_along(ln, q)[1] for ln in st[0])))
+                                           min(ln.length() - nearest_point(ln.points, q)[1]
+                                               for ln in st[0])))
                 sites = sites[:1]
             for k, (lanes, pos, yaw) in enumerate(sites):
                 layout.add(m.TrafficSign(f"giveway{nid}_{k}", position=pos, heading=yaw,
@@ -322,8 +310,8 @@ def map_features(path, points, ways, coords, clip, layout, xy, options: ImportOp
             near = [ln for ln in layout.lanes if ln.lane_type == "driving"]
             yaw = 0.0
             if near:
-                ln = min(near, key=lambda x: _dist_along(x, q)[0])
-                u = _dist_along(ln, q)[3]
+                ln = min(near, key=lambda x: nearest_point(x.points, q)[0])
+                u = nearest_point(ln.points, q)[3]
                 yaw = float(np.arctan2(-u[1], -u[0]))
             value = 0.0
             if kind == "speed_limit":

@@ -51,6 +51,7 @@ from shapely.geometry.polygon import orient
 from shapely.ops import substring
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.geometry.polyline import offset_polyline
 from lsd3d_usd.limits import OSM_WAY_NODES
 from lsd3d_usd.layout import blocks as B
 from lsd3d_usd.layout import model as m
@@ -359,9 +360,9 @@ def _highways(path, roads, coords, clip, layout, points, xy, options) -> None:
                     off = ((f - 1) / 2 - q) * w         # one-way: lanes centred, q=0 leftmost
                 else:
                     off = -(q + 0.5) * w                 # two-way: forward lanes right of centre
-                pl = B.offset_polyline(centre, off)
+                pl = offset_polyline(centre, off)
                 if side == "b":
-                    pl = B.offset_polyline(centre, (q + 0.5) * w)[::-1]
+                    pl = offset_polyline(centre, (q + 0.5) * w)[::-1]
                 lid = f"{base}_{side}{q}"
                 (ids_f if side == "f" else ids_b).append(lid)
                 layout.add(m.LaneCenter(lid, points=R.xyz(pl), widths=np.full(len(pl), w),

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.geometry.polyline import arc_table
 from lsd3d_usd.layout.model import DRIVABLE_TYPES
 
 ROUTE_SEARCH_BUDGET = 20_000   # lane expansions of the route search (large maps stay < 1 s)
@@ -31,10 +32,7 @@ class LaneGeom:
         pts = np.asarray(lane.points, np.float64)
         if lane.direction == "backward":
             pts = pts[::-1]
-        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        keep = np.concatenate([[True], seg > 1e-9])
-        self.points = pts[keep]
-        self.cum = np.concatenate([[0.0], np.cumsum(seg[seg > 1e-9])])
+        self.points, self.cum = arc_table(pts)
         self.length = float(self.cum[-1])
         self.id = lane.id
         self.limit = float(lane.speed_limit_mps)

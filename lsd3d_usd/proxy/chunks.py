@@ -31,6 +31,7 @@ import shapely
 from shapely.geometry import Polygon, box
 
 from lsd3d_usd.configtree import option
+from lsd3d_usd.geometry.polyline import nearest_point
 from lsd3d_usd.limits import CHUNKS
 from lsd3d_usd.scene import chunk_prim_name
 
@@ -401,18 +402,6 @@ def build_chunk_parts(inp: ChunkInputs, params: ProxyParams, area_of=_area_of) -
     return parts
 
 
-def _nearest_on(points: np.ndarray, q: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """(distance, nearest point, unit direction there) from ``q`` to a polyline (XY)."""
-    a, b = points[:-1, :2], points[1:, :2]
-    d = b - a
-    L2 = np.maximum(np.einsum("ij,ij->i", d, d), 1e-18)
-    t = np.clip(np.einsum("ij,ij->i", q - a, d) / L2, 0.0, 1.0)
-    c = a + t[:, None] * d
-    dist = np.hypot(*(c - q).T)
-    k = int(np.argmin(dist))
-    return float(dist[k]), c[k], d[k] / np.sqrt(L2[k])
-
-
 def _mast(light, lanes, curb_width: float) -> np.ndarray:
     """Where a map traffic light's mast stands: below the head, unless the head hangs over a
     lane it controls (or, naming none, any driving lane within 10 m): then on the right-hand
@@ -426,7 +415,7 @@ def _mast(light, lanes, curb_width: float) -> np.ndarray:
     right = np.array([travel[1], -travel[0]])
     over, reach = False, 0.0
     for ln in cands:
-        dist, c, _ = _nearest_on(ln.points, head)
+        dist, _, c, _ = nearest_point(ln.points, head)
         if dist > 10.0:
             continue
         w = float(ln.widths.max()) / 2
@@ -444,7 +433,7 @@ def _towards_road(position, lanes) -> float:
     best, yaw = np.inf, 0.0
     q = np.asarray(position[:2], dtype=np.float64)
     for ln in lanes:
-        dist, c, _ = _nearest_on(ln.points, q)
+        dist, _, c, _ = nearest_point(ln.points, q)
         if 1e-6 < dist < best:
             best, yaw = dist, float(np.arctan2(c[1] - q[1], c[0] - q[0]))
     return yaw

@@ -9,8 +9,10 @@ import shapely
 from shapely.geometry import Polygon
 
 from lsd3d_usd.configtree import option
+from lsd3d_usd.geometry.polyline import offset_polyline
+
 from .mesh import CROSSWALK, LANE_MARKING, MeshPart
-from .planar import area_from_points, as_area, dashes, flat_mesh, grow, offset_polyline, ribbon, ribbons
+from .planar import area_from_points, as_area, dashes, flat_mesh, grow, ribbon, ribbons
 
 PAINT = {"white": (0.80, 0.80, 0.78), "yellow": (0.75, 0.55, 0.08)}
 

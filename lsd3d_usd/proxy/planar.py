@@ -10,6 +10,8 @@ import shapely
 from shapely.geometry import LineString, MultiPolygon, Polygon, box
 from shapely.geometry.base import BaseGeometry
 
+from lsd3d_usd.geometry.polyline import MITRE_LIMIT, clean_polyline, mitre_normals, offset_polyline
+
 from .mesh import MIN_FACE_AREA
 
 EMPTY = Polygon()
@@ -182,7 +184,7 @@ def area_from_points(points) -> BaseGeometry:
     return clean_area(Polygon(xy[:, :2]))
 
 
-MITER_LIMIT = 4.0     # a mitre reaches at most this many half widths from its vertex
+MITER_LIMIT = MITRE_LIMIT     # a mitre reaches at most this many half widths from its vertex
 
 
 def _near_span(xy: np.ndarray, within, reach: float) -> tuple[int, int] | None:
@@ -205,37 +207,6 @@ def _near_span(xy: np.ndarray, within, reach: float) -> tuple[int, int] | None:
     return max(int(k[0]) - 1, 0), min(int(k[-1]) + 3, len(xy))
 
 
-def _vertex_normals(xy: np.ndarray, miter_limit: float = MITER_LIMIT) -> tuple[np.ndarray, np.ndarray]:
-    """Left unit normals per vertex (miter direction) and the miter scale 1/cos(half angle)."""
-    d = np.diff(xy, axis=0)
-    seg_len = np.linalg.norm(d, axis=1, keepdims=True)
-    seg_n = np.stack([-d[:, 1], d[:, 0]], axis=1) / np.maximum(seg_len, 1e-12)
-    vn = np.empty_like(xy)
-    vn[0], vn[-1] = seg_n[0], seg_n[-1]
-    vn[1:-1] = seg_n[:-1] + seg_n[1:]
-    ln = np.linalg.norm(vn, axis=1, keepdims=True)
-    # a 180-degree reversal has no miter; fall back to the incoming segment's normal
-    bad = ln[:, 0] < 1e-9
-    if bad.any():
-        vn[bad] = np.concatenate([seg_n[:1], seg_n])[bad]
-        ln[bad] = 1.0
-    vn = vn / ln
-    cos_half = np.ones(len(xy))
-    cos_half[1:-1] = np.einsum("ij,ij->i", vn[1:-1], seg_n[:-1])
-    scale = 1.0 / np.clip(cos_half, 1.0 / miter_limit, 1.0)
-    return vn, scale
-
-
-def clean_polyline(points: np.ndarray, tol: float = 1e-6) -> np.ndarray:
-    """XY of a polyline without repeated points."""
-    xy = np.asarray(points, dtype=np.float64)[:, :2]
-    if len(xy) < 2:
-        return xy
-    keep = np.ones(len(xy), bool)
-    keep[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=1) > tol
-    return xy[keep]
-
-
 def _quads(points: np.ndarray, left, right=None,
            within: tuple[float, float, float, float] | None = None) -> np.ndarray:
     """The mitred per-segment quads (S, 4, 2) of a ribbon (CCW), those meeting ``within``."""
@@ -254,7 +225,7 @@ def _quads(points: np.ndarray, left, right=None,
             return np.zeros((0, 4, 2))
         a, b = span
         xy, left, right = xy[a:b], left[a:b], right[a:b]
-    vn, sc = _vertex_normals(xy)
+    vn, sc = mitre_normals(xy)
     L = xy + vn * (left * sc)[:, None]
     R = xy - vn * (right * sc)[:, None]
     quads = np.stack([R[:-1], R[1:], L[1:], L[:-1]], axis=1)
@@ -295,7 +266,7 @@ def ribbon(points: np.ndarray, left: np.ndarray | float, right: np.ndarray | flo
 def _quads_many(lines: list[np.ndarray], half_width: float) -> np.ndarray:
     """The mitred quads of many polylines of one half width, vectorised over all of them:
     per polyline the same quads as ``_quads`` (repeated points dropped, mitre at each
-    interior vertex from its two segments, limited as in ``_vertex_normals``)."""
+    interior vertex from its two segments, limited as in ``mitre_normals``)."""
     lines = [np.asarray(ln, dtype=np.float64)[:, :2] for ln in lines if len(ln) >= 2]
     if not lines:
         return np.zeros((0, 4, 2))
@@ -325,7 +296,7 @@ def _quads_many(lines: list[np.ndarray], half_width: float) -> np.ndarray:
     inner = has_prev & has_next
     cos_half = np.ones(len(xy))
     cos_half[inner] = np.einsum("ij,ij->i", vn[inner], prev[inner])
-    scale = 1.0 / np.clip(cos_half, 0.25, 1.0)       # miter limit 4, as _vertex_normals
+    scale = 1.0 / np.clip(cos_half, 0.25, 1.0)       # miter limit 4, as mitre_normals
     L = xy + vn * (half_width * scale)[:, None]
     R = xy - vn * (half_width * scale)[:, None]
     q = np.stack([R[:-1], R[1:], L[1:], L[:-1]], axis=1)
@@ -382,15 +353,6 @@ def _dedupe_index(xy: np.ndarray, tol: float = 1e-6) -> np.ndarray:
     keep = np.ones(len(xy), bool)
     keep[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=1) > tol
     return np.nonzero(keep)[0]
-
-
-def offset_polyline(points: np.ndarray, dist: float) -> np.ndarray:
-    """Polyline offset to the left by ``dist`` (mitred)."""
-    xy = clean_polyline(points)
-    if len(xy) < 2:
-        return xy
-    vn, sc = _vertex_normals(xy)
-    return xy + vn * (dist * sc)[:, None]
 
 
 def dashes(points: np.ndarray, dash: float, gap: float, phase: float = 0.0,
