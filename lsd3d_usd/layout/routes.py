@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.geometry.polyline import arc_table
+from lsd3d_usd.geometry.polyline import arc_table, nearest_point
 from lsd3d_usd.layout.model import DRIVABLE_TYPES
 
 ROUTE_SEARCH_BUDGET = 20_000   # lane expansions of the route search (large maps stay < 1 s)
@@ -333,21 +333,15 @@ class Route:
         pts, cum = self.polyline()
         if len(pts) < 2:
             return 0.0, 0.0
-        A, B = pts[:-1, :2], pts[1:, :2]
-        c0 = cum[:-1]
+        lo, hi = 0, len(pts)
         if near is not None:
-            keep = (cum[1:] >= near - window) & (c0 <= near + window)
-            if keep.any():
-                A, B, c0 = A[keep], B[keep], c0[keep]
+            keep = np.flatnonzero((cum[1:] >= near - window) & (cum[:-1] <= near + window))
+            if len(keep):          # cum increases: the kept segments are one run
+                lo, hi = int(keep[0]), int(keep[-1]) + 2
         p = np.asarray(xy, np.float64)[:2]
-        d = B - A
-        dd = np.einsum("ij,ij->i", d, d)
-        f = np.clip(np.einsum("ij,ij->i", p - A, d) / np.maximum(dd, 1e-18), 0.0, 1.0)
-        q = A + f[:, None] * d
-        dist = np.hypot(p[0] - q[:, 0], p[1] - q[:, 1])
-        k = int(np.argmin(dist))
-        cross = d[k, 0] * (p[1] - A[k, 1]) - d[k, 1] * (p[0] - A[k, 0])
-        return float(c0[k] + f[k] * math.sqrt(dd[k])), math.copysign(float(dist[k]), cross)
+        dist, s, c, u = nearest_point(pts[lo:hi], p)
+        cross = u[0] * (p[1] - c[1]) - u[1] * (p[0] - c[0])
+        return float(cum[lo] + s), math.copysign(dist, cross)
 
     def ahead(self, d: float, n: int, spacing: float) -> np.ndarray:
         """(n, 3) points of the route from distance ``d`` on, ``spacing`` m apart (held at
