@@ -1,0 +1,362 @@
+"""`DriveEnv`: a driving stack drives in a generated scene (Gymnasium's Env API).
+
+One step (default 0.1 s): the action moves the ego (controls through the kinematic bicycle
+model, or waypoints a pure-pursuit + PI tracker follows); the world (vehicles, cyclists,
+pedestrians of actors.street) reacts to the ego's new pose; every sensor of the rig renders
+the new instant through views/ with the agents at their simulated poses; the scores are
+updated (sim.metrics). The env is a pure function of (scene, settings, seed, actions).
+
+Frames and units: world coordinates are the scene's (metres, Z up). The ego frame is x
+forward, y left, z up, origin on the ground at the centre of the rear axle. Angles in
+radians, speeds in m/s. docs/sim.md has the observation and action spaces in full.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from lsd3d_usd.actors.placement import KIND_WEIGHTS
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.layout.routes import Route, parse_route, random_routes
+from lsd3d_usd.sim.control import TrajectoryTracker
+from lsd3d_usd.sim.dynamics import EgoState, VehicleLimits, clip_control, step_bicycle
+from lsd3d_usd.sim.metrics import Agents, ScoreKeeper, StepState
+from lsd3d_usd.sim.world import AgentSpec, World
+
+COMMANDS = ("left", "straight", "right", "follow")   # CARLA's high-level route options
+ACTION_MODES = ("control", "trajectory")
+MAX_AGENTS = 200
+MAX_SECONDS = 3600.0
+
+
+@dataclass
+class EnvSettings:
+    """What an episode is made of (all of it recorded with the results)."""
+    rig: str = "nuscenes6"            # rig name or FILE.toml; "none": no cameras
+    lidar: str = "auto"               # "auto": the rig's own; a preset, FILE.toml, or "none"
+    cameras: tuple | None = None      # a subset of the rig's camera names (None: all)
+    width: int = 480                  # camera render width (height from the camera's aspect)
+    outputs: tuple = ("rgb",)         # + "depth", "semantic", "instance"
+    action: str = "control"           # or "trajectory"
+    steer: str = "angle"              # control mode: "angle" or "rate"
+    waypoints: int = 8                # trajectory mode: K waypoints ...
+    waypoint_spacing: float = 0.5     # ... this many seconds apart
+    hz: float = 10.0
+    seconds: float = 60.0             # time limit (truncation)
+    vehicles: int = 8
+    cyclists: int = 2
+    pedestrians: int = 12
+    route_points: int = 20            # route ahead in the observation ...
+    route_spacing: float = 2.0        # ... this many metres apart
+    lidar_max_points: int | None = None   # default: the LiDAR's rays per sweep
+    start_speed: float = 0.0
+    stream_radius: float = 300.0
+    exposure: float = 0.0
+    route_length: float = 200.0       # m of a drawn route (when none is given)
+    limits: VehicleLimits = field(default_factory=VehicleLimits)
+
+    def check(self) -> "EnvSettings":
+        if self.action not in ACTION_MODES:
+            raise InputError(f"--action {self.action!r}: choose {' or '.join(ACTION_MODES)}")
+        if self.steer not in ("angle", "rate"):
+            raise InputError(f"steer {self.steer!r}: choose angle or rate")
+        if not (0.5 <= self.hz <= 100.0):
+            raise InputError(f"--hz {self.hz}: must be within 0.5 .. 100")
+        if not (0.0 < self.seconds <= MAX_SECONDS):
+            raise InputError(f"--seconds {self.seconds}: must be within (0, {MAX_SECONDS:g}]")
+        for name in ("vehicles", "cyclists", "pedestrians"):
+            n = getattr(self, name)
+            if isinstance(n, bool) or not isinstance(n, int) or not 0 <= n <= MAX_AGENTS:
+                raise InputError(f"--{name} {n!r}: a whole number from 0 to {MAX_AGENTS}")
+        if not (1 <= self.waypoints <= 50) or not (0.05 <= self.waypoint_spacing <= 5.0):
+            raise InputError("trajectory: 1 .. 50 waypoints, 0.05 .. 5 s apart")
+        bad = sorted(set(self.outputs) - {"rgb", "depth", "semantic", "instance"})
+        if bad:
+            raise InputError(f"outputs: unknown {bad[0]!r} (rgb, depth, semantic, instance)")
+        if not (16 <= int(self.width) <= 3840):
+            raise InputError(f"--width {self.width}: must be within 16 .. 3840")
+        return self
+
+
+def _kinds(rng: np.random.Generator, n: int) -> list[str]:
+    keys = sorted(KIND_WEIGHTS)
+    p = np.array([KIND_WEIGHTS[k] for k in keys])
+    return [keys[int(rng.choice(len(keys), p=p / p.sum()))] for _ in range(n)]
+
+
+class DriveEnv(gym.Env):
+    """A closed-loop drive in a generated scene (see the module doc and docs/sim.md).
+
+    ``scene``: a scene folder (or an opened `sim.scene.SimScene`, shared between envs);
+    the keyword arguments are `EnvSettings` fields; ``render_mode="rgb_array"``: `render()`
+    gives the bird's-eye view."""
+
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+
+    def __init__(self, scene, render_mode: str | None = None, **settings):
+        from lsd3d_usd.sim.scene import SimScene        # opens USD: not needed for the spaces' docs
+        from lsd3d_usd.sim.sensors import SensorRig
+        self.settings = EnvSettings(**settings).check()
+        if render_mode not in (None, "rgb_array"):
+            raise InputError(f"render_mode {render_mode!r}: only 'rgb_array' (the bird's-eye view)")
+        self.render_mode = render_mode
+        self.metadata = dict(self.metadata, render_fps=self.settings.hz)
+        self._own_scene = not isinstance(scene, SimScene)
+        self.scene = SimScene(scene, self.settings.stream_radius) if self._own_scene else scene
+        self.sensors = SensorRig(self.scene, self.settings)
+        self.dt = 1.0 / self.settings.hz
+        self.limits = self.settings.limits
+        self.observation_space = self._observation_space()
+        self.action_space = self._action_space()
+        self._bev = None
+        self.world = None
+        self.route: Route | None = None
+
+    # ---- spaces
+    def _action_space(self):
+        s, lim = self.settings, self.limits
+        if s.action == "control":
+            hi = lim.delta_rate_max if s.steer == "rate" else lim.delta_max
+            return spaces.Box(np.array([lim.a_min, -hi], np.float32),
+                              np.array([lim.a_max, hi], np.float32), dtype=np.float32)
+        reach = lim.v_max * s.waypoint_spacing * s.waypoints
+        return spaces.Box(-reach, reach, shape=(s.waypoints, 2), dtype=np.float32)
+
+    def _observation_space(self):
+        s = self.settings
+        f32 = np.float32
+        obs = dict(self.sensors.spaces())
+        obs["ego"] = spaces.Dict({
+            "speed": spaces.Box(0.0, self.limits.v_max, (), f32),
+            "acceleration": spaces.Box(-50.0, 50.0, (), f32),
+            "yaw_rate": spaces.Box(-10.0, 10.0, (), f32),
+            "steering": spaces.Box(-self.limits.delta_max, self.limits.delta_max, (), f32),
+            "pose": spaces.Box(-1e7, 1e7, (4,), np.float64),        # x, y, z, yaw (world)
+        })
+        obs["route"] = spaces.Box(-1e4, 1e4, (s.route_points, 2), f32)
+        obs["command"] = spaces.Discrete(len(COMMANDS))
+        return spaces.Dict(obs)
+
+    # ---- episode
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        options = dict(options or {})
+        unknown = sorted(set(options) - {"route", "start", "speed"})
+        if unknown:
+            raise InputError(f"reset options: unknown key {unknown[0]!r} (route, start, speed)")
+        s = self.settings
+        rng = self.np_random
+        g = self.scene.graph
+        if options.get("route"):
+            self.route = g.route(parse_route(options["route"]))
+        else:
+            ids = random_routes(g, 1, s.route_length, int(rng.integers(2**31)))[0]
+            self.route = g.route(ids)
+        d0 = float(options.get("start", min(5.0, self.route.length / 4)))
+        x, y, yaw = self.route.pose2d(d0)
+        z = float(self.route.point(d0)[2])
+        lim = self.limits
+        v0 = float(options.get("speed", s.start_speed))
+        if not (math.isfinite(v0) and 0.0 <= v0 <= lim.v_max):
+            raise InputError(f"reset options: speed {v0!r} outside 0 .. {lim.v_max}")
+        self.ego = EgoState(x - lim.box_offset * math.cos(yaw), y - lim.box_offset * math.sin(yaw),
+                            yaw, v0, z=z)
+        kinds = _kinds(rng, s.vehicles)
+        vdims = [self.scene.dims("vehicle", k) for k in kinds]
+        cdims = self.scene.dims("cyclist")
+        pkinds = [["adult", "adult_broad", "child"][int(rng.integers(3))] for _ in range(s.pedestrians)]
+        pdims = [self.scene.dims("pedestrian", k) for k in pkinds]
+        spec = AgentSpec([(d[0], d[1]) for d in vdims], [(cdims[0], cdims[1])] * s.cyclists,
+                         [(k, d[0], d[1], k == "child") for k, d in zip(pkinds, pdims)])
+        self.world = World(self.scene.layout, g, self.route, self.ego, lim, spec,
+                           int(rng.integers(2**31)))
+        veh = self.world.vehicles()
+        labels = ["cyclist" if v.cyclist else "vehicle" for v in veh] + \
+            ["pedestrian"] * len(self.world.street.crowd.people)
+        vkinds = iter(kinds)
+        agent_kinds = [None if v.cyclist else next(vkinds, None) for v in veh] + \
+            [p.kind for p in self.world.street.crowd.people]
+        self.actors = self.scene.actors_for(labels, agent_kinds)
+        self.sensors.start_episode(self.actors, int(rng.integers(2**31)))
+        pts, _ = self.route.polyline()
+        self.scores = ScoreKeeper(pts[:, :2], drivable=self.scene.drivable,
+                                  obstacles=self.scene.obstacles,
+                                  obstacle_ids=self.scene.obstacle_ids,
+                                  route_length=self.route.length)
+        self.tracker = TrajectoryTracker(lim.wheelbase, s.waypoint_spacing)
+        self.t = 0.0
+        self.k = 0
+        self.clipped = 0
+        self.done_reason = None
+        self.progress = self.world.ego_d
+        self.last = self.scores.update(self._step_state())
+        self._pose_actors()
+        return self._observe(), self._info(self.last)
+
+    def step(self, action):
+        if self.world is None:
+            raise InputError("step before reset")
+        if self.done_reason is not None:
+            raise InputError(f"step after the episode ended ({self.done_reason}); call reset")
+        s, lim = self.settings, self.limits
+        a = np.asarray(action, np.float64)
+        if a.shape != self.action_space.shape:
+            raise InputError(f"action: shape {a.shape}, expected {self.action_space.shape} "
+                             f"({s.action} mode)")
+        if not np.all(np.isfinite(a)):
+            self.done_reason = "nan_action"
+            info = self._info(self.last)
+            info["reason"] = "the action holds NaN or infinity: the episode ends"
+            return self._observe(), 0.0, True, False, info
+        if s.action == "control":
+            acc, steer = float(a[0]), float(a[1])
+        else:
+            lo, hi = self.action_space.low, self.action_space.high
+            if np.any(a < lo) or np.any(a > hi):
+                self.clipped += 1
+            acc, steer = self.tracker(np.clip(a, lo, hi), self.ego.v, self.dt)
+            if s.steer == "rate":
+                steer = (steer - self.ego.delta) / self.dt
+        acc, steer, clipped = clip_control(acc, steer, lim, s.steer == "rate" and s.action == "control")
+        if clipped and s.action == "control":
+            self.clipped += 1
+        self.ego = step_bicycle(self.ego, acc, steer, self.dt, lim,
+                                rate=(s.steer == "rate" and s.action == "control"))
+        self.ego.z = self._ground_z()
+        self.world.place_ego(self.ego)
+        self.world.step(self.dt)
+        self.t += self.dt
+        self.k += 1
+        before = self.progress
+        self.last = self.scores.update(self._step_state())
+        self.progress = max(self.progress, float(self.last["progress_m"]))
+        self._pose_actors()
+        terminated, reason = False, None
+        if self.last["contact"]:
+            terminated, reason = True, "collision"
+        elif not self.last["dac"]:
+            terminated, reason = True, "off_road"
+        elif self.progress >= self.route.length - 1.0:
+            terminated, reason = True, "route_complete"
+        truncated = not terminated and self.t >= s.seconds - 1e-9
+        if truncated:
+            reason = "time_limit"
+        self.done_reason = reason
+        reward = (self.progress - before) * float(self.last["nc"]) * float(self.last["dac"])
+        if reason in ("collision", "off_road"):
+            reward -= 10.0
+        info = self._info(self.last)
+        if reason:
+            info["reason"] = reason
+        return self._observe(), float(reward), terminated, truncated, info
+
+    def close(self):
+        if self._own_scene and getattr(self, "scene", None) is not None:
+            self.scene.close()
+
+    # ---- state to scores, sensors and observations
+    def _ground_z(self) -> float:
+        j, s = self.route.locate(self.world.ego_d)
+        g = self.route.graph.geoms[self.route.idx[j]]
+        return float(np.interp(s, g.cum, g.points[:, 2]))
+
+    def _all_agents(self) -> Agents:
+        """The world's agents and the scene's parked vehicles (static)."""
+        ag = self.world.agents()
+        if not self.scene.parked:
+            return ag
+        ids, xy, yaw, L, W = [], [], [], [], []
+        for a, M in self.scene.parked:
+            ids.append(f"parked:{a.path}")
+            xy.append(M[:2, 3])
+            yaw.append(math.atan2(M[1, 0], M[0, 0]))
+            L.append(a.dims[0])
+            W.append(a.dims[1])
+        n = len(ids)
+        return Agents(list(ag.ids) + ids, np.vstack([ag.xy, np.array(xy)]),
+                      np.concatenate([ag.yaw, yaw]), np.concatenate([ag.length, L]),
+                      np.concatenate([ag.width, W]), np.vstack([ag.velocity, np.zeros((n, 2))]),
+                      list(ag.kind) + ["vehicle"] * n)
+
+    def _step_state(self) -> StepState:
+        e, lim = self.ego, self.limits
+        c = e.box_centre(lim)
+        g = self.scene.graph
+        lp = g.nearest_lane(c)                     # any direction: is it the right one?
+        wrong = lp is not None and lp.distance <= g.width[lp.lane] / 2 and \
+            abs(math.remainder(e.yaw - lp.heading, 2 * math.pi)) > math.radians(135) and e.v > 0.1
+        in_junction = lp is not None and lp.distance <= g.width[lp.lane] / 2 and bool(g.junction[lp.lane])
+        return StepState(self.t, c, e.yaw, e.v, lim.length, lim.width, agents=self._all_agents(),
+                         progress=self.world.ego_d, wrong_way=bool(wrong), in_junction=in_junction,
+                         lon_acc=e.a, lat_acc=e.v * e.yaw_rate)
+
+    def _pose_actors(self) -> None:
+        e, lim = self.ego, self.limits
+        c = e.box_centre(lim)
+        self.actors.set_pose(0, float(c[0]), float(c[1]), e.z, e.yaw)
+        for q, (x, y, z, yaw) in enumerate(self.world.poses()):
+            self.actors.set_pose(q + 1, x, y, z, yaw)
+
+    def _route_obs(self) -> tuple[np.ndarray, int]:
+        s = self.settings
+        pts = self.route.ahead(self.world.ego_d, s.route_points, s.route_spacing)[:, :2]
+        M = self.ego.matrix()
+        local = (pts - M[:2, 3]) @ M[:2, :2]
+        return local.astype(np.float32), self._command()
+
+    def _command(self) -> int:
+        """The next junction's turn within 40 m on the route: left / straight / right, or
+        follow the lane when no junction is near."""
+        j, s = self.route.locate(self.world.ego_d)
+        ahead = -s
+        for k in range(j, len(self.route.idx)):
+            i = self.route.idx[k]
+            if ahead > 40.0:
+                break
+            if self.route.graph.junction[i]:
+                geom = self.route.graph.geoms[i]
+                turn = math.remainder(float(geom.heading(geom.length)) - float(geom.heading(0.0)),
+                                      2 * math.pi)
+                return 0 if turn > math.radians(30) else 2 if turn < -math.radians(30) else 1
+            ahead += self.route.graph.length[i]
+        return 3
+
+    def _observe(self) -> dict:
+        e = self.ego
+        obs = self.sensors.observe(self.ego, self.t, self.k)
+        obs["ego"] = {"speed": np.float32(e.v), "acceleration": np.float32(np.clip(e.a, -50, 50)),
+                      "yaw_rate": np.float32(np.clip(e.yaw_rate, -10, 10)),
+                      "steering": np.float32(e.delta),
+                      "pose": np.array([e.x, e.y, e.z, e.yaw], np.float64)}
+        obs["route"], obs["command"] = self._route_obs()
+        return obs
+
+    def _info(self, scores: dict) -> dict:
+        """Privileged data and the scores: never part of the observation."""
+        ag = self._all_agents()
+        boxes = [{"id": str(ag.ids[i]), "kind": ag.kind[i], "center": ag.xy[i].tolist(),
+                  "yaw": float(ag.yaw[i]), "length": float(ag.length[i]), "width": float(ag.width[i]),
+                  "velocity": ag.velocity[i].tolist()} for i in range(len(ag))]
+        gap, v_lead = self.world.ego_leader()
+        return {"t": round(self.t, 9), "step": self.k, "scores": scores, "boxes": boxes,
+                "route": list(self.route.ids), "route_length_m": self.route.length,
+                "progress_m": self.progress, "clipped_actions": self.clipped,
+                "stop_distance_m": float(self.world.ego_stop_distance()),
+                "leader_gap_m": float(gap), "leader_speed": float(v_lead),
+                "occupied_crosswalks": sorted(self.world.occupied_crosswalks()),
+                "command": COMMANDS[self._command()]}
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        from lsd3d_usd.sim.birdseye import BirdsEye
+        if self._bev is None:
+            self._bev = BirdsEye(self.scene)
+        return self._bev.frame(self.ego, self.limits, self._all_agents(), self.route)
+
+    def episode_summary(self) -> dict:
+        return self.scores.summary()
