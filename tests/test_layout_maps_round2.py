@@ -1,6 +1,7 @@
 """Real maps, second round (issue 61): each test builds its own small map and checks the
 values its format defines."""
 import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -270,10 +271,85 @@ def test_osm_crossing_node_on_a_crossing_way_is_one_crosswalk(tmp_path):
     assert [c.id for c in L.crosswalks] == ["crossing2"]
 
 
-def test_osm_ele_is_warned_not_silently_dropped(tmp_path):
-    # heights are not read yet (item 4 left open): the import says so, once, and stays flat
-    nodes = [(1, -50, 0, {"ele": "600"}), (2, 0, 0, {"ele": "650"}), (3, 50, 0, {"ele": "710"})]
-    L, _, msgs = read_map(write_osm(tmp_path, nodes, [(7, [1, 2, 3], {"highway": "residential"})]),
-                          origin=L2_ORIGIN, strict=True)
-    assert len([x for x in msgs if "carry ele" in x]) == 1
-    assert np.allclose(np.concatenate([ln.points[:, 2] for ln in L.lanes]), 0.0)
+def lane_z_vs_ele(L, ele_at):
+    """Largest |z - ele_at(x)| over the lanes' points (x: the way runs along +x)."""
+    return max(float(np.abs(ln.points[:, 2] - ele_at(ln.points[:, 0])).max()) for ln in L.lanes)
+
+
+def test_osm_ele_climbing_road_gives_rising_lanes(tmp_path):
+    # 600 -> 710 m over 300 m; node 3 has no ele (interpolated from its neighbours)
+    nodes = [(1, 0, 0, {"ele": "600"}), (2, 100, 0, {"ele": "650"}),
+             (3, 150, 0, {"highway": "crossing"}), (4, 300, 0, {"ele": "710 m"})]
+    ways = [(7, [1, 2, 3, 4], {"highway": "residential", "sidewalk": "both"})]
+    L, _, msgs = read_map(write_osm(tmp_path, nodes, ways), origin=L2_ORIGIN, strict=True)
+    assert not [x for x in msgs if "ele" in x], msgs
+    known = np.array([0, 100, 300]), np.array([600, 650, 710])
+    ele_at = lambda x: np.interp(x, *known)                       # noqa: E731
+    assert lane_z_vs_ele(L, ele_at) < 0.01
+    zs = np.concatenate([ln.points[:, 2] for ln in L.lanes])
+    assert zs.max() - zs.min() == pytest.approx(110, abs=0.01)
+    # the road surface, its edges, sidewalks and the crosswalk lie on the same slope
+    for f in (*L.road_areas, *L.sidewalks, *L.crosswalks):
+        assert np.abs(f.polygon[:, 2] - ele_at(f.polygon[:, 0])).max() < 0.01, f.id
+    for f in L.road_edges:
+        assert np.abs(f.points[:, 2] - ele_at(f.points[:, 0])).max() < 0.01, f.id
+    assert [c.id for c in L.crosswalks] == ["crossing3"]
+    assert L.crosswalks[0].polygon[:, 2].mean() == pytest.approx(665, abs=0.01)   # 650 + 50/200 * 60
+
+
+def test_osm_ele_junction_and_a_way_without_ele(tmp_path):
+    # way 8 has no ele at all: it takes the height where it meets way 7; connectors join
+    # their lanes' ends without a step
+    nodes = [(1, -50, 0, {"ele": "600"}), (2, 0, 0, {}), (3, 50, 0, {"ele": "710"}),
+             (4, 0, 60, {}), (5, 500, 500, {"ele": "3"}), (6, 540, 500, {})]
+    ways = [(7, [1, 2, 3], {"highway": "residential"}), (8, [2, 4], {"highway": "residential"}),
+            (9, [5, 6], {"natural": "tree_row"})]
+    L, _, _ = read_map(write_osm(tmp_path, nodes, ways), origin=L2_ORIGIN)
+    by_id = {ln.id: ln for ln in L.lanes}
+    for ln in L.lanes:
+        if ln.road_id == "w8":
+            assert np.allclose(ln.points[:, 2], 655.0, atol=0.01)
+        for s in ln.successors:
+            assert by_id[s].points[0, 2] == pytest.approx(ln.points[-1, 2], abs=1e-6)
+    w7 = SimpleNamespace(lanes=[ln for ln in L.lanes if ln.road_id == "w7"])
+    assert lane_z_vs_ele(w7, lambda x: np.interp(x, [-50, 50], [600, 710])) < 0.01
+    # a tree row stands on its own way (node 6 holds node 5's height)
+    rows = [t for t in L.trees if t.id.startswith("treerow9")]
+    assert len(rows) == 6 and all(t.position[2] == pytest.approx(3.0) for t in rows)
+
+
+def test_osm_without_ele_stays_exactly_flat(tmp_path):
+    nodes = [(1, -50, 0, {}), (2, 0, 0, {"highway": "crossing"}), (3, 50, 0, {}),
+             (4, 0, 60, {}), (10, 20, 20, {}), (11, 40, 20, {}), (12, 40, 40, {}), (13, 20, 40, {})]
+    ways = [(7, [1, 2, 3], {"highway": "residential", "sidewalk": "both"}),
+            (8, [2, 4], {"highway": "residential"}),
+            (9, [10, 11, 12, 13, 10], {"building": "yes"})]
+    L, _, msgs = read_map(write_osm(tmp_path, nodes, ways), origin=L2_ORIGIN)
+    assert not [x for x in msgs if "ele" in x], msgs
+    for f in L.features():
+        for a in ("points", "polygon", "footprint", "position", "center"):
+            v = getattr(f, a, None)
+            if v is not None:
+                assert np.all(np.asarray(v)[..., 2] == 0.0), f.id
+
+
+@pytest.mark.parametrize("bad", ["abc", "NaN", "1e30", "12 ft", "inf"])
+def test_osm_malformed_ele_warns_once_and_is_ignored(tmp_path, bad):
+    nodes = [(1, -50, 0, {"ele": "600"}), (2, 0, 0, {"ele": bad}), (3, 50, 0, {"ele": "710"})]
+    p = write_osm(tmp_path, nodes, [(7, [1, 2, 3], {"highway": "residential"})])
+    L, _, msgs = read_map(p, origin=L2_ORIGIN)
+    w = [x for x in msgs if "ele" in x]
+    assert len(w) == 1 and "node 2: ele" in w[0] and "ignored" in w[0], msgs
+    assert lane_z_vs_ele(L, lambda x: np.interp(x, [-50, 50], [600, 710])) < 0.01
+    from lsd3d_usd.errors import InputError
+    with pytest.raises(InputError, match="node 2: ele"):
+        read_map(p, origin=L2_ORIGIN, strict=True)
+
+
+def test_osm_ele_parse():
+    from lsd3d_usd.layout.osm_heights import parse_ele
+    assert parse_ele("12") == 12 and parse_ele(" -3.5 ") == -3.5 and parse_ele("12 m") == 12
+    assert parse_ele("710m") == 710
+    for bad in ("12 ft", "abc", "nan", "NaN", "1e30", "", "12,5", "inf"):
+        assert parse_ele(bad) is None, bad
+

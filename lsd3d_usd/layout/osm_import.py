@@ -30,6 +30,7 @@ Mapping (defaults per highway class in ``HIGHWAY``: lanes when untagged, lane wi
   ``natural=scrub|heath`` → shrub (``VegetationZone``).
 - Signals, signs, street lamps, bollards, barriers, hedges, crossing ways, bad highway ways
   and the clip at ``--bbox`` or the file's ``<bounds>``: ``osm_features``.
+- Heights: node ``ele`` (metres) → z, the map's own height as in Lanelet2: ``osm_heights``.
 - Not read: multipolygon relations (buildings and parks mapped as relations), turn
   restrictions, ``turn:lanes``, parking.
 """
@@ -59,6 +60,7 @@ from lsd3d_usd.layout import roadnet as R
 from lsd3d_usd.layout.importers import ImportOptions, MapWarning, xml_root_name
 from lsd3d_usd.layout.lanelet2_import import FAR_ERROR_M, FAR_WARN_M, check_origin
 from lsd3d_usd.layout.osmxml import header_centre, osmium_errors
+from lsd3d_usd.layout.osm_heights import apply_heights, node_heights
 from lsd3d_usd.layout.osm_features import (clip_area, map_features, point_wanted, record_clip,
                                            sound_highways)
 
@@ -109,7 +111,8 @@ def _warn(msg: str, options: ImportOptions) -> None:
 
 def _read(path: Path, options: ImportOptions):
     """(point features [(id, tags, lat, lon)], ways [(id, tags, [node ids])], locations
-    {node id: (lat, lon)}, nodes' extent) of the area."""
+    {node id: (lat, lon)}, the ways' nodes' ``ele`` texts {node id: text}, nodes' extent) of
+    the area."""
     bbox = options.bbox
     if bbox is not None:
         x0, y0, x1, y1 = bbox
@@ -150,18 +153,13 @@ def _read(path: Path, options: ImportOptions):
             if len(ways) > MAX_WAYS or len(needed) > MAX_NODES:
                 raise InputError(f"{path}: more than {MAX_WAYS} ways or {MAX_NODES} of their nodes in "
                                  "the area; choose a smaller --bbox")
-        locs = {}
-        with_ele = 0
+        locs, eles = {}, {}
         for n in osmium.FileProcessor(str(path), osmium.osm.NODE):
             if n.id in needed and n.location.valid():
                 locs[n.id] = (n.location.lat, n.location.lon)
-                with_ele += "ele" in n.tags
-    if with_ele:
-        # heights are not carried through the OSM layout yet (issue 61): say so, not silently;
-        # a note, not a bad element, so --strict does not refuse the map
-        warnings.warn(f"{path}: {with_ele} node(s) of the area's ways carry ele; OSM heights "
-                      "are not read, the layout is flat at z = 0", MapWarning, stacklevel=2)
-    return points, ways, locs, ext
+                if "ele" in n.tags:
+                    eles[n.id] = n.tags["ele"]
+    return points, ways, locs, eles, ext
 
 
 # ================================================================ import
@@ -176,7 +174,7 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
     if p.stat().st_size > MAX_FILE_BYTES:
         raise InputError(f"{path}: {p.stat().st_size} bytes; at most {MAX_FILE_BYTES} are read")
     clip_box, clip_from = clip_area(p, options)
-    points, ways, locs, ext = _read(p, options)
+    points, ways, locs, eles, ext = _read(p, options)
     if not ways and not np.isfinite(ext[0]) and options.bbox is None:
         raise InputError(f"{path}: no nodes or ways could be read (an empty or truncated file)")
     if options.origin is not None:
@@ -235,6 +233,8 @@ def read_osm(path: str | Path, options: ImportOptions | None = None) -> m.Layout
     _trees(points, ways, coords, clip, layout, xy)
     map_features(path, points, ways, coords, clip, layout, xy, options)
     record_clip(layout, clip, clip_box, clip_from, options)
+    zmap = node_heights(path, eles, ways, xy_of, lambda msg: _warn(msg, options))
+    apply_heights(layout, zmap, roads, ways, xy_of)
     if cut_ways:
         wid, nid = next(iter(cut_ways.items()))
         _warn(f"{path}: {len(cut_ways)} way(s) reference nodes the file lacks (first: way {wid}, "
