@@ -37,6 +37,9 @@ class WalkParams:
     stand_offset: float = 1.5            # m from the sidewalk edge (standing spots)
 
 
+PASS_AFTER = 2.0     # s a walker stands blocked by other walkers before it squeezes past
+
+
 def obb_overlap(c1, yaw1, half1, c2, yaw2, half2) -> np.ndarray:
     """Do oriented rectangles overlap (separating axis test)? Centres (..., 2), yaws (...),
     half extents (..., 2) (along, across); arrays broadcast. Touching counts as apart."""
@@ -80,6 +83,7 @@ class Walker:
     last_crossed: int = -1
     occupying: bool = False
     midblock: tuple | None = None     # (far point, far track, its arc length) of a mid-block crossing
+    blocked: float = 0.0              # seconds it has stood wanting to move
 
 
 class Pedestrians:
@@ -115,7 +119,9 @@ class Pedestrians:
             near = np.abs(oc - np.asarray(xy)).max(1) < oh[:, 0] + 1.5
             if near.any() and obb_overlap(xy, yaw, h, oc[near], oy[near], oh[near]).any():
                 return False
-        if len(self.people) > 1:
+        # two people facing each other on a crosswalk would otherwise wait forever: one
+        # that has stood PASS_AFTER seconds squeezes past the others
+        if len(self.people) > 1 and me.blocked < PASS_AFTER:
             idx = [j for j in range(len(self.people)) if j != i]
             pc = np.array([self.people[j].xy for j in idx])
             near = np.abs(pc - np.asarray(xy)).max(1) < 2.5
@@ -229,6 +235,7 @@ class Pedestrians:
             if self._move_ok(i, xy, yaw, others):
                 p.s, p.xy, p.yaw, p.v = s_new, xy, yaw, d / dt
                 p.walked += d
+                p.blocked = 0.0
                 if stop is not None and frac == 1.0:
                     if self.rng.random() < self.p.cross_probability:
                         p.state, p.crosswalk, p.forward = WAIT, stop[1], stop[2]
@@ -240,6 +247,7 @@ class Pedestrians:
                     self._maybe_midblock(p, dt)
                 return
         p.v = 0.0
+        p.blocked += dt
 
     def _step_cross(self, i: int, p: Walker, dt: float, others) -> None:
         ds = p.v_des * dt
@@ -250,9 +258,11 @@ class Pedestrians:
                 p.v = (u - p.u) / dt
                 p.walked += u - p.u
                 p.u, p.xy, p.yaw = u, xy, yaw
+                p.blocked = 0.0
                 break
         else:
             p.v = 0.0
+            p.blocked += dt
         if p.occupying and p.u >= p.release_u:
             p.occupying = False
         if p.u >= p.cum[-1] - 1e-9:

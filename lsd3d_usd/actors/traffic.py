@@ -350,8 +350,8 @@ class Simulation:
             me.holds.clear()
             return
         for lane in list(me.holds):
-            if lane == me.lane:
-                continue
+            if lane == me.lane or (me.external and lane in me.plan):
+                continue     # an external vehicle keeps what it was granted until it is through
             # released once the vehicle is a length past the end of the held lane
             if not self.g.junction[me.lane] and me.s > me.length:
                 del me.holds[lane]

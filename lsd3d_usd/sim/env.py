@@ -30,6 +30,7 @@ from lsd3d_usd.sim.world import AgentSpec, World
 COMMANDS = ("left", "straight", "right", "follow")   # CARLA's high-level route options
 ACTION_MODES = ("control", "trajectory")
 MAX_AGENTS = 200
+ROUTE_END_MARGIN = 3.0    # m: the route is complete when the ego's front is this near its end
 MAX_SECONDS = 3600.0
 
 
@@ -174,7 +175,7 @@ class DriveEnv(gym.Env):
                          [(k, d[0], d[1], k == "child") for k, d in zip(pkinds, pdims)])
         self.world = World(self.scene.layout, g, self.route, self.ego, lim, spec,
                            int(rng.integers(2**31)))
-        veh = self.world.vehicles()
+        veh = self.world.slots
         labels = ["cyclist" if v.cyclist else "vehicle" for v in veh] + \
             ["pedestrian"] * len(self.world.street.crowd.people)
         vkinds = iter(kinds)
@@ -240,7 +241,7 @@ class DriveEnv(gym.Env):
             terminated, reason = True, "collision"
         elif not self.last["dac"]:
             terminated, reason = True, "off_road"
-        elif self.progress >= self.route.length - 1.0:
+        elif self.progress + self.limits.length / 2 >= self.route.length - ROUTE_END_MARGIN:
             terminated, reason = True, "route_complete"
         truncated = not terminated and self.t >= s.seconds - 1e-9
         if truncated:
@@ -298,8 +299,9 @@ class DriveEnv(gym.Env):
         e, lim = self.ego, self.limits
         c = e.box_centre(lim)
         self.actors.set_pose(0, float(c[0]), float(c[1]), e.z, e.yaw)
-        for q, (x, y, z, yaw) in enumerate(self.world.poses()):
+        for q, ((x, y, z, yaw), shown) in enumerate(zip(self.world.poses(), self.world.shown())):
             self.actors.set_pose(q + 1, x, y, z, yaw)
+            self.actors.set_visible(q + 1, shown)
 
     def _route_obs(self) -> tuple[np.ndarray, int]:
         s = self.settings

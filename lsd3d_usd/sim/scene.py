@@ -101,6 +101,9 @@ class SimActors:
         M[:3, 3] = x, y, z
         self._M[q] = M
 
+    def set_visible(self, q: int, shown: bool) -> None:
+        self._vis[q] = bool(shown)
+
     def transforms(self, time_code=None) -> list[np.ndarray]:
         return list(self._M)
 

@@ -49,7 +49,12 @@ class World:
                                                    (float(c[0]), float(c[1]), ego.yaw), lane, s))
         self.sim = self.street.sim
         self.ego_vehicle = self.street.ego
-        self.prev_xy = {}
+        # agents keep their slot (index) for the episode: one that leaves the map at a dead
+        # end is hidden and comes back at a lane where traffic enters (constant density)
+        self.slots = self.vehicles()
+        self.gone: dict[int, float] = {}          # slot -> time it left
+        self.t = 0.0
+        self.rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5A5]))
         self.place_ego(ego)
 
     # ---- the ego on the lane graph
@@ -76,10 +81,42 @@ class World:
 
     def step(self, dt: float) -> None:
         """Advance the others by ``dt`` (in the traffic model's sub-steps)."""
-        self.prev_xy = {id(v): self.sim.pose(v)[:2] for v in self.sim.veh}
         sub = max(1, int(math.ceil(dt / self.params.idm.dt_max - 1e-9)))
         for _ in range(sub):
             self.street.step(dt / sub)
+        self.t += dt
+        self._leave_and_return()
+
+    def _leave_and_return(self, wait: float = 2.0, clear: float = 15.0) -> None:
+        g, sim = self.graph, self.sim
+        for k, v in enumerate(self.slots):
+            if k in self.gone:
+                continue
+            dead_end = not v.plan and not any(g.bike[j] == v.cyclist or not g.bike[j] for j in g.succ[v.lane])
+            if dead_end and v.s + v.length / 2 >= g.length[v.lane] - sim.p.stop_margin - 0.5 and v.v < 0.5:
+                sim.veh.remove(v)
+                v.holds.clear()
+                self.gone[k] = self.t
+        for k in sorted(self.gone):
+            if self.t - self.gone[k] < wait:
+                continue
+            v = self.slots[k]
+            lanes = [i for i in g.entries() if g.length[i] >= v.length + 4.0] if not v.cyclist else \
+                [i for i in range(len(g.ids)) if not g.pred[i] and g.length[i] >= v.length + 4.0]
+            if not lanes:
+                continue
+            lane = lanes[int(self.rng.integers(len(lanes)))]
+            s = v.length / 2 + 1.0
+            p = g.geoms[lane].point(s)[:2]
+            e = self.sim.pose(self.ego_vehicle)[:2]
+            if math.hypot(p[0] - e[0], p[1] - e[1]) < clear or not sim._spawn_ok(lane, s, v.length, 8.0):
+                continue
+            v.lane, v.s, v.plan, v.forced, v.holds = lane, s, [], [], {}
+            v.offset = sim.cyclist_offset(lane, v.width) if v.cyclist else 0.0
+            v.v = 0.5 * min(g.limit[lane] * v.factor, v.v_max)
+            sim._fill_plan(v)
+            sim.veh.append(v)
+            del self.gone[k]
 
     def ego_stop_distance(self, horizon: float = 120.0) -> float:
         """Bumper distance within which the traffic rules make the ego stop (a junction it
@@ -92,12 +129,19 @@ class World:
 
     # ---- the others now
     def vehicles(self):
+        """The vehicles and cyclists on the map now (not the ego)."""
         return [v for v in self.sim.veh if not v.external]
+
+    def shown(self) -> list[bool]:
+        """Per slot then per pedestrian: is it on the map now."""
+        return [k not in self.gone for k in range(len(self.slots))] + [True] * len(self.street.crowd.people)
 
     def agents(self) -> Agents:
         """Every other agent's box (centre, yaw, length, width), velocity and kind now."""
         ids, xy, yaw, L, W, vel, kind = [], [], [], [], [], [], []
-        for k, v in enumerate(self.vehicles()):
+        for k, v in enumerate(self.slots):
+            if k in self.gone:
+                continue
             x, y, h = self.sim.pose(v)
             ids.append(f"{'cyclist' if v.cyclist else 'vehicle'}:{k}")
             xy.append((x, y))
@@ -119,9 +163,10 @@ class World:
         return Agents(ids, np.array(xy), np.array(yaw), np.array(L), np.array(W), np.array(vel), kind)
 
     def poses(self) -> list[tuple[float, float, float, float]]:
-        """(x, y, z, yaw) of each vehicle then each pedestrian (the order of `agents`)."""
+        """(x, y, z, yaw) of each vehicle slot then each pedestrian (gone slots where they
+        left; `shown` says which are on the map)."""
         out = []
-        for v in self.vehicles():
+        for v in self.slots:
             x, y, h = self.sim.pose(v)
             out.append((x, y, self.street.vehicle_z(v), h))
         for p in self.street.crowd.people:

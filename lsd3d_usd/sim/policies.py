@@ -1,0 +1,209 @@
+"""Policies that drive `DriveEnv`: a callable ``policy(obs, info) -> action``.
+
+- ``planner``: a privileged rule-based driver. It follows the route with pure pursuit and
+  sets its speed with IDM (the traffic model's own parameters) against the nearest of: the
+  vehicle ahead on its lane and route, any agent whose box lies in its path within the
+  horizon, a crossing agent whose constant-velocity path cuts the route ahead within 3 s,
+  a junction it holds no reservation for and an occupied crosswalk (both from the traffic
+  model's rules, ``info["stop_distance_m"]``), and the end of the route.
+- ``constant``: keeps its start speed (the route's first lane's limit when it starts still)
+  along its start heading: no steering, no braking.
+- ``MODULE:CALLABLE``: any importable callable with the same signature (a factory taking
+  the env is called first when it is a class or carries ``make_policy``).
+
+Every policy can answer in either action mode: ``control`` (acceleration, steering angle)
+or ``trajectory`` (waypoints in the ego frame).
+"""
+from __future__ import annotations
+
+import importlib
+import math
+
+import numpy as np
+
+from lsd3d_usd.actors.traffic import IDMParams
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.sim.control import TrackerGains, pure_pursuit
+
+POLICIES = ("planner", "constant")
+p_end_overrun = 1.0        # m: the planner aims its front this far past the route's end
+PATH_HALF_WIDTH = 1.4       # m: an agent's box nearer than this to the route is in the path
+
+
+class Planner:
+    """The privileged planner (module doc)."""
+
+    def __init__(self, env, idm: IDMParams = IDMParams(), horizon: float = 60.0,
+                 speed_factor: float = 0.9):
+        self.env = env
+        self.p = idm
+        self.horizon = horizon
+        self.speed_factor = speed_factor
+        self.gains = TrackerGains()
+
+    def _obstacle_gap(self, info) -> tuple[float, float]:
+        """(bumper gap, speed along the route) of the nearest obstacle in the ego's path."""
+        env = self.env
+        route, ego, lim = env.route, env.ego, env.limits
+        d_ego = env.world.ego_d
+        front = lim.length / 2
+        best = (math.inf, 0.0)
+        gap, v_lead = info["leader_gap_m"], info["leader_speed"]
+        if math.isfinite(gap):
+            best = (gap, v_lead)
+        stop = info["stop_distance_m"]
+        if math.isfinite(stop) and stop < best[0]:
+            best = (stop, 0.0)
+        end = route.length - d_ego - front + p_end_overrun
+        if end < best[0]:
+            best = (end, 0.0)
+        heading = route.heading(d_ego)
+        for b in info["boxes"]:
+            c = np.asarray(b["center"])
+            if abs(c[0] - ego.x) > self.horizon + 10 or abs(c[1] - ego.y) > self.horizon + 10:
+                continue
+            d, off = route.project(c, near=d_ego, window=self.horizon + 10)
+            ahead = d - d_ego
+            half = 0.5 * b["width"] if b["kind"] != "pedestrian" else 0.5
+            vel = np.asarray(b["velocity"])
+            if 0.0 < ahead < self.horizon and abs(off) < PATH_HALF_WIDTH + half:
+                g = ahead - front - 0.5 * b["length"]
+                v_along = float(vel @ [math.cos(heading), math.sin(heading)])
+                if g < best[0]:
+                    best = (g, max(v_along, 0.0))
+                continue
+            speed = float(np.hypot(*vel))
+            if speed < 0.3 or ahead < -5.0:
+                continue
+            # a crossing agent: where its straight path meets the route within 3 s
+            for tau in np.arange(0.25, 3.01, 0.25):
+                p = c + vel * tau
+                d2, off2 = route.project(p, near=d_ego, window=self.horizon + 10)
+                a2 = d2 - d_ego
+                if 0.0 < a2 < self.horizon and abs(off2) < PATH_HALF_WIDTH + half:
+                    # it gets there first when it arrives before the ego's front does
+                    t_ego = (a2 - front) / max(ego.v, 0.5)
+                    if tau <= t_ego + 1.0:
+                        g = a2 - front - 1.0
+                        if g < best[0]:
+                            best = (g, 0.0)
+                    break
+        return best
+
+    def _target_speed(self, d: float) -> float:
+        g = self.env.route.graph
+        j, s = self.env.route.locate(d)
+        lim = g.limit[self.env.route.idx[j]]
+        # the next lane's limit within braking distance
+        rem = g.length[self.env.route.idx[j]] - s
+        if j + 1 < len(self.env.route.idx):
+            nxt = g.limit[self.env.route.idx[j + 1]]
+            if nxt < lim and rem < self.env.ego.v ** 2 / (2 * self.p.b) + 10.0:
+                lim = nxt
+        # curvature: keep the lateral acceleration comfortable on the path ahead
+        ahead = max(8.0, self.env.ego.v * 2.0)
+        h0, h1 = self.env.route.heading(d), self.env.route.heading(d + ahead)
+        kappa = abs(math.remainder(h1 - h0, 2 * math.pi)) / ahead
+        if kappa > 1e-4:
+            lim = min(lim, math.sqrt(2.5 / kappa))
+        return self.speed_factor * lim
+
+    def acceleration(self, info) -> float:
+        p, v = self.p, self.env.ego.v
+        v0 = max(self._target_speed(self.env.world.ego_d), 0.1)
+        gap, v_lead = self._obstacle_gap(info)
+        free = p.a_max * (1.0 - (v / v0) ** p.delta)
+        if not math.isfinite(gap):
+            return free
+        if gap <= 0.2:
+            return -p.b_max
+        s_star = p.s0 + max(0.0, v * p.T + v * (v - v_lead) / (2.0 * math.sqrt(p.a_max * p.b)))
+        return max(p.a_max * (1.0 - (v / v0) ** p.delta - (s_star / max(gap, 0.01)) ** 2), -p.b_max)
+
+    def steering(self) -> float:
+        env = self.env
+        ego, lim = env.ego, env.limits
+        d = env.world.ego_d - lim.box_offset         # the route at the rear axle
+        pts = np.stack([env.route.point(d + k)[:2] for k in np.arange(0.0, 40.0, 1.0)])
+        M = ego.matrix()
+        local = (pts - M[:2, 3]) @ M[:2, :2]
+        local = local[local[:, 0] > -0.5]
+        if len(local) < 2:
+            return 0.0
+        return pure_pursuit(np.vstack([[0.0, 0.0], local]), ego.v, lim.wheelbase, self.gains)
+
+    def __call__(self, obs, info):
+        env = self.env
+        a = self.acceleration(info)
+        if env.settings.action == "control":
+            steer = self.steering()
+            if env.settings.steer == "rate":
+                steer = (steer - env.ego.delta) * env.settings.hz
+            return np.array([a, steer], np.float32)
+        return self._waypoints(a)
+
+    def _waypoints(self, a: float) -> np.ndarray:
+        """The route ahead at the speed profile v + a t (no reversing), in the ego frame."""
+        env = self.env
+        s = env.settings
+        v, d = env.ego.v, env.world.ego_d - env.limits.box_offset
+        M = env.ego.matrix()
+        out = []
+        for k in range(1, s.waypoints + 1):
+            t = k * s.waypoint_spacing
+            stop_t = v / -a if a < 0 else math.inf
+            tt = min(t, stop_t)
+            dist = max(v * tt + 0.5 * a * tt * tt, 0.0)
+            p = env.route.point(d + dist)[:2]
+            out.append((p - M[:2, 3]) @ M[:2, :2])
+        return np.asarray(out, np.float32)
+
+
+class Constant:
+    """Constant velocity along the start heading (module doc)."""
+
+    def __init__(self, env):
+        self.env = env
+        self.v = None
+
+    def __call__(self, obs, info):
+        env = self.env
+        if self.v is None or env.k == 0:
+            g = env.route.graph
+            self.v = env.ego.v if env.ego.v > 0.5 else 0.9 * float(g.limit[env.route.idx[0]])
+        if env.settings.action == "control":
+            # reach the speed, then hold it; the wheels stay straight
+            a = np.clip((self.v - env.ego.v) * env.settings.hz, env.limits.a_min, env.limits.a_max)
+            return np.array([a, 0.0], np.float32)
+        s = env.settings
+        return np.array([[self.v * k * s.waypoint_spacing, 0.0] for k in range(1, s.waypoints + 1)],
+                        np.float32)
+
+
+def load_policy(spec: str, env):
+    """A policy for ``env``: "planner", "constant" or "MODULE:CALLABLE". A class, or a
+    callable with ``make_policy``, is called with the env to make the policy."""
+    if spec == "planner":
+        return Planner(env)
+    if spec == "constant":
+        return Constant(env)
+    mod, _, attr = str(spec).partition(":")
+    if not mod or not attr:
+        raise InputError(f"--policy {spec!r}: choose {', '.join(POLICIES)} or MODULE:CALLABLE")
+    try:
+        obj = importlib.import_module(mod)
+    except Exception as e:       # the module's own import error, in one line
+        raise InputError(f"--policy {spec!r}: cannot import {mod!r} ({type(e).__name__}: {e})") from None
+    for part in attr.split("."):
+        if not hasattr(obj, part):
+            raise InputError(f"--policy {spec!r}: module {mod!r} has no {attr!r}")
+        obj = getattr(obj, part)
+    if isinstance(obj, type) or hasattr(obj, "make_policy"):
+        maker = obj.make_policy if hasattr(obj, "make_policy") else obj
+        try:
+            obj = maker(env)
+        except Exception as e:
+            raise InputError(f"--policy {spec!r}: making the policy failed ({type(e).__name__}: {e})") from None
+    if not callable(obj):
+        raise InputError(f"--policy {spec!r}: {attr!r} is not callable")
+    return obj
