@@ -187,7 +187,7 @@ CYCLISTS = Limit(
 # ------------------------------------------------------------------------ LiDAR
 LIDAR_BEAMS = Limit(
     "lidar_beams", 1024, " beams", "beam count",
-    "--lidar FILE.toml (views.sensors) and LidarModel.check, before any ray is cast")
+    "--lidar FILE.toml (sensors.lidar) and LidarModel.check, before any ray is cast")
 LIDAR_COLUMNS = Limit(
     "lidar_columns", 100_000, " columns", "column count",
     "--lidar FILE.toml and LidarModel.check, before any ray is cast")

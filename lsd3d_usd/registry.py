@@ -13,6 +13,10 @@ travel to worker processes (``portable()`` in the parent, ``adopt()`` in the wor
 region workers of GGDS do this), since a worker imports the target itself. An object
 registered directly (``register(name, obj)``) lives in this process only.
 
+A target whose attribute ends in ``.toml`` (``"package:rigs/city.toml"``) names a data file
+inside the package rather than an attribute: its entry is that file's ``Path`` (how sensor
+rigs and LiDAR presets ship as data, not code).
+
 A name that is registered twice (an entry point shadowing a built-in) is an error rather
 than a silent override: which one runs must never depend on install order.
 """
@@ -20,7 +24,9 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import importlib.resources
 from importlib import metadata
+from pathlib import Path
 from typing import Any
 
 from lsd3d_usd.errors import InputError
@@ -100,6 +106,9 @@ class Registry:
             hint = f" (did you mean {near[0]!r}?)" if near else ""
             raise InputError(f"unknown {self.what} {name!r}{hint}; known: {', '.join(self.names())}")
         module, _, attr = target.partition(":")
+        if attr.endswith(".toml"):
+            self._loaded[name] = _package_file(self.what, name, module, attr)
+            return self._loaded[name]
         try:
             obj = importlib.import_module(module)
             for part in attr.split(".") if attr else ():
@@ -112,6 +121,16 @@ class Registry:
     def items(self):
         """(name, entry) of every entry in registration order, loading each."""
         return [(n, self.get(n)) for n in self.ordered()]
+
+
+def _package_file(what: str, name: str, module: str, rel: str) -> Path:
+    try:
+        path = Path(str(importlib.resources.files(module) / rel))
+    except (ImportError, TypeError) as e:
+        raise InputError(f"{what} {name!r}: cannot load {module}:{rel}: {e}") from None
+    if not path.is_file():
+        raise InputError(f"{what} {name!r}: {module}:{rel}: no such file ({path})")
+    return path
 
 
 def portable() -> dict[str, dict[str, str]]:

@@ -10,7 +10,9 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.render import lidar as L
 from lsd3d_usd.splats.field import SurfelField
 from lsd3d_usd.views.lidar_sweep import sweep
-from lsd3d_usd.views.sensors import PRESETS, model_from_table
+from lsd3d_usd.sensors.lidar import LidarModel, model_from_table, presets
+
+PRESETS = presets()
 
 
 def _random_surfels(n, seed=0, extent=12.0):
@@ -170,7 +172,7 @@ def test_transmittance_rule_and_degenerate_surfels():
 def test_beams_straight_up_and_down():
     """Elevations near ±90° (every azimuth at once) against surfels around the sensor."""
     surf = _random_surfels(3000, seed=7, extent=4.0)
-    model = L.LidarModel("poles", (-89.9, -60.0, 0.0, 60.0, 89.9), 64).check()
+    model = LidarModel("poles", (-89.9, -60.0, 0.0, 60.0, 89.9), 64).check()
     d = model.directions()
     o = np.zeros((d.shape[1], 3))
     t, k, _ = L.cast_surfels(surf, o, d, min_range=0.1, max_range=20.0)

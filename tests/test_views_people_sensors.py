@@ -40,7 +40,7 @@ def test_people_in_camera_labels_and_lidar(people_scene, label):
     from lsd3d_usd.views.frame import render_scene
     from lsd3d_usd.views.labels import Instances
     from lsd3d_usd.views.lidar_sweep import mesh_actors, sweep
-    from lsd3d_usd.views.sensors import model_from_table
+    from lsd3d_usd.sensors.lidar import model_from_table
     from lsd3d_usd.views.stage_data import SceneReader
 
     stage = Usd.Stage.Open(str(S.Scene.open(people_scene).root_layer_path))

@@ -13,10 +13,13 @@ from pxr import Usd, UsdGeom
 from lsd3d_usd.views.options import RigOptions
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import from_usd
-from lsd3d_usd.views import ego, frame, rig, rig_stage, rigs
+from lsd3d_usd.sensors.camera import camera_in_ego, rig_camera
+from lsd3d_usd.sensors.rigs import load_rig
+from lsd3d_usd.views import ego, frame, rig, rig_stage
 from lsd3d_usd.views.stage_data import ActorFrame, SceneReader
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples" / "layouts"
+WAYMO5 = load_rig("waymo5").cameras
 
 
 def _box_surfels(lo, hi, count=8000, color=(0.6, 0.3, 0.2), seed=0):
@@ -50,15 +53,15 @@ def _ego(x, y, yaw_deg):
 
 
 def test_waymo5_geometry():
-    names = [c.name for c in rigs.WAYMO5]
+    names = [c.name for c in WAYMO5]
     assert names == ["Front", "FrontLeft", "FrontRight", "SideLeft", "SideRight"]
-    for c in rigs.WAYMO5:
-        P = rigs.camera_in_ego(c)
+    for c in WAYMO5:
+        P = camera_in_ego(c)
         fwd = P[:3, 2]
         assert np.isclose(np.degrees(np.arctan2(fwd[1], fwd[0])), c.yaw_deg, atol=1e-9)
         assert np.allclose(P[:3, 3], c.mount) and 1.8 <= c.mount[2] <= 2.1
         assert 45.0 <= c.hfov_deg <= 55.0
-        cam = rigs.rig_camera(c, np.eye(4), 192)
+        cam = rig_camera(c, np.eye(4), 192)
         assert np.isclose(2 * np.degrees(np.arctan(cam.width / 2 / cam.fx)), c.hfov_deg)
         assert np.isclose(P[:3, 1] @ [0, 0, 1.0], -1.0)   # image down = world down (no roll)
 
@@ -102,10 +105,10 @@ def test_rig_stage_cameras_follow_ego(rig_scene, tmp_path):
         ego = np.array(UsdGeom.Xformable(stage.GetPrimAtPath(rig_stage.EGO_PATH))
                        .ComputeLocalToWorldTransform(Usd.TimeCode(code))).T
         assert np.allclose(ego[:3, 3], [10.0 + 30.0 * track.times[k], -20.0, 0.0], atol=1e-9)
-        for spec, path in zip(rigs.WAYMO5, paths):
+        for spec, path in zip(WAYMO5, paths):
             cam = from_usd(stage.GetPrimAtPath(path), code, 96)
             rel = np.linalg.inv(ego) @ cam.pose
-            assert np.allclose(rel, rigs.camera_in_ego(spec), atol=1e-5)
+            assert np.allclose(rel, camera_in_ego(spec), atol=1e-5)
             assert np.isclose(2 * np.degrees(np.arctan(cam.width / 2 / cam.fx)), spec.hfov_deg, atol=1e-3)
 
 
@@ -134,10 +137,10 @@ def test_occluded_actor_appears_past_the_corner():
     the building and seen once the ego has driven past its corner."""
     building = _box_surfels((5, -8, 0), (25, 2, 8))
     car = _car_at(15.0, 40.0, 0.3)
-    side = rigs.WAYMO5[3]
+    side = WAYMO5[3]
     seen = {}
     for x in (15.0, 35.0):
-        cam = rigs.rig_camera(side, _ego(x, -20.0, 0.0), 96)
+        cam = rig_camera(side, _ego(x, -20.0, 0.0), 96)
         alone = frame.composite(None, car, cam)
         assert alone.actor_mask.sum() > 0             # the car is in the field of view
         out = frame.composite(building, car, cam)
@@ -148,7 +151,7 @@ def test_occluded_actor_appears_past_the_corner():
 def test_surfels_in_front_composite_over_actor():
     """Per pixel the nearer wins: a thin surfel wall in front hides the car, one behind doesn't."""
     car = _car_at(10.0, 0.0, np.pi / 2)
-    cam = rigs.rig_camera(rigs.WAYMO5[0], _ego(0.0, 0.0, 0.0), 64)
+    cam = rig_camera(WAYMO5[0], _ego(0.0, 0.0, 0.0), 64)
     front_wall = _box_surfels((6, -6, 0), (6.2, 6, 4), color=(0.0, 0.8, 0.0))
     back_wall = _box_surfels((16, -6, 0), (16.2, 6, 4), color=(0.0, 0.8, 0.0))
     a = frame.composite(back_wall, car, cam)
@@ -185,7 +188,7 @@ def test_rendering_is_stateless_and_writes_clips(rig_scene, tmp_path):
 
     res = rig.render_rig(sc.root, tmp_path / "clip", RigOptions(trajectory=traj, fps=2.0, seconds=1.0),
                          width=64, use_env=False, progress=False, log=lambda *_: None)
-    assert set(res.frames) == {c.name for c in rigs.WAYMO5} | {"Overview"}
+    assert set(res.frames) == {c.name for c in WAYMO5} | {"Overview"}
     assert all(len(v) == 2 and all(p.is_file() for p in v) for v in res.frames.values())
     # an MP4 per camera (imageio-ffmpeg is a dependency): decoded, it has every frame at the
     # PNGs' size (padded to even for yuv420p) and the rig's rate
@@ -252,7 +255,7 @@ def test_camera_render_draws_actors_like_the_rig(rig_scene, tmp_path):
                          RigOptions(trajectory=traj, fps=10.0, seconds=1.0, overview=False,
                                     video=False), width=64, progress=False, log=lambda *_: None)
     k, code = 9, 21.6                 # t = 0.9 s at 24 codes/s: the ego is past the building
-    side = rigs.WAYMO5[3]
+    side = WAYMO5[3]
     out = tmp_path / "cam"
     assert main(["render", str(res.rig_layer), "--camera", f"{rig_stage.EGO_PATH}/{side.name}",
                  "--time", str(code), "--resolution", f"64x{side.height_for(64)}", "-o", str(out),

@@ -98,7 +98,8 @@ def _rig_cameras(out):
     from pxr import Usd
 
     from lsd3d_usd.render.camera import from_usd
-    from lsd3d_usd.views.rigs import NUSCENES6
+    from lsd3d_usd.sensors.rigs import load_rig
+    NUSCENES6 = load_rig("nuscenes6").cameras
     stage = Usd.Stage.Open(str(out / "rig.usda"))
     tcps = stage.GetTimeCodesPerSecond()
     prims = {p.GetName(): p for p in stage.Traverse() if p.GetName() in {c.name for c in NUSCENES6}}
@@ -320,7 +321,7 @@ def test_lidar_sweep_is_seeded(sensors, tmp_path):
     from lsd3d_usd.views.ego import EgoTrack
     from lsd3d_usd.views.labels import Instances
     from lsd3d_usd.views.lidar_sweep import sweep
-    from lsd3d_usd.views.sensors import model_from_table
+    from lsd3d_usd.sensors.lidar import model_from_table
     from lsd3d_usd.views.stage_data import SceneReader
     _, out, _ = sensors
     stage = Usd.Stage.Open(str(out / "rig.usda"))

@@ -72,12 +72,12 @@ def main(argv=None) -> dict:
     from lsd3d_usd.views.deferred import Deferrer
     from lsd3d_usd.views.frame import render_scene
     from lsd3d_usd.views.rig_stage import build_rig_stage
-    from lsd3d_usd.views.rigs import RIGS
+    from lsd3d_usd.sensors.rigs import load_rig
     from lsd3d_usd.views.stage_data import SceneReader
 
     strengths = [float(s) for s in a.strengths.split(",")]
     names = a.cameras.split(",")
-    specs = {c.name: c for c in RIGS["waymo5"]}
+    specs = {c.name: c for c in load_rig("waymo5").cameras}
     out_dir = tempfile.mkdtemp(prefix="bench_deferred_")
     stage, paths, track, tcps, _ = build_rig_stage(a.scene, out_dir, "waymo5", a.route, None, a.fps,
                                                    a.seconds)

@@ -55,7 +55,7 @@ def main() -> int:
     from lsd3d_usd.views import rig
     from lsd3d_usd.views.images import read_image, write_image
     from lsd3d_usd.views.options import RigOptions
-    from lsd3d_usd.views.rigs import NUSCENES6
+    from lsd3d_usd.sensors.rigs import load_rig
     from pxr import Usd
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -93,7 +93,7 @@ def main() -> int:
         stage = Usd.Stage.Open(str(renders["waymo_top"].rig_layer))
         tcps = stage.GetTimeCodesPerSecond()
         t = k / fps
-        spec = next(c for c in NUSCENES6 if c.name == "CAM_FRONT")
+        spec = load_rig("nuscenes6").camera("CAM_FRONT")
         prim = next(p for p in stage.Traverse() if p.GetName() == "CAM_FRONT")
         cam = from_usd(prim, round(t * tcps, 6), args.width, spec.height_for(args.width))
         pc = sw["xyz_world"] @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]

@@ -22,13 +22,14 @@ from lsd3d_usd.datasets.build import Checkpoints, DatasetOptions
 from lsd3d_usd.datasets.drive import CameraShot, LidarShot, LogInfo, LogPlan, Sample
 from lsd3d_usd.datasets.nuscenes import NuScenesWriter
 from lsd3d_usd.datasets.timeline import Timeline
-from lsd3d_usd.views.rigs import RIGS, camera_in_ego
+from lsd3d_usd.sensors.camera import camera_in_ego
+from lsd3d_usd.sensors.rigs import load_rig
 
 WIDTH, POINTS = 8, 64            # tiny files: only the tables' rows matter here
 
 
 def _info(keyframes: int, actors: int, tmp: Path) -> LogInfo:
-    specs = list(RIGS["nuscenes6"])
+    specs = list(load_rig("nuscenes6").cameras)
     tl = Timeline(12.0, 20.0, 2.0, keyframes / 2.0)
     rows = [{"id": i + 1, "prim": f"/World/Actors/a{i}", "class": "vehicle", "kind": "car",
              "role": "traffic"} for i in range(actors)]

@@ -29,12 +29,12 @@ from lsd3d_usd.proxy.usdio import proxy_arrays
 from lsd3d_usd.render.camera import Camera
 from lsd3d_usd.render.lidar import cast_reference, cast_surfels
 from lsd3d_usd.semantics import CLASS_ID
+from lsd3d_usd.sensors.lidar import preset
 from lsd3d_usd.views import labels as L
 from lsd3d_usd.views.ego import frame_times, track_from_route
 from lsd3d_usd.views.frame import composite, render_surfels
 from lsd3d_usd.views.lidar_sweep import SurfelCache, sweep
 from lsd3d_usd.layout.routes import default_route
-from lsd3d_usd.views.sensors import PRESETS
 from lsd3d_usd.views.stage_data import ActorFrame, SceneReader
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layouts" / "hand_crossing.usda"
@@ -46,7 +46,7 @@ def _rss_mb() -> float:
 
 
 def measure(scene_dir, *, sweeps: int = 5, lidar: str = "waymo_top", log=print) -> dict:
-    model = PRESETS[lidar]
+    model = preset(lidar)
     sc = S.Scene.open(scene_dir)
     stage = Usd.Stage.Open(str(sc.root_layer_path))
     layout = read_layout(sc.layer_path("layout"))

@@ -68,12 +68,8 @@ def check_output(out: Path, scenes: list[Path], opt: DatasetOptions) -> None:
 
 
 def lidar_of(opt: DatasetOptions):
-    from lsd3d_usd.views.rigs import RIG_LIDAR
-    from lsd3d_usd.views.sensors import lidar_model
-    spec = opt.lidar
-    if spec in (None, "auto"):
-        spec = RIG_LIDAR.get(opt.rig)
-    return None if spec in (None, "none") else lidar_model(spec)
+    from lsd3d_usd.sensors.rigs import rig_lidar
+    return rig_lidar(opt.rig, opt.lidar)
 
 
 def _layout(scene: Path):
@@ -140,10 +136,9 @@ def check_settings(opt: DatasetOptions):
     """The checks of the settings alone: (writer class, LiDAR model or None, timeline)."""
     from lsd3d_usd.datasets.timeline import Timeline
     from lsd3d_usd.datasets.writers import WRITERS
-    from lsd3d_usd.views.rigs import RIGS
+    from lsd3d_usd.sensors.rigs import load_rig
     writer_cls = WRITERS.get(opt.format)
-    if opt.rig not in RIGS:
-        raise InputError(f"--rig {opt.rig!r}: known rigs: {', '.join(RIGS)}")
+    load_rig(opt.rig)
     if not opt.version or "/" in opt.version or opt.version.startswith("."):
         raise InputError(f"--version {opt.version!r}: a folder name like v1.0-lsd3d")
     if opt.width is not None and not 8 <= opt.width <= 8192:
@@ -249,7 +244,7 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
     from tqdm import tqdm
 
     from lsd3d_usd.datasets.drive import drive
-    from lsd3d_usd.views.rigs import RIGS
+    from lsd3d_usd.sensors.rigs import load_rig
     state = root / STATE
     rec_file = state / "logs" / f"{plan.index:04d}.json"
     if opt.resume and rec_file.is_file():
@@ -260,7 +255,7 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
     if part is None:
         cps.clear()                             # a stale journal of a run not resumed
     start = part[0] if part else 0
-    width = opt.width or RIGS[opt.rig][0].size[0]
+    width = opt.width or load_rig(opt.rig).cameras[0].size[0]
     info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
                           lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
                           exposure=opt.exposure, tonemap=opt.tonemap, deferrer=deferrer,

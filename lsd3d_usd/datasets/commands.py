@@ -61,7 +61,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="dataset folder")
     p.add_argument("--format", required=True, metavar="nuscenes|kitti|mcap",
                    help="dataset format (a registered writer, lsd3d_usd.dataset_writers)")
-    p.add_argument("--rig", default="nuscenes6", help="sensor rig (nuscenes6, waymo5)")
+    p.add_argument("--rig", default="nuscenes6", metavar="nuscenes6|waymo5|FILE.toml",
+                   help="sensor rig: a rig name or a rig FILE.toml (docs/sensors.md)")
     p.add_argument("--lidar", default="auto", metavar="hdl32|waymo_top|none|FILE.toml",
                    help="the LiDAR (default auto: the rig's own; nuscenes6 carries hdl32)")
     g = p.add_mutually_exclusive_group()

@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 
 from lsd3d_usd.render.camera import from_usd
+from lsd3d_usd.sensors.camera import camera_in_ego
+from lsd3d_usd.sensors.rigs import load_rig
 from lsd3d_usd.views.boxes import actor_boxes, camera_boxes, local_boxes
 from lsd3d_usd.views.frame import render_scene
 from lsd3d_usd.views.images import display_uint8
@@ -27,7 +29,6 @@ from lsd3d_usd.views.lidar_sweep import SurfelCache, mesh_actors
 from lsd3d_usd.views.lidar_sweep import sweep as lidar_sweep
 from lsd3d_usd.views.options import DEFAULT_STREAM_RADIUS
 from lsd3d_usd.views.rig_stage import build_rig_stage
-from lsd3d_usd.views.rigs import RIGS, camera_in_ego
 from lsd3d_usd.views.stage_data import SceneReader
 
 LIDAR_CHANNEL = "LIDAR_TOP"
@@ -80,8 +81,8 @@ class LogInfo:
     """What a writer needs before the first sample of a log."""
     plan: LogPlan
     rig: str
-    cameras: list               # views.rigs.RigCamera of the rig, in order
-    lidar: object               # render.lidar.LidarModel or None
+    cameras: list               # sensors.camera.CameraModel of the rig, in order
+    lidar: object               # sensors.lidar.LidarModel or None
     width: int
     timeline: object
     instances: Instances
@@ -105,7 +106,7 @@ def drive(plan: LogPlan, work: Path, *, rig: str, lidar, timeline, width: int,
         seconds=timeline.n_ticks / fps, seed=seed, load_all=not stream_radius, lidar=lidar)
     for n in notes:
         log(f"note: {n}")
-    specs = list(RIGS[rig])
+    specs = list(load_rig(rig).cameras)
     by_name = {p.rsplit("/", 1)[-1]: p for p in paths}
     reader = SceneReader(stage, stream_radius=stream_radius or None)
     instances = Instances.of(reader.actors)

@@ -1,5 +1,8 @@
-"""A spinning LiDAR as a sensor model of the renderer: which rays a sweep samples and when, and
-where each ray first meets the scene.
+"""The kernels of a spinning LiDAR: where each ray of a sweep first meets the scene.
+
+The sensor model (its beams, columns, timing and mount) is ``sensors.lidar.LidarModel``; the
+kernels here take arrays (ray origins, directions, column times, ranges) so the renderer
+does not depend on the sensors package above it.
 
 The beams. A LidarModel has rings (one beam each, at fixed elevations) and columns (azimuths
 swept as the head turns at ``rotation_hz``). Column j looks at azimuth
@@ -34,8 +37,6 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
-from lsd3d_usd.errors import InputError
-from lsd3d_usd.limits import LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RANGE, LIDAR_RAYS
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -47,113 +48,6 @@ TRACE_TILES = True
 SECTOR_GROUPS = 8        # column groups binned from one origin
 SPREAD_PRIME = 1000003   # _spread's multiplier: a prime, so coprime with any tile count it is not
 PAIR_SLOTS = 4           # (tile, distance) pairs a surfel's first binning pass can hold
-MAX_COLUMNS = int(LIDAR_COLUMNS.value)
-MAX_RINGS = int(LIDAR_BEAMS.value)
-MAX_RAYS = int(LIDAR_RAYS.value)
-
-
-@dataclass(frozen=True)
-class LidarModel:
-    """A spinning LiDAR (see the module doc). Ranges in metres, angles in degrees."""
-    name: str
-    elevations_deg: tuple          # per ring, ascending
-    columns: int
-    hfov_deg: float = 360.0
-    min_range: float = 0.5
-    max_range: float = 75.0
-    rotation_hz: float = 10.0
-    range_sigma: float = 0.0       # Gaussian range noise (m), seeded per sweep
-    drop_prob: float = 0.0         # probability a return is dropped, seeded per sweep
-    mount: tuple = (0.0, 0.0, 2.0, 0.0, 0.0, 0.0)   # x, y, z (m), roll, pitch, yaw (deg) on the ego
-    extras: dict = field(default_factory=dict, compare=False)
-
-    def check(self, where: str = "lidar") -> LidarModel:
-        """One InputError line naming the first bad key."""
-        el = np.asarray(self.elevations_deg, np.float64)
-        if el.ndim != 1 or not 1 <= len(el) <= MAX_RINGS:
-            raise InputError(f"{where}: beams: need 1 to {MAX_RINGS} beams, got {el.size}")
-        if not np.all(np.isfinite(el)) or np.any(np.abs(el) >= 90.0):
-            bad = el[~np.isfinite(el) | (np.abs(el) >= 90.0)][0]
-            raise InputError(f"{where}: elevations: {bad:g} deg is outside (-90, 90)")
-        if np.any(np.diff(el) < 0):
-            raise InputError(f"{where}: elevations: must be ascending (ring 0 lowest)")
-        if not isinstance(self.columns, (int, np.integer)) or not 1 <= self.columns <= MAX_COLUMNS:
-            raise InputError(f"{where}: columns: {self.columns} is outside 1 .. {MAX_COLUMNS}")
-        if len(el) * self.columns > MAX_RAYS:
-            raise InputError(f"{where}: {len(el)} beams x {self.columns} columns = "
-                             f"{len(el) * self.columns} rays exceed the limit of {MAX_RAYS}")
-        if not (math.isfinite(self.hfov_deg) and 0.0 < self.hfov_deg <= 360.0):
-            raise InputError(f"{where}: hfov: {self.hfov_deg} must be in (0, 360]")
-        if not (math.isfinite(self.min_range) and self.min_range >= 0.0):
-            raise InputError(f"{where}: min_range: {self.min_range} must be >= 0")
-        if not (math.isfinite(self.max_range) and self.max_range > self.min_range):
-            raise InputError(f"{where}: max_range: {self.max_range} must exceed min_range "
-                             f"{self.min_range}")
-        if not LIDAR_RANGE.ok(self.max_range):
-            raise InputError(f"{where}: max_range: "
-                             f"{LIDAR_RANGE.describe(self.max_range, what='').strip()}")
-        if not (math.isfinite(self.rotation_hz) and 0.01 <= self.rotation_hz <= 1000.0):
-            raise InputError(f"{where}: rotation_hz: {self.rotation_hz} is outside 0.01 .. 1000")
-        if not (math.isfinite(self.range_sigma) and 0.0 <= self.range_sigma <= 10.0):
-            raise InputError(f"{where}: range_sigma: {self.range_sigma} is outside 0 .. 10 m")
-        if not (math.isfinite(self.drop_prob) and 0.0 <= self.drop_prob < 1.0):
-            raise InputError(f"{where}: drop_prob: {self.drop_prob} is outside [0, 1)")
-        m = np.asarray(self.mount, np.float64)
-        if m.shape != (6,) or not np.all(np.isfinite(m)):
-            raise InputError(f"{where}: mount: need x, y, z, roll, pitch, yaw (finite)")
-        return self
-
-    @property
-    def rings(self) -> int:
-        return len(self.elevations_deg)
-
-    @property
-    def sweep_seconds(self) -> float:
-        """Time from the first column to the end of the last."""
-        return (self.hfov_deg / 360.0) / self.rotation_hz
-
-    def azimuths_deg(self) -> np.ndarray:
-        """(C,) azimuth of each column in the sensor frame."""
-        j = np.arange(self.columns, dtype=np.float64)
-        return self.hfov_deg / 2.0 - (j + 0.5) * self.hfov_deg / self.columns
-
-    def column_times(self) -> np.ndarray:
-        """(C,) seconds after the sweep starts at which each column fires."""
-        j = np.arange(self.columns, dtype=np.float64)
-        return (j + 0.5) / self.columns * self.sweep_seconds
-
-    def directions(self) -> np.ndarray:
-        """(R, C, 3) unit beam directions in the sensor frame."""
-        el = np.radians(np.asarray(self.elevations_deg, np.float64))[:, None]
-        az = np.radians(self.azimuths_deg())[None, :]
-        return np.stack(np.broadcast_arrays(np.cos(el) * np.cos(az), np.cos(el) * np.sin(az),
-                                            np.sin(el)), axis=-1)
-
-    def ego_from_sensor(self) -> np.ndarray:
-        """4x4 mount of the sensor on the ego (roll about x, pitch about y, yaw about z)."""
-        x, y, z, roll, pitch, yaw = (float(v) for v in self.mount)
-        return pose_matrix((x, y, z), roll, pitch, yaw)
-
-    def describe(self) -> dict:
-        return {"name": self.name, "beams": self.rings, "columns": int(self.columns),
-                "elevations_deg": [float(e) for e in self.elevations_deg],
-                "hfov_deg": self.hfov_deg, "min_range": self.min_range,
-                "max_range": self.max_range, "rotation_hz": self.rotation_hz,
-                "range_sigma": self.range_sigma, "drop_prob": self.drop_prob,
-                "mount": [float(v) for v in self.mount]}
-
-
-def pose_matrix(xyz, roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
-    """4x4 rigid transform R = Rz(yaw) Ry(pitch) Rx(roll), then the translation."""
-    r, p, y = (math.radians(v) for v in (roll_deg, pitch_deg, yaw_deg))
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    M = np.eye(4)
-    M[:3, :3] = Rz @ Ry @ Rx
-    M[:3, 3] = xyz
-    return M
 
 
 # ----------------------------------------------------------------------------- surfel frames

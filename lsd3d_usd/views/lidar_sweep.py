@@ -24,9 +24,9 @@ import numpy as np
 from pxr import Gf, Sdf, UsdGeom
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.render.lidar import (LidarModel, MeshActors, RayHits, cast, rotate_columns,
-                                     surfel_frames)
+from lsd3d_usd.render.lidar import MeshActors, RayHits, cast, rotate_columns, surfel_frames
 from lsd3d_usd.semantics import CLASS_ID
+from lsd3d_usd.sensors.lidar import LidarModel
 from lsd3d_usd.views import labels as L
 from lsd3d_usd.views.frame import surfel_codes
 

@@ -10,13 +10,14 @@ from lsd3d_usd.cliutil import parse_size
 from lsd3d_usd.configtree import option
 from lsd3d_usd.ggds.priors.registry import check_device, check_prior_name
 from lsd3d_usd.render.camera import DEFAULT_WIDTH as SINGLE_WIDTH
+from lsd3d_usd.sensors.lidar import lidar_model
+from lsd3d_usd.sensors.rigs import load_rig, rig_names
 from lsd3d_usd.views.deferred import (
     DEFAULT_STEPS,
     DEFAULT_STRENGTH,
     check_steps,
     check_strength,
 )
-from lsd3d_usd.views.rigs import RIGS
 
 RIG_WIDTH = 480  # rig frames: five cameras x frames add up; `render --camera` uses 960
 # Chunks within this distance of a camera are loaded (views.stage_data.ChunkStreamer): well
@@ -63,9 +64,13 @@ def _check_resolution(v: str, where: str) -> str:
 
 def _check_lidar(v: str, where: str) -> str:
     if v not in ("auto", "none"):
-        # local import: the LiDAR's kernels (numba) are not loaded for --help
-        from lsd3d_usd.views.sensors import lidar_model
         lidar_model(v, where)
+    return v
+
+
+def _check_rig(v: str | None, where: str) -> str | None:
+    if v is not None:
+        load_rig(v, where)
     return v
 
 
@@ -89,7 +94,10 @@ class RigOptions:
                                          "--trajectory: every camera's frames under "
                                          "OUT/<camera>/, an MP4 per camera, a third-person "
                                          "Overview, and OUT/rig.usda (the scene + the "
-                                         "animated rig)", flag="--rig", choices=tuple(sorted(RIGS)))
+                                         "animated rig); a rig name ("
+                                         f"{', '.join(rig_names())}) or a rig FILE.toml "
+                                         "(docs/sensors.md)", flag="--rig", metavar="RIG",
+                              check=lambda v, where: _check_rig(v, where))
     route: str | None = option(None, help="comma-separated lane ids the ego drives, each a "
                                           "successor of the one before (IDM speed on an empty "
                                           "road unless --speed); `lsd3d-usd layout lanes "

@@ -17,6 +17,8 @@ from tqdm import tqdm
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import from_usd
 from lsd3d_usd.scene import save_layer
+from lsd3d_usd.sensors import rigs as sensor_rigs
+from lsd3d_usd.sensors.rigs import OVERVIEW, load_rig
 from lsd3d_usd.views.boxes import actor_boxes, camera_boxes, local_boxes, write_boxes
 from lsd3d_usd.views.deferred import deferred_name, write_provenance
 from lsd3d_usd.views.frame import render_scene
@@ -28,12 +30,10 @@ from lsd3d_usd.views.lidar_sweep import sweep as lidar_sweep
 from lsd3d_usd.views.options import RIG_WIDTH as DEFAULT_WIDTH
 from lsd3d_usd.views.options import RigOptions
 from lsd3d_usd.views.rig_stage import build_rig_stage
-from lsd3d_usd.views.rigs import OVERVIEW, RIG_LIDAR, RIGS
-from lsd3d_usd.views.sensors import lidar_model
-
-LIDAR_NAME = "LIDAR_TOP"   # the sweeps' folder, and the LiDAR's prim under the ego
 from lsd3d_usd.views.stage_data import SceneReader
 from lsd3d_usd.views.video import ffmpeg_exe, write_mp4
+
+LIDAR_NAME = "LIDAR_TOP"   # the sweeps' folder, and the LiDAR's prim under the ego
 
 
 @dataclass
@@ -51,11 +51,8 @@ class RigResult:
 
 
 def rig_lidar(rig: RigOptions):
-    """The LiDAR model the rig carries (views.sensors), or None."""
-    spec = rig.lidar
-    if spec in (None, "auto"):
-        spec = RIG_LIDAR.get(rig.name or "waymo5")
-    return None if spec in (None, "none") else lidar_model(spec)
+    """The LiDAR model of the run (--lidar, else the rig's own; sensors.lidar), or None."""
+    return sensor_rigs.rig_lidar(rig.name or "waymo5", rig.lidar)
 
 
 def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
@@ -101,7 +98,7 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
     if labelled:
         write_tables(out, instances)
     lboxes = local_boxes(reader.actors) if "boxes" in outputs and reader.actors else None
-    specs = {c.name: c for c in list(RIGS[rig_name]) + [OVERVIEW]}
+    specs = {c.name: c for c in load_rig(rig_name).cameras + (OVERVIEW,)}
     frames = {p.rsplit("/", 1)[-1]: [] for p in paths}
     images = {k: [] for k in frames}
     d_frames = {k: [] for k in frames} if deferrer is not None else None

@@ -24,6 +24,8 @@ from lsd3d_usd.layout.routes import default_route
 from lsd3d_usd.layout.usdio import layout_from_stage
 from lsd3d_usd.render.camera import to_usd
 from lsd3d_usd.scene import ACTORS_PATH, ASSETS_DIR, CAMERAS_PATH, new_stage
+from lsd3d_usd.sensors.camera import rig_camera
+from lsd3d_usd.sensors.rigs import OVERVIEW, load_rig
 from lsd3d_usd.views.ego import (
     EgoTrack,
     frame_times,
@@ -32,7 +34,6 @@ from lsd3d_usd.views.ego import (
     track_from_route,
 )
 from lsd3d_usd.views.lidar_sweep import usd_lidar_prim
-from lsd3d_usd.views.rigs import OVERVIEW, RIGS, rig_camera
 
 EGO_PATH = "/World/Cameras/Ego"
 EGO_ASSET = "car.usda"
@@ -111,10 +112,10 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None
     """Write OUT/rig.usda (sublayering the scene) and return (composed stage, camera paths,
     track, timeCodesPerSecond, notes, route lane ids or None). Without ``route`` and
     ``trajectory`` the ego drives :func:`default_route` (said in a note, to be reused).
-    ``lidar`` (render.lidar.LidarModel): the LiDAR as a prim under the ego, LIDAR_TOP."""
+    ``rig_name``: a rig name or a rig FILE.toml (sensors.rigs.load_rig). ``lidar``
+    (sensors.lidar.LidarModel): the LiDAR as a prim under the ego, LIDAR_TOP."""
 
-    if rig_name not in RIGS:
-        raise InputError(f"--rig {rig_name!r}: known rigs: {', '.join(RIGS)}")
+    rig = load_rig(rig_name)
     if route is not None and trajectory is not None:
         raise InputError("--rig takes one of --route LANE_IDS or --trajectory poses.json, not both")
     sp = Path(scene_path)
@@ -151,7 +152,7 @@ def build_rig_stage(scene_path, out_dir, rig_name: str = "waymo5", *, route=None
     out = Path(out_dir).absolute()
     out.mkdir(parents=True, exist_ok=True)
     ego_asset = relative_asset_path(ego_car_asset(root_file, out), out) if ego_body else None
-    layer, paths = rig_layer(RIGS[rig_name], track, tcps, ego_asset, lidar)
+    layer, paths = rig_layer(rig.cameras, track, tcps, ego_asset, lidar)
     layer.subLayerPaths = [relative_asset_path(root_file, out)]
     layer.timeCodesPerSecond = tcps
     layer.framesPerSecond = tcps
