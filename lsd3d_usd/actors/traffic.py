@@ -453,11 +453,26 @@ class Simulation:
         return best
 
     def leader(self, i: int, horizon: float = 120.0) -> tuple[float, float]:
-        """(bumper gap, speed) of the vehicle ahead of vehicle i along its lane and plan
-        (inf, 0 when none); the wall of a lane end without a reservation counts as one."""
-        if self.veh[i].lane < 0:
+        """(bumper gap, speed) of the nearest vehicle ahead of vehicle i along its lane and
+        plan (inf, 0 when none); lane ends and junction rules are `must_stop_before`'s."""
+        me = self.veh[i]
+        if me.lane < 0:
             return np.inf, 0.0
-        return self._ahead(i, horizon)
+        best = (np.inf, 0.0)
+        dist = -me.s                      # arc length of the lane's start from my centre
+        for lane in [me.lane] + list(me.plan):
+            if dist - me.length / 2 > horizon:
+                break
+            for j, o in enumerate(self.veh):
+                if j == i or o.lane != lane or (lane == me.lane and o.s < me.s):
+                    continue
+                gap = dist + o.s - (o.length + me.length) / 2
+                if gap < best[0]:
+                    best = (gap, o.v)
+            if np.isfinite(best[0]):
+                return best
+            dist += self.g.length[lane]
+        return best
 
     def run(self, seconds: float, fps: float, on_step=None, on_sample=None) -> TrafficRun:
         """Run for ``seconds``, sampling every 1/fps s. ``on_step(sim, dt)`` is called before

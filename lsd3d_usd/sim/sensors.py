@@ -10,8 +10,6 @@ padded to a fixed maximum, with ``count`` valid rows and the sweep npz's channel
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
 from gymnasium import spaces
 
@@ -21,19 +19,16 @@ from lsd3d_usd.views.images import display_uint8
 from lsd3d_usd.views.labels import Instances
 from lsd3d_usd.views.lidar_sweep import SurfelCache, mesh_actors
 from lsd3d_usd.views.lidar_sweep import sweep as lidar_sweep
-from lsd3d_usd.views.rigs import RIG_LIDAR, RIGS, rig_camera
-from lsd3d_usd.views.sensors import lidar_model
+from lsd3d_usd.sensors.camera import rig_camera
+from lsd3d_usd.sensors.lidar import lidar_model
+from lsd3d_usd.sensors.rigs import load_rig
 
 
 def rig_sensors(rig: str, lidar: str, cameras=None) -> tuple[list, object]:
-    """(rig cameras, LiDAR model or None) of a rig name ("none": no cameras) and a LiDAR
-    spec ("auto": the rig's own, "none", a preset or FILE.toml)."""
-    if rig in (None, "none"):
-        cams = []
-    elif rig in RIGS:
-        cams = list(RIGS[rig])
-    else:
-        raise InputError(f"--rig {rig!r}: known rigs: {', '.join(RIGS)}, or none")
+    """(rig cameras, LiDAR model or None) of a rig (a name or FILE.toml; "none": no cameras)
+    and a LiDAR spec ("auto": the rig's own, "none", a preset or FILE.toml)."""
+    r = None if rig in (None, "none") else load_rig(rig)
+    cams = list(r.cameras) if r is not None else []
     if cameras:
         names = [c.name for c in cams]
         bad = [c for c in cameras if c not in names]
@@ -41,8 +36,10 @@ def rig_sensors(rig: str, lidar: str, cameras=None) -> tuple[list, object]:
             raise InputError(f"--cameras: {bad[0]!r} is not a camera of rig {rig!r} "
                              f"({', '.join(names) or 'none'})")
         cams = [c for c in cams if c.name in cameras]
-    spec = RIG_LIDAR.get(rig) if lidar in (None, "auto") else lidar
-    model = None if spec in (None, "none") else lidar_model(spec)
+    if lidar in (None, "auto"):
+        model = r.lidar if r is not None else None
+    else:
+        model = None if lidar == "none" else lidar_model(lidar)
     return cams, model
 
 
@@ -152,6 +149,3 @@ class SensorRig:
                 "instance": pad(sw.instance_id, np.uint16), "time": pad(sw.t, np.float32),
                 "count": np.int64(n)}
 
-
-def camera_hfov(cam) -> float:
-    return math.radians(cam.hfov_deg)

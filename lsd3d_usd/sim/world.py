@@ -93,7 +93,9 @@ class World:
             if k in self.gone:
                 continue
             dead_end = not v.plan and not any(g.bike[j] == v.cyclist or not g.bike[j] for j in g.succ[v.lane])
-            if dead_end and v.s + v.length / 2 >= g.length[v.lane] - sim.p.stop_margin - 0.5 and v.v < 0.5:
+            # IDM stops s0 short of the wall at the lane end
+            if dead_end and v.s + v.length / 2 >= g.length[v.lane] - sim.p.stop_margin - sim.p.s0 - 1.0 \
+                    and v.v < 0.5:
                 sim.veh.remove(v)
                 v.holds.clear()
                 self.gone[k] = self.t
