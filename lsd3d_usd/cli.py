@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "lsd3d_usd.splats.commands",
     "lsd3d_usd.views.commands",
     "lsd3d_usd.datasets.commands",
+    "lsd3d_usd.sim_commands",
     "lsd3d_usd.env.commands",
     "lsd3d_usd.actors.commands",
     "lsd3d_usd.bench",

@@ -1,1 +1,18 @@
-"""lsd3d_usd.sim"""
+"""Closed loop: a driving policy drives in a generated scene (docs/sim.md).
+
+``import lsd3d_usd.sim`` registers the Gymnasium environment ``lsd3d_usd/Drive-v0``
+(`env.DriveEnv`): ``gymnasium.make("lsd3d_usd/Drive-v0", scene="out/crossing")``.
+"""
+from __future__ import annotations
+
+ENV_ID = "lsd3d_usd/Drive-v0"
+
+
+def _register() -> None:
+    import gymnasium   # the env's API; imported here, not by `lsd3d-usd --help`
+    if ENV_ID not in gymnasium.registry:
+        gymnasium.register(id=ENV_ID, entry_point="lsd3d_usd.sim.env:DriveEnv",
+                           disable_env_checker=False)
+
+
+_register()

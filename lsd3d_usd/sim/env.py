@@ -58,6 +58,7 @@ class EnvSettings:
     stream_radius: float = 300.0
     exposure: float = 0.0
     route_length: float = 200.0       # m of a drawn route (when none is given)
+    ep_reference: str = "none"        # "planner": EP against the planner's progress (a shadow run)
     limits: VehicleLimits = field(default_factory=VehicleLimits)
 
     def check(self) -> "EnvSettings":
@@ -75,6 +76,8 @@ class EnvSettings:
                 raise InputError(f"--{name} {n!r}: a whole number from 0 to {MAX_AGENTS}")
         if not (1 <= self.waypoints <= 50) or not (0.05 <= self.waypoint_spacing <= 5.0):
             raise InputError("trajectory: 1 .. 50 waypoints, 0.05 .. 5 s apart")
+        if self.ep_reference not in ("none", "planner"):
+            raise InputError(f"ep_reference {self.ep_reference!r}: none or planner")
         bad = sorted(set(self.outputs) - {"rgb", "depth", "semantic", "instance"})
         if bad:
             raise InputError(f"outputs: unknown {bad[0]!r} (rgb, depth, semantic, instance)")
@@ -184,10 +187,11 @@ class DriveEnv(gym.Env):
         self.actors = self.scene.actors_for(labels, agent_kinds)
         self.sensors.start_episode(self.actors, int(rng.integers(2**31)))
         pts, _ = self.route.polyline()
+        reference = self._reference(seed, options) if s.ep_reference == "planner" else None
         self.scores = ScoreKeeper(pts[:, :2], drivable=self.scene.drivable,
                                   obstacles=self.scene.obstacles,
                                   obstacle_ids=self.scene.obstacle_ids,
-                                  route_length=self.route.length)
+                                  route_length=self.route.length, reference=reference)
         self.tracker = TrajectoryTracker(lim.wheelbase, s.waypoint_spacing)
         self.t = 0.0
         self.k = 0
@@ -197,6 +201,26 @@ class DriveEnv(gym.Env):
         self.last = self.scores.update(self._step_state())
         self._pose_actors()
         return self._observe(), self._info(self.last)
+
+    def _reference(self, seed, options) -> tuple[np.ndarray, np.ndarray]:
+        """(t, progress) of the planner on the same episode without sensors: the reference
+        that EP compares with (NAVSIM compares with its PDM-Closed planner the same way)."""
+        from dataclasses import asdict
+
+        from lsd3d_usd.sim.policies import Planner
+        kw = {k: v for k, v in asdict(self.settings).items() if k != "limits"}
+        kw.update(rig="none", lidar="none", ep_reference="none")
+        shadow = DriveEnv(self.scene, limits=self.limits, **kw)
+        obs, info = shadow.reset(seed=seed, options={**options, "route": self.route.ids})
+        policy = Planner(shadow)
+        t, prog = [0.0], [shadow.progress]
+        while True:
+            obs, _, term, trunc, info = shadow.step(policy(obs, info))
+            t.append(shadow.t)
+            prog.append(float(info["scores"]["progress_m"]))
+            if term or trunc:
+                break
+        return np.array(t), np.array(prog)
 
     def step(self, action):
         if self.world is None:
@@ -233,7 +257,8 @@ class DriveEnv(gym.Env):
         self.t += self.dt
         self.k += 1
         before = self.progress
-        self.last = self.scores.update(self._step_state())
+        complete = self.world.ego_d + lim.length / 2 >= self.route.length - ROUTE_END_MARGIN
+        self.last = self.scores.update(self._step_state(complete))
         self.progress = max(self.progress, float(self.last["progress_m"]))
         self._pose_actors()
         terminated, reason = False, None
@@ -241,7 +266,7 @@ class DriveEnv(gym.Env):
             terminated, reason = True, "collision"
         elif not self.last["dac"]:
             terminated, reason = True, "off_road"
-        elif self.progress + self.limits.length / 2 >= self.route.length - ROUTE_END_MARGIN:
+        elif complete:
             terminated, reason = True, "route_complete"
         truncated = not terminated and self.t >= s.seconds - 1e-9
         if truncated:
@@ -283,7 +308,7 @@ class DriveEnv(gym.Env):
                       np.concatenate([ag.width, W]), np.vstack([ag.velocity, np.zeros((n, 2))]),
                       list(ag.kind) + ["vehicle"] * n)
 
-    def _step_state(self) -> StepState:
+    def _step_state(self, complete: bool = False) -> StepState:
         e, lim = self.ego, self.limits
         c = e.box_centre(lim)
         g = self.scene.graph
@@ -292,7 +317,7 @@ class DriveEnv(gym.Env):
             abs(math.remainder(e.yaw - lp.heading, 2 * math.pi)) > math.radians(135) and e.v > 0.1
         in_junction = lp is not None and lp.distance <= g.width[lp.lane] / 2 and bool(g.junction[lp.lane])
         return StepState(self.t, c, e.yaw, e.v, lim.length, lim.width, agents=self._all_agents(),
-                         progress=self.world.ego_d, wrong_way=bool(wrong), in_junction=in_junction,
+                         progress=self.route.length if complete else self.world.ego_d, wrong_way=bool(wrong), in_junction=in_junction,
                          lon_acc=e.a, lat_acc=e.v * e.yaw_rate)
 
     def _pose_actors(self) -> None:

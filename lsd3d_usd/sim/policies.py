@@ -27,6 +27,8 @@ from lsd3d_usd.sim.control import TrackerGains, pure_pursuit
 
 POLICIES = ("planner", "constant")
 p_end_overrun = 1.0        # m: the planner aims its front this far past the route's end
+JERK = 4.0                 # m/s^3 the planner's acceleration changes by at most ...
+COMFORT_BRAKE = 3.0        # ... unless it must brake harder than this (m/s^2)
 PATH_HALF_WIDTH = 1.4       # m: an agent's box nearer than this to the route is in the path
 
 
@@ -135,6 +137,13 @@ class Planner:
     def __call__(self, obs, info):
         env = self.env
         a = self.acceleration(info)
+        if env.k == 0:
+            self.a_prev = 0.0
+        # comfort: the acceleration changes at most JERK m/s^3, except to brake hard
+        step = JERK / env.settings.hz
+        if a > -COMFORT_BRAKE:
+            a = min(max(a, self.a_prev - step), self.a_prev + step)
+        self.a_prev = a
         if env.settings.action == "control":
             steer = self.steering()
             if env.settings.steer == "rate":

@@ -1,0 +1,145 @@
+"""`lsd3d-usd sim`: a policy drives in a generated scene (closed loop); runs compared.
+docs/sim.md. (Beside the sim package, so `lsd3d-usd --help` does not import Gymnasium.)"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from lsd3d_usd.errors import InputError
+
+
+def _check_out(out: Path, scene: Path) -> None:
+    from lsd3d_usd.cliutil import check_output_path
+    check_output_path(out, "-o", what="folder")
+    o, sc = out.resolve(), scene.resolve()
+    if o == sc or sc in o.parents:
+        raise InputError(f"-o {out}: inside the scene folder {scene}; the scene is never written")
+    if o.exists() and not o.is_dir():
+        raise InputError(f"-o {out}: exists and is not a folder")
+    if o.is_dir():
+        foreign = [p.name for p in sorted(o.iterdir())
+                   if not (p.name.startswith("episode_") or p.name.startswith(".episode_")
+                           or p.name in ("run.json",))]
+        if foreign:
+            raise InputError(f"-o {out}: holds {foreign[0]!r}, not a `sim run` output; "
+                             "choose an empty or new folder")
+
+
+def _run(args) -> int:
+    from tqdm import tqdm
+
+    from lsd3d_usd.scene import atomic_write_bytes
+    from lsd3d_usd.sim.env import DriveEnv
+    from lsd3d_usd.sim.episodes import plan_routes, run_episode, summary_line
+    from lsd3d_usd.sim.policies import POLICIES
+    scene, out = Path(args.scene), Path(args.output)
+    _check_out(out, scene)
+    if args.policy not in POLICIES and ":" not in args.policy:
+        raise InputError(f"--policy {args.policy!r}: choose {', '.join(POLICIES)} or MODULE:CALLABLE")
+    env = DriveEnv(scene, rig=args.rig, lidar=args.lidar, width=args.width, action=args.action,
+                   hz=args.hz, seconds=args.seconds, vehicles=args.vehicles,
+                   pedestrians=args.pedestrians, cyclists=args.cyclists,
+                   route_length=args.route_length,
+                   ep_reference="none" if args.no_reference else "planner",
+                   outputs=tuple(args.outputs.split(",")) if args.outputs else ("rgb",))
+    routes = plan_routes(env.scene.graph, args.route, args.routes, args.episodes,
+                         args.route_length, args.seed)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out / "run.json", json.dumps({
+        "scene": str(scene.resolve()), "policy": args.policy, "seed": args.seed,
+        "routes": routes, "argv": sys.argv[1:]}, indent=1).encode())
+    show = not args.no_progress and sys.stderr.isatty()
+    failed = []
+    results = []
+    try:
+        for k, route in enumerate(routes):
+            bar = tqdm(total=int(round(args.seconds * args.hz)), desc=f"episode {k}", unit="step",
+                       disable=not show, leave=False)
+            res = run_episode(env, args.policy, k, args.seed + k, route, out, video=args.video,
+                              mcap=args.mcap, progress=lambda e: bar.update(1))
+            bar.close()
+            results.append(res)
+            line = f"episode {k}: {res.reason}, {res.steps} steps, {summary_line(res.summary)} -> {res.folder}"
+            print(line)
+            if res.error:
+                failed.append(f"episode {k}: {res.error}")
+    finally:
+        env.close()
+    if failed:
+        raise InputError(f"{len(failed)} episode(s) ended by the policy: {failed[0]} "
+                         f"(metrics.json has it; the other episodes are written)")
+    return 0
+
+
+def _report(args) -> int:
+    from lsd3d_usd.sim.report import compare, format_table, plot
+    runs = compare(args.runs)
+    print(format_table(runs))
+    if args.png:
+        print(f"plot: {plot(runs, args.png)}")
+    if args.json:
+        from lsd3d_usd.scene import atomic_write_bytes
+        atomic_write_bytes(args.json, json.dumps(runs, indent=1).encode())
+    return 0
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("sim", help="closed loop: a driving policy drives in a scene (docs/sim.md)",
+                       description="Closed-loop driving in a generated scene: the ego is driven "
+                                   "by a policy, traffic and pedestrians react, every sensor of "
+                                   "the rig renders each step, driving scores are kept. "
+                                   "Python: gymnasium.make('lsd3d_usd/Drive-v0', scene=...) "
+                                   "after `import lsd3d_usd.sim`. See docs/sim.md.")
+    s = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND")
+    r = s.add_parser("run", help="run episodes of a policy; one folder per episode",
+                     description="Run episodes of a policy in SCENE and write, per episode, "
+                                 "metrics.json (per step and per episode), trajectories.csv, "
+                                 "birdseye.png, and with --video an MP4 per camera, with --mcap "
+                                 "an MCAP log (Foxglove). Ctrl-C keeps every finished episode.")
+    r.add_argument("scene", metavar="SCENE", help="a generated scene folder")
+    r.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
+    r.add_argument("--policy", default="planner",
+                   help="planner (privileged rule-based driver), constant (constant velocity "
+                        "along the start heading) or MODULE:CALLABLE taking (obs, info) and "
+                        "returning an action (default planner)")
+    g = r.add_mutually_exclusive_group()
+    g.add_argument("--route", metavar="IDS", help="lane ids of the route, comma-separated "
+                                                  "(`lsd3d-usd layout lanes SCENE` lists them)")
+    g.add_argument("--routes", type=int, metavar="N", help="N episodes on N seeded random routes")
+    r.add_argument("--episodes", type=int, metavar="N",
+                   help="N episodes (on --route, or a route drawn per episode; default 1)")
+    r.add_argument("--route-length", type=float, default=200.0, metavar="M",
+                   help="length of a drawn route in metres (default 200)")
+    r.add_argument("--rig", default="nuscenes6",
+                   help="sensor rig: a name (nuscenes6, waymo5), a rig FILE.toml, or none "
+                        "(world and scores only); default nuscenes6")
+    r.add_argument("--lidar", default="auto",
+                   help="auto (the rig's own), a preset (hdl32, waymo_top), a FILE.toml, or none")
+    r.add_argument("--width", type=int, default=480, help="camera width in pixels (default 480)")
+    r.add_argument("--outputs", default="rgb",
+                   help="camera outputs, comma-separated: rgb,depth,semantic,instance")
+    r.add_argument("--action", default="control", choices=("control", "trajectory"),
+                   help="control: (acceleration, steering angle); trajectory: 8 waypoints "
+                        "0.5 s apart in the ego frame (default control)")
+    r.add_argument("--seconds", type=float, default=60.0, help="time limit of an episode (s)")
+    r.add_argument("--hz", type=float, default=10.0, help="steps per second (default 10)")
+    r.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode k: seed + k)")
+    r.add_argument("--vehicles", type=int, default=8, help="vehicles around the ego (default 8)")
+    r.add_argument("--pedestrians", type=int, default=12, help="pedestrians (default 12)")
+    r.add_argument("--cyclists", type=int, default=2, help="cyclists (default 2)")
+    r.add_argument("--video", action="store_true", help="an MP4 per camera per episode")
+    r.add_argument("--mcap", action="store_true", help="an MCAP log per episode (Foxglove)")
+    r.add_argument("--no-reference", action="store_true",
+                   help="skip the planner's shadow run that ego progress (EP, PDMS) compares with")
+    r.add_argument("--no-progress", action="store_true", help="no progress bars")
+    r.set_defaults(func=_run, compiles_kernels=True)
+    q = s.add_parser("report", help="compare runs: mean scores with 95 %% intervals, a plot",
+                     description="A table of mean scores over each run's episodes with 95 %% "
+                                 "confidence intervals (Student t), and with --png a bar plot.")
+    q.add_argument("runs", nargs="+", metavar="DIR", help="`sim run` output folders")
+    q.add_argument("--png", metavar="FILE", help="bar plot of the mean scores")
+    q.add_argument("--json", metavar="FILE", help="the table as JSON")
+    q.set_defaults(func=_report)
+    p.set_defaults(func=lambda a: (p.print_help(), 2)[1])
