@@ -184,6 +184,12 @@ CYCLISTS = Limit(
     "cyclists", 500, " cyclists", "cyclist count",
     "actors add --cyclists, generate actors.cyclists", flag="--cyclists")
 
+# ---------------------------------------------------------------------- datasets
+DATASET_STATE_BYTES = Limit(
+    "dataset_state_bytes", 256 * 1024 * 1024, " bytes", "state file size",
+    "dataset --resume / --overwrite: .lsd3d/dataset.json, logs/<k>.json, logs/<k>.partial.json "
+    "and the journal, before they are read")
+
 # ------------------------------------------------------------------------ LiDAR
 LIDAR_BEAMS = Limit(
     "lidar_beams", 1024, " beams", "beam count",
@@ -203,7 +209,7 @@ ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL
        CHUNKS, CHUNK_VOXELS, PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS,
        IMAGE_PIXELS, OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS,
        VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS, PEDESTRIANS, CYCLISTS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
-       LIDAR_RANGE)
+       LIDAR_RANGE, DATASET_STATE_BYTES)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

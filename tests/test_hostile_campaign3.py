@@ -1,0 +1,173 @@
+"""Hostile input, third campaign (issue 60): resume state, dataset folders and batch dataset
+outputs. Every reproduction is built here (links, tampered state files, specs); none needs a
+generated scene: the checks run before a scene is opened."""
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+from conftest import LAYOUT
+
+from lsd3d_usd import scene as S
+from lsd3d_usd.datasets import build
+from lsd3d_usd.datasets.options import DatasetOptions
+from lsd3d_usd.errors import InputError
+
+RECORD = {"format": "nuscenes", "version": "v1.0-lsd3d", "logs": []}
+
+
+def _snapshot(folder):
+    return {str(p.relative_to(folder)): (p.read_bytes() if p.is_file() else None)
+            for p in sorted(folder.rglob("*"))}
+
+
+@pytest.fixture
+def fake(tmp_path):
+    """A fake scene folder (just its root file: the folder checks come first), a dataset
+    folder with a state record, and an OUTSIDE folder holding precious data."""
+    scene = tmp_path / "scene"
+    scene.mkdir()
+    (scene / S.ROOT_FILE).write_text("#usda 1.0\n")
+    ds = tmp_path / "ds"
+    (ds / ".lsd3d" / "logs").mkdir(parents=True)
+    (ds / ".lsd3d" / "dataset.json").write_text(json.dumps(RECORD))
+    outside = tmp_path / "OUTSIDE"
+    outside.mkdir()
+    (outside / "precious.txt").write_bytes(b"precious data " * 100)
+    return scene, ds, outside
+
+
+def _dataset(scene, ds, *extra):
+    return ["dataset", scene, "-o", ds, "--format", "nuscenes", "--no-progress", *extra]
+
+
+# -------------------------------------------------- 1. --resume follows planted links
+@pytest.mark.parametrize("planted", [".lsd3d/logs/0000.journal.jsonl", ".lsd3d/work/0000",
+                                     "samples/CAM_FRONT", ".lsd3d/logs"])
+def test_resume_refuses_a_link_in_the_dataset_folder(fake, cli_error, planted):
+    scene, ds, outside = fake
+    before = _snapshot(outside)
+    link = ds / planted
+    if planted == ".lsd3d/logs":
+        (ds / ".lsd3d" / "logs").rmdir()
+    link.parent.mkdir(parents=True, exist_ok=True)
+    target = outside / "precious.txt" if planted.endswith(".jsonl") else outside
+    os.symlink(target, link)
+    cli_error(_dataset(scene, ds, "--resume"), "symbolic link", str(link))
+    assert _snapshot(outside) == before
+
+
+def test_checkpoint_load_does_not_truncate_through_a_link(fake):
+    _, ds, outside = fake
+    logs = ds / ".lsd3d" / "logs"
+    (logs / "0000.partial.json").write_text('{"next_tick": 1, "journal_bytes": 3}')
+    os.symlink(outside / "precious.txt", logs / "0000.journal.jsonl")
+    before = _snapshot(outside)
+    with pytest.raises(InputError, match="symbolic link"):
+        build.Checkpoints(logs, 0).load()
+    with pytest.raises(InputError, match="symbolic link"):
+        build.Checkpoints(logs, 0).clear()
+    assert _snapshot(outside) == before
+
+
+# ------------------------------------------------- 2. batch [dataset] output held in
+SPEC = f"""
+[batch]
+output = "out"
+[defaults]
+layout = "{LAYOUT}"
+steps = 0
+[[scene]]
+name = "crossing"
+[dataset]
+output = "{{out}}"
+format = "nuscenes"
+seconds = 1.0
+"""
+
+
+@pytest.mark.parametrize("kind", ["absolute", "dotdot", "link", "scene", "batch"])
+def test_batch_dataset_output_stays_in_the_spec_folder(tmp_path, cli_error, kind):
+    spec_dir = tmp_path / "spec"
+    spec_dir.mkdir()
+    outside = tmp_path / "OUTSIDE"
+    outside.mkdir()
+    out = {"absolute": str(outside / "ds"), "dotdot": "../../OUTSIDE/ds", "link": "lnk/ds",
+           "scene": "crossing/ds", "batch": ".."}[kind]
+    if kind == "link":
+        (spec_dir / "out").mkdir()
+        os.symlink(outside, spec_dir / "out" / "lnk")
+    p = spec_dir / "spec.toml"
+    p.write_text(SPEC.format(out=out))
+    for extra in (["--dry-run"], []):
+        cli_error(["batch", p, *extra], "spec.toml: dataset.output")
+    assert list(outside.iterdir()) == []
+
+
+# ---------------------------------- 3. --overwrite deletes only the dataset's own files
+@pytest.mark.parametrize("record", ["{}", "[1]", "garbage{", json.dumps(RECORD)])
+def test_overwrite_refuses_a_foreign_file(fake, cli_error, record):
+    scene, ds, _ = fake
+    (ds / ".lsd3d" / "dataset.json").write_text(record)
+    (ds / "samples" / "CAM_FRONT").mkdir(parents=True)
+    (ds / "samples" / "CAM_FRONT" / "a.jpg").write_bytes(b"jpg")
+    (ds / "my_notes.txt").write_text("mine")
+    before = _snapshot(ds)
+    line = cli_error(_dataset(scene, ds, "--overwrite"), str(ds))
+    assert "my_notes.txt" in line or "dataset.json" in line
+    assert _snapshot(ds) == before
+
+
+def test_overwrite_deletes_the_datasets_own_files(fake):
+    _, ds, _ = fake
+    for f in ("samples/CAM_FRONT/a.jpg", "v1.0-lsd3d/sample.json", ".lsd3d/work/0000/rig.usda",
+              "maps/m.png", "lidarseg/v1.0-lsd3d/x_lidarseg.bin"):
+        (ds / f).parent.mkdir(parents=True, exist_ok=True)
+        (ds / f).write_bytes(b"x")
+    build.start_dataset(ds, DatasetOptions(overwrite=True), [])
+    assert sorted(str(p.relative_to(ds)) for p in ds.rglob("*")) == [
+        ".lsd3d", ".lsd3d/dataset.json", ".lsd3d/logs"]
+
+
+def test_overwrite_refuses_a_link_anywhere(fake, cli_error):
+    scene, ds, outside = fake
+    os.symlink(outside, ds / "samples")
+    cli_error(_dataset(scene, ds, "--overwrite"), "symbolic link")
+    assert (ds / "samples").is_symlink() and (outside / "precious.txt").exists()
+
+
+# ----------------------------------------------- 10. resume state read with validation
+@pytest.mark.parametrize("state", ["", "garbage{", "[]", "[" * 100_000, '"text"'])
+def test_resume_refuses_a_tampered_dataset_record(fake, cli_error, state):
+    scene, ds, _ = fake
+    (ds / ".lsd3d" / "dataset.json").write_text(state)
+    with pytest.raises(InputError) as e:
+        build.check_resume(ds / ".lsd3d", RECORD, ds)
+    assert "dataset.json" in str(e.value) and "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("part, journal", [
+    ("", b""), ("{", b""), ('{"journal_bytes": 0}', b""),
+    ('{"next_tick": "3", "journal_bytes": 0}', b""),
+    ('{"next_tick": 3, "journal_bytes": -5}', b""),
+    ('{"next_tick": 3, "journal_bytes": 1e300}', b""),
+    ('{"next_tick": 3, "journal_bytes": 4}', b"[1]\n"),
+    ('{"next_tick": 3, "journal_bytes": 6}', b"garbag"),
+])
+def test_checkpoint_load_refuses_tampered_state(tmp_path, part, journal):
+    logs = tmp_path / "ds" / ".lsd3d" / "logs"
+    logs.mkdir(parents=True)
+    (logs / "0000.partial.json").write_text(part)
+    (logs / "0000.journal.jsonl").write_bytes(journal)
+    with pytest.raises(InputError) as e:
+        build.Checkpoints(logs, 0).load()
+    assert "\n" not in str(e.value) and "0000." in str(e.value)
+
+
+def test_a_tampered_log_record_is_one_line(tmp_path):
+    ds = tmp_path / "ds"
+    (ds / ".lsd3d" / "logs").mkdir(parents=True)
+    (ds / ".lsd3d" / "logs" / "0000.json").write_text("{trunc")
+    with pytest.raises(InputError, match="0000.json"):
+        build.merge(ds, DatasetOptions(), type("W", (), {"finish": lambda self, r: r})(), 1)
