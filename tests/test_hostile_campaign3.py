@@ -171,3 +171,19 @@ def test_a_tampered_log_record_is_one_line(tmp_path):
     (ds / ".lsd3d" / "logs" / "0000.json").write_text("{trunc")
     with pytest.raises(InputError, match="0000.json"):
         build.merge(ds, DatasetOptions(), type("W", (), {"finish": lambda self, r: r})(), 1)
+
+
+# ------------------------------------------- 4. render -o the scene folder (or a file)
+@pytest.mark.parametrize("where", ["scene", "inside", "parent", "file"])
+def test_render_refuses_an_output_in_the_scene_or_a_file(fake, cli_error, where):
+    scene, _, _ = fake
+    (scene / "frames").mkdir()
+    (scene / "note.txt").write_text("x")
+    out = {"scene": scene, "inside": scene / "frames", "parent": scene.parent,
+           "file": scene / "note.txt"}[where]
+    before = _snapshot(scene)
+    for extra in (["--camera", "/World/Cam"], ["--rig", "waymo5"]):
+        cli_error(["render", scene, "-o", out, *extra, "--no-progress"],
+                  {"file": "exists and is not a folder", "parent": "lies inside it"}.get(
+                      where, "inside the scene folder"))
+    assert _snapshot(scene) == before

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from lsd3d_usd import configtree as ct
+from lsd3d_usd.cliutil import check_output_folder
 from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.views.deferred import Deferrer
@@ -45,6 +46,7 @@ def _render(args) -> int:
     if got is None:
         return 0
     cfg, explicit = got
+    check_output_folder(args.output, "-o", scene=args.scene)   # before the scene loads
     progress = not args.no_progress and sys.stderr.isatty()
     size = cfg.width_height()
     check_deferred(cfg.deferred, explicit)
