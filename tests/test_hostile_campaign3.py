@@ -44,7 +44,8 @@ def _dataset(scene, ds, *extra):
 
 # -------------------------------------------------- 1. --resume follows planted links
 @pytest.mark.parametrize("planted", [".lsd3d/logs/0000.journal.jsonl", ".lsd3d/work/0000",
-                                     "samples/CAM_FRONT", ".lsd3d/logs"])
+                                     "samples/CAM_FRONT", ".lsd3d/logs",
+                                     ".lsd3d-0000-scene.mcap.partial"])
 def test_resume_refuses_a_link_in_the_dataset_folder(fake, cli_error, planted):
     scene, ds, outside = fake
     before = _snapshot(outside)
@@ -52,7 +53,7 @@ def test_resume_refuses_a_link_in_the_dataset_folder(fake, cli_error, planted):
     if planted == ".lsd3d/logs":
         (ds / ".lsd3d" / "logs").rmdir()
     link.parent.mkdir(parents=True, exist_ok=True)
-    target = outside / "precious.txt" if planted.endswith(".jsonl") else outside
+    target = outside / "precious.txt" if planted.endswith(("l", "partial")) else outside
     os.symlink(target, link)
     cli_error(_dataset(scene, ds, "--resume"), "symbolic link", str(link))
     assert _snapshot(outside) == before
@@ -187,3 +188,19 @@ def test_render_refuses_an_output_in_the_scene_or_a_file(fake, cli_error, where)
                   {"file": "exists and is not a folder", "parent": "lies inside it"}.get(
                       where, "inside the scene folder"))
     assert _snapshot(scene) == before
+
+
+# ------------------------------ 5. export-ply and inspect compose layers outside the scene
+@pytest.mark.parametrize("argv", [["inspect"], ["inspect", "--flatten"],
+                                  ["splats", "export-ply", "{scene}", "-o", "{tmp}/o.ply"]])
+def test_commands_refuse_a_scene_composing_outside_layers(tmp_path, cli_error, argv):
+    scene, outside = tmp_path / "scene", tmp_path / "OUTSIDE"
+    scene.mkdir()
+    outside.mkdir()
+    (outside / "secret.usda").write_text('#usda 1.0\ndef Xform "Secret" {}\n')
+    (scene / S.ROOT_FILE).write_text('#usda 1.0\n(\n    subLayers = [@../OUTSIDE/secret.usda@]\n)\n')
+    argv = [a.format(scene=scene, tmp=tmp_path) for a in argv]
+    if argv[0] == "inspect":
+        argv.insert(1, str(scene))
+    cli_error(argv, "outside the scene folder", "secret.usda")
+    assert not (tmp_path / "o.ply").exists()
