@@ -204,3 +204,57 @@ def test_commands_refuse_a_scene_composing_outside_layers(tmp_path, cli_error, a
         argv.insert(1, str(scene))
     cli_error(argv, "outside the scene folder", "secret.usda")
     assert not (tmp_path / "o.ply").exists()
+
+
+# ------------------------------------------------- 15. refused runs leave no files
+@pytest.fixture
+def layout_scene(tmp_path):
+    """A scene folder of the README layout alone (no surfels): routes plan, rigs drive."""
+    import shutil
+    scene = tmp_path / "lscene"
+    (scene / "layers").mkdir(parents=True)
+    shutil.copy(LAYOUT, scene / "layers" / "layout.usda")
+    (scene / S.ROOT_FILE).write_text('#usda 1.0\n(\n    subLayers = [@./layers/layout.usda@]\n)\n')
+    return scene
+
+
+def _refuse(*a, **k):
+    raise InputError("planted: the scene is refused here")
+
+
+@pytest.mark.parametrize("empty_dir", [False, True])
+def test_dataset_refused_after_its_checks_leaves_nothing(layout_scene, tmp_path, cli_error,
+                                                         monkeypatch, empty_dir):
+    from lsd3d_usd.datasets import drive
+    monkeypatch.setattr(drive, "drive", _refuse)
+    ds = tmp_path / "ds"
+    if empty_dir:
+        ds.mkdir()
+    argv = _dataset(layout_scene, ds, "--route", "w_in,j_we,e_out", "--seconds", "0.5")
+    cli_error(argv, "planted")
+    assert list(ds.iterdir()) == [] if empty_dir else not ds.exists()
+    monkeypatch.undo()
+    # the next plain run is not refused as "not empty" (refused here again, by the seconds)
+    cli_error([*argv, "--seconds", "-1"], "--seconds -1")
+
+
+@pytest.mark.parametrize("mode", [["--rig", "waymo5", "--no-video"],
+                                  ["--camera", "/World/Cam"]])
+def test_render_refused_after_its_checks_leaves_nothing(layout_scene, tmp_path, cli_error,
+                                                        monkeypatch, mode):
+    from lsd3d_usd.views import preview, rig
+    monkeypatch.setattr(rig, "SceneReader", _refuse)
+    monkeypatch.setattr(preview, "camera_prim", _refuse)
+    out = tmp_path / "frames"
+    cli_error(["render", layout_scene, "-o", out, *mode, "--no-progress"], "planted")
+    assert not out.exists()
+
+
+def test_batch_refuses_the_dataset_output_before_preparing_scenes(tmp_path, cli_error):
+    spec_dir = tmp_path / "spec"
+    (spec_dir / "out" / "ds").mkdir(parents=True)
+    (spec_dir / "out" / "ds" / "mine.txt").write_text("mine")
+    p = spec_dir / "spec.toml"
+    p.write_text(SPEC.format(out="ds"))
+    cli_error(["batch", p], "dataset.output", "no lsd3d-usd dataset")
+    assert not (spec_dir / "out" / "crossing").exists()

@@ -419,18 +419,21 @@ def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, lo
     ``deferrer_for(scene)``: a views.deferred.Deferrer for --deferred."""
     writer_cls, plans, lidar, timeline = prepare(scenes, out, opt)
     root = Path(out)
-    start_dataset(root, opt, plans)
-    writer = writer_cls(root, opt)
-    timing = {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "boxes_s": 0.0,
-              "write_s": 0.0}
-    done_logs, resumed_at = 0, {}
-    for plan in plans:
-        got = run_log(root, opt, plan, writer, lidar, timeline, progress=progress, log=log,
-                      deferrer=deferrer_for(plan.scene) if deferrer_for else None,
-                      timing=timing)
-        done_logs += got["skipped"]
-        if got["resumed_at"] is not None:
-            resumed_at[plan.index] = got["resumed_at"]
+    logs = root / STATE / "logs"
+    # a run refused before any log or checkpoint was written leaves the folder as it found it
+    with safepaths.removed_on_error(root, keep=lambda: logs.is_dir() and any(logs.iterdir())):
+        start_dataset(root, opt, plans)
+        writer = writer_cls(root, opt)
+        timing = {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "boxes_s": 0.0,
+                  "write_s": 0.0}
+        done_logs, resumed_at = 0, {}
+        for plan in plans:
+            got = run_log(root, opt, plan, writer, lidar, timeline, progress=progress, log=log,
+                          deferrer=deferrer_for(plan.scene) if deferrer_for else None,
+                          timing=timing)
+            done_logs += got["skipped"]
+            if got["resumed_at"] is not None:
+                resumed_at[plan.index] = got["resumed_at"]
     tables = merge(root, opt, writer, len(plans))
     counts = timeline.counts()
     return {"logs": len(plans), "resumed_logs": done_logs, "resumed_at_tick": resumed_at,

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from lsd3d_usd import configtree as ct
+from lsd3d_usd import safepaths
 from lsd3d_usd.cliutil import check_output_folder
 from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
@@ -56,11 +57,13 @@ def _render(args) -> int:
         # local import: not loaded for --help
         from lsd3d_usd.views.ground_truth import parse_outputs
         from lsd3d_usd.views.rig import render_rig
-        res = render_rig(args.scene, args.output, cfg.rig, width=size[0] if size else RIG_WIDTH,
-                         use_env=cfg.env, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
-                         outputs=parse_outputs(cfg.outputs),
-                         progress=progress,   # its notes (the default route) on stdout
-                         deferrer=make_deferrer(args.scene, cfg.deferred, log))
+        with safepaths.removed_on_error(args.output):   # a refused run leaves nothing
+            res = render_rig(args.scene, args.output, cfg.rig,
+                             width=size[0] if size else RIG_WIDTH,
+                             use_env=cfg.env, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
+                             outputs=parse_outputs(cfg.outputs),
+                             progress=progress,   # its notes (the default route) on stdout
+                             deferrer=make_deferrer(args.scene, cfg.deferred, log))
         print(res.rig_layer)
         for name, fr in res.frames.items():
             print(f"{name}: {len(fr)} frames" + (f", {res.videos[name]}" if name in res.videos else ""))
@@ -83,12 +86,13 @@ def _render(args) -> int:
     from lsd3d_usd.views.stage_data import camera_prim
     if cfg.deferred.enabled:   # a wrong camera fails before the prior is loaded
         camera_prim(scene.open_stage(args.scene, load=False), cfg.camera)
-    files = render_preview(args.scene, cfg.camera, args.output,
-                           times=parse_times(cfg.frames, cfg.time), resolution=size,
-                           fmt=cfg.format, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
-                           use_env=cfg.env, sh_degree=cfg.sh_degree, progress=progress,
-                           outputs=parse_outputs(cfg.outputs),
-                           deferrer=make_deferrer(args.scene, cfg.deferred, log))
+    with safepaths.removed_on_error(args.output):       # a refused run leaves nothing
+        files = render_preview(args.scene, cfg.camera, args.output,
+                               times=parse_times(cfg.frames, cfg.time), resolution=size,
+                               fmt=cfg.format, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
+                               use_env=cfg.env, sh_degree=cfg.sh_degree, progress=progress,
+                               outputs=parse_outputs(cfg.outputs),
+                               deferrer=make_deferrer(args.scene, cfg.deferred, log))
     for f in files:
         print(f)
     return 0
