@@ -204,12 +204,23 @@ LIDAR_RANGE = Limit(
     "lidar_range", 10_000.0, " m", "max_range",
     "--lidar FILE.toml and LidarModel.check")
 
+LIDAR_FILE_BYTES = Limit(
+    "lidar_file_bytes", 1024 * 1024, " bytes", "LiDAR file size",
+    "--lidar FILE.toml (render, dataset, batch), before the TOML is parsed")
+LIDAR_NAME_CHARS = Limit(
+    "lidar_name_chars", 200, " characters", "LiDAR name length",
+    "--lidar FILE.toml: the name is written into rig.usda and dataset tables")
+TRAJECTORY_FILE_BYTES = Limit(
+    "trajectory_file_bytes", 64 * 1024 * 1024, " bytes", "trajectory file size",
+    "render --rig --trajectory poses.json, before the JSON is parsed")
+
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, COORDINATE, FEATURE_POINTS, LAYOUT_POINTS, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX,
        CHUNKS, CHUNK_VOXELS, PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS,
        IMAGE_PIXELS, OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS,
        VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS, PEDESTRIANS, CYCLISTS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
-       LIDAR_RANGE, DATASET_STATE_BYTES)
+       LIDAR_RANGE, DATASET_STATE_BYTES, LIDAR_FILE_BYTES, LIDAR_NAME_CHARS,
+       TRAJECTORY_FILE_BYTES)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

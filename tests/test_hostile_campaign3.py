@@ -258,3 +258,67 @@ def test_batch_refuses_the_dataset_output_before_preparing_scenes(tmp_path, cli_
     p.write_text(SPEC.format(out="ds"))
     cli_error(["batch", p], "dataset.output", "no lsd3d-usd dataset")
     assert not (spec_dir / "out" / "crossing").exists()
+
+
+# ---------------------------------- 8. FIFOs in a scene folder, or given as --lidar FILE
+def _cli_subprocess(*args, timeout=120):
+    import subprocess
+    import sys
+    return subprocess.run([sys.executable, "-m", "lsd3d_usd", *map(str, args)],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("cmd", ["validate", "render", "dataset"])
+def test_a_fifo_in_the_scene_folder_is_refused_not_read(layout_scene, tmp_path, cmd):
+    from conftest import error_line
+    fifo = layout_scene / "layers" / "extra.usda"
+    os.mkfifo(fifo)
+    root = layout_scene / S.ROOT_FILE
+    root.write_text(root.read_text().replace("@./layers/layout.usda@",
+                                             "@./layers/layout.usda@, @./layers/extra.usda@"))
+    argv = {"validate": ["validate", layout_scene],
+            "render": ["render", layout_scene, "-o", tmp_path / "o", "--rig", "waymo5"],
+            "dataset": _dataset(layout_scene, tmp_path / "ds", "--seconds", "0.5")}[cmd]
+    error_line(_cli_subprocess(*argv), "extra.usda", "FIFO")
+    assert not (tmp_path / "o").exists() and not (tmp_path / "ds").exists()
+
+
+def test_lidar_at_a_fifo_is_named_as_such(layout_scene, tmp_path, cli_error):
+    os.mkfifo(tmp_path / "l.toml")
+    cli_error(["render", layout_scene, "-o", tmp_path / "o", "--rig", "waymo5",
+               "--lidar", tmp_path / "l.toml"], "l.toml", "not a regular file")
+
+
+# ------------------------------------------ 9. file sizes of LiDAR TOML and trajectories
+def test_lidar_toml_and_trajectory_sizes_are_limited(layout_scene, tmp_path, cli_error):
+    from lsd3d_usd import limits
+    big = tmp_path / "big.toml"
+    big.write_text("[lidar]\nbeams = 8\nelevation_min = -10\nelevation_max = 10\ncolumns = 100\n"
+                   + "# pad\n" * (limits.LIDAR_FILE_BYTES.value // 6 + 1))
+    base = ["render", layout_scene, "-o", tmp_path / "o", "--rig", "waymo5"]
+    cli_error([*base, "--lidar", big], "big.toml", "exceeds the limit")
+    named = tmp_path / "named.toml"
+    named.write_text(f'[lidar]\nname = "{"x" * 5000}"\nbeams = 8\nelevation_min = -10\n'
+                     'elevation_max = 10\ncolumns = 100\n')
+    cli_error([*base, "--lidar", named], "named.toml", "name", "exceeds the limit")
+    traj = tmp_path / "poses.json"
+    with open(traj, "wb") as f:
+        f.truncate(limits.TRAJECTORY_FILE_BYTES.value + 1)
+    cli_error([*base, "--trajectory", traj], "poses.json", "exceeds the limit")
+    assert not (tmp_path / "o").exists()
+
+
+# ------------------------------------------------- 11. trajectories: NaN, deep nesting
+@pytest.mark.parametrize("text, needle", [
+    ('[{"t": 0, "x": NaN, "y": 0, "yaw": 0}, {"t": 1, "x": 1, "y": 0, "yaw": 0}]', "finite"),
+    ('[{"t": 0, "x": 0, "y": 0, "yaw": Infinity}, {"t": 1, "x": 1, "y": 0, "yaw": 0}]',
+     "finite"),
+    ("[" * 100_000 + "]" * 100_000, "nested"),
+])
+def test_trajectory_nan_and_nesting_are_one_line(layout_scene, tmp_path, cli_error, text,
+                                                 needle):
+    traj = tmp_path / "poses.json"
+    traj.write_text(text)
+    cli_error(["render", layout_scene, "-o", tmp_path / "o", "--rig", "waymo5",
+               "--trajectory", traj, "--no-progress"], "poses.json", needle)
+    assert not (tmp_path / "o").exists()

@@ -37,6 +37,7 @@ import numpy as np
 
 from lsd3d_usd.configtree import read_toml
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import LIDAR_FILE_BYTES, LIDAR_NAME_CHARS
 from lsd3d_usd.render.lidar import MAX_COLUMNS, MAX_RINGS, LidarModel
 
 PRESETS = {
@@ -60,6 +61,8 @@ def lidar_model(spec: str, where: str = "--lidar") -> LidarModel:
     if p.suffix.lower() != ".toml":
         raise InputError(f"{where} {spec!r}: unknown LiDAR; presets: {', '.join(PRESETS)}, "
                          "or a FILE.toml")
+    if p.is_file():             # parsing a large TOML costs ~20x its size in memory
+        LIDAR_FILE_BYTES.check(p.stat().st_size, f"{where} {spec}")
     data = read_toml(p, f"{where} {spec}: no such file")
     table = data.get("lidar", data)
     if not isinstance(table, dict):
@@ -106,7 +109,11 @@ def model_from_table(table: dict, where: str) -> LidarModel:
     if not isinstance(mount, dict) or set(mount) - set(MOUNT_KEYS):
         raise InputError(f"{where}: mount: a table of {', '.join(MOUNT_KEYS)}")
     m = tuple(_num(mount, k, f"{where}: mount", 0.0) for k in MOUNT_KEYS)
-    model = LidarModel(str(table.get("name", Path(where).stem)), elev, cols,
+    name = table.get("name", Path(where).stem)
+    if not isinstance(name, str):
+        raise InputError(f"{where}: name: expected a string, got {type(name).__name__}")
+    LIDAR_NAME_CHARS.check(len(name), f"{where}: name")
+    model = LidarModel(name, elev, cols,
                        hfov_deg=_num(table, "hfov", where, 360.0),
                        min_range=_num(table, "min_range", where, 0.5),
                        max_range=_num(table, "max_range", where, 75.0),
