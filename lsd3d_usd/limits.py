@@ -214,13 +214,27 @@ TRAJECTORY_FILE_BYTES = Limit(
     "trajectory_file_bytes", 64 * 1024 * 1024, " bytes", "trajectory file size",
     "render --rig --trajectory poses.json, before the JSON is parsed")
 
+# ----------------------------------------------------------------- times, rates
+CLIP_SECONDS = Limit(
+    "clip_seconds", 86_400.0, " s", "length",
+    "dataset --seconds (datasets.timeline), actors add --seconds, render --rig --seconds "
+    "(views.options), before anything is simulated")
+FRAMES = Limit(
+    "frames", 1_000_000, " frames", "frames (rate x seconds)",
+    "render --rig (--fps x --seconds), dataset (ticks of a log: the rates' common tick rate x "
+    "--seconds), actors add (--fps x --seconds samples), before anything is simulated")
+ACTOR_SAMPLES = Limit(
+    "actor_samples", 20_000_000, " samples", "actor time samples (moving actors, pedestrians "
+    "and cyclists x --fps x --seconds)",
+    "actors add and generate's actors, before the traffic is simulated")
+
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, COORDINATE, FEATURE_POINTS, LAYOUT_POINTS, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX,
        CHUNKS, CHUNK_VOXELS, PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS,
        IMAGE_PIXELS, OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS,
        VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS, PEDESTRIANS, CYCLISTS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
        LIDAR_RANGE, DATASET_STATE_BYTES, LIDAR_FILE_BYTES, LIDAR_NAME_CHARS,
-       TRAJECTORY_FILE_BYTES)
+       TRAJECTORY_FILE_BYTES, CLIP_SECONDS, FRAMES, ACTOR_SAMPLES)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

@@ -322,3 +322,51 @@ def test_trajectory_nan_and_nesting_are_one_line(layout_scene, tmp_path, cli_err
     cli_error(["render", layout_scene, "-o", tmp_path / "o", "--rig", "waymo5",
                "--trajectory", traj, "--no-progress"], "poses.json", needle)
     assert not (tmp_path / "o").exists()
+
+
+# --------------------------------------- 6. a width alone counts with the camera's height
+def test_a_width_alone_is_counted_with_its_height(layout_scene, tmp_path, cli_error):
+    cli_error(_dataset(layout_scene, tmp_path / "ds", "--width", "8192"), "--width 8192",
+              "8192x4608", "exceed the limit")
+    cli_error(["render", layout_scene, "-o", tmp_path / "o", "--rig", "waymo5",
+               "--resolution", "8192", "--no-video"], "--resolution 8192", "exceed the limit")
+    assert not (tmp_path / "ds").exists() and not (tmp_path / "o").exists()
+
+
+def test_a_width_alone_is_counted_for_a_usd_camera():
+    from pxr import Usd, UsdGeom
+
+    from lsd3d_usd.render.camera import from_usd
+    stage = Usd.Stage.CreateInMemory()
+    cam = UsdGeom.Camera.Define(stage, "/Cam")
+    cam.CreateHorizontalApertureAttr(10.0)
+    cam.CreateVerticalApertureAttr(10.0)          # square: 8192 wide is 8192 high
+    with pytest.raises(InputError, match="exceed the limit"):
+        from_usd(cam.GetPrim(), width=8192)
+
+
+# ----------------------------------------------- 7. seconds and rate x seconds products
+@pytest.mark.parametrize("argv, needle", [
+    (["--seconds", "1e9"], "--seconds"),
+    (["--seconds", "80000", "--camera-hz", "12"], "ticks of a log"),
+])
+def test_dataset_seconds_are_bounded(layout_scene, tmp_path, cli_error, argv, needle):
+    cli_error(_dataset(layout_scene, tmp_path / "ds", *argv), needle, "exceeds the limit")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_render_rig_frames_are_bounded(layout_scene, tmp_path, cli_error):
+    cli_error(["render", layout_scene, "-o", tmp_path / "o", "--rig", "waymo5", "--fps", "1000",
+               "--seconds", "80000", "--no-video"], "--fps x --seconds", "exceeds the limit")
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--seconds", "1e9"], "--seconds"),
+    (["--seconds", "80000", "--fps", "100"], "--fps x --seconds"),
+    (["--moving", "500", "--seconds", "3600", "--fps", "100"], "--moving"),
+])
+def test_actors_add_seconds_and_samples_are_bounded(layout_scene, cli_error, argv, needle):
+    before = _snapshot(layout_scene)
+    cli_error(["actors", "add", layout_scene, *argv], needle, "exceeds the limit")
+    assert _snapshot(layout_scene) == before

@@ -230,6 +230,9 @@ def check_settings(opt: DatasetOptions):
         raise InputError(f"--version {opt.version!r}: a folder name like v1.0-lsd3d")
     if opt.width is not None and not 8 <= opt.width <= 8192:
         raise InputError(f"--width {opt.width}: must be within 8 .. 8192")
+    if opt.width is not None:
+        from lsd3d_usd.views.rigs import check_rig_width
+        check_rig_width(opt.rig, opt.width, f"--width {opt.width}")
     lidar = lidar_of(opt)
     if lidar is not None and opt.lidar_hz > lidar.rotation_hz + 1e-9:
         raise InputError(f"--lidar-hz {opt.lidar_hz:g} exceeds the LiDAR's rotation rate "

@@ -15,6 +15,7 @@ from pxr import Sdf
 from tqdm import tqdm
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import FRAMES
 from lsd3d_usd.render.camera import from_usd
 from lsd3d_usd.scene import save_layer
 from lsd3d_usd.views.boxes import actor_boxes, camera_boxes, local_boxes, write_boxes
@@ -28,7 +29,7 @@ from lsd3d_usd.views.lidar_sweep import sweep as lidar_sweep
 from lsd3d_usd.views.options import RIG_WIDTH as DEFAULT_WIDTH
 from lsd3d_usd.views.options import RigOptions
 from lsd3d_usd.views.rig_stage import build_rig_stage
-from lsd3d_usd.views.rigs import OVERVIEW, RIG_LIDAR, RIGS
+from lsd3d_usd.views.rigs import OVERVIEW, RIG_LIDAR, RIGS, check_rig_width
 from lsd3d_usd.views.sensors import lidar_model
 
 LIDAR_NAME = "LIDAR_TOP"   # the sweeps' folder, and the LiDAR's prim under the ego
@@ -81,6 +82,8 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
     fps, seconds, video, stream_radius = rig.fps, rig.seconds, rig.video, rig.stream_radius
     if int(width) < 8:
         raise InputError(f"--resolution: rig frames need a width >= 8, got {width}")
+    check_rig_width(rig_name, width, f"--resolution {width}", overview=rig.overview)
+    FRAMES.check(fps * seconds, "render --rig: --fps x --seconds", what="frames per camera")
     if not stream_radius >= 0:
         raise InputError(f"--stream-radius {stream_radius}: must be >= 0 (0 loads everything)")
     lidar = rig_lidar(rig)

@@ -64,3 +64,11 @@ def rig_camera(cam: RigCamera, ego: np.ndarray, width: int) -> Camera:
     """The camera at render width ``width`` (height from its native aspect) for ego pose ``ego``."""
     return Camera.from_fov(int(width), cam.height_for(width), cam.hfov_deg, ego @ camera_in_ego(cam),
                            near=0.1, far=2000.0)
+
+
+def check_rig_width(rig_name: str, width: int, where: str, overview: bool = False) -> None:
+    """Every camera of the rig at ``width`` (heights follow each camera's aspect) within the
+    image-pixel limit, before anything is rendered."""
+    from lsd3d_usd.limits import check_image_size
+    for c in list(RIGS.get(rig_name, ())) + ([OVERVIEW] if overview else []):
+        check_image_size(width, c.height_for(width), f"{where} ({c.name})")
