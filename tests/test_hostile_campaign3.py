@@ -370,3 +370,37 @@ def test_actors_add_seconds_and_samples_are_bounded(layout_scene, cli_error, arg
     before = _snapshot(layout_scene)
     cli_error(["actors", "add", layout_scene, *argv], needle, "exceeds the limit")
     assert _snapshot(layout_scene) == before
+
+
+# -------------------------------------------- 13. next_tick out of range or inconsistent
+@pytest.mark.parametrize("tick, lines", [(99, 1), (3, 1), (3, 3), (2, 1), (0, 0)])
+def test_resume_refuses_an_inconsistent_next_tick(tmp_path, monkeypatch, tick, lines):
+    from lsd3d_usd.datasets import drive
+    from lsd3d_usd.datasets.drive import LogPlan
+    from lsd3d_usd.datasets.timeline import Timeline
+    monkeypatch.setattr(drive, "drive", _refuse)     # never reached: the checkpoint is refused
+    logs = tmp_path / "ds" / ".lsd3d" / "logs"
+    logs.mkdir(parents=True)
+    journal = b"".join(b'{"sample": []}\n' for _ in range(lines))
+    (logs / "0000.journal.jsonl").write_bytes(journal)
+    (logs / "0000.partial.json").write_text(json.dumps({"next_tick": tick,
+                                                        "journal_bytes": len(journal)}))
+    writer = type("W", (), {"checkpoint": None, "restore": None})()
+    plan = LogPlan(0, tmp_path, "scene", ["w_in"], "scene:w_in")
+    with pytest.raises(InputError, match="next_tick"):
+        build.run_log(tmp_path / "ds", DatasetOptions(resume=True), plan, writer, None,
+                      Timeline(4.0, 4.0, 2.0, 1.5))     # 6 ticks, keyframes at 0, 2, 4
+
+
+# ------------------------------------ 14. temp files of a killed writer do not survive
+def test_resume_removes_temp_files_of_a_killed_writer(tmp_path):
+    ds = tmp_path / "ds"
+    (ds / ".lsd3d" / "logs").mkdir(parents=True)
+    opt = DatasetOptions(resume=True)
+    (ds / ".lsd3d" / "dataset.json").write_text(json.dumps({**opt.signature(), "logs": []}))
+    tmp = ds / "samples" / "CAM_FRONT" / ".x__CAM_FRONT__1.tmp-4242-0123abcd.jpg"
+    tmp.parent.mkdir(parents=True)
+    tmp.write_bytes(b"torn")
+    (tmp.parent / "x__CAM_FRONT__0.jpg").write_bytes(b"kept")
+    build.start_dataset(ds, opt, [])
+    assert [p.name for p in tmp.parent.iterdir()] == ["x__CAM_FRONT__0.jpg"]

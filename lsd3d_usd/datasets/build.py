@@ -18,6 +18,7 @@ from __future__ import annotations
 import fnmatch
 import json
 import os
+import re
 import time
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from lsd3d_usd.errors import InputError
 STATE = ".lsd3d"
 MAX_ROUTES = 1000
 STATE_FILE_BYTES = L.DATASET_STATE_BYTES
+TMP_NAME = re.compile(r"^\..+\.tmp-\d+-[0-9a-f]{8}(\.[^.]*)?$")   # scene._tmp_sibling
 
 
 def scene_root(scene) -> Path:
@@ -272,6 +274,12 @@ def start_dataset(root: Path, opt: DatasetOptions, plans) -> None:
     sig = {**opt.signature(), "logs": [p.key for p in plans]}
     if opt.resume:
         check_resume(state, sig, root)
+        # temp files of a killed writer (scene.atomic_write_bytes) are no part of the dataset
+        o = root.resolve()
+        for dirpath, _, names in os.walk(o):
+            for n in names:
+                if TMP_NAME.match(n):
+                    safepaths.unlink(Path(dirpath) / n, o, "temp file")
     if opt.overwrite and root.is_dir() and any(root.iterdir()):
         o = root.resolve()
         for f in owned_files(o, root):
@@ -370,6 +378,14 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
     if part is None:
         cps.clear()                             # a stale journal of a run not resumed
     start = part[0] if part else 0
+    if part:
+        # next_tick follows a keyframe and the journal holds one line per keyframe before it
+        kf = timeline._every(timeline.keyframe_hz)
+        if not (1 <= start <= timeline.n_ticks and (start - 1) % kf == 0
+                and len(part[1]) == (start - 1) // kf + 1):
+            raise InputError(f"{cps.part}: next_tick {start} does not follow a keyframe of "
+                             f"this log's {timeline.n_ticks} ticks with {len(part[1])} journal "
+                             "lines; give --overwrite")
     width = opt.width or RIGS[opt.rig][0].size[0]
     info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
                           lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
