@@ -404,3 +404,18 @@ def test_resume_removes_temp_files_of_a_killed_writer(tmp_path):
     (tmp.parent / "x__CAM_FRONT__0.jpg").write_bytes(b"kept")
     build.start_dataset(ds, opt, [])
     assert [p.name for p in tmp.parent.iterdir()] == ["x__CAM_FRONT__0.jpg"]
+
+
+# ------------------------------------------------ 16 (part). unclear or silent inputs
+def test_lidar_on_a_single_camera_render_is_refused(layout_scene, tmp_path, cli_error):
+    cli_error(["render", layout_scene, "-o", tmp_path / "o", "--camera", "/World/Cam",
+               "--lidar", "hdl32"], "--lidar hdl32", "--rig")
+    assert not (tmp_path / "o").exists()
+
+
+def test_lidar_toml_may_start_with_a_bom(tmp_path):
+    from lsd3d_usd.views.sensors import lidar_model
+    f = tmp_path / "bom.toml"
+    f.write_bytes(b"\xef\xbb\xbf[lidar]\nbeams = 8\nelevation_min = -10\nelevation_max = 10\n"
+                  b"columns = 100\n")
+    assert len(lidar_model(str(f)).elevations_deg) == 8

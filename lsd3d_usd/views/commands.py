@@ -77,6 +77,9 @@ def _render(args) -> int:
             print(f"deferred: prior {d['prior']}, T {d['strength']}, N {d['steps']}, "
                   f"{d.get('s_per_frame', 0):.2f} s/frame")
         return 0
+    if cfg.rig.lidar != "auto":
+        raise InputError(f"--lidar {cfg.rig.lidar}: a LiDAR rides a rig; give --rig too "
+                         "(a single-camera render has none)")
     if not cfg.camera:
         raise InputError("render: give --camera PRIM_PATH, or --rig (driving --route, --trajectory "
                          "or by default the longest drivable route)")
