@@ -72,6 +72,32 @@ def check_output_path(path, flag: str = "-o", *, suffixes: tuple[str, ...] | Non
     return p
 
 
+def check_output_folder(path, flag: str = "-o", *, scene=None) -> Path:
+    """Refuse, before any work, an output folder that is an existing file, lies below a
+    file, or is (or lies inside, or holds) the ``scene`` folder: frames written there would
+    replace the scene's own files. Returns the path."""
+    text = os.fspath(path)
+    p = Path(text)
+    if p.exists() and not p.is_dir():
+        raise InputError(f"{flag} {text}: exists and is not a folder")
+    for parent in p.absolute().parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise InputError(f"{flag} {text}: {parent} is a file, not a folder")
+            break
+    if scene is not None:
+        sc = Path(scene)
+        sc = (sc if sc.is_dir() else sc.parent).resolve()
+        o = p.resolve()
+        if o == sc or o.is_relative_to(sc):
+            raise InputError(f"{flag} {text}: inside the scene folder {sc}; write the frames "
+                             "elsewhere (a scene folder holds only the scene)")
+        if sc.is_relative_to(o):
+            raise InputError(f"{flag} {text}: the scene {sc} lies inside it; write the frames "
+                             "elsewhere")
+    return p
+
+
 # --------------------------------------------------------------------- argparse
 def accept_negative_values(parser) -> None:
     """Let option values that start with '-' and a digit ('-1,0', '-2.5e3') be values,

@@ -544,10 +544,13 @@ def describe(cls) -> list[dict]:
 def read_toml(path, missing: str) -> dict:
     """The table of a TOML file; one InputError line (``missing`` when there is no file)."""
     p = Path(path)
+    if p.exists() and not p.is_file() and not p.is_dir():
+        raise InputError(f"{p}: not a regular file (a FIFO, socket or device); refusing to "
+                         "read it")
     if not p.is_file():
         raise InputError(missing)
     try:
-        return tomllib.loads(p.read_text(encoding="utf-8"))
+        return tomllib.loads(p.read_text(encoding="utf-8-sig"))   # a leading BOM is fine
     except tomllib.TOMLDecodeError as e:
         raise InputError(f"{p}: not valid TOML: {e}") from None
     except UnicodeDecodeError as e:

@@ -10,6 +10,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdVol
 
 import lsd3d_usd
 from lsd3d_usd import scene
+from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd.diagnostics import captured_stderr
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.splats.usdio import particle_bounds, read_surfels
@@ -186,6 +187,7 @@ def preview_stats(stage: Usd.Stage) -> dict | None:
 def inspect(path: str | Path, max_depth: int = 4) -> dict:
     with captured_stderr():
         stage = scene.open_stage(path)
+        check_scene(stage, path)    # as render and eval: a scene reads only its own folder
         meta = {"upAxis": UsdGeom.GetStageUpAxis(stage),
                 "metersPerUnit": UsdGeom.GetStageMetersPerUnit(stage),
                 "defaultPrim": stage.GetRootLayer().defaultPrim or None}
@@ -199,7 +201,9 @@ def inspect(path: str | Path, max_depth: int = 4) -> dict:
 
 def flatten(path: str | Path) -> str:
     with captured_stderr():
-        return scene.open_stage(path).Flatten().ExportToString()
+        stage = scene.open_stage(path)
+        check_scene(stage, path)
+        return stage.Flatten().ExportToString()
 
 
 def format_text(info: dict) -> str:

@@ -184,6 +184,12 @@ CYCLISTS = Limit(
     "cyclists", 500, " cyclists", "cyclist count",
     "actors add --cyclists, generate actors.cyclists", flag="--cyclists")
 
+# ---------------------------------------------------------------------- datasets
+DATASET_STATE_BYTES = Limit(
+    "dataset_state_bytes", 256 * 1024 * 1024, " bytes", "state file size",
+    "dataset --resume / --overwrite: .lsd3d/dataset.json, logs/<k>.json, logs/<k>.partial.json "
+    "and the journal, before they are read")
+
 # ------------------------------------------------------------------------ LiDAR
 LIDAR_BEAMS = Limit(
     "lidar_beams", 1024, " beams", "beam count",
@@ -198,12 +204,37 @@ LIDAR_RANGE = Limit(
     "lidar_range", 10_000.0, " m", "max_range",
     "--lidar FILE.toml and LidarModel.check")
 
+LIDAR_FILE_BYTES = Limit(
+    "lidar_file_bytes", 1024 * 1024, " bytes", "LiDAR file size",
+    "--lidar FILE.toml (render, dataset, batch), before the TOML is parsed")
+LIDAR_NAME_CHARS = Limit(
+    "lidar_name_chars", 200, " characters", "LiDAR name length",
+    "--lidar FILE.toml: the name is written into rig.usda and dataset tables")
+TRAJECTORY_FILE_BYTES = Limit(
+    "trajectory_file_bytes", 64 * 1024 * 1024, " bytes", "trajectory file size",
+    "render --rig --trajectory poses.json, before the JSON is parsed")
+
+# ----------------------------------------------------------------- times, rates
+CLIP_SECONDS = Limit(
+    "clip_seconds", 86_400.0, " s", "length",
+    "dataset --seconds (datasets.timeline), actors add --seconds, render --rig --seconds "
+    "(views.options), before anything is simulated")
+FRAMES = Limit(
+    "frames", 1_000_000, " frames", "frames (rate x seconds)",
+    "render --rig (--fps x --seconds), dataset (ticks of a log: the rates' common tick rate x "
+    "--seconds), actors add (--fps x --seconds samples), before anything is simulated")
+ACTOR_SAMPLES = Limit(
+    "actor_samples", 20_000_000, " samples", "actor time samples (moving actors, pedestrians "
+    "and cyclists x --fps x --seconds)",
+    "actors add and generate's actors, before the traffic is simulated")
+
 ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL_OFFSET, ROAD_POINTS,
        LAYOUT_EXTENT, COORDINATE, FEATURE_POINTS, LAYOUT_POINTS, CHUNK_SIZE_MIN, CHUNK_SIZE_MAX,
        CHUNKS, CHUNK_VOXELS, PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS,
        IMAGE_PIXELS, OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS,
        VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS, PEDESTRIANS, CYCLISTS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
-       LIDAR_RANGE)
+       LIDAR_RANGE, DATASET_STATE_BYTES, LIDAR_FILE_BYTES, LIDAR_NAME_CHARS,
+       TRAJECTORY_FILE_BYTES, CLIP_SECONDS, FRAMES, ACTOR_SAMPLES)
 
 
 def check_image_size(width: int, height: int, where: str, bound=None) -> None:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from contextlib import contextmanager
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
@@ -107,3 +108,27 @@ def replace(src, dst, root, what: str = "path") -> None:
     check_inside(src, root, what)
     check_inside(dst, root, what)
     os.replace(src, dst)
+
+
+@contextmanager
+def removed_on_error(folder, keep=None, errors=(InputError,)):
+    """Run the block; when it raises one of ``errors`` and ``folder`` was missing or empty
+    before, empty it again (and remove it if it was missing): a refused run leaves nothing
+    that a plain re-run would then refuse as "not empty". ``keep()`` true at that point
+    (e.g. a finished log worth resuming) keeps everything."""
+    f = _abs(folder)
+    existed = f.is_dir() and not f.is_symlink()
+    fresh = (not f.exists() and not f.is_symlink()) or (existed and not any(f.iterdir()))
+    try:
+        yield
+    except errors:
+        if fresh and f.is_dir() and not f.is_symlink() and not (keep and keep()):
+            if existed:
+                for child in list(f.iterdir()):
+                    if child.is_dir() and not child.is_symlink():
+                        rmtree(child, f, "output folder")
+                    else:
+                        unlink(child, f, "output file")
+            else:
+                rmtree(f, f.parent, "output folder")
+        raise

@@ -30,6 +30,7 @@ import json
 import os
 import platform
 import re
+import stat
 import uuid
 from dataclasses import dataclass
 from pathlib import Path
@@ -261,6 +262,9 @@ def open_stage(path: str | os.PathLike, load: bool = True) -> Usd.Stage:
         raise InputError(f"{path}: is a folder without {ROOT_FILE}")
     if not p.suffix or not Sdf.FileFormat.FindByExtension(p.suffix.lstrip(".")):
         raise InputError(f"{path}: not a USD file (unknown extension {p.suffix!r})")
+    check_regular(p)
+    if p.name == ROOT_FILE:
+        check_special_files(p.parent)
     try:
         stage = Usd.Stage.Open(str(p), Usd.Stage.LoadAll if load else Usd.Stage.LoadNone)
     except Exception as e:  # Tf.ErrorException: syntax errors, truncated crate files
@@ -268,6 +272,30 @@ def open_stage(path: str | os.PathLike, load: bool = True) -> Usd.Stage:
     if stage is None:
         raise InputError(f"{path}: cannot be read as USD")
     return stage
+
+
+def check_regular(p: Path, what: str = "file") -> None:
+    """Refuse (one line) a FIFO, socket or device where a file is read: opening a FIFO blocks
+    until something writes to it, a device reads forever."""
+    try:
+        mode = os.stat(p).st_mode
+    except OSError:
+        return                                   # missing: the caller's own message
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise InputError(f"{p}: not a regular {what} (a FIFO, socket or device); refusing to "
+                         "read it")
+
+
+def check_special_files(folder: Path, limit: int = 200_000) -> None:
+    """Refuse a scene folder holding a FIFO, socket or device anywhere (a tar archive can carry
+    one): a layer, chunk or texture read from it would hang the command."""
+    n = 0
+    for dirpath, dirnames, filenames in os.walk(folder):
+        for name in filenames + [d for d in dirnames if os.path.islink(os.path.join(dirpath, d))]:
+            check_regular(Path(dirpath) / name)
+            n += 1
+            if n >= limit:                      # a folder this large is checked elsewhere
+                return
 
 
 def first_error_line(e: Exception) -> str:

@@ -21,6 +21,7 @@ from lsd3d_usd.actors.usdio import (
     scene_time_codes_per_second,
 )
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import ACTOR_SAMPLES, CLIP_SECONDS, FRAMES
 from lsd3d_usd.layout.usdio import layout_from_stage
 from lsd3d_usd.scene import LAYOUT_PATH
 
@@ -82,6 +83,10 @@ def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, 
     check_counts(parked=parked, moving=moving, pedestrians=pedestrians, cyclists=cyclists)
     if not (fps > 0) or not (seconds > 0):
         raise InputError(f"actors: need --fps > 0 and --seconds > 0 (got {fps}, {seconds})")
+    CLIP_SECONDS.check(seconds, "actors: --seconds")
+    FRAMES.check(fps * seconds, "actors: --fps x --seconds", what="time samples per actor")
+    ACTOR_SAMPLES.check((moving + pedestrians + cyclists) * fps * seconds,
+                        "actors: (--moving + --pedestrians + --cyclists) x --fps x --seconds")
     t0 = time.perf_counter()
     library = resolve_library(scene, assets_dir, people=bool(pedestrians or cyclists))
     all_infos = {k: A.read_asset(p) for k, p in library.items()}

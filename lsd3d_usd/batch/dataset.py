@@ -72,10 +72,18 @@ class DatasetPlan:
     logs: list
     tasks: list
 
+    def check(self) -> None:
+        """Driver side, before any scene folder is prepared: the dataset folder checked."""
+        try:
+            check_output(self.spec.output, [Path(s) for s in self.spec.options.scenes],
+                         self.spec.options)
+        except InputError as e:       # name the spec's key, not the command's -o
+            msg = str(e).removeprefix(f"-o {self.spec.output}: ")
+            raise InputError(f"dataset.output {self.spec.output}: {msg}") from None
+
     def prepare(self) -> None:
         """Driver side, before the tasks: the folder checked and its settings recorded."""
-        check_output(self.spec.output, [Path(s) for s in self.spec.options.scenes],
-                     self.spec.options)
+        self.check()
         start_dataset(self.spec.output, self.spec.options, self.logs)
 
 

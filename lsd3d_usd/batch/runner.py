@@ -62,6 +62,9 @@ def run_batch(spec: BatchSpec, executor, retries: int = DEFAULT_RETRIES, progres
         report.skipped = sorted(finished)
         todo = [tid for tid in tasks if tid not in finished]
         prepared: set[str] = set()
+        for p in {id(plan_of[t]): plan_of[t] for t in todo}.values():
+            if hasattr(p, "check"):              # a refused dataset prepares no scene
+                p.check()
         for tid in todo:
             plan = plan_of[tid]
             if hasattr(plan, "prepare"):             # the dataset (batch.dataset)

@@ -275,6 +275,17 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
     if "dataset" in data:
         from lsd3d_usd.batch.dataset import parse_dataset
         spec.dataset = parse_dataset(data["dataset"], f"{w}: dataset", output)
+        # held to the spec's folder like batch.output and the scenes' outputs
+        d_out = _check_output(spec.dataset.output, roots, f"{w}: dataset.output", strict=True)
+        for sc in spec.scenes:
+            if d_out == sc.output or d_out.is_relative_to(sc.output) \
+                    or sc.output.is_relative_to(d_out):
+                raise InputError(f"{w}: dataset.output: {d_out} overlaps the output of scene "
+                                 f"{sc.name!r} ({sc.output}); use a folder of its own")
+        if output.is_relative_to(d_out):
+            raise InputError(f"{w}: dataset.output: {d_out} holds the batch output {output}; "
+                             "use a subfolder of it")
+        spec.dataset.output = d_out
     return spec
 
 

@@ -15,21 +15,26 @@ what the log holds; a writer without checkpoints starts the log again.
 """
 from __future__ import annotations
 
+import fnmatch
 import json
 import os
-import shutil
+import re
 import time
 from pathlib import Path
 
 import numpy as np
 
+from lsd3d_usd import safepaths
 from lsd3d_usd import scene as S
 from lsd3d_usd.datasets.drive import LogPlan
 from lsd3d_usd.datasets.options import DEFAULT_VERSION, DatasetOptions  # noqa: F401  (re-exported)
+from lsd3d_usd import limits as L
 from lsd3d_usd.errors import InputError
 
 STATE = ".lsd3d"
 MAX_ROUTES = 1000
+STATE_FILE_BYTES = L.DATASET_STATE_BYTES
+TMP_NAME = re.compile(r"^\..+\.tmp-\d+-[0-9a-f]{8}(\.[^.]*)?$")   # scene._tmp_sibling
 
 
 def scene_root(scene) -> Path:
@@ -58,13 +63,72 @@ def check_output(out: Path, scenes: list[Path], opt: DatasetOptions) -> None:
             if not ours:
                 raise InputError(f"-o {out}: --resume, but it holds no lsd3d-usd dataset "
                                  f"({STATE}/dataset.json)")
+            # a resume appends, truncates and deletes inside the folder: a planted link would
+            # carry those steps outside it
+            safepaths.check_tree(o, o, "dataset folder")
         elif opt.overwrite:
             if not ours:
                 raise InputError(f"-o {out}: --overwrite, but it holds files that are not an "
                                  "lsd3d-usd dataset; refusing to delete them")
+            owned_files(o, out)
         else:
             raise InputError(f"-o {out}: not empty; give --resume to continue the dataset in "
                              "it or --overwrite to replace it")
+
+
+def read_record(path: Path, out) -> dict:
+    """A JSON state file of the dataset (dataset.json, a log record), refused with one line
+    when it is not a JSON object (truncated, garbage, a link, too large)."""
+    where = f"-o {out}: {path}"
+    if path.is_symlink() or not path.is_file():
+        raise InputError(f"{where}: not a regular file; give --overwrite")
+    if path.stat().st_size > STATE_FILE_BYTES.value:
+        raise InputError(STATE_FILE_BYTES.message(path.stat().st_size, where))
+    try:
+        data = json.loads(path.read_bytes())
+    except (ValueError, RecursionError) as e:
+        raise InputError(f"{where}: not valid JSON ({str(e)[:80]}); give --overwrite") from None
+    if not isinstance(data, dict):
+        raise InputError(f"{where}: not a JSON object; give --overwrite")
+    return data
+
+
+def _matches(rel: tuple, pattern: str) -> bool:
+    parts = tuple(pattern.split("/"))
+    if parts[-1] == "**":                     # anything below the folder
+        return len(rel) > len(parts) - 1 and all(
+            fnmatch.fnmatchcase(a, b) for a, b in zip(rel, parts[:-1]))
+    return len(rel) == len(parts) and all(fnmatch.fnmatchcase(a, b) for a, b in zip(rel, parts))
+
+
+def owned_files(o: Path, out) -> list[Path]:
+    """The files of the dataset in ``o`` that --overwrite may delete: its state folder and
+    the names its format (recorded in dataset.json) writes. Refused (one line naming the
+    first) when anything else is there, or a symbolic link anywhere."""
+    from lsd3d_usd.datasets.writers import WRITERS
+    rec = read_record(o / STATE / "dataset.json", out)
+    fmt, version = rec.get("format"), rec.get("version")
+    if not isinstance(fmt, str) or not isinstance(version, str) or \
+            not isinstance(rec.get("logs"), list):
+        raise InputError(f"-o {out}: {STATE}/dataset.json is not an lsd3d-usd dataset record "
+                         "(no format, version and logs); refusing to delete anything")
+    try:
+        patterns = [f.format(version=version) for f in getattr(WRITERS.get(fmt), "files", ())]
+    except InputError:
+        patterns = []                         # a writer no longer installed: state only
+    patterns.append(f"{STATE}/**")
+    safepaths.check_tree(o, o, "dataset folder")
+    files = []
+    for dirpath, _, names in os.walk(o):
+        for n in sorted(names):
+            p = Path(dirpath) / n
+            rel = p.relative_to(o).parts
+            if not any(_matches(rel, pat) for pat in patterns):
+                raise InputError(f"-o {out}: --overwrite, but {p} is not a file of the "
+                                 f"{fmt} dataset there; refusing to delete anything (move it "
+                                 "away first)")
+            files.append(p)
+    return files
 
 
 def lidar_of(opt: DatasetOptions):
@@ -143,6 +207,9 @@ def check_settings(opt: DatasetOptions):
         raise InputError(f"--version {opt.version!r}: a folder name like v1.0-lsd3d")
     if opt.width is not None and not 8 <= opt.width <= 8192:
         raise InputError(f"--width {opt.width}: must be within 8 .. 8192")
+    if opt.width is not None:
+        from lsd3d_usd.sensors.rigs import check_rig_width
+        check_rig_width(opt.rig, opt.width, f"--width {opt.width}")
     lidar = lidar_of(opt)
     if lidar is not None and opt.lidar_hz > lidar.rotation_hz + 1e-9:
         raise InputError(f"--lidar-hz {opt.lidar_hz:g} exceeds the LiDAR's rotation rate "
@@ -167,25 +234,34 @@ def prepare(scenes, out, opt: DatasetOptions):
 
 
 def check_resume(state: Path, sig: dict, out) -> None:
-    if (state / "dataset.json").is_file():
-        old = json.loads((state / "dataset.json").read_text())
-        diff = sorted(k for k in set(old) | set(sig) if old.get(k) != sig.get(k))
-        if diff:
-            raise InputError(f"-o {out}: --resume, but the dataset was made with other "
-                             f"settings ({diff[0]}: {old.get(diff[0])!r} there, "
-                             f"{sig.get(diff[0])!r} now)")
+    old = read_record(state / "dataset.json", out)
+    diff = sorted(k for k in set(old) | set(sig) if old.get(k) != sig.get(k))
+    if diff:
+        raise InputError(f"-o {out}: --resume, but the dataset was made with other "
+                         f"settings ({diff[0]}: {old.get(diff[0])!r} there, "
+                         f"{sig.get(diff[0])!r} now)")
 
 
 def start_dataset(root: Path, opt: DatasetOptions, plans) -> None:
-    """Record the settings and the plan (ROOT/.lsd3d/dataset.json); --overwrite empties the
-    folder first, --resume checks the record."""
+    """Record the settings and the plan (ROOT/.lsd3d/dataset.json); --overwrite deletes the
+    previous dataset's own files (nothing else may be there), --resume checks the record."""
     state = root / STATE
     sig = {**opt.signature(), "logs": [p.key for p in plans]}
     if opt.resume:
         check_resume(state, sig, root)
-    if opt.overwrite and root.is_dir():
-        for child in root.iterdir():
-            shutil.rmtree(child) if child.is_dir() and not child.is_symlink() else child.unlink()
+        # temp files of a killed writer (scene.atomic_write_bytes) are no part of the dataset
+        o = root.resolve()
+        for dirpath, _, names in os.walk(o):
+            for n in names:
+                if TMP_NAME.match(n):
+                    safepaths.unlink(Path(dirpath) / n, o, "temp file")
+    if opt.overwrite and root.is_dir() and any(root.iterdir()):
+        o = root.resolve()
+        for f in owned_files(o, root):
+            safepaths.unlink(f, o, "dataset file")
+        for dirpath, _, _ in sorted(os.walk(o), key=lambda w: -len(w[0])):
+            if Path(dirpath) != o and not any(Path(dirpath).iterdir()):
+                Path(dirpath).rmdir()          # emptied above (a folder of ours)
     (state / "logs").mkdir(parents=True, exist_ok=True)
     S.atomic_write_text(state / "dataset.json", json.dumps(sig, indent=1))
 
@@ -203,13 +279,24 @@ class Checkpoints:
         self.bytes_written = 0          # by ``save`` (what the checkpoint benchmark reports)
 
     def load(self):
-        """(next tick, the writer's deltas in order) of the last checkpoint, or None."""
-        if not self.part.is_file():
+        """(next tick, the writer's deltas in order) of the last checkpoint, or None. Every
+        field is checked: a tampered or torn state file is one error line, not a traceback."""
+        if not self.part.is_file() and not self.part.is_symlink():
             return None
-        part = json.loads(self.part.read_text())
+        out = self.part.parents[2]
+        part = read_record(self.part, out)
         if "journal_bytes" not in part:     # a checkpoint of another layout: start again
             return None
-        self.size = int(part["journal_bytes"])
+        size, tick = part["journal_bytes"], part.get("next_tick")
+        for key, v in (("journal_bytes", size), ("next_tick", tick)):
+            if type(v) is not int or v < 0:
+                raise InputError(f"{self.part}: {key} is {v!r}, not a count; give --overwrite")
+        if size > STATE_FILE_BYTES.value:
+            raise InputError(STATE_FILE_BYTES.message(size, f"{self.part}: journal_bytes"))
+        self.size = size
+        if self.journal.is_symlink():       # truncating it would cut its target
+            raise InputError(f"{self.journal}: a symbolic link; refusing to truncate it "
+                             "(give --overwrite)")
         data = self.journal.read_bytes() if self.journal.is_file() else b""
         if len(data) < self.size:
             raise InputError(f"{self.journal}: shorter than its checkpoint "
@@ -217,7 +304,17 @@ class Checkpoints:
         if len(data) > self.size:
             os.truncate(self.journal, self.size)
             data = data[:self.size]
-        return part["next_tick"], [json.loads(ln) for ln in data.splitlines()]
+        deltas = []
+        for n, ln in enumerate(data.splitlines(), 1):
+            try:
+                d = json.loads(ln)
+            except (ValueError, RecursionError):
+                d = None
+            if not isinstance(d, dict):
+                raise InputError(f"{self.journal}: line {n} is not a JSON object; give "
+                                 "--overwrite")
+            deltas.append(d)
+        return tick, deltas
 
     def save(self, next_tick: int, delta: dict) -> None:
         line = (json.dumps(delta) + "\n").encode()
@@ -231,8 +328,9 @@ class Checkpoints:
         self.bytes_written += len(line) + len(part)
 
     def clear(self) -> None:
-        self.part.unlink(missing_ok=True)       # first: without it the journal is not read
-        self.journal.unlink(missing_ok=True)
+        root = self.part.parents[2]
+        safepaths.unlink(self.part, root, "checkpoint")   # first: without it the journal is not read
+        safepaths.unlink(self.journal, root, "journal")
         self.size = 0
 
 
@@ -248,20 +346,33 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
     state = root / STATE
     rec_file = state / "logs" / f"{plan.index:04d}.json"
     if opt.resume and rec_file.is_file():
-        return {"record": json.loads(rec_file.read_text()), "resumed_at": None, "skipped": True}
+        return {"record": read_record(rec_file, root), "resumed_at": None, "skipped": True}
     resumable = hasattr(writer, "checkpoint") and hasattr(writer, "restore")
     cps = Checkpoints(state / "logs", plan.index)
     part = cps.load() if opt.resume and resumable else None
     if part is None:
         cps.clear()                             # a stale journal of a run not resumed
     start = part[0] if part else 0
+    if part:
+        # next_tick follows a keyframe and the journal holds one line per keyframe before it
+        kf = timeline._every(timeline.keyframe_hz)
+        if not (1 <= start <= timeline.n_ticks and (start - 1) % kf == 0
+                and len(part[1]) == (start - 1) // kf + 1):
+            raise InputError(f"{cps.part}: next_tick {start} does not follow a keyframe of "
+                             f"this log's {timeline.n_ticks} ticks with {len(part[1])} journal "
+                             "lines; give --overwrite")
     width = opt.width or load_rig(opt.rig).cameras[0].size[0]
     info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
                           lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
                           exposure=opt.exposure, tonemap=opt.tonemap, deferrer=deferrer,
                           start_tick=start, log=log)
     if part:
-        writer.restore(info, part[1])
+        try:
+            writer.restore(info, part[1])
+        except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
+            # a journal line that parses but is not the writer's delta (tampered)
+            raise InputError(f"{cps.journal}: not a checkpoint of the {opt.format} writer "
+                             f"({type(e).__name__}: {str(e)[:60]}); give --overwrite") from None
     else:
         writer.begin_log(info)
     timing = timing if timing is not None else {}
@@ -293,8 +404,7 @@ def merge(root: Path, opt: DatasetOptions, writer, n_logs: int) -> dict:
     missing = [k for k in range(n_logs) if not (logs / f"{k:04d}.json").is_file()]
     if missing:
         raise InputError(f"{root}: log {missing[0]} is not finished; run again with --resume")
-    return writer.finish([json.loads((logs / f"{k:04d}.json").read_text())
-                          for k in range(n_logs)])
+    return writer.finish([read_record(logs / f"{k:04d}.json", root) for k in range(n_logs)])
 
 
 def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, log=print,
@@ -303,18 +413,21 @@ def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, lo
     ``deferrer_for(scene)``: a views.deferred.Deferrer for --deferred."""
     writer_cls, plans, lidar, timeline = prepare(scenes, out, opt)
     root = Path(out)
-    start_dataset(root, opt, plans)
-    writer = writer_cls(root, opt)
-    timing = {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "boxes_s": 0.0,
-              "write_s": 0.0}
-    done_logs, resumed_at = 0, {}
-    for plan in plans:
-        got = run_log(root, opt, plan, writer, lidar, timeline, progress=progress, log=log,
-                      deferrer=deferrer_for(plan.scene) if deferrer_for else None,
-                      timing=timing)
-        done_logs += got["skipped"]
-        if got["resumed_at"] is not None:
-            resumed_at[plan.index] = got["resumed_at"]
+    logs = root / STATE / "logs"
+    # a run refused before any log or checkpoint was written leaves the folder as it found it
+    with safepaths.removed_on_error(root, keep=lambda: logs.is_dir() and any(logs.iterdir())):
+        start_dataset(root, opt, plans)
+        writer = writer_cls(root, opt)
+        timing = {"render_s": 0.0, "cameras_s": 0.0, "lidar_s": 0.0, "boxes_s": 0.0,
+                  "write_s": 0.0}
+        done_logs, resumed_at = 0, {}
+        for plan in plans:
+            got = run_log(root, opt, plan, writer, lidar, timeline, progress=progress, log=log,
+                          deferrer=deferrer_for(plan.scene) if deferrer_for else None,
+                          timing=timing)
+            done_logs += got["skipped"]
+            if got["resumed_at"] is not None:
+                resumed_at[plan.index] = got["resumed_at"]
     tables = merge(root, opt, writer, len(plans))
     counts = timeline.counts()
     return {"logs": len(plans), "resumed_logs": done_logs, "resumed_at_tick": resumed_at,

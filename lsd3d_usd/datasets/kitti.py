@@ -71,6 +71,8 @@ def _row(M) -> str:
 
 class KittiWriter:
     name = "kitti"
+    files = ("training/image_2/*.png", "training/velodyne/*.bin", "training/label_2/*.txt",
+             "training/calib/*.txt", "ImageSets/*.txt")
     needs_lidar = True
 
     def __init__(self, root: Path, options):

@@ -55,6 +55,7 @@ def _pose(fm, M):
 
 class McapWriter:
     name = "mcap"
+    files = ("*.mcap", ".*.mcap.partial", ".*.mcap.partial.new")
 
     def __init__(self, root: Path, options):
         self.root = Path(root)

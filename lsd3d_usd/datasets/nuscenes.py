@@ -33,6 +33,9 @@ TABLES = ("attribute", "calibrated_sensor", "category", "ego_pose", "instance", 
 
 class NuScenesWriter:
     name = "nuscenes"
+    # what --overwrite may delete (relative to the dataset folder; ``{version}`` filled in)
+    files = ("{version}/*.json", "samples/*/*", "sweeps/*/*", "maps/*.png",
+             "lidarseg/{version}/*.bin")
 
     def __init__(self, root: Path, options):
         self.root = Path(root)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from fractions import Fraction
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import CLIP_SECONDS, FRAMES
 
 MAX_TICK_HZ = 1200
 
@@ -64,6 +65,9 @@ class Timeline:
         if float(self.tick_rate) > MAX_TICK_HZ:
             raise InputError(f"--camera-hz / --lidar-hz / --keyframe-hz: their common tick rate "
                              f"{float(self.tick_rate):g} Hz exceeds {MAX_TICK_HZ} Hz")
+        CLIP_SECONDS.check(self.seconds, "--seconds")
+        FRAMES.check(self.seconds * float(self.tick_rate), "--seconds x the tick rate",
+                     what="ticks of a log")
 
     @property
     def tick_rate(self) -> Fraction:

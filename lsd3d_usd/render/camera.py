@@ -19,6 +19,7 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import check_image_size
 
 # OpenCV camera axes from USD camera axes: flip y and z.
 _CV_FROM_USD = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -184,6 +185,8 @@ def from_usd(prim, time=None, width: int | None = None, height: int | None = Non
         width = max(1, round(height * hA / vA))
     if height is None:
         height = max(1, round(width * vA / hA))
+    # a width alone takes its height from the aperture: the image size is known only here
+    check_image_size(width, height, f"{where}: image")
     fx = f * width / hA
     fy = f * height / vA
     if conform == "horizontal":

@@ -42,7 +42,8 @@ import numpy as np
 
 from lsd3d_usd.configtree import read_toml
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.limits import LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RANGE, LIDAR_RAYS
+from lsd3d_usd.limits import (LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_FILE_BYTES, LIDAR_NAME_CHARS,
+                              LIDAR_RANGE, LIDAR_RAYS)
 from lsd3d_usd.sensors import LIDARS
 from lsd3d_usd.sensors.tables import known_keys, number
 
@@ -209,6 +210,8 @@ def lidar_model(spec: str, where: str = "--lidar", base: Path | None = None) -> 
 
 def read_lidar_file(path, where: str | None = None) -> LidarModel:
     p = Path(path)
+    if p.is_file():             # parsing a large TOML costs ~20x its size in memory
+        LIDAR_FILE_BYTES.check(p.stat().st_size, f"{where} {path}" if where else str(p))
     data = read_toml(p, f"{where} {path}: no such file" if where else f"{p}: no such file")
     table = data.get("lidar", data)
     if not isinstance(table, dict):
@@ -240,7 +243,11 @@ def model_from_table(table: dict, where: str) -> LidarModel:
     if not isinstance(mount, dict) or set(mount) - set(MOUNT_KEYS):
         raise InputError(f"{where}: mount: a table of {', '.join(MOUNT_KEYS)}")
     m = tuple(number(mount, k, f"{where}: mount", 0.0) for k in MOUNT_KEYS)
-    model = LidarModel(str(table.get("name", Path(where).stem)), elev, cols,
+    name = table.get("name", Path(where).stem)
+    if not isinstance(name, str):
+        raise InputError(f"{where}: name: expected a string, got {type(name).__name__}")
+    LIDAR_NAME_CHARS.check(len(name), f"{where}: name")
+    model = LidarModel(name, elev, cols,
                        hfov_deg=number(table, "hfov", where, 360.0),
                        min_range=number(table, "min_range", where, 0.5),
                        max_range=number(table, "max_range", where, 75.0),

@@ -129,3 +129,11 @@ def rig_lidar(rig, lidar: str | None) -> LidarModel | None:
     if lidar in (None, "auto"):
         return load_rig(rig).lidar
     return None if lidar == "none" else lidar_model(lidar)
+
+
+def check_rig_width(rig, width: int, where: str, overview: bool = False) -> None:
+    """Every camera of the rig at ``width`` (heights follow each camera's aspect) within the
+    image-pixel limit, before anything is rendered."""
+    from lsd3d_usd.limits import check_image_size
+    for c in list(load_rig(rig).cameras) + ([OVERVIEW] if overview else []):
+        check_image_size(width, c.height_for(width), f"{where} ({c.name})")

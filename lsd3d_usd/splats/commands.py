@@ -31,7 +31,9 @@ def _read_stage_surfels(path, prim_path=None, time_code=None):
     # local import: not loaded for --help
     from lsd3d_usd.splats.usdio import read_surfels, surfel_prims
 
+    from lsd3d_usd.assetroots import check_scene
     stage = scene.open_stage(path)
+    check_scene(stage, path)        # as render and eval: a scene reads only its own folder
     t = Usd.TimeCode.Default() if time_code is None else Usd.TimeCode(time_code)
     if prim_path:
         prim = stage.GetPrimAtPath(prim_path)

@@ -8,6 +8,8 @@ import sys
 from pathlib import Path
 
 from lsd3d_usd import configtree as ct
+from lsd3d_usd import safepaths
+from lsd3d_usd.cliutil import check_output_folder
 from lsd3d_usd import scene
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.views.deferred import Deferrer
@@ -45,6 +47,7 @@ def _render(args) -> int:
     if got is None:
         return 0
     cfg, explicit = got
+    check_output_folder(args.output, "-o", scene=args.scene)   # before the scene loads
     progress = not args.no_progress and sys.stderr.isatty()
     size = cfg.width_height()
     check_deferred(cfg.deferred, explicit)
@@ -54,11 +57,13 @@ def _render(args) -> int:
         # local import: not loaded for --help
         from lsd3d_usd.views.ground_truth import parse_outputs
         from lsd3d_usd.views.rig import render_rig
-        res = render_rig(args.scene, args.output, cfg.rig, width=size[0] if size else RIG_WIDTH,
-                         use_env=cfg.env, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
-                         outputs=parse_outputs(cfg.outputs),
-                         progress=progress,   # its notes (the default route) on stdout
-                         deferrer=make_deferrer(args.scene, cfg.deferred, log))
+        with safepaths.removed_on_error(args.output):   # a refused run leaves nothing
+            res = render_rig(args.scene, args.output, cfg.rig,
+                             width=size[0] if size else RIG_WIDTH,
+                             use_env=cfg.env, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
+                             outputs=parse_outputs(cfg.outputs),
+                             progress=progress,   # its notes (the default route) on stdout
+                             deferrer=make_deferrer(args.scene, cfg.deferred, log))
         print(res.rig_layer)
         for name, fr in res.frames.items():
             print(f"{name}: {len(fr)} frames" + (f", {res.videos[name]}" if name in res.videos else ""))
@@ -72,6 +77,9 @@ def _render(args) -> int:
             print(f"deferred: prior {d['prior']}, T {d['strength']}, N {d['steps']}, "
                   f"{d.get('s_per_frame', 0):.2f} s/frame")
         return 0
+    if cfg.rig.lidar != "auto":
+        raise InputError(f"--lidar {cfg.rig.lidar}: a LiDAR rides a rig; give --rig too "
+                         "(a single-camera render has none)")
     if not cfg.camera:
         raise InputError("render: give --camera PRIM_PATH, or --rig (driving --route, --trajectory "
                          "or by default the longest drivable route)")
@@ -81,12 +89,13 @@ def _render(args) -> int:
     from lsd3d_usd.views.stage_data import camera_prim
     if cfg.deferred.enabled:   # a wrong camera fails before the prior is loaded
         camera_prim(scene.open_stage(args.scene, load=False), cfg.camera)
-    files = render_preview(args.scene, cfg.camera, args.output,
-                           times=parse_times(cfg.frames, cfg.time), resolution=size,
-                           fmt=cfg.format, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
-                           use_env=cfg.env, sh_degree=cfg.sh_degree, progress=progress,
-                           outputs=parse_outputs(cfg.outputs),
-                           deferrer=make_deferrer(args.scene, cfg.deferred, log))
+    with safepaths.removed_on_error(args.output):       # a refused run leaves nothing
+        files = render_preview(args.scene, cfg.camera, args.output,
+                               times=parse_times(cfg.frames, cfg.time), resolution=size,
+                               fmt=cfg.format, exposure=cfg.exposure, tonemap_method=cfg.tonemap,
+                               use_env=cfg.env, sh_degree=cfg.sh_degree, progress=progress,
+                               outputs=parse_outputs(cfg.outputs),
+                               deferrer=make_deferrer(args.scene, cfg.deferred, log))
     for f in files:
         print(f)
     return 0

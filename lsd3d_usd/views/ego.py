@@ -3,6 +3,7 @@ empty road, or a constant speed) or from a pose list (poses.json), resampled at 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,6 +13,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from lsd3d_usd.actors import traffic as T
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout.routes import constant_speed_route
+from lsd3d_usd.limits import TRAJECTORY_FILE_BYTES
 
 
 @dataclass
@@ -105,12 +107,18 @@ def load_trajectory(path) -> EgoTrack:
     degrees (counter-clockwise from +X, z defaults to 0) or {"t", "matrix"} with a 4x4
     world-from-ego matrix (row-major nested lists, translation in the last column)."""
     p = Path(path)
+    if p.exists() and not p.is_file():
+        raise InputError(f"--trajectory {path}: not a regular file")
+    if p.is_file():
+        TRAJECTORY_FILE_BYTES.check(p.stat().st_size, f"--trajectory {path}")
     try:
         data = json.loads(p.read_text())
     except FileNotFoundError:
         raise InputError(f"--trajectory {path}: no such file") from None
     except (OSError, ValueError) as e:
-        raise InputError(f"--trajectory {path}: not valid JSON ({e})") from None
+        raise InputError(f"--trajectory {path}: not valid JSON ({str(e)[:100]})") from None
+    except RecursionError:
+        raise InputError(f"--trajectory {path}: lists or objects nested too deeply") from None
     poses = data.get("poses") if isinstance(data, dict) else data
     if not isinstance(poses, list) or not poses:
         raise InputError(f"--trajectory {path}: expected a non-empty list of poses (or {{\"poses\": [...]}})")
@@ -121,6 +129,8 @@ def load_trajectory(path) -> EgoTrack:
             raise InputError(f"{where}: needs \"t\" and either x/y/yaw or matrix")
         try:
             t = float(q["t"])
+            if not math.isfinite(t):
+                raise ValueError(f"t must be a finite number, got {q['t']!r}")
             if "matrix" in q:
                 M = np.asarray(q["matrix"], np.float64)
                 if M.shape != (4, 4) or not np.all(np.isfinite(M)):
@@ -133,8 +143,11 @@ def load_trajectory(path) -> EgoTrack:
                 R.append(Rk)
             else:
                 x, y, z = float(q["x"]), float(q["y"]), float(q.get("z", 0.0))
+                yaw = float(q["yaw"])
+                if not all(map(math.isfinite, (x, y, z, yaw))):
+                    raise ValueError("x, y, z and yaw must be finite numbers")
                 P.append(np.array([x, y, z]))
-                R.append(yaw_rotations(np.radians(float(q["yaw"])))[0])
+                R.append(yaw_rotations(np.radians(yaw))[0])
         except (KeyError, TypeError, ValueError) as e:
             raise InputError(f"{where}: {e}") from None
         T.append(t)

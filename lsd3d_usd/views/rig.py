@@ -15,10 +15,11 @@ from pxr import Sdf
 from tqdm import tqdm
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.limits import FRAMES
 from lsd3d_usd.render.camera import from_usd
 from lsd3d_usd.scene import save_layer
 from lsd3d_usd.sensors import rigs as sensor_rigs
-from lsd3d_usd.sensors.rigs import OVERVIEW, load_rig
+from lsd3d_usd.sensors.rigs import OVERVIEW, check_rig_width, load_rig
 from lsd3d_usd.views.boxes import actor_boxes, camera_boxes, local_boxes, write_boxes
 from lsd3d_usd.views.deferred import deferred_name, write_provenance
 from lsd3d_usd.views.frame import render_scene
@@ -78,6 +79,8 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
     fps, seconds, video, stream_radius = rig.fps, rig.seconds, rig.video, rig.stream_radius
     if int(width) < 8:
         raise InputError(f"--resolution: rig frames need a width >= 8, got {width}")
+    check_rig_width(rig_name, width, f"--resolution {width}", overview=rig.overview)
+    FRAMES.check(fps * seconds, "render --rig: --fps x --seconds", what="frames per camera")
     if not stream_radius >= 0:
         raise InputError(f"--stream-radius {stream_radius}: must be >= 0 (0 loads everything)")
     lidar = rig_lidar(rig)
