@@ -11,8 +11,6 @@ from lsd3d_usd.errors import InputError
 
 
 def _check_out(out: Path, scene: Path) -> None:
-    from lsd3d_usd.cliutil import check_output_path
-    check_output_path(out, "-o", what="folder")
     o, sc = out.resolve(), scene.resolve()
     if o == sc or sc in o.parents:
         raise InputError(f"-o {out}: inside the scene folder {scene}; the scene is never written")

@@ -148,10 +148,11 @@ class _Recorder:
         pts, _ = env.route.polyline()
         ax.plot(pts[:, 0], pts[:, 1], color="tab:green", lw=6, alpha=0.35, label="route", zorder=2)
         colours = {"vehicle": "tab:blue", "cyclist": "tab:orange", "pedestrian": "tab:pink"}
-        for aid, path in self.agent_paths.items():
-            p = np.array([q[:2] for q in path], float)
-            ax.plot(p[:, 0], p[:, 1], color=colours.get(path[0][2], "0.4"), lw=0.8, alpha=0.7, zorder=3)
-            ax.plot(p[-1, 0], p[-1, 1], "o", ms=2.5, color=colours.get(path[0][2], "0.4"), zorder=3)
+        for trail in self.agent_paths.values():
+            p = np.array([q[:2] for q in trail], float)
+            c = colours.get(trail[0][2], "0.4")
+            ax.plot(p[:, 0], p[:, 1], color=c, lw=0.8, alpha=0.7, zorder=3)
+            ax.plot(p[-1, 0], p[-1, 1], "o", ms=2.5, color=c, zorder=3)
         ego = np.array(self.ego_path)
         ax.plot(ego[:, 0], ego[:, 1], color="tab:red", lw=2, label="ego", zorder=4)
         ax.plot(ego[0, 0], ego[0, 1], "s", color="tab:red", ms=6, zorder=5)
