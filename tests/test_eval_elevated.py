@@ -8,9 +8,9 @@ import pytest
 from conftest import LAYOUT
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.eval import elevated as E
+from lsd3d_usd.eval import elevated_views as E
 from lsd3d_usd.eval.evaluate import eval_options, evaluate
-from lsd3d_usd.conditioning.views import building_paths, inside_paths
+from lsd3d_usd.conditioning.view_sampling import building_paths, inside_paths
 from lsd3d_usd.layout.usdio import read_layout
 
 

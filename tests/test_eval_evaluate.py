@@ -11,9 +11,9 @@ from conftest import ROOT, SMALL_SCENE
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import models
-from lsd3d_usd.eval import views as V
+from lsd3d_usd.eval import lane_views as V
 from lsd3d_usd.eval.evaluate import eval_options, evaluate
-from lsd3d_usd.conditioning.views import sample_views
+from lsd3d_usd.conditioning.view_sampling import sample_views
 from lsd3d_usd.layout.usdio import read_layout
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"

@@ -17,7 +17,7 @@ from lsd3d_usd import scene as S
 from lsd3d_usd.colour import srgb_encode
 from lsd3d_usd.conditioning.light import scene_light
 from lsd3d_usd.conditioning.scene import Conditioning
-from lsd3d_usd.conditioning.views import sample_views
+from lsd3d_usd.conditioning.view_sampling import sample_views
 from lsd3d_usd.config import generate_config
 from lsd3d_usd.env import build_params
 from lsd3d_usd.errors import InputError
@@ -25,7 +25,7 @@ from lsd3d_usd.eval.evaluate import eval_options, evaluate
 from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
 from lsd3d_usd.ggds.priors.scene import load_scene_prior
 from lsd3d_usd.ggds.regions.plan import Region
-from lsd3d_usd.ggds.regions.views import region_views
+from lsd3d_usd.ggds.regions.region_views import region_views
 from lsd3d_usd.ggds.run.evaluate import field_renderer, heldout_psnr, render_and_target, scaled
 from lsd3d_usd.ggds.run.inputs import GGDSInputs
 from lsd3d_usd.ggds.run.optimisation import GGDSRun
@@ -133,7 +133,7 @@ def quality(layout_path, *, steps=None, surfels=None, resolution=(480, 270), pro
 
 def _heldout(scene_dir: Path, cfg, strip) -> dict:
     """Held-out PSNR of the scene as written (composed stage) at 1× and 2×, the views GGDS
-    held out (a whole-scene region's: regions.views.region_views), and the image strip."""
+    held out (a whole-scene region's: regions.region_views.region_views), and the image strip."""
     sc = S.Scene.open(scene_dir)
     layout, _ = read_layout_for(cfg)
     g = cfg.ggds

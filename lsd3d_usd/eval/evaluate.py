@@ -24,13 +24,13 @@ from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.conditioning.elevated import ELEVATED
-from lsd3d_usd.eval import elevated as E
+from lsd3d_usd.conditioning.elevated_sampling import ELEVATED
+from lsd3d_usd.eval import elevated_views as E
 from lsd3d_usd.eval import geometry as G
 from lsd3d_usd.eval import metrics as M
 from lsd3d_usd.eval import models, report
 from lsd3d_usd.eval import temporal as T
-from lsd3d_usd.eval import views as V
+from lsd3d_usd.eval import lane_views as V
 from lsd3d_usd.eval.options import EvalConfig
 from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
 from lsd3d_usd.eval.render import render_view
