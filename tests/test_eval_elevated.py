@@ -98,7 +98,7 @@ def test_bad_elevated_flags_are_one_error_line(cli_error, small_scene, tmp_path,
 def test_eval_novel_elevated(small_scene, tmp_path):
     res = evaluate(eval_options(small_scene, n_seen=3, per_bin=1, bins=(1.0,), resolution=(64, 36),
                                 frames=2, per_height=2, out_dir=tmp_path / "e", progress=False,
-                                log=lambda *a: None))
+                                log=lambda *a: None)).to_json()
     ne = res["novel_elevated"]
     assert set(ne) == {"5", "15", "30", "overview", "heldout_lane"}
     assert res["heights_m"] == [5.0, 15.0, 30.0] and res["pitch_deg"] == [20.0, 60.0]

@@ -387,7 +387,7 @@ def test_eval_seams_against_the_same_layout_without_chunk_seams(chunked, tmp_pat
         return evaluate(eval_options(scene=scene, out_dir=tmp_path / name, n_seen=3, n_heldout=4,
                                     per_bin=1, bins=(1.0,), resolution=(64, 40), frames=2,
                                     progress=False, log=lambda *a: None, prior_baseline=False,
-                                    seams_reference=ref))
+                                    seams_reference=ref)).to_json()
     res = ev(out, one, "ev")
     vs = res["seams"]["vs_reference"]
     assert vs["scene"] == str(one) and vs["views"] == 4            # the held-out views only

@@ -203,7 +203,7 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
         with tempfile.TemporaryDirectory() as tmp:
             runs.append(evaluate(eval_options(scene=scene_dir, out_dir=Path(tmp), seed=seed,
                                              progress=False, log=lambda *a: None)))
-    fds = [r["fd_effnet_lite0"] for r in runs]
+    fds = [r.distances.to_json() for r in runs]
     bins = list(fds[0]["seen_vs_novel"]["per_bin"])
     scene = {b: [f["seen_vs_novel"]["per_bin"][b]["value"] / f["seen_vs_heldout_lane"]["value"]
                  for f in fds] for b in bins}
@@ -215,7 +215,7 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
            "fd_novel_per_bin": {b: round(fds[0]["seen_vs_novel"]["per_bin"][b]["value"], 2)
                                 for b in bins},
            "fd_content": round(fds[0]["seen_vs_heldout_lane"]["value"], 2),
-           "eval_geometry_seen": runs[0]["geometry"]["seen"]["all"]}
+           "eval_geometry_seen": runs[0].geometry.seen["all"]}
     if all("prior_baseline" in f for f in fds):
         per_seed = {b: [f["prior_baseline"]["prior_novel_over_content"][b] for f in fds]
                     for b in bins}
@@ -225,7 +225,7 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
                                                        for b, v in per_seed.items()}
         out["fd_prior_novel_over_content"] = max(prior.values())
         out["fd_novel_over_prior"] = max(mean[b] / max(prior[b], 1e-12) for b in bins)
-    out.update(_elevated_keys([r.get("novel_elevated") or {} for r in runs]))
+    out.update(_elevated_keys([r.novel_elevated for r in runs]))
     return out
 
 
