@@ -1,4 +1,4 @@
-"""GGDS's elevated views (conditioning.elevated): seeded, at the heights and pitches
+"""GGDS's elevated views (conditioning.elevated_sampling): seeded, at the heights and pitches
 asked, looking at lane points past no building, clipped to a chunk region, a share framing the
 layout; they join a region's training views after the eye-height ones."""
 from dataclasses import replace
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import LAYOUT
-from lsd3d_usd.conditioning.elevated import ELEVATED, Obstacles, sample_elevated_views
-from lsd3d_usd.conditioning.views import inside_paths
+from lsd3d_usd.conditioning.elevated_sampling import ELEVATED, Obstacles, sample_elevated_views
+from lsd3d_usd.conditioning.view_sampling import inside_paths
 from lsd3d_usd.layout.usdio import read_layout
 from test_eval_elevated import _pitch
 
@@ -78,7 +78,7 @@ def test_a_share_frames_the_layout_and_none_in_a_chunk_region(layout):
 def test_with_elevated_train_they_join_the_training_views_held_out_views_stay_at_eye_height(
         layout):
     from lsd3d_usd.ggds.regions.plan import Region
-    from lsd3d_usd.ggds.regions.views import region_views
+    from lsd3d_usd.ggds.regions.region_views import region_views
     from lsd3d_usd.ggds.settings import GGDSConfig
     g = GGDSConfig(resolution=(48, 32), views=32, elevated_train=True)
     whole = Region(((0, 0),), "")
@@ -92,7 +92,7 @@ def test_with_elevated_train_they_join_the_training_views_held_out_views_stay_at
 
 def test_without_elevated_train_the_colour_start_fits_to_the_same_views(layout):
     from lsd3d_usd.ggds.regions.plan import Region
-    from lsd3d_usd.ggds.regions.views import region_fit_views, region_views
+    from lsd3d_usd.ggds.regions.region_views import region_fit_views, region_views
     from lsd3d_usd.ggds.settings import GGDSConfig
     g = GGDSConfig(resolution=(48, 32), views=32, world_init_views=0.5, elevated_train=True)
     whole = Region(((0, 0),), "")

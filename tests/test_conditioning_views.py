@@ -1,4 +1,4 @@
-"""Training views placed off the lanes (conditioning/views.py) against eval's novel views."""
+"""Training views placed off the lanes (conditioning/view_sampling.py) against eval's novel views."""
 
 import numpy as np
 import pytest
@@ -6,7 +6,7 @@ import pytest
 
 # ------------------------------------------------------------------ off-lane training views
 def test_displaced_views_cover_eval_novel_positions_in_the_given_proportion():
-    from lsd3d_usd.conditioning.views import sample_views
+    from lsd3d_usd.conditioning.view_sampling import sample_views
     from lsd3d_usd.layout.model import Building, LaneCenter, Layout
     lay = Layout(lanes=[LaneCenter(id="l0", points=[[0, 0, 0], [60, 0, 0]])],
                  buildings=[Building(id="b0", footprint=np.array(

@@ -8,9 +8,9 @@ import pytest
 from conftest import LAYOUT
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.eval import elevated as E
+from lsd3d_usd.eval import elevated_views as E
 from lsd3d_usd.eval.evaluate import eval_options, evaluate
-from lsd3d_usd.conditioning.views import building_paths, inside_paths
+from lsd3d_usd.conditioning.view_sampling import building_paths, inside_paths
 from lsd3d_usd.layout.usdio import read_layout
 
 
@@ -98,7 +98,7 @@ def test_bad_elevated_flags_are_one_error_line(cli_error, small_scene, tmp_path,
 def test_eval_novel_elevated(small_scene, tmp_path):
     res = evaluate(eval_options(small_scene, n_seen=3, per_bin=1, bins=(1.0,), resolution=(64, 36),
                                 frames=2, per_height=2, out_dir=tmp_path / "e", progress=False,
-                                log=lambda *a: None))
+                                log=lambda *a: None)).to_json()
     ne = res["novel_elevated"]
     assert set(ne) == {"5", "15", "30", "overview", "heldout_lane"}
     assert res["heights_m"] == [5.0, 15.0, 30.0] and res["pitch_deg"] == [20.0, 60.0]

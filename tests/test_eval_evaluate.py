@@ -11,9 +11,9 @@ from conftest import ROOT, SMALL_SCENE
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import models
-from lsd3d_usd.eval import views as V
+from lsd3d_usd.eval import lane_views as V
 from lsd3d_usd.eval.evaluate import eval_options, evaluate
-from lsd3d_usd.conditioning.views import sample_views
+from lsd3d_usd.conditioning.view_sampling import sample_views
 from lsd3d_usd.layout.usdio import read_layout
 
 LAYOUT = ROOT / "samples" / "layouts" / "hand_crossing.usda"
@@ -47,7 +47,7 @@ def test_eval_end_to_end(small_scene, tmp_path):
     weights = tmp_path / "weights"
     weights.mkdir()
     (weights / "dinov2_vits14_pretrain.pth").write_bytes(b"not really weights")
-    res = evaluate(_opts(small_scene, reference=ref, weights=weights))
+    res = evaluate(_opts(small_scene, reference=ref, weights=weights)).to_json()
 
     runs = S.Scene.open(small_scene).runs()
     assert res["run"] == runs[0].name and "training cameras" in res["seen_views_source"]
@@ -110,7 +110,7 @@ def test_scene_without_ggds_run_uses_sampled_views(small_scene, tmp_path):
     want = sample_views(layout, V.GGDS_N_VIEWS, 64, 48, seed=seed, novel_frac=V.GGDS_NOVEL_FRAC,
                         fov_deg=V.GGDS_FOV_DEG)
     assert all(np.array_equal(a.camera.pose, b.camera.pose) for a, b in zip(seen.views, want))
-    res = evaluate(_opts(copy, bins=(1.0,), per_bin=1, frames=2, n_seen=2, n_heldout=0))
+    res = evaluate(_opts(copy, bins=(1.0,), per_bin=1, frames=2, n_seen=2, n_heldout=0)).to_json()
     assert res["run"] is None and "no GGDS run" in res["seen_views_source"]
     assert "seen_vs_heldout_lane" not in res["fd_effnet_lite0"] and res["counts"]["heldout_lane"] == 0
     assert "loss.png" not in res["files"] and "fd_effnet_lite0" in res
@@ -126,9 +126,9 @@ def test_prior_baseline_measures_the_views_not_the_scene(small_scene, tmp_path):
     shutil.copytree(small_scene, copy, ignore=shutil.ignore_patterns("eval"))
     sc = S.Scene.open(copy)
     run = sc.runs()[0].name
-    after = evaluate(_opts(copy, out_dir=tmp_path / "a"))
+    after = evaluate(_opts(copy, out_dir=tmp_path / "a")).to_json()
     sc.mute(run)
-    before = evaluate(_opts(copy, run=run, out_dir=tmp_path / "b"))
+    before = evaluate(_opts(copy, run=run, out_dir=tmp_path / "b")).to_json()
     pa, pb = (r["fd_effnet_lite0"]["prior_baseline"] for r in (after, before))
     assert pa["prior"] == pb["prior"] == "procedural"
     # the muted run's own recorded prior, not a default
@@ -159,7 +159,7 @@ def test_prior_baseline_skipped_with_a_reason(small_scene, tmp_path, monkeypatch
     monkeypatch.setattr("lsd3d_usd.ggds.priors.scene.recorded_prior_name", lambda p, run: "diffusers")
     base, why = open_baseline(small_scene, None, 3, None)
     assert base is None and "'diffusers' is slow on the CPU" in why and "--prior-baseline" in why
-    res = evaluate(_opts(small_scene, out_dir=tmp_path / "e", bins=(1.0,), per_bin=1, frames=2))
+    res = evaluate(_opts(small_scene, out_dir=tmp_path / "e", bins=(1.0,), per_bin=1, frames=2)).to_json()
     assert "prior_baseline" not in res["fd_effnet_lite0"]
     assert {"metric": "fd_effnet_lite0.prior_baseline", "reason": why} in res["unavailable"]
 

@@ -7,8 +7,8 @@ from conftest import ROOT
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval import geometry as G
 from lsd3d_usd.eval import temporal as T
-from lsd3d_usd.eval import views as V
-from lsd3d_usd.conditioning.views import building_paths, inside_paths, sample_views
+from lsd3d_usd.eval import lane_views as V
+from lsd3d_usd.conditioning.view_sampling import building_paths, inside_paths, sample_views
 from lsd3d_usd.layout.usdio import read_layout
 from lsd3d_usd.render.camera import Camera, look_at
 from lsd3d_usd.render.gbuffer import render_gbuffer

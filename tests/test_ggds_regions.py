@@ -191,7 +191,7 @@ def test_cameras_layer_holds_every_regions_training_views(chunked):
     """Chunk mode: /World/Cameras/Train are the views sampled for each region, in
     region-name order, each naming its region; what a region trained on (views.json) is,
     in the same order, those of them that see its surfels."""
-    from lsd3d_usd.conditioning.views import View
+    from lsd3d_usd.conditioning.view_sampling import View
     from lsd3d_usd.ggds.run.store import run_views
     from lsd3d_usd.render.camera import from_usd
     out, summary = chunked
@@ -216,7 +216,7 @@ def test_cameras_layer_holds_every_regions_training_views(chunked):
 
 
 def test_views_seeing_keeps_the_views_a_region_is_in():
-    from lsd3d_usd.conditioning.views import View
+    from lsd3d_usd.conditioning.view_sampling import View
     from lsd3d_usd.conditioning.visibility import views_seeing
     from lsd3d_usd.render.camera import Camera, look_at
     pts = np.random.default_rng(0).uniform([0, 0, 0], [10, 10, 2], (50_000, 3))
@@ -233,7 +233,7 @@ def test_views_seeing_keeps_the_views_a_region_is_in():
 
 def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     from lsd3d_usd.ggds.settings import GGDSConfig
-    from lsd3d_usd.ggds.regions.views import region_fit_views
+    from lsd3d_usd.ggds.regions.region_views import region_fit_views
     from lsd3d_usd.layout.usdio import read_layout
     from dataclasses import replace
     layout = read_layout(LAYOUT)
@@ -284,7 +284,7 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
 
 def test_a_region_also_trains_on_its_neighbours_views_near_it():
     from lsd3d_usd.ggds.settings import GGDSConfig
-    from lsd3d_usd.ggds.regions.views import neighbour_views, region_views
+    from lsd3d_usd.ggds.regions.region_views import neighbour_views, region_views
     from lsd3d_usd.layout.usdio import read_layout
     from dataclasses import replace
     layout = read_layout(LAYOUT)
@@ -316,7 +316,7 @@ def test_eval_measures_seams_of_a_chunked_scene(chunked):
     from lsd3d_usd.eval.evaluate import render_view
     from lsd3d_usd.eval.report import _seams_html
     from lsd3d_usd.eval.seams_eval import measure_seams, pooled_psnr, view_errors
-    from lsd3d_usd.conditioning.views import sample_views
+    from lsd3d_usd.conditioning.view_sampling import sample_views
     from lsd3d_usd.layout.usdio import read_layout
     from lsd3d_usd.proxy.usdio import proxy_arrays
     from lsd3d_usd.views.stage_data import SceneReader
@@ -357,7 +357,7 @@ def test_eval_measures_seams_of_a_chunked_scene(chunked):
 
 
 def test_lane_length_inside_a_box():
-    from lsd3d_usd.conditioning.views import lane_length_inside
+    from lsd3d_usd.conditioning.view_sampling import lane_length_inside
     from lsd3d_usd.layout.model import LaneCenter, Layout
     layout = Layout(lanes=[LaneCenter(id="l0", points=[[2, -1.5, 0], [38, -1.5, 0]]),
                            LaneCenter(id="l1", points=[[10, -20, 0], [10, 20, 0]])])
@@ -365,7 +365,7 @@ def test_lane_length_inside_a_box():
     # outside, so sample_views(region=box, clip=True) never stands on it
     box = (0, -5, 20, 5)
     assert lane_length_inside(layout, box) == pytest.approx(18, abs=0.6)
-    from lsd3d_usd.conditioning.views import sample_views
+    from lsd3d_usd.conditioning.view_sampling import sample_views
     assert {v.lane_id for v in sample_views(layout, 50, 32, 24, seed=1, region=box,
                                             clip=True)} == {"l0"}
     assert lane_length_inside(layout, (100, 100, 200, 200)) == 0.0
@@ -387,7 +387,7 @@ def test_eval_seams_against_the_same_layout_without_chunk_seams(chunked, tmp_pat
         return evaluate(eval_options(scene=scene, out_dir=tmp_path / name, n_seen=3, n_heldout=4,
                                     per_bin=1, bins=(1.0,), resolution=(64, 40), frames=2,
                                     progress=False, log=lambda *a: None, prior_baseline=False,
-                                    seams_reference=ref))
+                                    seams_reference=ref)).to_json()
     res = ev(out, one, "ev")
     vs = res["seams"]["vs_reference"]
     assert vs["scene"] == str(one) and vs["views"] == 4            # the held-out views only

@@ -6,7 +6,7 @@ import torch
 
 from lsd3d_usd.ggds.optim import params as P
 from lsd3d_usd.ggds.optim.adam import SelectiveAdam
-from lsd3d_usd.conditioning.views import View, sample_views
+from lsd3d_usd.conditioning.view_sampling import View, sample_views
 from lsd3d_usd.ggds.priors.base import Prior
 from lsd3d_usd.ggds.settings import GGDSConfig, StrategyConfig
 from lsd3d_usd.conditioning.scene import Conditioning

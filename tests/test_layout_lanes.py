@@ -28,7 +28,7 @@ def test_drivable_is_one_definition():
     assert [ln.id for ln in L.drivable_lanes()] == [f"{t}_lane" for t in m.DRIVABLE_TYPES]
     # every consumer sees the same lanes: traffic, GGDS cameras, surfel density
     from lsd3d_usd.layout.routes import LaneGraph
-    from lsd3d_usd.conditioning.views import sample_views
+    from lsd3d_usd.conditioning.view_sampling import sample_views
     from lsd3d_usd.splats.importance import lane_samples
     assert LaneGraph(L).ids == [ln.id for ln in L.drivable_lanes()]
     assert {v.lane_id for v in sample_views(L, 40, 32, 24, seed=3)} <= set(LaneGraph(L).ids)

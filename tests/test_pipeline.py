@@ -156,7 +156,7 @@ def test_generated_scene_has_cameras_to_look_through(tmp_path, capsys):
     from pxr import UsdGeom
 
     from lsd3d_usd.cli import main
-    from lsd3d_usd.conditioning.views import View
+    from lsd3d_usd.conditioning.view_sampling import View
     from lsd3d_usd.render.camera import from_usd
     out = tmp_path / "scene"
     summary = generate(opts(out, steps=2, **{"ggds.held_out": 2}))

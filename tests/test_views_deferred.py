@@ -363,7 +363,7 @@ def test_eval_deferred(small_scene, tmp_path):
     from lsd3d_usd.eval.evaluate import eval_options, evaluate
     res = evaluate(eval_options(scene=small_scene, out_dir=tmp_path / "ev", n_seen=3, per_bin=2,
                                bins=(0.5, 4.0), resolution=(64, 48), frames=4, progress=False,
-                               log=lambda *a: None, deferred={"enabled": True, "strength": 0.3}))
+                               log=lambda *a: None, deferred={"enabled": True, "strength": 0.3})).to_json()
     d = res["deferred"]
     assert (d["prior"], d["strength"], d["steps"]) == ("procedural", 0.3, D.DEFAULT_STEPS)
     fd = d["fd_effnet_lite0"]

@@ -83,7 +83,7 @@ def main(argv=None):
 
     import lsd3d_usd  # noqa: F401  (schema registration; torch first as in the CLI)
     from lsd3d_usd.conditioning.scene import Conditioning
-    from lsd3d_usd.conditioning.views import sample_views
+    from lsd3d_usd.conditioning.view_sampling import sample_views
     from lsd3d_usd.ggds.priors.base import Prior
     from lsd3d_usd.ggds.run import step as step_mod
     from lsd3d_usd.ggds.run.inputs import GGDSInputs

@@ -17,7 +17,7 @@ from lsd3d_usd import scene as S
 from lsd3d_usd.colour import srgb_encode
 from lsd3d_usd.conditioning.light import scene_light
 from lsd3d_usd.conditioning.scene import Conditioning
-from lsd3d_usd.conditioning.views import sample_views
+from lsd3d_usd.conditioning.view_sampling import sample_views
 from lsd3d_usd.config import generate_config
 from lsd3d_usd.env import build_params
 from lsd3d_usd.errors import InputError
@@ -25,7 +25,7 @@ from lsd3d_usd.eval.evaluate import eval_options, evaluate
 from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
 from lsd3d_usd.ggds.priors.scene import load_scene_prior
 from lsd3d_usd.ggds.regions.plan import Region
-from lsd3d_usd.ggds.regions.views import region_views
+from lsd3d_usd.ggds.regions.region_views import region_views
 from lsd3d_usd.ggds.run.evaluate import field_renderer, heldout_psnr, render_and_target, scaled
 from lsd3d_usd.ggds.run.inputs import GGDSInputs
 from lsd3d_usd.ggds.run.optimisation import GGDSRun
@@ -133,7 +133,7 @@ def quality(layout_path, *, steps=None, surfels=None, resolution=(480, 270), pro
 
 def _heldout(scene_dir: Path, cfg, strip) -> dict:
     """Held-out PSNR of the scene as written (composed stage) at 1× and 2×, the views GGDS
-    held out (a whole-scene region's: regions.views.region_views), and the image strip."""
+    held out (a whole-scene region's: regions.region_views.region_views), and the image strip."""
     sc = S.Scene.open(scene_dir)
     layout, _ = read_layout_for(cfg)
     g = cfg.ggds
@@ -203,7 +203,7 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
         with tempfile.TemporaryDirectory() as tmp:
             runs.append(evaluate(eval_options(scene=scene_dir, out_dir=Path(tmp), seed=seed,
                                              progress=False, log=lambda *a: None)))
-    fds = [r["fd_effnet_lite0"] for r in runs]
+    fds = [r.distances.to_json() for r in runs]
     bins = list(fds[0]["seen_vs_novel"]["per_bin"])
     scene = {b: [f["seen_vs_novel"]["per_bin"][b]["value"] / f["seen_vs_heldout_lane"]["value"]
                  for f in fds] for b in bins}
@@ -215,7 +215,7 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
            "fd_novel_per_bin": {b: round(fds[0]["seen_vs_novel"]["per_bin"][b]["value"], 2)
                                 for b in bins},
            "fd_content": round(fds[0]["seen_vs_heldout_lane"]["value"], 2),
-           "eval_geometry_seen": runs[0]["geometry"]["seen"]["all"]}
+           "eval_geometry_seen": runs[0].geometry.seen["all"]}
     if all("prior_baseline" in f for f in fds):
         per_seed = {b: [f["prior_baseline"]["prior_novel_over_content"][b] for f in fds]
                     for b in bins}
@@ -225,7 +225,7 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
                                                        for b, v in per_seed.items()}
         out["fd_prior_novel_over_content"] = max(prior.values())
         out["fd_novel_over_prior"] = max(mean[b] / max(prior[b], 1e-12) for b in bins)
-    out.update(_elevated_keys([r.get("novel_elevated") or {} for r in runs]))
+    out.update(_elevated_keys([r.novel_elevated for r in runs]))
     return out
 
 

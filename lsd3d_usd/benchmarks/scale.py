@@ -25,7 +25,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.conditioning.views import sample_views
+from lsd3d_usd.conditioning.view_sampling import sample_views
 from lsd3d_usd.eval.render import render_view
 from lsd3d_usd.eval.seams import paired_matched_drop
 from lsd3d_usd.eval.seams_eval import pooled_psnr, seam_stats, view_errors

@@ -162,7 +162,7 @@ def pick_views(points: np.ndarray, cameras, k: int, rng: np.random.Generator, *,
 
 
 def views_seeing(views: list, positions: np.ndarray, sample: int = 20_000) -> list:
-    """The views (conditioning.views.View) that have at least one of ``positions`` (N,3) in view
+    """The views (conditioning.view_sampling.View) that have at least one of ``positions`` (N,3) in view
     (``project``'s frustum test); up to ``sample`` evenly spaced points are tested. A region's
     views that see none of its surfels would give them no gradient: a step there, its
     G-buffer and its prior target are wasted (a region of a few hundred surfels on a building

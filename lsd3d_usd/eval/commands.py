@@ -28,46 +28,47 @@ def _eval(args) -> int:
     if args.json:
         # local import: not loaded for --help
         from lsd3d_usd.eval.report import write_json
-        write_json(Path(args.json), res)
-    fd = res["fd_effnet_lite0"]["seen_vs_novel"]
-    per = ", ".join(f"{b} m {v['value']:.1f}" for b, v in fd["per_bin"].items())
-    g = res["geometry"]["seen"]["all"]
-    print(f"fd_effnet_lite0 seen vs novel: {fd['overall']['value']:.2f} (per bin: {per})")
-    if "seen_vs_heldout_lane" in res["fd_effnet_lite0"]:
+        write_json(Path(args.json), res.to_json())
+    fds = res.distances
+    fd = fds.seen_vs_novel
+    per = ", ".join(f"{b} m {v['value']:.1f}" for b, v in fd.per_bin.items())
+    g = res.geometry.seen["all"]
+    print(f"fd_effnet_lite0 seen vs novel: {fd.overall['value']:.2f} (per bin: {per})")
+    if fds.seen_vs_heldout_lane is not None:
         print(f"fd_effnet_lite0 seen vs other on-lane views: "
-              f"{res['fd_effnet_lite0']['seen_vs_heldout_lane']['value']:.2f}")
-    if "prior_baseline" in res["fd_effnet_lite0"]:
-        pb = res["fd_effnet_lite0"]["prior_baseline"]
+              f"{fds.seen_vs_heldout_lane['value']:.2f}")
+    if fds.prior_baseline is not None:
+        pb = fds.prior_baseline
         rows = ", ".join(f"{b} m {pb['scene_novel_over_content'][b]:.2f} / {v:.2f}"
                          for b, v in pb["prior_novel_over_content"].items())
         print(f"fd_effnet_lite0 novel over content change, scene / the prior's own images: {rows}")
-    _print_elevated(res.get("novel_elevated") or {})
-    if "vs_reference" in res["fd_effnet_lite0"]:
-        r = res["fd_effnet_lite0"]["vs_reference"]
+    _print_elevated(res.novel_elevated)
+    if fds.vs_reference is not None:
+        r = fds.vs_reference
         print(f"fd_effnet_lite0 vs reference: seen {r['seen']['value']:.2f}, novel {r['novel']['value']:.2f}")
-    mv, t = res["multiview_depth_err"], res["temporal_warp_err"]
+    mv, t = res.multiview, res.temporal
     print(f"geometry (seen): depth err median {_pct(g['depth_rel_err_median'])}, normal err median "
           f"{g['normal_err_deg_median']} deg, coverage {_pct(g['coverage'])}")
-    print(f"multi-view depth err median {_pct(mv['median'])}; temporal warp err {t['warp_err']} "
+    print(f"multi-view depth err median {_pct(mv.median)}; temporal warp err {t['warp_err']} "
           f"(naive {t['naive_err']})")
-    if "deferred" in res:
-        d = res["deferred"]
-        dfd, td = d["fd_effnet_lite0"], d["temporal_warp_err"]
+    if res.deferred is not None:
+        dr = res.deferred
+        d, td = dr.provenance, dr.temporal
         print(f"deferred (prior {d['prior']}, T {d['strength']}, N {d['steps']}, "
               f"{d.get('s_per_frame', 0):.3f} s/frame): fd seen vs novel "
-              f"{dfd['seen_vs_novel']['overall']['value']:.2f}; fd vs the prior's images raw "
-              f"{dfd['vs_prior_target']['raw']['value']:.2f} -> deferred "
-              f"{dfd['vs_prior_target']['deferred']['value']:.2f}; temporal warp err raw "
+              f"{dr.seen_vs_novel.overall['value']:.2f}; fd vs the prior's images raw "
+              f"{dr.vs_prior_raw['value']:.2f} -> deferred "
+              f"{dr.vs_prior_deferred['value']:.2f}; temporal warp err raw "
               f"{t['warp_err']} -> deferred {td['warp_err']}")
-    vs = (res.get("seams") or {}).get("vs_reference")
+    vs = (res.seams or {}).get("vs_reference")
     if vs and vs.get("difference_db") is not None:
         print(f"seams: matched drop {vs['scene_db']} dB, the reference {vs['reference_db']} dB: "
               f"chunk-wise adds {vs['difference_db']} dB (95 % interval {vs['ci95_db']})")
-    for u in res["unavailable"]:
+    for u in res.unavailable:
         print(f"{u['metric']}: unavailable: {u['reason']}")
-    for w in res["warnings"]:
+    for w in res.warnings:
         print(f"warning: {w}", file=sys.stderr)
-    print(f"report: {res['files']['html']}")
+    print(f"report: {res.files['html']}")
     if args.json:
         print(f"json: {args.json}")
     return 0

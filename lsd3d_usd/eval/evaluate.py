@@ -1,6 +1,6 @@
 """`evaluate`: render seen / novel / trajectory views of a scene's composed stage and measure
 image-feature Fréchet distances, geometry agreement with the proxy, multi-view and temporal
-consistency. Writes SCENE/eval/ (report.html, PNGs, eval.json); returns the JSON dict.
+consistency. Writes SCENE/eval/ (report.html, PNGs, eval.json); returns an eval.result.EvalResult.
 
 Rendering: every unmuted layer of the scene composed (initial surfels + GGDS overs), the
 scene's visible ParticleField prims (views.stage_data.scene_surfels: actors are left out, eval
@@ -24,16 +24,18 @@ from lsd3d_usd.assetroots import check_scene
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.conditioning.elevated import ELEVATED
-from lsd3d_usd.eval import elevated as E
+from lsd3d_usd.conditioning.elevated_sampling import ELEVATED
+from lsd3d_usd.eval import elevated_views as E
 from lsd3d_usd.eval import geometry as G
 from lsd3d_usd.eval import metrics as M
 from lsd3d_usd.eval import models, report
 from lsd3d_usd.eval import temporal as T
-from lsd3d_usd.eval import views as V
+from lsd3d_usd.eval import lane_views as V
 from lsd3d_usd.eval.options import EvalConfig
 from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
 from lsd3d_usd.eval.render import render_view
+from lsd3d_usd.eval.result import (Counts, DeferredResult, Distances, EvalResult, Geometry,
+                                   MultiviewDepth, SeenVsNovel)
 from lsd3d_usd.eval.seams import paired_matched_drop
 from lsd3d_usd.eval.seams_eval import (pooled_psnr, reference_frames, seam_stats,
                                        seams_reference, view_errors)
@@ -119,13 +121,118 @@ def display(rgb: np.ndarray, tonemap: str, exposure: float) -> np.ndarray:
     return srgb_encode(tm(rgb, exposure, tonemap)).astype(np.float32)
 
 
-def _bar(total, desc, o: EvalOptions):
-    return tqdm(total=total, desc=desc, unit="view", disable=not o.progress)
-
-
 # ------------------------------------------------------------------ the driver
-def evaluate(o: EvalOptions) -> dict:
+def evaluate(o: EvalOptions) -> EvalResult:
+    """Render every view family, measure it, write the report and eval.json (its
+    ``to_json()``); the families are rendered in a fixed order (seen, novel, held-out,
+    elevated, trajectory) because the deferrer draws its noise in call order."""
     t_start = time.perf_counter()
+    timings = {}
+    t = time.perf_counter()
+    inp = _load(o)
+    timings["load_s"] = time.perf_counter() - t
+    w, h = o.cfg.resolution
+    o.log(f"eval: {inp.surfels.n:,} surfels; seen: {inp.seen.source}; {len(inp.seen_sel)} seen + "
+          f"{len(inp.novel)} novel views ({len(o.cfg.bin_values())} bins) + {len(inp.elev)} elevated "
+          f"views + {len(inp.traj)} trajectory frames at {w}x{h}")
+
+    t = time.perf_counter()
+    bar = tqdm(total=len(inp.seen_sel) + len(inp.novel) + len(inp.heldout) + len(inp.elev)
+               + len(inp.traj), desc="eval render", unit="view", disable=not o.progress)
+    dfr = DeferredImages()
+    r = Renders()
+    _render_seen(inp, o, r, dfr, bar)
+    _render_novel(inp, o, r, dfr, bar)
+    _render_heldout(inp, o, r, bar)
+    _render_elevated(inp, o, r, bar)
+    timings["render_seen_novel_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    temporal = _render_trajectory(inp, o, r, dfr, bar)
+    bar.close()
+    timings["render_trajectory_s"] = time.perf_counter() - t
+    if inp.deferrer is not None:
+        timings["deferred_s"] = dfr.seconds
+    if inp.base is not None:
+        timings["prior_baseline_s"] = inp.base.seconds
+
+    t = time.perf_counter()
+    fds = _distances(inp, o, r, dfr)
+    timings["features_fd_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    novel_elevated, psnr_why = _elevated_family(inp, r, fds)
+    timings["elevated_psnr_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    seams, why, ref_why = _seams(inp, o, r)
+    timings["seams_s"] = time.perf_counter() - t
+
+    unavailable = models.status(inp.weights)
+    if inp.ref_imgs is None:
+        unavailable.insert(0, {"metric": "fd_effnet_lite0.vs_reference",
+                               "reason": "no --reference DIR of images given"})
+    for metric, reason in (("seams", why), ("seams.vs_reference", ref_why),
+                           ("novel_elevated.psnr_db", psnr_why),
+                           ("fd_effnet_lite0.prior_baseline", inp.base_why)):
+        if reason:
+            unavailable.append({"metric": metric, "reason": reason})
+    timings["total_s"] = time.perf_counter() - t_start
+    sc, cfg, elev = inp.sc, o.cfg, inp.elev
+    result = EvalResult(
+        scene=str(sc.root), run=inp.seen.run, seen_views_source=inp.seen.source,
+        composed_layers=[li.name for li in sc.layers() if not li.muted and li.exists],
+        surfels=int(inp.surfels.n), resolution=[w, h], tonemap=cfg.tonemap, seed=cfg.seed,
+        bins_m=[float(b) for b in cfg.bin_values()],
+        heights_m=[float(x) for x in cfg.height_values()],
+        pitch_deg=[float(x) for x in cfg.pitch_range()],
+        counts=Counts(train_views=len(inp.seen.views), seen=len(inp.seen_sel), novel=len(inp.novel),
+                      novel_per_bin=cfg.per_bin, heldout_lane=len(inp.heldout),
+                      trajectory_frames=len(inp.traj), reference=fds.n_ref, elevated=len(elev),
+                      elevated_per_height=cfg.per_height,
+                      overview=sum(ev.group == E.OVERVIEW for ev in elev)),
+        novel_views={f"{b:g}": _bin_stats([nv for nv in inp.novel if nv.bin_m == b])
+                     for b in cfg.bin_values()},
+        novel_elevated=novel_elevated, distances=fds.distances,
+        geometry=Geometry(seen=r.agree["seen"].result(), novel=r.agree["novel"].result()),
+        multiview=_multiview(cfg.bin_values(), r), seams=seams, temporal=temporal,
+        deferred=fds.deferred, unavailable=unavailable, warnings=fds.warnings,
+        timings={k: round(v, 2) for k, v in timings.items()})
+    t = time.perf_counter()
+    files = report.write_report(inp.out_dir, result, sc, r.seen_img, r.novel_img, inp.novel,
+                                r.traj_img, seen_frames=r.seen_frames, seen_gb=r.seen_gb,
+                                deferred=dfr if inp.deferrer is not None else None,
+                                elevated=(elev, r.elev_img))
+    result.timings["report_s"] = round(time.perf_counter() - t, 2)
+    result.files = {k: str(v) for k, v in files.items()}
+    report.write_json(inp.out_dir / "eval.json", result.to_json())
+    return result
+
+
+@dataclass
+class Inputs:
+    """The scene as eval reads it and every camera it renders, placed before any rendering."""
+    sc: S.Scene
+    weights: object
+    ref_imgs: list | None
+    out_dir: Path
+    deferrer: object
+    base: object                 # eval.prior_baseline's collector, or None
+    base_why: str | None
+    stage: object
+    surfels: object
+    env: object
+    layout: object
+    proxy: tuple                 # (PV, PF, PC)
+    seen: V.SeenSet
+    seen_sel: list
+    novel: list
+    heldout: list
+    elev: list
+    traj: list
+    traj_info: dict
+    seams_ref: tuple | None
+
+
+def _load(o: EvalOptions) -> Inputs:
+    """Everything that can fail on bad input, before anything is rendered or written."""
     _check(o.cfg)
     sc = S.Scene.open(o.scene)
     weights = models.check_weights_dir(o.cfg.weights)
@@ -142,9 +249,6 @@ def evaluate(o: EvalOptions) -> dict:
     n_held = o.cfg.n_seen if o.cfg.n_heldout is None else o.cfg.n_heldout
     base, base_why = open_baseline(o.scene, o.cfg.prior_baseline, n_held,
                                    lambda rgb: display(rgb, o.cfg.tonemap, o.cfg.exposure), o.cfg.run)
-
-    timings = {}
-    t = time.perf_counter()
     stage = sc.open_stage()
     check_scene(stage, sc.root)
     surfels = scene_surfels(stage)
@@ -152,7 +256,7 @@ def evaluate(o: EvalOptions) -> dict:
         raise InputError(f"{sc.root}: no surfels to render (no visible ParticleField prim)")
     env = read_dome(stage)
     layout = read_layout(layout_path)
-    PV, PF, PC = proxy_arrays(sc.layer_path("proxy"))
+    proxy = proxy_arrays(sc.layer_path("proxy"))
     w, h = o.cfg.resolution
     seen = V.seen_views(sc, layout, o.cfg.run, w, h)
     # the seen family (and the novel and held-out views placed from it) are the views GGDS
@@ -160,12 +264,11 @@ def evaluate(o: EvalOptions) -> dict:
     # training cameras for every family's nearest-camera distance. Views the colour start
     # alone fitted to are not recorded in the run, so they count for none.
     ground = [v for v in seen.views if v.kind != ELEVATED]
-    pick = V.pick(len(ground), o.cfg.n_seen, o.cfg.seed)
-    seen_sel = [ground[i] for i in pick]
-    novel = V.novel_views(seen_sel, o.cfg.bin_values(), o.cfg.per_bin, o.cfg.seed + 1, layout,
-                          train_centres=[v.camera.center for v in seen.views])
-    heldout = V.heldout_lane_views(layout, n_held, w, h, o.cfg.seed, seen_sel)
+    seen_sel = [ground[i] for i in V.pick(len(ground), o.cfg.n_seen, o.cfg.seed)]
     centres = [v.camera.center for v in seen.views]
+    novel = V.novel_views(seen_sel, o.cfg.bin_values(), o.cfg.per_bin, o.cfg.seed + 1, layout,
+                          train_centres=centres)
+    heldout = V.heldout_lane_views(layout, n_held, w, h, o.cfg.seed, seen_sel)
     elev = E.elevated_views(layout, o.cfg.height_values(), o.cfg.per_height, o.cfg.pitch_range(),
                             o.cfg.seed + 2, w, h, V.fov_of(seen_sel), train_centres=centres)
     if o.cfg.overview:
@@ -173,175 +276,216 @@ def evaluate(o: EvalOptions) -> dict:
     traj, traj_info = V.lane_trajectory(layout, o.cfg.frames, o.cfg.step_m, w, h)
     seams_ref = None
     if o.cfg.seams_reference is not None:   # checked before any rendering: a bad one fails at once
-        seams_ref = seams_reference(o.cfg.seams_reference, sc, seen.run, (PV, PF, PC))
-    timings["load_s"] = time.perf_counter() - t
-    o.log(f"eval: {surfels.n:,} surfels; seen: {seen.source}; {len(seen_sel)} seen + "
-          f"{len(novel)} novel views ({len(o.cfg.bin_values())} bins) + {len(elev)} elevated views + "
-          f"{len(traj)} trajectory frames at {w}x{h}")
+        seams_ref = seams_reference(o.cfg.seams_reference, sc, seen.run, proxy)
+    return Inputs(sc=sc, weights=weights, ref_imgs=ref_imgs, out_dir=out_dir, deferrer=deferrer,
+                  base=base, base_why=base_why, stage=stage, surfels=surfels, env=env,
+                  layout=layout, proxy=proxy, seen=seen, seen_sel=seen_sel, novel=novel,
+                  heldout=heldout, elev=elev, traj=traj, traj_info=traj_info, seams_ref=seams_ref)
 
-    # --- seen + novel renders, geometry against the proxy
-    t = time.perf_counter()
-    agree = {"seen": G.ClassAgreement(o.cfg.seed), "novel": G.ClassAgreement(o.cfg.seed + 1)}
-    seen_img, seen_frames, seen_gb, novel_img = [], [], [], []
-    mv_err = {b: [] for b in o.cfg.bin_values()}
-    mv_shared = {b: [] for b in o.cfg.bin_values()}
-    bar = _bar(len(seen_sel) + len(novel) + len(heldout) + len(elev) + len(traj), "eval render", o)
-    dfr = DeferredImages()
-    for v in seen_sel:
-        fr = render_view(surfels, env, v.camera)
+
+@dataclass
+class Renders:
+    """What the families' renders keep for the measures and the report."""
+    seen_img: list = field(default_factory=list)
+    seen_frames: list = field(default_factory=list)
+    seen_gb: list = field(default_factory=list)
+    novel_img: list = field(default_factory=list)
+    heldout_img: list = field(default_factory=list)
+    heldout_frames: list = field(default_factory=list)
+    elev_img: list = field(default_factory=list)
+    elev_frames: list = field(default_factory=list)
+    traj_img: list = field(default_factory=list)
+    traj_frames: list = field(default_factory=list)
+    agree: dict = field(default_factory=dict)       # "seen" / "novel": G.ClassAgreement
+    mv_err: dict = field(default_factory=dict)      # bin -> per-pair depth errors
+    mv_shared: dict = field(default_factory=dict)   # bin -> per-pair shared fractions
+
+
+def _render_seen(inp: Inputs, o: EvalOptions, r: Renders, dfr, bar) -> None:
+    """The seen views, and their G-buffers against the proxy."""
+    PV, PF, PC = inp.proxy
+    r.agree["seen"] = G.ClassAgreement(o.cfg.seed)
+    for v in inp.seen_sel:
+        fr = render_view(inp.surfels, inp.env, v.camera)
         gb = render_gbuffer(PV, PF, v.camera, PC)
-        agree["seen"].add(fr, gb, v.camera)
-        seen_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
-        seen_frames.append(fr)
-        seen_gb.append(gb)
-        if deferrer is not None:
-            dfr.add("seen", deferrer, fr["rgb"], v.camera, o)
-        if base is not None:
-            base.add("seen", fr["rgb"], v.camera)
+        r.agree["seen"].add(fr, gb, v.camera)
+        r.seen_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
+        r.seen_frames.append(fr)
+        r.seen_gb.append(gb)
+        if inp.deferrer is not None:
+            dfr.add("seen", inp.deferrer, fr["rgb"], v.camera, o)
+        if inp.base is not None:
+            inp.base.add("seen", fr["rgb"], v.camera)
         bar.update(1)
-    for nv in novel:
-        fr = render_view(surfels, env, nv.view.camera)
+
+
+def _render_novel(inp: Inputs, o: EvalOptions, r: Renders, dfr, bar) -> None:
+    """The novel views: against the proxy, and the seen view each was displaced from
+    reprojected into it (multi-view depth)."""
+    PV, PF, PC = inp.proxy
+    r.agree["novel"] = G.ClassAgreement(o.cfg.seed + 1)
+    r.mv_err = {b: [] for b in o.cfg.bin_values()}
+    r.mv_shared = {b: [] for b in o.cfg.bin_values()}
+    for nv in inp.novel:
+        fr = render_view(inp.surfels, inp.env, nv.view.camera)
         gb = render_gbuffer(PV, PF, nv.view.camera, PC)
-        agree["novel"].add(fr, gb, nv.view.camera)
-        novel_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
-        if deferrer is not None:
-            dfr.add("novel", deferrer, fr["rgb"], nv.view.camera, o)
-        if base is not None:
-            base.add("novel", fr["rgb"], nv.view.camera)
-        r = G.reprojection_depth_error(seen_sel[nv.source].camera, seen_frames[nv.source],
-                                       seen_gb[nv.source], nv.view.camera, fr, gb)
-        if r is not None:
-            mv_err[nv.bin_m].append(r["errors"])
-            mv_shared[nv.bin_m].append(r["shared_frac"])
+        r.agree["novel"].add(fr, gb, nv.view.camera)
+        r.novel_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
+        if inp.deferrer is not None:
+            dfr.add("novel", inp.deferrer, fr["rgb"], nv.view.camera, o)
+        if inp.base is not None:
+            inp.base.add("novel", fr["rgb"], nv.view.camera)
+        e = G.reprojection_depth_error(inp.seen_sel[nv.source].camera, r.seen_frames[nv.source],
+                                       r.seen_gb[nv.source], nv.view.camera, fr, gb)
+        if e is not None:
+            r.mv_err[nv.bin_m].append(e["errors"])
+            r.mv_shared[nv.bin_m].append(e["shared_frac"])
         bar.update(1)
-    heldout_img, heldout_frames = [], []
-    for cam in heldout:
-        fr = render_view(surfels, env, cam)
-        heldout_frames.append(fr)
-        heldout_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
-        if base is not None:
-            base.add("heldout", fr["rgb"], cam)
-        bar.update(1)
-    elev_img, elev_frames = [], []
-    for ev in elev:
-        fr = render_view(surfels, env, ev.camera)
-        elev_frames.append({"rgb": fr["rgb"]})    # all the PSNR needs
-        elev_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
-        if base is not None:
-            base.add("elevated", fr["rgb"], ev.camera)
-        bar.update(1)
-    timings["render_seen_novel_s"] = time.perf_counter() - t
 
-    # --- trajectory
-    t = time.perf_counter()
-    traj_frames, traj_img = [], []
-    for cam in traj:
-        fr = render_view(surfels, env, cam)
-        traj_frames.append({k: fr[k] for k in ("alpha", "depth_median", "depth_expected")})
-        traj_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
-        if deferrer is not None:
-            dfr.add("traj", deferrer, fr["rgb"], cam, o, target=False)
+
+def _render_heldout(inp: Inputs, o: EvalOptions, r: Renders, bar) -> None:
+    for cam in inp.heldout:
+        fr = render_view(inp.surfels, inp.env, cam)
+        r.heldout_frames.append(fr)
+        r.heldout_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
+        if inp.base is not None:
+            inp.base.add("heldout", fr["rgb"], cam)
         bar.update(1)
-    bar.close()
-    temporal = T.trajectory_warp_errors(traj, traj_img, traj_frames)
-    temporal.update(traj_info)
-    timings["render_trajectory_s"] = time.perf_counter() - t
-    if deferrer is not None:
-        timings["deferred_s"] = dfr.seconds
-    if base is not None:
-        timings["prior_baseline_s"] = base.seconds
 
-    # --- features and Fréchet distances
-    t = time.perf_counter()
 
+def _render_elevated(inp: Inputs, o: EvalOptions, r: Renders, bar) -> None:
+    for ev in inp.elev:
+        fr = render_view(inp.surfels, inp.env, ev.camera)
+        r.elev_frames.append({"rgb": fr["rgb"]})    # all the PSNR needs
+        r.elev_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
+        if inp.base is not None:
+            inp.base.add("elevated", fr["rgb"], ev.camera)
+        bar.update(1)
+
+
+def _render_trajectory(inp: Inputs, o: EvalOptions, r: Renders, dfr, bar) -> dict:
+    """The trajectory frames; returns their temporal warp errors (``temporal_warp_err``)."""
+    for cam in inp.traj:
+        fr = render_view(inp.surfels, inp.env, cam)
+        r.traj_frames.append({k: fr[k] for k in ("alpha", "depth_median", "depth_expected")})
+        r.traj_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
+        if inp.deferrer is not None:
+            dfr.add("traj", inp.deferrer, fr["rgb"], cam, o, target=False)
+        bar.update(1)
+    temporal = T.trajectory_warp_errors(inp.traj, r.traj_img, r.traj_frames)
+    temporal.update(inp.traj_info)
+    return temporal
+
+
+@dataclass
+class Features:
+    """What the feature step gives the rest: the distances, the elevated groups' FD against
+    the seen views, the deferred renders' measures and the few-samples warning."""
+    distances: Distances
+    fd_elev: dict
+    groups: list
+    deferred: DeferredResult | None
+    warnings: list
+    n_ref: int
+
+
+def _distances(inp: Inputs, o: EvalOptions, r: Renders, dfr) -> Features:
+    """EfficientNet-Lite0 features of every family and their Fréchet distances."""
     ext = EffNetFeatureExtractor()
+    bins = o.cfg.bin_values()
 
     def embed(imgs):
         x = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).contiguous()
         return ext.embed(x, linear=False, size=224).double().numpy()
 
-    f_seen = embed(seen_img)
-    f_novel = embed(novel_img)
-    bins_arr = np.array([nv.bin_m for nv in novel])
     smallest = []
 
     def fd(a, b):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", M.FewSamplesWarning)
-            r = M.frechet_distance_features(a, b)
-        if r.warning:
-            smallest.append(min(r.n1, r.n2))
-        return r
+            res = M.frechet_distance_features(a, b)
+        if res.warning:
+            smallest.append(min(res.n1, res.n2))
+        return res
 
-    fd_out = {"features": "EfficientNet-Lite0 pooled 1280-d (bundled ImageNet weights), 224x224 "
-                          "bilinear resize of the sRGB display image",
-              "seen_vs_novel": {"overall": fd(f_seen, f_novel).to_json(),
-                                "per_bin": {f"{b:g}": fd(f_seen, f_novel[bins_arr == b]).to_json()
-                                            for b in o.cfg.bin_values()}}}
-    if heldout_img:
-        fd_out["seen_vs_heldout_lane"] = fd(f_seen, embed(heldout_img)).to_json()
+    def seen_vs_novel(f_a, f_b) -> SeenVsNovel:
+        return SeenVsNovel(overall=fd(f_a, f_b).to_json(),
+                           per_bin={f"{b:g}": fd(f_a, f_b[bins_arr == b]).to_json() for b in bins})
+
+    f_seen = embed(r.seen_img)
+    f_novel = embed(r.novel_img)
+    bins_arr = np.array([nv.bin_m for nv in inp.novel])
+    dist = Distances(seen_vs_novel=seen_vs_novel(f_seen, f_novel))
+    if r.heldout_img:
+        dist.seen_vs_heldout_lane = fd(f_seen, embed(r.heldout_img)).to_json()
+    elev = inp.elev
     groups = list(dict.fromkeys(ev.group for ev in elev))   # heights, then overview
     groups_arr = np.array([ev.group for ev in elev])
-    f_elev = embed(elev_img) if elev_img else None
-    if base is not None:
-        fd_out["prior_baseline"] = baseline_fd(fd, embed, base.images, o.cfg.bin_values(), bins_arr, fd_out,
-                                               base.sp, elevated=(groups, groups_arr, f_elev)
-                                               if elev else None)
+    f_elev = embed(r.elev_img) if r.elev_img else None
+    if inp.base is not None:
+        dist.prior_baseline = baseline_fd(fd, embed, inp.base.images, bins, bins_arr,
+                                          dist.to_json(), inp.base.sp,
+                                          elevated=(groups, groups_arr, f_elev) if elev else None)
     n_ref = 0
-    if ref_imgs is not None:
-        f_ref = embed(ref_imgs)
+    if inp.ref_imgs is not None:
+        f_ref = embed(inp.ref_imgs)
         n_ref = len(f_ref)
-        fd_out["vs_reference"] = {
+        dist.vs_reference = {
             "seen": fd(f_seen, f_ref).to_json(), "novel": fd(f_novel, f_ref).to_json(),
-            "novel_per_bin": {f"{b:g}": fd(f_novel[bins_arr == b], f_ref).to_json() for b in o.cfg.bin_values()}}
+            "novel_per_bin": {f"{b:g}": fd(f_novel[bins_arr == b], f_ref).to_json() for b in bins}}
         if elev:
-            fd_out["vs_reference"]["elevated_per_height"] = {
+            dist.vs_reference["elevated_per_height"] = {
                 g: fd(f_elev[groups_arr == g], f_ref).to_json() for g in groups}
     deferred = None
-    if deferrer is not None:
+    if inp.deferrer is not None:
         f_dseen, f_dnovel = embed(dfr.images["seen"]), embed(dfr.images["novel"])
-        f_raw = np.concatenate([f_seen, f_novel])
         f_target = embed(dfr.targets["seen"] + dfr.targets["novel"])
-        d_temporal = T.trajectory_warp_errors(traj, dfr.images["traj"], traj_frames)
-        d_temporal.update(traj_info)
-        deferred = {
-            **deferrer.describe(),
-            "fd_effnet_lite0": {
-                "seen_vs_novel": {"overall": fd(f_dseen, f_dnovel).to_json(),
-                                  "per_bin": {f"{b:g}": fd(f_dseen, f_dnovel[bins_arr == b]).to_json()
-                                              for b in o.cfg.bin_values()}},
-                "vs_prior_target": {
-                    "views": "seen + novel views against the prior's own image of the same views "
-                             "(t = 1)",
-                    "raw": fd(f_raw, f_target).to_json(),
-                    "deferred": fd(np.concatenate([f_dseen, f_dnovel]), f_target).to_json()}},
-            "temporal_warp_err": d_temporal}
+        d_temporal = T.trajectory_warp_errors(inp.traj, dfr.images["traj"], r.traj_frames)
+        d_temporal.update(inp.traj_info)
+        deferred = DeferredResult(
+            provenance=inp.deferrer.describe(), seen_vs_novel=seen_vs_novel(f_dseen, f_dnovel),
+            vs_prior_raw=fd(np.concatenate([f_seen, f_novel]), f_target).to_json(),
+            vs_prior_deferred=fd(np.concatenate([f_dseen, f_dnovel]), f_target).to_json(),
+            temporal=d_temporal)
     fd_elev = {g: fd(f_seen, f_elev[groups_arr == g]) for g in groups}
-    timings["features_fd_s"] = time.perf_counter() - t
+    notes = []
+    if smallest:
+        notes.append(
+            f"Fréchet distances from fewer samples than feature dimensions ({f_seen.shape[1]}-d; "
+            f"smallest set {min(smallest)}): covariances are rank-deficient and values are biased "
+            "upwards; compare only values computed with equal sample counts")
+    return Features(distances=dist, fd_elev=fd_elev, groups=groups, deferred=deferred,
+                    warnings=notes, n_ref=n_ref)
 
-    # --- elevated views (and the held-out lane views, for scale) against the run's targets
-    t = time.perf_counter()
+
+def _elevated_family(inp: Inputs, r: Renders, feats: Features) -> tuple[dict, str | None]:
+    """The ``novel_elevated`` entry and why its PSNR is missing (None when measured): the
+    elevated views (and the held-out lane views, for scale) against the run's targets."""
     errs, psnr_why = (None, None)
-    if elev:
-        errs, psnr_why = view_errors(sc, seen.run, (PV, PF, PC), list(heldout) + [ev.camera for ev in elev],
-                                     heldout_frames + elev_frames)
-    novel_elevated = _novel_elevated(elev, groups, errs, len(heldout), fd_elev, fd_out)
-    timings["elevated_psnr_s"] = time.perf_counter() - t
+    if inp.elev:
+        errs, psnr_why = view_errors(inp.sc, inp.seen.run, inp.proxy,
+                                     list(inp.heldout) + [ev.camera for ev in inp.elev],
+                                     r.heldout_frames + r.elev_frames)
+    return (_novel_elevated(inp.elev, feats.groups, errs, len(inp.heldout), feats.fd_elev,
+                            feats.distances), psnr_why)
 
-    # --- seams between chunks
-    t = time.perf_counter()
-    frame_sets = [seen_frames + heldout_frames]
+
+def _seams(inp: Inputs, o: EvalOptions, r: Renders) -> tuple[dict | None, str | None, str | None]:
+    """The seams between chunks (None, with why, when not measured) and why the comparison
+    with --seams-reference is missing."""
+    frame_sets = [r.seen_frames + r.heldout_frames]
     ref_why = None
+    seams_ref, heldout = inp.seams_ref, inp.heldout
     if seams_ref is not None and len(heldout) < 2:
         ref_why = "needs at least 2 held-out lane views (--heldout)"
     elif seams_ref is not None:
         # only the held-out lane views count: the seen views are the evaluated run's training
         # cameras, which the reference never trained on
-        skip = [None] * len(seen_sel)
-        frame_sets += [skip + heldout_frames,
+        skip = [None] * len(inp.seen_sel)
+        frame_sets += [skip + r.heldout_frames,
                        itertools.chain(skip, reference_frames(seams_ref[0], heldout))]
-    stats, why = seam_stats(sc, seen.run, layout, (PV, PF, PC),
-                            [v.camera for v in seen_sel] + list(heldout), *frame_sets)
+    stats, why = seam_stats(inp.sc, inp.seen.run, inp.layout, inp.proxy,
+                            [v.camera for v in inp.seen_sel] + list(heldout), *frame_sets)
     seams = stats[0].result() if stats is not None else None
     if seams_ref is not None and not ref_why:
         if seams is None:
@@ -349,82 +493,23 @@ def evaluate(o: EvalOptions) -> dict:
         else:
             seams["vs_reference"] = {"scene": str(o.cfg.seams_reference), "run": seams_ref[1],
                                      **paired_matched_drop(stats[1], stats[2], o.cfg.seed)}
-    timings["seams_s"] = time.perf_counter() - t
+    return seams, why, ref_why
 
-    # --- multi-view summary
-    multiview = {"pairs": "each novel view vs the seen view it was displaced from (seen depth "
-                          "reprojected into the novel view; proxy decides mutual visibility)",
-                 "per_bin": {}}
-    all_err = []
-    for b in o.cfg.bin_values():
-        e = np.concatenate(mv_err[b]) if mv_err[b] else np.zeros(0)
+
+def _multiview(bins, r: Renders) -> MultiviewDepth:
+    per_bin, all_err = {}, []
+    for b in bins:
+        e = np.concatenate(r.mv_err[b]) if r.mv_err[b] else np.zeros(0)
         all_err.append(e)
-        multiview["per_bin"][f"{b:g}"] = {
+        per_bin[f"{b:g}"] = {
             "median": round(float(np.median(e)), 5) if e.size else None,
             "frac_over_5pct": round(float((e > 0.05).mean()), 4) if e.size else None,
-            "shared_frac": round(float(np.mean(mv_shared[b])), 4) if mv_shared[b] else 0.0,
-            "pairs": len(mv_err[b])}
+            "shared_frac": round(float(np.mean(r.mv_shared[b])), 4) if r.mv_shared[b] else 0.0,
+            "pairs": len(r.mv_err[b])}
     e = np.concatenate(all_err)
-    multiview["median"] = round(float(np.median(e)), 5) if e.size else None
-    multiview["frac_over_5pct"] = round(float((e > 0.05).mean()), 4) if e.size else None
-
-    fd_warnings = []
-    if smallest:
-        fd_warnings.append(
-            f"Fréchet distances from fewer samples than feature dimensions ({f_seen.shape[1]}-d; "
-            f"smallest set {min(smallest)}): covariances are rank-deficient and values are biased "
-            "upwards; compare only values computed with equal sample counts")
-    unavailable = models.status(weights)
-    if ref_imgs is None:
-        unavailable.insert(0, {"metric": "fd_effnet_lite0.vs_reference",
-                               "reason": "no --reference DIR of images given"})
-    if why:
-        unavailable.append({"metric": "seams", "reason": why})
-    if ref_why:
-        unavailable.append({"metric": "seams.vs_reference", "reason": ref_why})
-    if psnr_why:
-        unavailable.append({"metric": "novel_elevated.psnr_db", "reason": psnr_why})
-    if base_why:
-        unavailable.append({"metric": "fd_effnet_lite0.prior_baseline", "reason": base_why})
-    timings["total_s"] = time.perf_counter() - t_start
-    result = {
-        "scene": str(sc.root),
-        "run": seen.run,
-        "seen_views_source": seen.source,
-        "composed_layers": [li.name for li in sc.layers() if not li.muted and li.exists],
-        "surfels": int(surfels.n),
-        "resolution": [w, h],
-        "tonemap": o.cfg.tonemap,
-        "seed": o.cfg.seed,
-        "bins_m": [float(b) for b in o.cfg.bin_values()],
-        "heights_m": [float(x) for x in o.cfg.height_values()],
-        "pitch_deg": [float(x) for x in o.cfg.pitch_range()],
-        "counts": {"train_views": len(seen.views), "seen": len(seen_sel), "novel": len(novel),
-                   "novel_per_bin": o.cfg.per_bin, "heldout_lane": len(heldout),
-                   "trajectory_frames": len(traj), "reference": n_ref, "elevated": len(elev),
-                   "elevated_per_height": o.cfg.per_height,
-                   "overview": sum(ev.group == E.OVERVIEW for ev in elev)},
-        "novel_views": {f"{b:g}": _bin_stats([nv for nv in novel if nv.bin_m == b]) for b in o.cfg.bin_values()},
-        "novel_elevated": novel_elevated,
-        "fd_effnet_lite0": fd_out,
-        "geometry": {"seen": agree["seen"].result(), "novel": agree["novel"].result()},
-        "multiview_depth_err": multiview,
-        "seams": seams,
-        "temporal_warp_err": temporal,
-        **({"deferred": deferred} if deferred is not None else {}),
-        "unavailable": unavailable,
-        "warnings": fd_warnings,
-        "timings": {k: round(v, 2) for k, v in timings.items()},
-    }
-    t = time.perf_counter()
-    files = report.write_report(out_dir, result, sc, seen_img, novel_img, novel, traj_img,
-                                seen_frames=seen_frames, seen_gb=seen_gb,
-                                deferred=dfr if deferrer is not None else None,
-                                elevated=(elev, elev_img))
-    result["timings"]["report_s"] = round(time.perf_counter() - t, 2)
-    result["files"] = {k: str(v) for k, v in files.items()}
-    report.write_json(out_dir / "eval.json", result)
-    return result
+    return MultiviewDepth(per_bin=per_bin,
+                          median=round(float(np.median(e)), 5) if e.size else None,
+                          frac_over_5pct=round(float((e > 0.05).mean()), 4) if e.size else None)
 
 
 def _deferrer(o: EvalOptions):
@@ -473,14 +558,15 @@ def _psnr_stats(vals: list) -> dict:
             "min": round(float(a.min()), 3), "max": round(float(a.max()), 3), "views": len(a)}
 
 
-def _novel_elevated(elev: list, groups: list, errs, n_held: int, fd_elev: dict, fd_out: dict) -> dict:
+def _novel_elevated(elev: list, groups: list, errs, n_held: int, fd_elev: dict,
+                    dist: Distances) -> dict:
     """The ``novel_elevated`` entry: per height (and "overview") the pose medians, PSNR
     against the run's held-out targets (errs: (sse, values) of the held-out lane views, then
     the elevated ones; None when there are no targets), FD seen vs elevated and its ratios;
     "heldout_lane": the same PSNR of the lane views, the scale to read them against."""
     psnr = [pooled_psnr([e]) for e in errs] if errs is not None else None
-    content = fd_out.get("seen_vs_heldout_lane", {}).get("value")
-    pb = fd_out.get("prior_baseline", {}).get("elevated")
+    content = (dist.seen_vs_heldout_lane or {}).get("value")
+    pb = (dist.prior_baseline or {}).get("elevated")
     out = {}
     for g in groups:
         idx = [i for i, ev in enumerate(elev) if ev.group == g]
@@ -500,8 +586,8 @@ def _novel_elevated(elev: list, groups: list, errs, n_held: int, fd_elev: dict, 
             if content:
                 row["fd_over_prior"] = round(row["fd_over_content"] / max(prior, 1e-12), 4)
             row["fd_vs_prior_images"] = pb["scene_vs_prior_images"][g]["value"]
-        if "elevated_per_height" in fd_out.get("vs_reference", {}):
-            row["fd_vs_reference"] = fd_out["vs_reference"]["elevated_per_height"][g]["value"]
+        if "elevated_per_height" in (dist.vs_reference or {}):
+            row["fd_vs_reference"] = dist.vs_reference["elevated_per_height"][g]["value"]
         out[g] = row
     if psnr is not None and n_held:
         out["heldout_lane"] = {"psnr_db": _psnr_stats(psnr[:n_held])}

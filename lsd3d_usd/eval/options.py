@@ -8,8 +8,8 @@ from pathlib import Path
 
 from lsd3d_usd.configtree import option
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.eval.elevated import DEFAULT_HEIGHTS, DEFAULT_PITCH, parse_heights, parse_pitch
-from lsd3d_usd.eval.views import DEFAULT_BINS
+from lsd3d_usd.eval.elevated_views import DEFAULT_HEIGHTS, DEFAULT_PITCH, parse_heights, parse_pitch
+from lsd3d_usd.eval.lane_views import DEFAULT_BINS
 from lsd3d_usd.views.images import TONEMAPS
 from lsd3d_usd.views.options import DeferredConfig
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.eval.geometry import surfel_depth, unit
+from lsd3d_usd.eval.result import EvalResult
 
 
 def _save_fig(fig, path: Path) -> Path:
@@ -80,29 +81,29 @@ def elevated_sheet(path: Path, views, images, cols: int = 4) -> Path:
     return _save_fig(fig, path)
 
 
-def fd_plot(path: Path, result: dict) -> Path:
+def fd_plot(path: Path, result: EvalResult) -> Path:
     plt = _plt()
-    fd = result["fd_effnet_lite0"]
-    bins = result["bins_m"]
-    ys = [fd["seen_vs_novel"]["per_bin"][f"{b:g}"]["value"] for b in bins]
+    fd = result.distances
+    bins = result.bins_m
+    ys = [fd.seen_vs_novel.per_bin[f"{b:g}"]["value"] for b in bins]
     fig, ax = plt.subplots(1, 2, figsize=(9, 3.0))
     ax[0].plot(bins, ys, "o-", label="seen vs novel (per bin)")
-    if "seen_vs_heldout_lane" in fd:
-        ax[0].axhline(fd["seen_vs_heldout_lane"]["value"], color="gray", ls="--",
+    if fd.seen_vs_heldout_lane is not None:
+        ax[0].axhline(fd.seen_vs_heldout_lane["value"], color="gray", ls="--",
                       label="seen vs other on-lane views (content change)")
-    if "prior_baseline" in fd:
-        pb = fd["prior_baseline"]
+    if fd.prior_baseline is not None:
+        pb = fd.prior_baseline
         ax[0].plot(bins, [pb["seen_vs_novel"]["per_bin"][f"{b:g}"]["value"] for b in bins], "^:",
                    color="C1", label="the prior's own images: seen vs novel")
         ax[0].axhline(pb["seen_vs_heldout_lane"]["value"], color="C1", ls=":",
                       label="the prior's own images: content change")
-    if "vs_reference" in fd:
-        ax[0].plot(bins, [fd["vs_reference"]["novel_per_bin"][f"{b:g}"]["value"] for b in bins], "s-",
+    if fd.vs_reference is not None:
+        ax[0].plot(bins, [fd.vs_reference["novel_per_bin"][f"{b:g}"]["value"] for b in bins], "s-",
                    label="novel vs reference")
-        ax[0].axhline(fd["vs_reference"]["seen"]["value"], color="C2", ls=":", label="seen vs reference")
+        ax[0].axhline(fd.vs_reference["seen"]["value"], color="C2", ls=":", label="seen vs reference")
     ax[0].set_xlabel("novel view distance from training camera (m)")
     ax[0].set_ylabel("FD (EfficientNet-Lite0)"); ax[0].set_ylim(bottom=0); ax[0].legend(fontsize=7)
-    mv = result["multiview_depth_err"]["per_bin"]
+    mv = result.multiview.per_bin
     ax[1].plot(bins, [100 * (mv[f"{b:g}"]["median"] or np.nan) for b in bins], "o-")
     ax[1].set_xlabel("distance (m)"); ax[1].set_ylim(bottom=0)
     ax[1].set_ylabel("median reprojected depth err (%)")
@@ -190,8 +191,8 @@ def _fmt(x, pct=False, digits=3):
     return f"{x:.{digits}f}" if isinstance(x, float) else html.escape(str(x))
 
 
-def _seams_html(result) -> str:
-    s = result.get("seams")
+def _seams_html(result: EvalResult) -> str:
+    s = result.seams
     if not s:
         return "<p>not measured (see Not computed)</p>"
     rows = []
@@ -223,8 +224,8 @@ def _seams_html(result) -> str:
                    "pixels"], rows) + drop
 
 
-def _elevated_html(result) -> str:
-    ne = result.get("novel_elevated") or {}
+def _elevated_html(result: EvalResult) -> str:
+    ne = result.novel_elevated
     groups = [g for g in ne if g != "heldout_lane"]
     if not groups:
         return "<p>no elevated views (--per-height 0 and no Overview cameras)</p>"
@@ -264,26 +265,26 @@ def _table(header, rows) -> str:
     return f"<table><tr>{th}</tr>{body}</table>"
 
 
-def html_report(result: dict, images: dict) -> str:
-    fd = result["fd_effnet_lite0"]
-    bins = [f"{b:g}" for b in result["bins_m"]]
-    mv = result["multiview_depth_err"]
-    nv = result["novel_views"]
-    rows = [["seen vs all novel", _fmt(fd["seen_vs_novel"]["overall"]["value"]), "", "",
-             _fmt(mv["median"], pct=True), _fmt(mv["frac_over_5pct"], pct=True)]]
+def html_report(result: EvalResult, images: dict) -> str:
+    fd = result.distances
+    bins = [f"{b:g}" for b in result.bins_m]
+    mv = result.multiview
+    nv = result.novel_views
+    rows = [["seen vs all novel", _fmt(fd.seen_vs_novel.overall["value"]), "", "",
+             _fmt(mv.median, pct=True), _fmt(mv.frac_over_5pct, pct=True)]]
     for b in bins:
-        m = mv["per_bin"][b]
-        rows.append([f"seen vs novel {b} m", _fmt(fd["seen_vs_novel"]["per_bin"][b]["value"]),
+        m = mv.per_bin[b]
+        rows.append([f"seen vs novel {b} m", _fmt(fd.seen_vs_novel.per_bin[b]["value"]),
                      _fmt(nv[b].get("nearest_train_m_median"), digits=2),
                      _fmt(nv[b].get("abs_yaw_deg_median"), digits=1), _fmt(m["median"], pct=True),
                      _fmt(m["frac_over_5pct"], pct=True)])
-    if "seen_vs_heldout_lane" in fd:
+    if fd.seen_vs_heldout_lane is not None:
         rows.append(["seen vs other on-lane views (content change only)",
-                     _fmt(fd["seen_vs_heldout_lane"]["value"]), "", "", "", ""])
+                     _fmt(fd.seen_vs_heldout_lane["value"]), "", "", "", ""])
     fd_table = _table(["comparison", "FD EffNet-Lite0", "nearest train cam (m)", "|yaw| (deg)",
                        "multi-view depth err (median)", "> 5 %"], rows)
-    if "prior_baseline" in fd:
-        pb = fd["prior_baseline"]
+    if fd.prior_baseline is not None:
+        pb = fd.prior_baseline
         pb_rows = [[f"{b} m", _fmt(pb["scene_novel_over_content"][b], digits=3),
                     _fmt(pb["prior_novel_over_content"][b], digits=3),
                     _fmt(pb["scene_over_prior"][b], digits=3)] for b in bins]
@@ -294,15 +295,15 @@ def html_report(result: dict, images: dict) -> str:
                      "</p>" + _table(["novel bin", "scene", f"prior ({html.escape(pb['prior'])})",
                                        "scene / prior"], pb_rows))
     ref = ""
-    if "vs_reference" in fd:
-        r = fd["vs_reference"]
+    if fd.vs_reference is not None:
+        r = fd.vs_reference
         ref_rows = [["seen vs reference", _fmt(r["seen"]["value"])],
                     ["novel vs reference", _fmt(r["novel"]["value"])]]
         ref_rows += [[f"novel {b} m vs reference", _fmt(r["novel_per_bin"][b]["value"])] for b in bins]
         ref = "<h2>Against the reference images</h2>" + _table(["comparison", "FD EffNet-Lite0"], ref_rows)
     geo_rows = []
     for split in ("seen", "novel"):
-        g = result["geometry"][split]
+        g = getattr(result.geometry, split)
         for name, s in list(g["per_class"].items()) + [("all classes", g["all"])]:
             geo_rows.append([split, html.escape(name), s["pixels"], _fmt(s["coverage"], pct=True),
                              _fmt(s["depth_rel_err_median"], pct=True),
@@ -310,7 +311,7 @@ def html_report(result: dict, images: dict) -> str:
                              _fmt(s["normal_err_deg_p90"], digits=2)])
     geo = _table(["views", "class", "proxy pixels", "surfel coverage", "depth err (median)",
                   "normal err deg (median)", "normal err deg (p90)"], geo_rows)
-    t = result["temporal_warp_err"]
+    t = result.temporal
     temp = _table(["path", "frames", "warp err (mean |ΔsRGB|)", "naive frame diff", "valid pixels"],
                   [[f"lane {html.escape(str(t.get('lane')))}, {t.get('path_m')} m", t["pairs"] + 1,
                     _fmt(t["warp_err"], digits=4), _fmt(t["naive_err"], digits=4),
@@ -319,17 +320,16 @@ def html_report(result: dict, images: dict) -> str:
         return f'<p><img src="{images[key]}" alt="{alt}"></p>' if key in images else ""
 
     dfd = ""
-    if "deferred" in result:
-        d = result["deferred"]
-        dfd_fd = d["fd_effnet_lite0"]
-        td = d["temporal_warp_err"]
-        d_rows = [["seen vs all novel", _fmt(fd["seen_vs_novel"]["overall"]["value"]),
-                   _fmt(dfd_fd["seen_vs_novel"]["overall"]["value"])]]
-        d_rows += [[f"seen vs novel {b} m", _fmt(fd["seen_vs_novel"]["per_bin"][b]["value"]),
-                    _fmt(dfd_fd["seen_vs_novel"]["per_bin"][b]["value"])] for b in bins]
+    if result.deferred is not None:
+        dr = result.deferred
+        d = dr.provenance
+        td = dr.temporal
+        d_rows = [["seen vs all novel", _fmt(fd.seen_vs_novel.overall["value"]),
+                   _fmt(dr.seen_vs_novel.overall["value"])]]
+        d_rows += [[f"seen vs novel {b} m", _fmt(fd.seen_vs_novel.per_bin[b]["value"]),
+                    _fmt(dr.seen_vs_novel.per_bin[b]["value"])] for b in bins]
         d_rows.append(["seen + novel vs the prior's own images (t = 1)",
-                       _fmt(dfd_fd["vs_prior_target"]["raw"]["value"]),
-                       _fmt(dfd_fd["vs_prior_target"]["deferred"]["value"])])
+                       _fmt(dr.vs_prior_raw["value"]), _fmt(dr.vs_prior_deferred["value"])])
         d_rows.append(["temporal warp err", _fmt(t["warp_err"], digits=4),
                        _fmt(td["warp_err"], digits=4)])
         d_rows.append(["naive frame diff", _fmt(t["naive_err"], digits=4),
@@ -341,22 +341,22 @@ def html_report(result: dict, images: dict) -> str:
                + _table(["measure", "raw", "deferred"], d_rows)
                + img("deferred", "raw and deferred frames side by side"))
     unav = "".join(f"<li><b>{html.escape(u['metric'])}</b>: unavailable: {html.escape(u['reason'])}</li>"
-                   for u in result["unavailable"])
-    warn = "".join(f"<li>{html.escape(w)}</li>" for w in result["warnings"])
+                   for u in result.unavailable)
+    warn = "".join(f"<li>{html.escape(w)}</li>" for w in result.warnings)
 
-    c = result["counts"]
+    c = result.counts
     return f"""<!doctype html>
-<html><head><meta charset="utf-8"><title>lsd3d-usd eval: {html.escape(Path(result['scene']).name)}</title>
+<html><head><meta charset="utf-8"><title>lsd3d-usd eval: {html.escape(Path(result.scene).name)}</title>
 <style>body{{font-family:sans-serif;max-width:1200px;margin:1em auto;color:#222}}
 table{{border-collapse:collapse;margin:.5em 0}}td,th{{border:1px solid #bbb;padding:2px 8px;
 text-align:right}}th{{background:#eee}}td:first-child,td:nth-child(2){{text-align:left}}
 img{{max-width:100%}}code{{background:#f4f4f4}}</style></head><body>
-<h1>Evaluation of <code>{html.escape(result['scene'])}</code></h1>
-<p>Seen views: {html.escape(result['seen_views_source'])}. {c['seen']} seen and {c['novel']} novel views
-({c['novel_per_bin']} per distance bin), {c['trajectory_frames']} trajectory frames at
-{result['resolution'][0]}×{result['resolution'][1]}, {result['surfels']:,} surfels, layers
-{html.escape(', '.join(result['composed_layers']))}; tone map {html.escape(result['tonemap'])};
-seed {result['seed']}.</p>
+<h1>Evaluation of <code>{html.escape(result.scene)}</code></h1>
+<p>Seen views: {html.escape(result.seen_views_source)}. {c.seen} seen and {c.novel} novel views
+({c.novel_per_bin} per distance bin), {c.trajectory_frames} trajectory frames at
+{result.resolution[0]}×{result.resolution[1]}, {result.surfels:,} surfels, layers
+{html.escape(', '.join(result.composed_layers))}; tone map {html.escape(result.tonemap)};
+seed {result.seed}.</p>
 <h2>Seen and novel views</h2>{img('contact_sheet', 'contact sheet')}
 <h2>Elevated views (novel_elevated)</h2>{_elevated_html(result)}{img('elevated', 'elevated views')}
 <h2>Fréchet distance of EfficientNet-Lite0 features (fd_effnet_lite0; not FID)</h2>
@@ -368,30 +368,30 @@ seed {result['seed']}.</p>
 <h2>GGDS loss</h2>{img('loss', 'GGDS loss curve') or '<p>no loss curve (no GGDS run)</p>'}
 <h2>Not computed</h2><ul>{unav}</ul>
 {'<h2>Warnings</h2><ul>' + warn + '</ul>' if warn else ''}
-<p>Timings (s): {html.escape(json.dumps(result['timings']))}</p>
+<p>Timings (s): {html.escape(json.dumps(result.timings))}</p>
 </body></html>
 """
 
 
-def write_report(out_dir: Path, result: dict, sc, seen_img, novel_img, novel, traj_img, *,
+def write_report(out_dir: Path, result: EvalResult, sc, seen_img, novel_img, novel, traj_img, *,
                  seen_frames, seen_gb, deferred=None, elevated=None) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {"contact_sheet": contact_sheet(out_dir / "eval_contact_sheet.png", seen_img, novel_img,
-                                            novel, result["bins_m"]),
+                                            novel, result.bins_m),
              "fd_plot": fd_plot(out_dir / "eval_fd.png", result),
              "geometry": geometry_panel(out_dir / "eval_geometry.png", seen_img[0], seen_frames[0],
                                         seen_gb[0]),
              "temporal": temporal_panel(out_dir / "eval_temporal.png", traj_img,
-                                        result["temporal_warp_err"],
-                                        result["deferred"]["temporal_warp_err"]
-                                        if deferred is not None else None)}
+                                        result.temporal,
+                                        result.deferred.temporal
+                                        if result.deferred is not None else None)}
     if elevated is not None and elevated[0]:
         files["elevated"] = elevated_sheet(out_dir / "eval_elevated.png", *elevated)
     if deferred is not None:
         files["deferred"] = deferred_sheet(out_dir / "eval_deferred.png", seen_img, deferred, traj_img)
-    if result.get("run"):
-        loss = sc.root / "ggds" / result["run"] / "loss.png"
+    if result.run:
+        loss = sc.root / "ggds" / result.run / "loss.png"
         if loss.is_file():
             files["loss"] = S.atomic_write_bytes(out_dir / "loss.png", loss.read_bytes())
     images = {k: Path(v).name for k, v in files.items()}

@@ -145,7 +145,7 @@ class GGDSConfig:
                                                   "moved 0.5-8 m as eval's novel views are)",
                               choices=("lane_offset", "displaced"))
     elevated_frac: float = option(0.125, help="elevated views (above the road, looking "
-                                              "down: conditioning.elevated) as a fraction "
+                                              "down: conditioning.elevated_sampling) as a fraction "
                                               "of --views: the colour start fits to them "
                                               "(GGDS trains on them too with "
                                               "elevated_train), and to as many more per "

@@ -3,7 +3,7 @@ views and a few overviews as UsdGeom.Camera prims under /World/Cameras, so usdvi
 --camera` and any USD tool can look through them::
 
     /World/Cameras/Train/Train_<k>        the views GGDS samples for training
-                                          (ggds.regions.views.region_views), region by region in
+                                          (ggds.regions.region_views.region_views), region by region in
                                           region-name order; a chunk region trains on those
                                           that see its surfels, as the run records them
                                           (ggds/<run>/[<region>/]views.json)
@@ -25,7 +25,7 @@ from pxr import Sdf, UsdGeom
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.regions.plan import plan_regions
-from lsd3d_usd.ggds.regions.views import region_views
+from lsd3d_usd.ggds.regions.region_views import region_views
 from lsd3d_usd.hashing import content_hash
 from lsd3d_usd.render.camera import Camera, look_at, to_usd
 from lsd3d_usd.splats.chunkio import read_chunk_map
@@ -61,7 +61,7 @@ def overview_cameras(layout) -> dict:
 def ggds_views(sc: S.Scene, layout, cfg) -> tuple[list, list]:
     """([(region, View)] training, [(region, View)] held-out) of a GGDS run of ``cfg`` on the
     scene's surfel chunks: its regions (ggds.regions.plan_regions) in name order, each
-    sampled by ggds.regions.views.region_views; a region without lanes inside has none (GGDS
+    sampled by ggds.regions.region_views.region_views; a region without lanes inside has none (GGDS
     keeps its surfels as they are)."""
     regions = sorted((r for phase in plan_regions(read_chunk_map(sc.layer_path("surfels")),
                                                   cfg.ggds.regions) for r in phase),

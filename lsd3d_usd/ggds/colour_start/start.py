@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from lsd3d_usd.conditioning.elevated import ELEVATED
+from lsd3d_usd.conditioning.elevated_sampling import ELEVATED
 from lsd3d_usd.ggds.colour_start.worldfit import ViewFit, facing_ids, fit_sh, zonal_slopes
 from lsd3d_usd.memtune import release_free_memory
 from lsd3d_usd.render.sh import sh_degree_of
@@ -28,7 +28,7 @@ TRIM_EVERY_VIEWS = 16
 @torch.no_grad()
 def colour_start(state, views, context, prior, cond, fit_views=()) -> bool:
     """Fit the colours of ``state``'s surfels (and of ``context``'s fit rows) in place; the
-    training ``views`` (run.views.TrainingViews) keep their G-buffers cached for the steps,
+    training ``views`` (run.training_views.TrainingViews) keep their G-buffers cached for the steps,
     ``fit_views`` are used once. Returns whether it ran."""
     c = state.cfg
     env = cond.env

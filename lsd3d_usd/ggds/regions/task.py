@@ -16,7 +16,7 @@ from lsd3d_usd.execution import task_log
 from lsd3d_usd.ggds.priors.registry import PriorConfig, make_prior
 from lsd3d_usd.ggds.regions.inputs import proxy_neighbourhood, region_context, region_surfels
 from lsd3d_usd.ggds.regions.plan import Region, region_seed
-from lsd3d_usd.ggds.regions.views import neighbour_views, region_fit_views, region_views
+from lsd3d_usd.ggds.regions.region_views import neighbour_views, region_fit_views, region_views
 from lsd3d_usd.ggds.run.inputs import GGDSInputs
 from lsd3d_usd.ggds.run.lifecycle import run_ggds
 from lsd3d_usd.ggds.run.store import RegionRunStore, region_dir, write_json

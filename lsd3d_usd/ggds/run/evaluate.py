@@ -12,9 +12,9 @@ import numpy as np
 import torch
 
 from lsd3d_usd.conditioning.scene import Conditioning
-from lsd3d_usd.conditioning.views import View
+from lsd3d_usd.conditioning.view_sampling import View
 from lsd3d_usd.ggds.priors.base import heldout_target
-from lsd3d_usd.ggds.run.views import focus_mask
+from lsd3d_usd.ggds.run.training_views import focus_mask
 from lsd3d_usd.render.raster_types import RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 

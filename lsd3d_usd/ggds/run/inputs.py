@@ -14,7 +14,7 @@ from lsd3d_usd.splats.field import SurfelField
 class GGDSInputs:
     """field: the initial surfels (trainable). conditioning: the proxy, light, shadow map and
     G-buffers the prior sees. views / held_out: training and held-out views
-    (conditioning.views.View). face_index: the seed proxy face of every surfel (rows of the
+    (conditioning.view_sampling.View). face_index: the seed proxy face of every surfel (rows of the
     conditioning's proxy, -1 unknown). context: frozen neighbour surfels rendered with the
     trainable ones (a chunk region's band); focus (x0, y0, x1, y1): where the loaded surfels
     cover the scene (image terms and held-out PSNR compare only pixels whose proxy surface

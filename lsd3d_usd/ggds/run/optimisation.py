@@ -1,6 +1,6 @@
 """One GGDS optimisation (geometry-grounded distillation sampling), put together from parts
 with one job each: the optimisation state (run/state.py), the training views and their
-G-buffers (run/views.py), the frozen context (run/context.py), the step (run/step.py), the
+G-buffers (run/training_views.py), the frozen context (run/context.py), the step (run/step.py), the
 colour start (colour_start/start.py) and the held-out evaluation (run/evaluate.py). The run's
 lifecycle — loop, checkpoints, resume, plots — is run/lifecycle.py.
 """
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import torch
 
-from lsd3d_usd.conditioning.views import View
+from lsd3d_usd.conditioning.view_sampling import View
 from lsd3d_usd.ggds.colour_start.start import colour_start
 from lsd3d_usd.ggds.losses.terms import active_terms
 from lsd3d_usd.ggds.priors.base import Prior
@@ -17,7 +17,7 @@ from lsd3d_usd.ggds.run.context import FrozenContext
 from lsd3d_usd.ggds.run.inputs import GGDSInputs
 from lsd3d_usd.ggds.run.state import RunState
 from lsd3d_usd.ggds.run.step import LossSet, render, take_step
-from lsd3d_usd.ggds.run.views import TrainingViews, ViewData
+from lsd3d_usd.ggds.run.training_views import TrainingViews, ViewData
 from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.render.raster_types import RasterResult
 from lsd3d_usd.splats.field import SurfelField

@@ -22,7 +22,7 @@ from lsd3d_usd.ggds.losses.terms import StepContext
 from lsd3d_usd.ggds.run.context import FrozenContext
 from lsd3d_usd.ggds.run.evaluate import psnr
 from lsd3d_usd.ggds.run.state import RunState
-from lsd3d_usd.ggds.run.views import TrainingViews
+from lsd3d_usd.ggds.run.training_views import TrainingViews
 from lsd3d_usd.render.raster_types import RasterResult, RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 

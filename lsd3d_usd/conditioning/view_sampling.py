@@ -7,7 +7,7 @@ Off-lane views ("novel"), two styles:
       uniformly random horizontal direction of its own frame, with a vertical part uniform in
       [-min(0.25 d, 0.5), 0.25 d] and its heading turned by up to ±min(7.5°·d, 45°); positions
       inside a building footprint are redrawn. These are the positions `eval` calls novel
-      (eval/views.novel_views draws its distance bins 0.5-8 m the same way), so the surfaces
+      (eval/lane_views.novel_views draws its distance bins 0.5-8 m the same way), so the surfaces
       such views see get supervised.
   "lane_offset": beside a lane, 0.5-5 m beyond its edge, free heading (±60°, turned round
       15 % of the time), eye height 1.2-3 m (the earlier sampler).
@@ -30,7 +30,7 @@ MAX_HEADING_DEG = 45.0     # ... and at most this
 @dataclass
 class View:
     camera: Camera
-    kind: str          # "lane" | "novel" | "held_out" | "elevated" (conditioning.elevated)
+    kind: str          # "lane" | "novel" | "held_out" | "elevated" (conditioning.elevated_sampling)
     lane_id: str
     offset_m: float    # lateral distance from the lane centreline; elevated: height above
                        # the point looked at

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.conditioning.elevated import sample_elevated_views
-from lsd3d_usd.conditioning.views import lane_length_inside, sample_views
+from lsd3d_usd.conditioning.elevated_sampling import sample_elevated_views
+from lsd3d_usd.conditioning.view_sampling import lane_length_inside, sample_views
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.regions.plan import Region, region_seed
 
@@ -47,7 +47,7 @@ def training_elevated(layout, g, rseed: int, n_views: int, around, whole: bool) 
 
 
 def elevated(layout, g, n: int, seed: int, around, whole: bool) -> list:
-    """``n`` elevated views of config ``g`` (conditioning.elevated): over lanes inside
+    """``n`` elevated views of config ``g`` (conditioning.elevated_sampling): over lanes inside
     ``around`` (clipped to it for a chunk region), and for a whole-scene region a share
     framing the layout."""
     w, h = g.resolution
@@ -97,7 +97,7 @@ def region_fit_views(layout, g, seed: int, region: Region) -> list:
     training views' margin (a surfel near a border is seen by a whole-scene fit from both
     sides and from afar; the region's training views reach only ``view_margin_m`` across, so
     without these its colour would be fitted from one side). Either kind also gets elevated
-    views (conditioning.elevated): with ``elevated_train`` off, the ones region_views would
+    views (conditioning.elevated_sampling): with ``elevated_train`` off, the ones region_views would
     otherwise train on (so the colour start alone sees them), and in any case
     ``world_init_views × elevated_frac`` × its training views more."""
     r = g.regions

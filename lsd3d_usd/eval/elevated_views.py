@@ -11,7 +11,7 @@ and the terrain seen from above are never measured. These views are (seeded):
   h / tan(pitch) back from the target, so its optical axis hits the target exactly.
   A camera outside the layout's XY bounds, inside a building footprint, or whose sight line
   to the target passes through a building (below its eave height +
-  conditioning.elevated.ROOF_MARGIN_M) is redrawn (another azimuth and pitch, up to 50
+  conditioning.elevated_sampling.ROOF_MARGIN_M) is redrawn (another azimuth and pitch, up to 50
   times): the view shows the target, not a wall next to the camera. If none fits, it takes
   the steepest pitch from the side of the layout's centre
   (inside the bounds for any layout wider than 2 h / tan(max pitch)).
@@ -30,7 +30,7 @@ from pxr import UsdGeom
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.geometry.polyline import point_at
-from lsd3d_usd.conditioning.elevated import Obstacles, place
+from lsd3d_usd.conditioning.elevated_sampling import Obstacles, place
 from lsd3d_usd.render.camera import Camera, from_usd, look_at
 
 DEFAULT_HEIGHTS = (5.0, 15.0, 30.0)

@@ -20,7 +20,7 @@ import numpy as np
 from pxr import Sdf
 
 from lsd3d_usd import scene as S
-from lsd3d_usd.conditioning.views import View, building_paths, inside_paths, sample_views
+from lsd3d_usd.conditioning.view_sampling import View, building_paths, inside_paths, sample_views
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.geometry.polyline import point_at
 from lsd3d_usd.ggds.settings import GGDSConfig

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lsd3d_usd.conditioning.views import (View, _inside_arcs, _lanes, _point_on, _strata,
+from lsd3d_usd.conditioning.view_sampling import (View, _inside_arcs, _lanes, _point_on, _strata,
                                           building_paths, inside_paths)
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render.camera import Camera, look_at

@@ -9,7 +9,7 @@ import torch
 
 from lsd3d_usd.conditioning.gbuffer import GBuffer, PackedGBuffer
 from lsd3d_usd.conditioning.scene import Conditioning
-from lsd3d_usd.conditioning.views import View
+from lsd3d_usd.conditioning.view_sampling import View
 
 _RUN_KEYS = itertools.count()   # G-buffer keys unique across the runs of a process
 
