@@ -16,9 +16,12 @@ shortened or not made, so no two boxes overlap at any step when none did at the 
 """
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass, field
 
 import numpy as np
+import shapely
 
 WALK, WAIT, CROSS, STAND = "walk", "wait", "cross", "stand"
 
@@ -37,7 +40,8 @@ class WalkParams:
     stand_offset: float = 1.5            # m from the sidewalk edge (standing spots)
 
 
-PASS_AFTER = 2.0     # s a walker stands blocked by other walkers before it squeezes past
+PASS_AFTER = 2.0     # s a walker stands blocked before it steps aside ...
+ASIDE_MAX = 1.2      # ... by at most this many metres
 
 
 def obb_overlap(c1, yaw1, half1, c2, yaw2, half2) -> np.ndarray:
@@ -84,6 +88,8 @@ class Walker:
     occupying: bool = False
     midblock: tuple | None = None     # (far point, far track, its arc length) of a mid-block crossing
     blocked: float = 0.0              # seconds it has stood wanting to move
+    aside: float = 0.0                # metres it has stepped aside to let someone pass
+    aside_dir: float = 0.0            # the side it steps to (+1 left, -1 right), once chosen
 
 
 class Pedestrians:
@@ -119,18 +125,12 @@ class Pedestrians:
             near = np.abs(oc - np.asarray(xy)).max(1) < oh[:, 0] + 1.5
             if near.any() and obb_overlap(xy, yaw, h, oc[near], oy[near], oh[near]).any():
                 return False
-        # two people facing each other on a crosswalk would otherwise wait forever: one
-        # that has stood PASS_AFTER seconds squeezes past the others
-        if len(self.people) > 1 and me.blocked < PASS_AFTER:
-            idx = [j for j in range(len(self.people)) if j != i]
-            pc = np.array([self.people[j].xy for j in idx])
-            near = np.abs(pc - np.asarray(xy)).max(1) < 2.5
-            if near.any():
-                sel = [idx[j] for j in np.flatnonzero(near)]
-                py = np.array([self.people[j].yaw for j in sel])
-                ph = np.array([self.half(self.people[j]) for j in sel])
-                if obb_overlap(xy, yaw, h, pc[near], py, ph).any():
-                    return False
+        if len(self.people) > 1:
+            P, Y, H = self._boxes
+            near = np.abs(P - np.asarray(xy)).max(1) < 2.5
+            near[i] = False
+            if near.any() and obb_overlap(xy, yaw, h, P[near], Y[near], H[near]).any():
+                return False
         return True
 
     def free_spot(self, xy, yaw, length, width, others) -> bool:
@@ -200,6 +200,10 @@ class Pedestrians:
     def step(self, dt: float, others, crosswalk_clear) -> None:
         """Move every walker by one step of ``dt`` s. ``others``: the vehicles' boxes;
         ``crosswalk_clear(k)``: may a walker step onto crosswalk k now."""
+        # everyone's box as arrays, a row updated as its walker moves (what `_free` reads)
+        self._boxes = (np.array([p.xy for p in self.people], np.float64).reshape(-1, 2),
+                       np.array([p.yaw for p in self.people], np.float64),
+                       np.array([self.half(p) for p in self.people]).reshape(-1, 2))
         for i, p in enumerate(self.people):
             if p.state == STAND:
                 p.v = 0.0
@@ -230,12 +234,16 @@ class Pedestrians:
                 break
         for frac in (1.0, 0.5, 0.25):
             d = (stop[0] if stop is not None else ds) * frac
-            s_new = (p.s + d) % t.length
-            xy, yaw = t.pose2d(s_new)
+            d_fwd, aside = self._back(p, d)
+            s_new = (p.s + d_fwd) % t.length
+            xy, yaw = self._beside(*t.pose2d(s_new), aside)
             if self._move_ok(i, xy, yaw, others):
                 p.s, p.xy, p.yaw, p.v = s_new, xy, yaw, d / dt
+                self._boxes[0][i], self._boxes[1][i] = xy, yaw
                 p.walked += d
                 p.blocked = 0.0
+                p.aside = aside
+                p.aside_dir = p.aside_dir if aside else 0.0
                 if stop is not None and frac == 1.0:
                     if self.rng.random() < self.p.cross_probability:
                         p.state, p.crosswalk, p.forward = WAIT, stop[1], stop[2]
@@ -248,21 +256,63 @@ class Pedestrians:
                 return
         p.v = 0.0
         p.blocked += dt
+        self._sidestep(i, p, dt, others)
+
+    @staticmethod
+    def _back(p: Walker, d: float) -> tuple[float, float]:
+        """(distance along the path, offset from it after the move) of a move of ``d`` m by
+        a walker that stepped aside: it returns to its path by at most half the move."""
+        if not p.aside:
+            return d, 0.0
+        back = min(abs(p.aside), 0.5 * d)
+        return math.sqrt(max(d * d - back * back, 0.0)), p.aside - math.copysign(back, p.aside)
+
+    @staticmethod
+    def _beside(xy, yaw, aside: float):
+        if not aside:
+            return xy, yaw
+        return np.asarray(xy) + aside * np.array([-math.sin(yaw), math.cos(yaw)]), yaw
+
+    def _sidestep(self, i: int, p: Walker, dt: float, others) -> None:
+        """Two people facing each other (on a crosswalk, at its end) would otherwise wait for
+        each other forever: one that has stood PASS_AFTER seconds steps aside at its walking
+        speed, up to ASIDE_MAX m, where the walkable area and everyone's boxes allow, so the
+        other can pass; it walks on along its path once that is free."""
+        if p.blocked < PASS_AFTER or abs(p.aside) >= ASIDE_MAX:
+            return
+        left = np.array([-np.sin(p.yaw), np.cos(p.yaw)])
+        area = getattr(self.w, "area", None)
+        step = p.v_des * dt
+        for sign in ((p.aside_dir,) if p.aside_dir else (1.0, -1.0)):
+            xy = p.xy + sign * step * left
+            inside = area is None or bool(shapely.contains_xy(area, xy[0], xy[1])) or \
+                any(bool(shapely.contains_xy(c, xy[0], xy[1])) for c in self.polygons)
+            if inside and self._free(i, xy, p.yaw, others):
+                p.xy = xy
+                self._boxes[0][i] = xy
+                p.aside += sign * step
+                p.aside_dir = sign
+                return
 
     def _step_cross(self, i: int, p: Walker, dt: float, others) -> None:
         ds = p.v_des * dt
         for frac in (1.0, 0.5, 0.25):
-            u = min(p.u + ds * frac, p.cum[-1])
-            xy, yaw = self._path_point(p, u)
+            d_fwd, aside = self._back(p, ds * frac)
+            u = min(p.u + d_fwd, p.cum[-1])
+            xy, yaw = self._beside(*self._path_point(p, u), aside)
             if self._move_ok(i, xy, yaw, others):
                 p.v = (u - p.u) / dt
                 p.walked += u - p.u
                 p.u, p.xy, p.yaw = u, xy, yaw
+                self._boxes[0][i], self._boxes[1][i] = xy, yaw
                 p.blocked = 0.0
+                p.aside = aside
+                p.aside_dir = p.aside_dir if aside else 0.0
                 break
         else:
             p.v = 0.0
             p.blocked += dt
+            self._sidestep(i, p, dt, others)
         if p.occupying and p.u >= p.release_u:
             p.occupying = False
         if p.u >= p.cum[-1] - 1e-9:

@@ -343,10 +343,16 @@ class Route:
         cross = u[0] * (p[1] - c[1]) - u[1] * (p[0] - c[0])
         return float(cum[lo] + s), math.copysign(dist, cross)
 
+    def points(self, d) -> np.ndarray:
+        """(n, 3) points at route distances ``d`` (clipped to the route): `point` for many."""
+        pts, cum = self.polyline()
+        d = np.clip(np.asarray(d, np.float64), 0.0, self.length)
+        return np.stack([np.interp(d, cum, pts[:, k]) for k in range(3)], axis=-1)
+
     def ahead(self, d: float, n: int, spacing: float) -> np.ndarray:
         """(n, 3) points of the route from distance ``d`` on, ``spacing`` m apart (held at
         the route's end)."""
-        return np.stack([self.point(d + k * spacing) for k in range(n)])
+        return self.points(d + spacing * np.arange(n))
 
 
 def parse_route(text) -> list[str]:
