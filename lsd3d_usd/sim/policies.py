@@ -32,6 +32,20 @@ COMFORT_BRAKE = 3.0        # ... unless it must brake harder than this (m/s^2)
 PATH_HALF_WIDTH = 1.4       # m: an agent's box nearer than this to the route is in the path
 
 
+def _nearest_on(R: np.ndarray, ds: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(distance, route distance) of each point Q (m, 2) to the polyline R (n, 2) whose
+    vertices lie at route distances ``ds`` (a 1 m sampling of the route ahead)."""
+    A, B = R[:-1], R[1:]
+    d = B - A
+    dd = np.maximum(np.einsum("ij,ij->i", d, d), 1e-12)
+    f = np.clip(np.einsum("mij,ij->mi", Q[:, None, :] - A[None], d) / dd, 0.0, 1.0)   # (m, n)
+    X = A[None] + f[..., None] * d[None]
+    dist2 = np.einsum("mij,mij->mi", Q[:, None, :] - X, Q[:, None, :] - X)
+    k = np.argmin(dist2, axis=1)
+    m = np.arange(len(Q))
+    return np.sqrt(dist2[m, k]), ds[:-1][k] + f[m, k] * (ds[1:][k] - ds[:-1][k])
+
+
 class Planner:
     """The privileged planner (module doc)."""
 
@@ -60,36 +74,43 @@ class Planner:
         if end < best[0]:
             best = (end, 0.0)
         heading = route.heading(d_ego)
-        for b in info["boxes"]:
-            c = np.asarray(b["center"])
-            if abs(c[0] - ego.x) > self.horizon + 10 or abs(c[1] - ego.y) > self.horizon + 10:
-                continue
-            d, off = route.project(c, near=d_ego, window=self.horizon + 10)
-            ahead = d - d_ego
-            half = 0.5 * b["width"] if b["kind"] != "pedestrian" else 0.5
-            vel = np.asarray(b["velocity"])
-            if 0.0 < ahead < self.horizon and abs(off) < PATH_HALF_WIDTH + half:
-                g = ahead - front - 0.5 * b["length"]
-                v_along = float(vel @ [math.cos(heading), math.sin(heading)])
+        boxes = [b for b in info["boxes"]
+                 if abs(b["center"][0] - ego.x) < self.horizon + 10
+                 and abs(b["center"][1] - ego.y) < self.horizon + 10]
+        if not boxes:
+            return best
+        # every box, and every crossing agent's straight path over 3 s, against the route
+        # ahead as one array of segments (a box in the path; a path cutting it first)
+        lo = max(d_ego - 10.0, 0.0)
+        ds = np.arange(lo, min(d_ego + self.horizon + 10.0, route.length) + 1.0, 1.0)
+        R = route.points(ds)[:, :2]
+        taus = np.arange(0.0, 3.01, 0.25)
+        C = np.array([b["center"] for b in boxes], np.float64)
+        V = np.array([b["velocity"] for b in boxes], np.float64)
+        half = np.array([0.5 * b["width"] if b["kind"] != "pedestrian" else 0.5 for b in boxes])
+        blen = np.array([b["length"] for b in boxes])
+        P = C[:, None, :] + V[:, None, :] * taus[None, :, None]          # (n, T, 2)
+        dist, along = _nearest_on(R, ds, P.reshape(-1, 2))
+        dist, along = dist.reshape(P.shape[:2]), along.reshape(P.shape[:2])
+        ahead = along - d_ego
+        speed = np.hypot(V[:, 0], V[:, 1])
+        u = np.array([math.cos(heading), math.sin(heading)])
+        for k in range(len(boxes)):
+            inpath = (0.0 < ahead[k] ) & (ahead[k] < self.horizon) & (dist[k] < PATH_HALF_WIDTH + half[k])
+            if inpath[0]:                       # in the path now
+                g = ahead[k, 0] - front - 0.5 * blen[k]
                 if g < best[0]:
-                    best = (g, max(v_along, 0.0))
+                    best = (g, max(float(V[k] @ u), 0.0))
                 continue
-            speed = float(np.hypot(*vel))
-            if speed < 0.3 or ahead < -5.0:
+            if speed[k] < 0.3 or ahead[k, 0] < -5.0 or not inpath.any():
                 continue
-            # a crossing agent: where its straight path meets the route within 3 s
-            for tau in np.arange(0.25, 3.01, 0.25):
-                p = c + vel * tau
-                d2, off2 = route.project(p, near=d_ego, window=self.horizon + 10)
-                a2 = d2 - d_ego
-                if 0.0 < a2 < self.horizon and abs(off2) < PATH_HALF_WIDTH + half:
-                    # it gets there first when it arrives before the ego's front does
-                    t_ego = (a2 - front) / max(ego.v, 0.5)
-                    if tau <= t_ego + 1.0:
-                        g = a2 - front - 1.0
-                        if g < best[0]:
-                            best = (g, 0.0)
-                    break
+            j = int(np.argmax(inpath))          # it reaches the path after taus[j] s ...
+            a2 = ahead[k, j]
+            t_ego = (a2 - front) / max(ego.v, 0.5)
+            if taus[j] <= t_ego + 1.0:          # ... before the ego's front does: yield
+                g = a2 - front - 1.0
+                if g < best[0]:
+                    best = (g, 0.0)
         return best
 
     def _target_speed(self, d: float) -> float:
@@ -126,7 +147,7 @@ class Planner:
         env = self.env
         ego, lim = env.ego, env.limits
         d = env.world.ego_d - lim.box_offset         # the route at the rear axle
-        pts = np.stack([env.route.point(d + k)[:2] for k in np.arange(0.0, 40.0, 1.0)])
+        pts = env.route.points(d + np.arange(0.0, 40.0, 1.0))[:, :2]
         M = ego.matrix()
         local = (pts - M[:2, 3]) @ M[:2, :2]
         local = local[local[:, 0] > -0.5]
