@@ -15,6 +15,11 @@ drive opens in Foxglove like a ROS 2 recording:
 Times are the log's microsecond timestamps (datasets.tokens) in nanoseconds. The file is
 written as ROOT/.<log>.mcap.partial and renamed when the log is done.
 
+Other recorders (sim.record) reuse the writer: ``stem`` names the file instead of the log,
+``boxes_with_cameras=False`` writes the boxes at every sample (not only when the cameras
+fire), and ``log_json`` adds a schema-less JSON channel (MCAP's "json" message encoding, its
+schema optional; Foxglove plots its fields).
+
 Resuming: a checkpoint (after every keyframe) ends the chunk in progress and flushes the file
 to disk, so the recording up to the keyframe is whole chunks in the file, and notes how many
 messages that is. ``restore`` reads the unfinished file's chunks back with the `mcap` stream
@@ -57,8 +62,11 @@ class McapWriter:
     name = "mcap"
     files = ("*.mcap", ".*.mcap.partial", ".*.mcap.partial.new")
 
-    def __init__(self, root: Path, options):
+    def __init__(self, root: Path, options, *, stem: str | None = None,
+                 boxes_with_cameras: bool = True):
         self.root = Path(root)
+        self.stem = stem
+        self.boxes_with_cameras = boxes_with_cameras
 
     def begin_log(self, info) -> None:
         self._start(info)
@@ -73,7 +81,7 @@ class McapWriter:
 
     def _start(self, info) -> None:
         self.fm, self.info = _fm(), info
-        self.name_ = f"lsd3d-{info.plan.index:04d}-{info.plan.scene_name}"
+        self.name_ = self.stem or f"lsd3d-{info.plan.index:04d}-{info.plan.scene_name}"
         self.root.mkdir(parents=True, exist_ok=True)
         self.tmp = self.root / f".{self.name_}.mcap.partial"
 
@@ -152,11 +160,21 @@ class McapWriter:
         return self.channels[topic]
 
     def _log(self, topic: str, msg, ns: int) -> None:
-        ch = self._channel(topic, msg)
-        self.w.add_message(ch, log_time=ns, data=msg.encode(), publish_time=ns,
+        self._add(topic, self._channel(topic, msg), msg.encode(), ns)
+
+    def _add(self, topic: str, ch: int, data: bytes, ns: int) -> None:
+        self.w.add_message(ch, log_time=ns, data=data, publish_time=ns,
                            sequence=self.counts.get(topic, 0))
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self.n_messages += 1
+
+    def log_json(self, topic: str, obj, seconds: float) -> None:
+        """One JSON message (``obj`` must be JSON-ready: no NaN) on a schema-less channel."""
+        import json
+        if topic not in self.channels:
+            self.channels[topic] = self.w.register_channel(topic, "json", 0)
+        self._add(topic, self.channels[topic],
+                  json.dumps(obj, allow_nan=False, sort_keys=True).encode(), self._ns(seconds))
 
     def _tf(self, parent, child, M, ns):
         fm = self.fm
@@ -181,7 +199,7 @@ class McapWriter:
                 R=np.eye(3).ravel().tolist(), P=P.ravel().tolist()), ns)
         if s.lidar is not None:
             self._log("/LIDAR_TOP", self._cloud(s.lidar.sweep, stamp), ns)
-        if s.cameras and s.boxes is not None:
+        if (s.cameras or not self.boxes_with_cameras) and s.boxes is not None:
             self._log("/markers/annotations", self._boxes(s.boxes, stamp), ns)
 
     def _cloud(self, sw, stamp):
