@@ -44,6 +44,28 @@ PASS_AFTER = 2.0     # s a walker stands blocked before it steps aside ...
 ASIDE_MAX = 1.2      # ... by at most this many metres
 
 
+def _as_lists(others):
+    """Vehicle boxes (centres, yaws, halves) as Python lists, and the tuple they came from."""
+    oc, oy, oh = others
+    return (np.asarray(oc, np.float64).reshape(-1, 2).tolist(), np.asarray(oy, np.float64).tolist(),
+            np.asarray(oh, np.float64).reshape(-1, 2).tolist(), others)
+
+
+def _overlap(box, cx, cy, yaw, half) -> bool:
+    """`obb_overlap` of one box (x, y, cos, sin, half along, half across) and another, in
+    scalars (the same separating-axis test; touching counts as apart)."""
+    x, y, c1, s1, a1, b1 = box
+    c2, s2 = math.cos(yaw), math.sin(yaw)
+    a2, b2 = half
+    dx, dy = cx - x, cy - y
+    for nx, ny in ((c1, s1), (-s1, c1), (c2, s2), (-s2, c2)):
+        r1 = a1 * abs(c1 * nx + s1 * ny) + b1 * abs(-s1 * nx + c1 * ny)
+        r2 = a2 * abs(c2 * nx + s2 * ny) + b2 * abs(-s2 * nx + c2 * ny)
+        if abs(dx * nx + dy * ny) >= r1 + r2:
+            return False
+    return True
+
+
 def obb_overlap(c1, yaw1, half1, c2, yaw2, half2) -> np.ndarray:
     """Do oriented rectangles overlap (separating axis test)? Centres (..., 2), yaws (...),
     half extents (..., 2) (along, across); arrays broadcast. Touching counts as apart."""
@@ -105,6 +127,8 @@ class Pedestrians:
         self.add_crossing = add_crossing
         self.polygons = [c.polygon for c in walkable.crosswalks]   # + mid-block corridors
         self.people: list[Walker] = []
+        self._boxes = ([], [], [])        # everyone's box during a step (`step`)
+        self._vehicles = None
         # leave points per track: (s, crosswalk index, forward)
         self.leave = [[] for _ in walkable.tracks]
         for k, c in enumerate(walkable.crosswalks):
@@ -117,20 +141,25 @@ class Pedestrians:
 
     def _free(self, i: int, xy, yaw, others) -> bool:
         """Would walker i at (xy, yaw) stay clear of every other box? ``others``: (centres
-        (n, 2), yaws (n,), halves (n, 2)) of the vehicles."""
+        (n, 2), yaws (n,), halves (n, 2)) of the vehicles. Scalar code: a step asks this
+        for a handful of nearby boxes, where numpy's per-call cost dominated."""
         me = self.people[i]
         h = self.half(me)
-        oc, oy, oh = others
-        if len(oc):
-            near = np.abs(oc - np.asarray(xy)).max(1) < oh[:, 0] + 1.5
-            if near.any() and obb_overlap(xy, yaw, h, oc[near], oy[near], oh[near]).any():
+        x, y, yw = float(xy[0]), float(xy[1]), float(yaw)
+        box = (x, y, math.cos(yw), math.sin(yw), float(h[0]), float(h[1]))
+        lists = self._vehicles if self._vehicles is not None and self._vehicles[3] is others \
+            else _as_lists(others)
+        vc, vy, vh = lists[:3]
+        for k in range(len(vc)):
+            cx, cy = vc[k]
+            if max(abs(cx - x), abs(cy - y)) < vh[k][0] + 1.5 and _overlap(box, cx, cy, vy[k], vh[k]):
                 return False
         if len(self.people) > 1:
             P, Y, H = self._boxes
-            near = np.abs(P - np.asarray(xy)).max(1) < 2.5
-            near[i] = False
-            if near.any() and obb_overlap(xy, yaw, h, P[near], Y[near], H[near]).any():
-                return False
+            for j in range(len(P)):
+                if j != i and max(abs(P[j][0] - x), abs(P[j][1] - y)) < 2.5 and \
+                        _overlap(box, P[j][0], P[j][1], Y[j], H[j]):
+                    return False
         return True
 
     def free_spot(self, xy, yaw, length, width, others) -> bool:
@@ -201,9 +230,10 @@ class Pedestrians:
         """Move every walker by one step of ``dt`` s. ``others``: the vehicles' boxes;
         ``crosswalk_clear(k)``: may a walker step onto crosswalk k now."""
         # everyone's box as arrays, a row updated as its walker moves (what `_free` reads)
-        self._boxes = (np.array([p.xy for p in self.people], np.float64).reshape(-1, 2),
-                       np.array([p.yaw for p in self.people], np.float64),
-                       np.array([self.half(p) for p in self.people]).reshape(-1, 2))
+        self._boxes = ([[float(p.xy[0]), float(p.xy[1])] for p in self.people],
+                       [float(p.yaw) for p in self.people],
+                       [[float(v) for v in self.half(p)] for p in self.people])
+        self._vehicles = _as_lists(others)
         for i, p in enumerate(self.people):
             if p.state == STAND:
                 p.v = 0.0
@@ -239,7 +269,7 @@ class Pedestrians:
             xy, yaw = self._beside(*t.pose2d(s_new), aside)
             if self._move_ok(i, xy, yaw, others):
                 p.s, p.xy, p.yaw, p.v = s_new, xy, yaw, d / dt
-                self._boxes[0][i], self._boxes[1][i] = xy, yaw
+                self._boxes[0][i], self._boxes[1][i] = [float(xy[0]), float(xy[1])], float(yaw)
                 p.walked += d
                 p.blocked = 0.0
                 p.aside = aside
@@ -289,7 +319,7 @@ class Pedestrians:
                 any(bool(shapely.contains_xy(c, xy[0], xy[1])) for c in self.polygons)
             if inside and self._free(i, xy, p.yaw, others):
                 p.xy = xy
-                self._boxes[0][i] = xy
+                self._boxes[0][i] = [float(xy[0]), float(xy[1])]
                 p.aside += sign * step
                 p.aside_dir = sign
                 return
@@ -304,7 +334,7 @@ class Pedestrians:
                 p.v = (u - p.u) / dt
                 p.walked += u - p.u
                 p.u, p.xy, p.yaw = u, xy, yaw
-                self._boxes[0][i], self._boxes[1][i] = xy, yaw
+                self._boxes[0][i], self._boxes[1][i] = [float(xy[0]), float(xy[1])], float(yaw)
                 p.blocked = 0.0
                 p.aside = aside
                 p.aside_dir = p.aside_dir if aside else 0.0
