@@ -398,13 +398,54 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
     return {"record": rec, "resumed_at": start if part else None, "skipped": False}
 
 
+def record_problem(value, shape, where: str = "") -> str | None:
+    """Where ``value`` (JSON read back) departs from ``shape``, or None. A shape is a type
+    (int excludes bool), ``[shape]`` (a list of those), ``{str: shape}`` (a mapping of any
+    keys) or ``{"key": shape, ...}`` (those keys required, others free)."""
+    if isinstance(shape, type):
+        ok = isinstance(value, shape) and not (shape is int and isinstance(value, bool))
+        return None if ok else f"{where or 'record'} is {type(value).__name__}, not " \
+                               f"{shape.__name__}"
+    if isinstance(shape, list):
+        if not isinstance(value, list):
+            return f"{where or 'record'} is {type(value).__name__}, not a list"
+        return next((p for i, v in enumerate(value)
+                     if (p := record_problem(v, shape[0], f"{where}[{i}]"))), None)
+    if not isinstance(value, dict):
+        return f"{where or 'record'} is {type(value).__name__}, not an object"
+    if list(shape) == [str]:
+        return next((p for k, v in value.items()
+                     if (p := record_problem(v, shape[str], f"{where}.{k}".lstrip(".")))), None)
+    for k, s in shape.items():
+        if k not in value:
+            return f"{where}.{k}".lstrip(".") + " is missing"
+        if (p := record_problem(value[k], s, f"{where}.{k}".lstrip("."))):
+            return p
+    return None
+
+
 def merge(root: Path, opt: DatasetOptions, writer, n_logs: int) -> dict:
-    """The format's tables from every log's record (all must be finished)."""
+    """The format's tables from every log's record (all must be finished); each record is
+    checked against the writer's ``record_shape`` first (it is data read back from disk)."""
     logs = root / STATE / "logs"
     missing = [k for k in range(n_logs) if not (logs / f"{k:04d}.json").is_file()]
     if missing:
         raise InputError(f"{root}: log {missing[0]} is not finished; run again with --resume")
-    return writer.finish([read_record(logs / f"{k:04d}.json", root) for k in range(n_logs)])
+    records = []
+    shape = getattr(writer, "record_shape", None)
+    for k in range(n_logs):
+        f = logs / f"{k:04d}.json"
+        rec = read_record(f, root)
+        if shape is not None and (p := record_problem(rec, shape)):
+            raise InputError(f"{f}: not a log record of the {opt.format} writer ({p[:100]}); "
+                             "give --overwrite")
+        records.append(rec)
+    try:
+        return writer.finish(records)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
+        # a writer without a shape, or a shape that misses a detail: still one line
+        raise InputError(f"{logs}: a log record is not one of the {opt.format} writer "
+                         f"({type(e).__name__}: {str(e)[:60]}); give --overwrite") from None
 
 
 def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, log=print,
