@@ -233,20 +233,94 @@ def prepare(scenes, out, opt: DatasetOptions):
     return writer_cls, plan_logs(roots, opt), lidar, timeline
 
 
+def _scene_files(root: Path) -> tuple[list[Path], list[Path]]:
+    """(the layers of the scene's root layer stack: the root layer and its sublayers,
+    recursively; the files those layers reference or payload, e.g. chunk files)."""
+    from pxr import Sdf
+    stack, arcs, todo = [], [], [root / S.ROOT_FILE]
+    while todo:
+        p = todo.pop(0)
+        if p in stack:
+            continue
+        stack.append(p)
+        try:
+            layer = Sdf.Layer.FindOrOpen(str(p)) if p.is_file() else None
+        except Exception:  # noqa: BLE001 -- unreadable: recorded as its bytes, no arcs followed
+            layer = None
+        if layer is None:
+            continue
+        subs = [Path(layer.ComputeAbsolutePath(s)) for s in layer.subLayerPaths]
+        todo += subs
+        arcs += [Path(layer.ComputeAbsolutePath(d))
+                 for d in layer.GetCompositionAssetDependencies()
+                 if Path(layer.ComputeAbsolutePath(d)) not in subs]
+    return stack, sorted(set(arcs) - set(stack))
+
+
+def input_digests(opt: DatasetOptions) -> dict:
+    """What the dataset is made from, by name: the SHA-256 of every layer of each scene's
+    root layer stack and of a rig or LiDAR FILE.toml (streamed: bounded memory), the size
+    and mtime of the files those layers reference or payload (chunk files: hashing a large
+    scene's chunks would cost more than a resume saves), and the LiDAR model itself (a rig's
+    own LiDAR file included). --resume refuses other content, naming what changed."""
+    from lsd3d_usd.hashing import content_hash, file_hash
+    out = {}
+    for sc in map(Path, opt.scenes):
+        stack, arcs = _scene_files(sc)
+        for f in stack + arcs:
+            name = f"{sc.name}/{f.relative_to(sc) if f.is_relative_to(sc) else f}"
+            if not f.is_file():
+                out[name] = "missing"
+            elif f in stack:
+                out[name] = f"sha256 {file_hash(f)}"
+            else:
+                st = f.stat()
+                out[name] = f"size {st.st_size} mtime_ns {st.st_mtime_ns}"
+    for flag, spec in (("--rig", opt.rig), ("--lidar", opt.lidar)):
+        if isinstance(spec, str) and spec.lower().endswith(".toml") and Path(spec).is_file():
+            out[f"{flag} {spec}"] = f"sha256 {file_hash(spec)}"
+    lidar = lidar_of(opt)
+    out["the LiDAR model"] = content_hash(lidar.describe() if lidar else None)
+    return out
+
+
 def check_resume(state: Path, sig: dict, out) -> None:
     old = read_record(state / "dataset.json", out)
-    diff = sorted(k for k in set(old) | set(sig) if old.get(k) != sig.get(k))
+    diff = sorted(k for k in set(old) | set(sig) if k != "inputs" and old.get(k) != sig.get(k))
     if diff:
         raise InputError(f"-o {out}: --resume, but the dataset was made with other "
                          f"settings ({diff[0]}: {old.get(diff[0])!r} there, "
                          f"{sig.get(diff[0])!r} now)")
+    if "inputs" not in sig:                # a batch: its task hashes cover the scenes
+        return
+    was, now = old.get("inputs"), sig["inputs"]
+    if not isinstance(was, dict):
+        raise InputError(f"-o {out}: --resume, but {STATE}/dataset.json records no digests of "
+                         "what the dataset was made from (an older lsd3d-usd, or edited); "
+                         "give --overwrite")
+    for k in sorted(set(was) | set(now)):
+        if was.get(k) != now.get(k):
+            how = ("changed" if k in was and k in now and now[k] != "missing" else
+                   "is missing now" if k in was else "is new")
+            raise InputError(f"-o {out}: --resume, but {k} {how} since the dataset began; "
+                             "restore it, or give --overwrite to start again")
 
 
-def start_dataset(root: Path, opt: DatasetOptions, plans) -> None:
-    """Record the settings and the plan (ROOT/.lsd3d/dataset.json); --overwrite deletes the
-    previous dataset's own files (nothing else may be there), --resume checks the record."""
-    state = root / STATE
+def dataset_record(opt: DatasetOptions, plans, inputs: bool = True) -> dict:
+    """What dataset.json holds: the settings, the plan and (``inputs``) input_digests."""
     sig = {**opt.signature(), "logs": [p.key for p in plans]}
+    if inputs:
+        sig["inputs"] = input_digests(opt)
+    return sig
+
+
+def start_dataset(root: Path, opt: DatasetOptions, plans, inputs: bool = True) -> None:
+    """Record the settings, the plan and the digests of the inputs
+    (ROOT/.lsd3d/dataset.json); --overwrite deletes the previous dataset's own files (nothing
+    else may be there), --resume checks the record. ``inputs`` False: a batch, which records
+    the dataset before its scenes exist (its task hashes cover them)."""
+    state = root / STATE
+    sig = dataset_record(opt, plans, inputs)
     if opt.resume:
         check_resume(state, sig, root)
         # temp files of a killed writer (scene.atomic_write_bytes) are no part of the dataset
