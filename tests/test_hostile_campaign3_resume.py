@@ -223,7 +223,7 @@ def test_ply_trailing_element_is_checked_against_the_file_size(tmp_path, field_f
     f = tmp_path / "t.ply"
     _ply(f, field_factory(50, sh_degree=0),
          tail=b"element face 1000000000\nproperty list uchar int vertex_indices\n")
-    with pytest.raises(InputError, match="t.ply: PLY body truncated in element face"):
+    with pytest.raises(InputError, match="t.ply: PLY body truncated in element 'face'"):
         read_ply(f)
 
 
