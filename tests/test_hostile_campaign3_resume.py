@@ -239,14 +239,15 @@ def _kind(v):
     return "int" if type(v) is int else type(v).__name__
 
 
-def _mutate(data: bytes, how, draw, structural: bool) -> bytes:
+def _mutate(data: bytes, how, draw, structural: bool, jsonl: bool) -> bytes:
     """A state file damaged so that no resume may accept it: cut short, replaced by bytes,
     or (JSON) a value of another type, or (``structural``) a key removed."""
     if how == "cut":
         return data[:draw(st.integers(0, max(len(data) - 2, 0)))]
     if how == "bytes":
         return draw(st.binary(max_size=64).filter(lambda b: b != data))
-    lines = data.decode().splitlines()
+    text = data.decode()
+    lines = text.splitlines() if jsonl else [text]      # a journal: one object a line
     n = draw(st.integers(0, len(lines) - 1))
     obj = json.loads(lines[n])
     key = draw(st.sampled_from(sorted(obj)))
@@ -256,6 +257,14 @@ def _mutate(data: bytes, how, draw, structural: bool) -> bytes:
         obj[key] = draw(JSON.filter(lambda v, old=obj[key]: _kind(v) != _kind(old)))
     lines[n] = json.dumps(obj)
     return ("\n".join(lines) + "\n").encode()
+
+
+def _fresh(base: Path) -> Path:
+    tmp = base / "case"
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    tmp.mkdir()
+    return tmp
 
 
 TARGETS = {   # file -> (prepared dataset, format, JSON mutations allowed)
@@ -277,19 +286,21 @@ def test_fuzz_resume_state(made, tmp_path_factory, target):
 
     from lsd3d_usd.cli import main
     which, fmt, kinds = TARGETS[target]
+    base = tmp_path_factory.mktemp("fuzz")
 
     @SETTINGS
     @given(st.data())
     def run(data):
         import contextlib
         import io
-        tmp = tmp_path_factory.mktemp("fuzz")
+        tmp = _fresh(base)      # one path for every example: replays draw the same
         scene, lidar, ds = _copy(made, tmp, which)
         f = ds / ".lsd3d" / target
         how = data.draw(st.sampled_from(["cut", "bytes", *kinds]))
         # the log record's lists of rows may be emptied by a type-preserving edit: only
         # removing a key or damaging the bytes is sure to be refused
-        f.write_bytes(_mutate(f.read_bytes(), how, data.draw, "drop" in kinds))
+        f.write_bytes(_mutate(f.read_bytes(), how, data.draw, "drop" in kinds,
+                             target.endswith(".jsonl")))
         before = _snapshot(tmp, skip=ds)
         err = io.StringIO()
         with contextlib.redirect_stderr(err), contextlib.redirect_stdout(io.StringIO()):
@@ -297,7 +308,6 @@ def test_fuzz_resume_state(made, tmp_path_factory, target):
         error_line((code, err.getvalue()))
         assert _snapshot(tmp, skip=ds) == before
         assert not list(ds.glob(".*.partial.new"))
-        shutil.rmtree(tmp)
 
     run()
 
@@ -334,13 +344,14 @@ def test_fuzz_lidar_keys(made, tmp_path_factory, key):
 
     from lsd3d_usd.cli import main
     scene = made[0]
+    base = tmp_path_factory.mktemp("lidarfuzz")
 
     @SETTINGS
     @given(TOML_VALUE)
     def run(value):
         import contextlib
         import io
-        tmp = tmp_path_factory.mktemp("lidarfuzz")
+        tmp = _fresh(base)      # one path for every example: replays draw the same
         lines = [ln for ln in LIDAR.splitlines()
                  if not ln.startswith(key.split(".")[0] + " ")]
         if key == "[table]":
@@ -357,7 +368,6 @@ def test_fuzz_lidar_keys(made, tmp_path_factory, key):
         line = error_line((code, err.getvalue()))
         assert "l.toml" in line or "--seconds -1" in line, line
         assert _snapshot(tmp) == before and not (tmp / "ds").exists()
-        shutil.rmtree(tmp)
 
     run()
 
