@@ -204,6 +204,11 @@ LIDAR_RANGE = Limit(
     "lidar_range", 10_000.0, " m", "max_range",
     "--lidar FILE.toml and LidarModel.check")
 
+LIDAR_MOUNT = Limit(
+    "lidar_mount", 100.0, " m", "mount offset",
+    "--lidar FILE.toml and LidarModel.check: |x|, |y|, |z| of the mount on the ego (a sensor "
+    "1e308 m away sees nothing)")
+
 LIDAR_FILE_BYTES = Limit(
     "lidar_file_bytes", 1024 * 1024, " bytes", "LiDAR file size",
     "--lidar FILE.toml (render, dataset, batch), before the TOML is parsed")
@@ -233,7 +238,7 @@ ALL = (OPENDRIVE_FILE_BYTES, ROAD_LENGTH, TOTAL_ROAD_LENGTH, LANE_WIDTH, LATERAL
        CHUNKS, CHUNK_VOXELS, PLY_VERTICES, PLY_HEADER_BYTES, USDA_PARTICLES, PROMPT_CHARS,
        IMAGE_PIXELS, OSM_WAY_NODES, BATCH_SPEC_BYTES, BATCH_SCENES, VIEWER_PROBLEMS,
        VIEWER_CONNECTIONS, VIEWER_IDLE_SECONDS, PEDESTRIANS, CYCLISTS, LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_RAYS,
-       LIDAR_RANGE, DATASET_STATE_BYTES, LIDAR_FILE_BYTES, LIDAR_NAME_CHARS,
+       LIDAR_RANGE, LIDAR_MOUNT, DATASET_STATE_BYTES, LIDAR_FILE_BYTES, LIDAR_NAME_CHARS,
        TRAJECTORY_FILE_BYTES, CLIP_SECONDS, FRAMES, ACTOR_SAMPLES)
 
 

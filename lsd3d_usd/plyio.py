@@ -112,6 +112,21 @@ def read_ply_vertices(path, max_vertices: int | None = None) -> np.ndarray:
         vcount = elements[names.index("vertex")][1]
         if not PLY_VERTICES.ok(vcount, max_vertices):
             PLY_VERTICES.check(vcount, f"{path}: PLY header", max_vertices)
+        # every element must fit the body, also those after 'vertex' that are never read: a
+        # header claiming 1e9 faces is a file that lies (a list takes at least its length byte,
+        # an ASCII value at least a digit and a separator)
+        need = 0
+        for name, count, props in elements:
+            if fmt == "ascii":
+                need += count * 2 * len(props)
+                have = body_bytes + 1
+            else:
+                need += count * sum(1 if t == "list" else np.dtype(t).itemsize for _, t in props)
+                have = body_bytes
+            if need > have:
+                raise InputError(f"{path}: PLY body truncated in element {excerpt(name)} (header "
+                                 f"claims {count} records; the elements up to it need at least "
+                                 f"{need} bytes, the body has {body_bytes})")
         if fmt == "ascii":
             text = None
             offset = 0

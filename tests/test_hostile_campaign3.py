@@ -397,7 +397,7 @@ def test_resume_removes_temp_files_of_a_killed_writer(tmp_path):
     ds = tmp_path / "ds"
     (ds / ".lsd3d" / "logs").mkdir(parents=True)
     opt = DatasetOptions(resume=True)
-    (ds / ".lsd3d" / "dataset.json").write_text(json.dumps({**opt.signature(), "logs": []}))
+    (ds / ".lsd3d" / "dataset.json").write_text(json.dumps(build.dataset_record(opt, [])))
     tmp = ds / "samples" / "CAM_FRONT" / ".x__CAM_FRONT__1.tmp-4242-0123abcd.jpg"
     tmp.parent.mkdir(parents=True)
     tmp.write_bytes(b"torn")

@@ -352,7 +352,7 @@ def test_rig_bad_outputs_and_lidar_write_nothing(small_scene, tmp_path, cli_erro
 
 @pytest.mark.parametrize("body,key", [
     ("beams = 0\nelevation_min = -10\nelevation_max = 10\ncolumns = 100\n", "beams"),
-    ("beams = 8\nelevation_min = -100\nelevation_max = 10\ncolumns = 100\n", "elevations"),
+    ("beams = 8\nelevation_min = -100\nelevation_max = 10\ncolumns = 100\n", "elevation_min: -100 deg"),
     ("beams = 8\nelevation_min = -10\nelevation_max = 10\ncolumns = 100\nmin_range = 3.0\n"
      "max_range = 2.0\n", "max_range"),
     ("beams = 8\nelevation_min = -10\nelevation_max = 10\ncolumns = 1000000000\n", "columns"),

@@ -84,7 +84,7 @@ class DatasetPlan:
     def prepare(self) -> None:
         """Driver side, before the tasks: the folder checked and its settings recorded."""
         self.check()
-        start_dataset(self.spec.output, self.spec.options, self.logs)
+        start_dataset(self.spec.output, self.spec.options, self.logs, inputs=False)
 
 
 def plan_dataset(spec, scene_plans, task_cls, logs_dir: Path, read_layout) -> DatasetPlan:

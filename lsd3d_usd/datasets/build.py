@@ -233,20 +233,94 @@ def prepare(scenes, out, opt: DatasetOptions):
     return writer_cls, plan_logs(roots, opt), lidar, timeline
 
 
+def _scene_files(root: Path) -> tuple[list[Path], list[Path]]:
+    """(the layers of the scene's root layer stack: the root layer and its sublayers,
+    recursively; the files those layers reference or payload, e.g. chunk files)."""
+    from pxr import Sdf
+    stack, arcs, todo = [], [], [root / S.ROOT_FILE]
+    while todo:
+        p = todo.pop(0)
+        if p in stack:
+            continue
+        stack.append(p)
+        try:
+            layer = Sdf.Layer.FindOrOpen(str(p)) if p.is_file() else None
+        except Exception:  # noqa: BLE001 -- unreadable: recorded as its bytes, no arcs followed
+            layer = None
+        if layer is None:
+            continue
+        subs = [Path(layer.ComputeAbsolutePath(s)) for s in layer.subLayerPaths]
+        todo += subs
+        arcs += [Path(layer.ComputeAbsolutePath(d))
+                 for d in layer.GetCompositionAssetDependencies()
+                 if Path(layer.ComputeAbsolutePath(d)) not in subs]
+    return stack, sorted(set(arcs) - set(stack))
+
+
+def input_digests(opt: DatasetOptions) -> dict:
+    """What the dataset is made from, by name: the SHA-256 of every layer of each scene's
+    root layer stack and of a rig or LiDAR FILE.toml (streamed: bounded memory), the size
+    and mtime of the files those layers reference or payload (chunk files: hashing a large
+    scene's chunks would cost more than a resume saves), and the LiDAR model itself (a rig's
+    own LiDAR file included). --resume refuses other content, naming what changed."""
+    from lsd3d_usd.hashing import content_hash, file_hash
+    out = {}
+    for sc in map(Path, opt.scenes):
+        stack, arcs = _scene_files(sc)
+        for f in stack + arcs:
+            name = f"{sc.name}/{f.relative_to(sc) if f.is_relative_to(sc) else f}"
+            if not f.is_file():
+                out[name] = "missing"
+            elif f in stack:
+                out[name] = f"sha256 {file_hash(f)}"
+            else:
+                st = f.stat()
+                out[name] = f"size {st.st_size} mtime_ns {st.st_mtime_ns}"
+    for flag, spec in (("--rig", opt.rig), ("--lidar", opt.lidar)):
+        if isinstance(spec, str) and spec.lower().endswith(".toml") and Path(spec).is_file():
+            out[f"{flag} {spec}"] = f"sha256 {file_hash(spec)}"
+    lidar = lidar_of(opt)
+    out["the LiDAR model"] = content_hash(lidar.describe() if lidar else None)
+    return out
+
+
 def check_resume(state: Path, sig: dict, out) -> None:
     old = read_record(state / "dataset.json", out)
-    diff = sorted(k for k in set(old) | set(sig) if old.get(k) != sig.get(k))
+    diff = sorted(k for k in set(old) | set(sig) if k != "inputs" and old.get(k) != sig.get(k))
     if diff:
         raise InputError(f"-o {out}: --resume, but the dataset was made with other "
                          f"settings ({diff[0]}: {old.get(diff[0])!r} there, "
                          f"{sig.get(diff[0])!r} now)")
+    if "inputs" not in sig:                # a batch: its task hashes cover the scenes
+        return
+    was, now = old.get("inputs"), sig["inputs"]
+    if not isinstance(was, dict):
+        raise InputError(f"-o {out}: --resume, but {STATE}/dataset.json records no digests of "
+                         "what the dataset was made from (an older lsd3d-usd, or edited); "
+                         "give --overwrite")
+    for k in sorted(set(was) | set(now)):
+        if was.get(k) != now.get(k):
+            how = ("changed" if k in was and k in now and now[k] != "missing" else
+                   "is missing now" if k in was else "is new")
+            raise InputError(f"-o {out}: --resume, but {k} {how} since the dataset began; "
+                             "restore it, or give --overwrite to start again")
 
 
-def start_dataset(root: Path, opt: DatasetOptions, plans) -> None:
-    """Record the settings and the plan (ROOT/.lsd3d/dataset.json); --overwrite deletes the
-    previous dataset's own files (nothing else may be there), --resume checks the record."""
-    state = root / STATE
+def dataset_record(opt: DatasetOptions, plans, inputs: bool = True) -> dict:
+    """What dataset.json holds: the settings, the plan and (``inputs``) input_digests."""
     sig = {**opt.signature(), "logs": [p.key for p in plans]}
+    if inputs:
+        sig["inputs"] = input_digests(opt)
+    return sig
+
+
+def start_dataset(root: Path, opt: DatasetOptions, plans, inputs: bool = True) -> None:
+    """Record the settings, the plan and the digests of the inputs
+    (ROOT/.lsd3d/dataset.json); --overwrite deletes the previous dataset's own files (nothing
+    else may be there), --resume checks the record. ``inputs`` False: a batch, which records
+    the dataset before its scenes exist (its task hashes cover them)."""
+    state = root / STATE
+    sig = dataset_record(opt, plans, inputs)
     if opt.resume:
         check_resume(state, sig, root)
         # temp files of a killed writer (scene.atomic_write_bytes) are no part of the dataset
@@ -398,13 +472,54 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
     return {"record": rec, "resumed_at": start if part else None, "skipped": False}
 
 
+def record_problem(value, shape, where: str = "") -> str | None:
+    """Where ``value`` (JSON read back) departs from ``shape``, or None. A shape is a type
+    (int excludes bool), ``[shape]`` (a list of those), ``{str: shape}`` (a mapping of any
+    keys) or ``{"key": shape, ...}`` (those keys required, others free)."""
+    if isinstance(shape, type):
+        ok = isinstance(value, shape) and not (shape is int and isinstance(value, bool))
+        return None if ok else f"{where or 'record'} is {type(value).__name__}, not " \
+                               f"{shape.__name__}"
+    if isinstance(shape, list):
+        if not isinstance(value, list):
+            return f"{where or 'record'} is {type(value).__name__}, not a list"
+        return next((p for i, v in enumerate(value)
+                     if (p := record_problem(v, shape[0], f"{where}[{i}]"))), None)
+    if not isinstance(value, dict):
+        return f"{where or 'record'} is {type(value).__name__}, not an object"
+    if list(shape) == [str]:
+        return next((p for k, v in value.items()
+                     if (p := record_problem(v, shape[str], f"{where}.{k}".lstrip(".")))), None)
+    for k, s in shape.items():
+        if k not in value:
+            return f"{where}.{k}".lstrip(".") + " is missing"
+        if (p := record_problem(value[k], s, f"{where}.{k}".lstrip("."))):
+            return p
+    return None
+
+
 def merge(root: Path, opt: DatasetOptions, writer, n_logs: int) -> dict:
-    """The format's tables from every log's record (all must be finished)."""
+    """The format's tables from every log's record (all must be finished); each record is
+    checked against the writer's ``record_shape`` first (it is data read back from disk)."""
     logs = root / STATE / "logs"
     missing = [k for k in range(n_logs) if not (logs / f"{k:04d}.json").is_file()]
     if missing:
         raise InputError(f"{root}: log {missing[0]} is not finished; run again with --resume")
-    return writer.finish([read_record(logs / f"{k:04d}.json", root) for k in range(n_logs)])
+    records = []
+    shape = getattr(writer, "record_shape", None)
+    for k in range(n_logs):
+        f = logs / f"{k:04d}.json"
+        rec = read_record(f, root)
+        if shape is not None and (p := record_problem(rec, shape)):
+            raise InputError(f"{f}: not a log record of the {opt.format} writer ({p[:100]}); "
+                             "give --overwrite")
+        records.append(rec)
+    try:
+        return writer.finish(records)
+    except (KeyError, TypeError, ValueError, IndexError, AttributeError) as e:
+        # a writer without a shape, or a shape that misses a detail: still one line
+        raise InputError(f"{logs}: a log record is not one of the {opt.format} writer "
+                         f"({type(e).__name__}: {str(e)[:60]}); give --overwrite") from None
 
 
 def build_dataset(scenes, out, opt: DatasetOptions, *, progress: bool = True, log=print,

@@ -74,6 +74,7 @@ class KittiWriter:
     files = ("training/image_2/*.png", "training/velodyne/*.bin", "training/label_2/*.txt",
              "training/calib/*.txt", "ImageSets/*.txt")
     needs_lidar = True
+    record_shape = {"ids": [str]}       # datasets.build.record_problem
 
     def __init__(self, root: Path, options):
         self.root = Path(root)

@@ -61,6 +61,7 @@ def _pose(fm, M):
 class McapWriter:
     name = "mcap"
     files = ("*.mcap", ".*.mcap.partial", ".*.mcap.partial.new")
+    record_shape = {"file": str, "messages": {str: int}}    # datasets.build.record_problem
 
     def __init__(self, root: Path, options, *, stem: str | None = None,
                  boxes_with_cameras: bool = True):
@@ -101,50 +102,62 @@ class McapWriter:
         return {"messages": self.n_messages}
 
     def restore(self, info, deltas: list) -> None:
-        from mcap.exceptions import McapError
+        from lsd3d_usd.errors import InputError
+        self._start(info)
+        want = deltas[-1].get("messages") if deltas else None
+        if type(want) is not int or want < 0:
+            raise InputError(f"{self.tmp}: the checkpoint's message count is {want!r}, not a "
+                             "count; give --overwrite")
+        final = self.root / f"{self.name_}.mcap"
+        src = self.tmp if self.tmp.is_file() else final     # killed after the rename
+        if src.is_symlink():                # its target's bytes would be echoed and copied
+            raise InputError(f"{src}: a symbolic link; give --overwrite")
+        new = self.root / f".{self.name_}.mcap.partial.new"
+        self._open(new)
+        try:
+            self._copy_back(src, want)
+        except Exception as e:  # noqa: BLE001 -- a torn or tampered recording, whatever breaks
+            self.f.close()
+            new.unlink(missing_ok=True)     # a refused resume leaves no half copy behind
+            if isinstance(e, InputError):
+                raise
+            reason = str(e).splitlines()[0][:80] if str(e).strip() else type(e).__name__
+            raise InputError(f"{src}: cannot read the unfinished recording back ({reason}); "
+                             "give --overwrite") from None
+        os.fsync(self.f.fileno())
+        os.replace(new, self.tmp)
+
+    def _copy_back(self, src: Path, want: int) -> None:
+        """Copy ``src``'s chunks into the open writer up to ``want`` messages (the last
+        checkpoint); what follows may be torn by the kill and is dropped."""
         from mcap.records import Channel, Chunk, Message, Schema
         from mcap.stream_reader import StreamReader, breakup_chunk
 
         from lsd3d_usd.errors import InputError
-        self._start(info)
-        want = int(deltas[-1]["messages"])
-        final = self.root / f"{self.name_}.mcap"
-        src = self.tmp if self.tmp.is_file() else final     # killed after the rename
-        new = self.root / f".{self.name_}.mcap.partial.new"
-        self._open(new)
         topic_of = {}
-        try:
-            with open(src, "rb") as f:
-                for rec in StreamReader(f, emit_chunks=True, validate_crcs=True).records:
-                    if not isinstance(rec, Chunk):
-                        continue
-                    for r in breakup_chunk(rec, validate_crc=True):
-                        if isinstance(r, Schema):
-                            self.schemas[r.name] = self.w.register_schema(r.name, r.encoding,
-                                                                          r.data)
-                        elif isinstance(r, Channel):
-                            self.channels[r.topic] = self.w.register_channel(
-                                r.topic, r.message_encoding, r.schema_id, dict(r.metadata))
-                            topic_of[r.id] = r.topic
-                        elif isinstance(r, Message):
-                            self.w.add_message(r.channel_id, log_time=r.log_time, data=r.data,
-                                               publish_time=r.publish_time, sequence=r.sequence)
-                            t = topic_of[r.channel_id]
-                            self.counts[t] = self.counts.get(t, 0) + 1
-                            self.n_messages += 1
-                    self.w.flush()          # the chunk ends where it ended
-                    if self.n_messages >= want:
-                        break               # before the next record: it may be torn
-        except (OSError, McapError) as e:
-            self.f.close()
-            raise InputError(f"{src}: cannot read the unfinished recording back ({e}); "
-                             "give --overwrite") from None
+        with open(src, "rb") as f:
+            for rec in StreamReader(f, emit_chunks=True, validate_crcs=True).records:
+                if not isinstance(rec, Chunk):
+                    continue
+                for r in breakup_chunk(rec, validate_crc=True):
+                    if isinstance(r, Schema):
+                        self.schemas[r.name] = self.w.register_schema(r.name, r.encoding, r.data)
+                    elif isinstance(r, Channel):
+                        self.channels[r.topic] = self.w.register_channel(
+                            r.topic, r.message_encoding, r.schema_id, dict(r.metadata))
+                        topic_of[r.id] = r.topic
+                    elif isinstance(r, Message):
+                        self.w.add_message(r.channel_id, log_time=r.log_time, data=r.data,
+                                           publish_time=r.publish_time, sequence=r.sequence)
+                        t = topic_of[r.channel_id]
+                        self.counts[t] = self.counts.get(t, 0) + 1
+                        self.n_messages += 1
+                self.w.flush()              # the chunk ends where it ended
+                if self.n_messages >= want:
+                    break                   # before the next record: it may be torn
         if self.n_messages != want:
-            self.f.close()
             raise InputError(f"{src}: holds {self.n_messages} messages up to its checkpoint, "
                              f"not {want}; give --overwrite")
-        os.fsync(self.f.fileno())
-        os.replace(new, self.tmp)
 
     def _ns(self, seconds: float) -> int:
         return timestamp_us(self.info.plan.index, seconds) * 1000

@@ -36,6 +36,11 @@ class NuScenesWriter:
     # what --overwrite may delete (relative to the dataset folder; ``{version}`` filled in)
     files = ("{version}/*.json", "samples/*/*", "sweeps/*/*", "maps/*.png",
              "lidarseg/{version}/*.bin")
+    # a log record's shape, checked before the tables are merged (datasets.build.record_problem)
+    record_shape = {**{t: [dict] for t in ("calibrated_sensor", "ego_pose", "sample",
+                                           "sample_annotation", "sample_data", "instance",
+                                           "scene", "lidarseg", "image_annotations")},
+                    "log": [{"token": str}], "map": [{"token": str}], "channels": {str: str}}
 
     def __init__(self, root: Path, options):
         self.root = Path(root)

@@ -9,6 +9,9 @@ options: datasets.build.DatasetOptions) with
                           under root/.lsd3d/logs/ so a resumed or batched run can merge it
     finish(records)       every log's record, in log order: write the tables / indexes
 
+and a ``record_shape`` (datasets.build.record_problem: what a record read back from disk
+must hold, so a tampered one is one error line, not a traceback in ``finish``)
+
 and, optionally, ``checkpoint() -> dict`` (called after every keyframe: what the log gained
 since the previous checkpoint, JSON-able; its files must be on disk when it returns) and
 ``restore(info, deltas)`` (continue a log from its checkpoints' deltas, in order): with them

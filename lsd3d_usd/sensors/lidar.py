@@ -42,8 +42,8 @@ import numpy as np
 
 from lsd3d_usd.configtree import read_toml
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.limits import (LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_FILE_BYTES, LIDAR_NAME_CHARS,
-                              LIDAR_RANGE, LIDAR_RAYS)
+from lsd3d_usd.limits import (LIDAR_BEAMS, LIDAR_COLUMNS, LIDAR_FILE_BYTES, LIDAR_MOUNT,
+                              LIDAR_NAME_CHARS, LIDAR_RANGE, LIDAR_RAYS)
 from lsd3d_usd.sensors import LIDARS
 from lsd3d_usd.sensors.tables import known_keys, number
 
@@ -111,6 +111,10 @@ class LidarModel:
         m = np.asarray(self.mount, np.float64)
         if m.shape != (6,) or not np.all(np.isfinite(m)):
             raise InputError(f"{where}: mount: need x, y, z, roll, pitch, yaw (finite)")
+        for k, v in zip(MOUNT_KEYS[:3], m[:3]):
+            if not LIDAR_MOUNT.ok(abs(v)):
+                raise InputError(f"{where}: mount: {k}: "
+                                 f"{LIDAR_MOUNT.describe(abs(v), what='|' + k + '|').strip()}")
         return self
 
     @property
@@ -216,11 +220,18 @@ def read_lidar_file(path, where: str | None = None) -> LidarModel:
     table = data.get("lidar", data)
     if not isinstance(table, dict):
         raise InputError(f"{p}: [lidar] must be a table")
+    if "lidar" in data:                 # a table beside [lidar] would be ignored silently
+        known_keys(data, {"lidar"}, f"{p}: top level")
     return model_from_table(table, str(p))
 
 
 def model_from_table(table: dict, where: str) -> LidarModel:
     known_keys(table, KEYS, where)
+    both = [k for k in ("beams", "elevation_min", "elevation_max") if k in table]
+    if "elevations" in table and both:
+        # which one would win is a guess: the user meant one of them
+        raise InputError(f"{where}: elevations and {both[0]} exclude each other (give the "
+                         "elevations table, or beams with elevation_min and elevation_max)")
     if "elevations" in table:
         el = table["elevations"]
         if not isinstance(el, list) or not el:
@@ -233,6 +244,9 @@ def model_from_table(table: dict, where: str) -> LidarModel:
         if not 1 <= n <= MAX_RINGS:
             raise InputError(f"{where}: beams: {n} is outside 1 .. {MAX_RINGS}")
         lo, hi = number(table, "elevation_min", where), number(table, "elevation_max", where)
+        for k, v in (("elevation_min", lo), ("elevation_max", hi)):
+            if not abs(v) < 90.0:          # reported as given, not as a derived beam angle
+                raise InputError(f"{where}: {k}: {v:g} deg is outside (-90, 90)")
         if hi < lo:
             raise InputError(f"{where}: elevation_max {hi} is below elevation_min {lo}")
         elev = tuple(np.linspace(lo, hi, n).round(9)) if n > 1 else (lo,)

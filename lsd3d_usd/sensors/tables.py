@@ -14,9 +14,13 @@ def number(table: dict, key: str, where: str, default=None, integer: bool = Fals
         raise InputError(f"{where}: {key}: required")
     if isinstance(v, bool) or not isinstance(v, (int, float)):
         raise InputError(f"{where}: {key}: expected a number, got {v!r}")
-    if integer and (not float(v).is_integer()):
+    try:
+        f = float(v)
+    except OverflowError:                   # a TOML integer past the float range
+        raise InputError(f"{where}: {key}: {str(v)[:20]}... is out of range") from None
+    if integer and (not f.is_integer()):
         raise InputError(f"{where}: {key}: expected an integer, got {v!r}")
-    if not math.isfinite(float(v)):
+    if not math.isfinite(f):
         raise InputError(f"{where}: {key}: must be finite, got {v!r}")
     return int(v) if integer else float(v)
 

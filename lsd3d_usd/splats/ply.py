@@ -103,10 +103,21 @@ def _read_ply(path, max_vertices) -> SurfelField:
         q, scales2 = flatten_3d_gaussians(q, scales)
     else:
         scales2 = scales
-    sem = v["semantic_id"].astype(np.int32) if "semantic_id" in names else None
-    classes = read_ply_semantic_classes(path) if sem is not None else ()
+    sem, classes = None, ()
+    if "semantic_id" in names:
+        classes = read_ply_semantic_classes(path)
+        raw = v["semantic_id"].astype(np.float64)
+        top = len(classes) if classes else 2 ** 31
+        # checked here, before the int32 cast wraps it, so the error names this file and not
+        # the prim it would be written to
+        bad = ~np.isfinite(raw) | (raw != np.round(raw)) | (raw < -1) | (raw >= top)
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise InputError(f"{path}: semantic_id {raw[i]:g} of vertex {i} is not a class id in "
+                             f"[-1, {top}) ({int(bad.sum())} vertices)")
+        sem = raw.astype(np.int32)
     field = SurfelField(pos, q.astype(np.float32), scales2.astype(np.float32), opac, sh, sem, classes)
-    probs = [p for p in field.problems() if not p.startswith("semantic_ids")]
+    probs = field.problems()
     if probs:
         raise InputError(f"{path}: " + "; ".join(probs))
     return field
