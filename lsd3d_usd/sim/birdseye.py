@@ -29,6 +29,7 @@ class BirdsEye:
         self.ppm = min(PX_PER_M, MAX_MAP_PX / span)
         w = int(math.ceil((x1 - x0 + 2 * pad) * self.ppm))
         h = int(math.ceil((y1 - y0 + 2 * pad) * self.ppm))
+        self.h = h
         img = Image.new("RGB", (w, h), (238, 236, 228))
         d = ImageDraw.Draw(img)
         for poly in _polygons(scene.drivable):
@@ -41,7 +42,6 @@ class BirdsEye:
             if len(g.points) >= 2:
                 d.line([self._px(p) for p in g.points[:, :2]], fill=(170, 170, 176), width=1)
         self.map = img
-        self.h = h
 
     def _px(self, p) -> tuple[float, float]:
         return ((float(p[0]) - self.x0) * self.ppm, self.h - (float(p[1]) - self.y0) * self.ppm)
