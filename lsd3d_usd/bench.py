@@ -190,12 +190,44 @@ def _dataset_run(c: DatasetBench) -> int:
 DATASET = Benchmark("dataset throughput: nuScenes samples per minute with nuscenes6 + hdl32 at "
                     "12 / 20 Hz and each sensor's share", DatasetBench, _dataset_run)
 
+@dataclass
+class SimBench:
+    json: str | None = option(None, help="write results as JSON (keys steps_per_s_world, "
+                                         "steps_per_s_front, steps_per_s_full, runs_<name>, "
+                                         "peak_rss_mb, rss_mb_per_minute, "
+                                         "rss_growth_after_first_minute)",
+                              flag="--json", metavar="OUT.json")
+    scene: str | None = option(None, help="scene to drive (default: the README sample "
+                                          "generated with generate's defaults, a few minutes)",
+                               flag="--scene", metavar="SCENE")
+    quick: bool = option(False, help="no GGDS, fewer steps (a couple of minutes)", flag="--quick")
+    steps: int | None = option(None, help="steps per timed run of the world-only configuration "
+                                          "(default 100, --quick 20; sensors run fewer)",
+                               flag="--steps", lo=1, hi=100_000)
+    repeats: int | None = option(None, help="timed runs per configuration, the median reported "
+                                            "(default 3, --quick 1)", flag="--repeats", lo=1, hi=100)
+    memory_seconds: float | None = option(None, help="also a closed-loop run this long (simulated "
+                                                     "seconds, rig none) with RSS each minute",
+                                          flag="--memory-seconds", lo=60.0, hi=86_400.0)
+
+
+def _sim_run(c: SimBench) -> int:
+    from lsd3d_usd.benchmarks.sim import main   # heavy: gymnasium, numba, a generate
+    main(json_path=c.json, scene=c.scene, quick=c.quick, steps=c.steps, repeats=c.repeats,
+         memory_seconds=c.memory_seconds)
+    return 0
+
+
+SIM = Benchmark("closed loop: env steps per second with no sensors, one front camera and "
+                "nuscenes6 + hdl32 at 480x270; memory over a long episode", SimBench, _sim_run)
+
 BENCHMARKS = Registry("lsd3d_usd.benchmarks", "benchmark", {
     "render": "lsd3d_usd.bench:RENDER",
     "ggds": "lsd3d_usd.bench:GGDS",
     "scale": "lsd3d_usd.bench:SCALE",
     "lidar": "lsd3d_usd.bench:LIDAR",
     "dataset": "lsd3d_usd.bench:DATASET",
+    "sim": "lsd3d_usd.bench:SIM",
 })
 
 
