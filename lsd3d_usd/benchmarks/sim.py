@@ -16,7 +16,6 @@ import tempfile
 import time
 from pathlib import Path
 
-
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layouts" / "hand_crossing.usda"
 CONFIGS = {
     "world": dict(rig="none", lidar="none"),
