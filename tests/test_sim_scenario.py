@@ -316,3 +316,28 @@ def test_unsupported_element_warns_with_line(tmp_path):
     msgs = [str(x.message) for x in w]
     assert any("<Nonsense> is not supported" in m and "s.xosc:" in m for m in msgs), msgs
     assert sc.unsupported
+
+
+# ---------------------------------------------------------------- scenario build
+
+def test_scenario_build_keeps_lanes_addressable(tmp_path):
+    from lsd3d_usd.cli import main
+    from lsd3d_usd.layout import usdio
+    path = scenario(tmp_path, [("Ego", lanepos(10)), ("Target", lanepos(50))], [])
+    scene = tmp_path / "scene"
+    assert main(["scenario", "build", str(path), "-o", str(scene), "--steps", "0", "--no-actors",
+                 "--surfels", "5000", "--resolution", "64x36", "--no-progress"]) == 0
+    layout = usdio.read_layout(scene / "layers" / "layout.usda")
+    x, y, z, h = lane_position(layout, "1", -2, 33.0, 0.5)
+    assert (x, y, h) == pytest.approx((33.0, -1.5 * W + 0.5, 0.0), abs=1e-3)
+    assert layout.metadata["scenario"]["ego"] == "Ego"
+
+
+def test_scenario_build_bad_input_writes_nothing(tmp_path, capsys):
+    from lsd3d_usd.cli import main
+    path = scenario(tmp_path, [("Ego", lanepos(0))], [])
+    (tmp_path / "road.xodr").unlink()
+    assert main(["scenario", "build", str(path), "-o", str(tmp_path / "scene"), "--steps", "0"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "not found" in err
+    assert not (tmp_path / "scene").exists()

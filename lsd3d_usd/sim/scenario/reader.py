@@ -240,8 +240,8 @@ def parse_file(path: Path, what: str = "scenario"):
         raise InputError(f"{path}: not well-formed XML: {msg}") from None
     dt = tree.docinfo.internalDTD
     if dt is not None and (list(dt.iterentities()) or dt.elements()):
-        raise InputError(f"{path}:{tree.docinfo.doctype and 1}: DOCTYPE with entity or element "
-                         "declarations: refused (no entity expansion)")
+        raise InputError(f"{path}: <!DOCTYPE> with entity or element declarations: refused "
+                         "(entities are never expanded)")
     for el in tree.iter():
         if not isinstance(el.tag, str):          # an unexpanded entity reference
             raise InputError(f"{path}:{el.sourceline}: entity reference {el!s:.40}: refused")
