@@ -134,7 +134,7 @@ GROUP_TITLES = {"env": "environment (docs/env.md)", "surfels": "initial surfels"
                 "actors": "actors (docs/actors.md)"}
 
 
-def _generate(args) -> int:
+def generate_command(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.pipeline import RunOptions, generate
 
@@ -178,7 +178,7 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
                     "scene that --resume continues. Every setting has a key (--list-options): "
                     "set it in a TOML file (--config) or with --set KEY=VALUE.")
     add_generate_arguments(p)
-    p.set_defaults(func=_generate, compiles_kernels=True)
+    p.set_defaults(func=generate_command, compiles_kernels=True)
 
 
 def add_generate_arguments(p) -> None:

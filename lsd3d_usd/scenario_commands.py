@@ -32,13 +32,13 @@ def register(subparsers) -> None:
 
 def _build(args) -> int:
     # local imports: not loaded for --help
-    from lsd3d_usd.commands import _generate
+    from lsd3d_usd.commands import generate_command
     from lsd3d_usd.layout import importers, usdio
     from lsd3d_usd.scene import provenance
     from lsd3d_usd.sim.scenario.reader import read_scenario
 
     if getattr(args, "list_options", False):
-        return _generate(args)
+        return generate_command(args)
     if getattr(args, "cfg:layout", None) is not None:
         raise InputError("scenario build: the layout is the scenario's OpenDRIVE file; drop --layout")
     if not args.output:
@@ -63,4 +63,4 @@ def _build(args) -> int:
                                "tolerance": args.tolerance},
             timings={"import_s": round(time.perf_counter() - t0, 3)}))
         setattr(args, "cfg:layout", str(path))
-        return _generate(args)
+        return generate_command(args)
