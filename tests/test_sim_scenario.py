@@ -341,3 +341,20 @@ def test_scenario_build_bad_input_writes_nothing(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "not found" in err
     assert not (tmp_path / "scene").exists()
+
+
+def test_pedestrian_crosses_when_ego_30m_away(tmp_path):
+    ped = xosc.Pedestrian("walker", 80, xosc.PedestrianCategory.pedestrian,
+                          xosc.BoundingBox(0.5, 0.6, 1.8, 0, 0, 0.9))
+    init = [("Ego", lanepos(0)), ("Ego", speed(10)), ("Target", lanepos(200)),
+            ("Walker", xosc.TeleportAction(xosc.WorldPosition(60, -12, 0, math.pi / 2)))]
+    near = xosc.EntityTrigger("near", 0, xosc.ConditionEdge.rising, xosc.RelativeDistanceCondition(
+        30, xosc.Rule.lessThan, xosc.RelativeDistanceType.longitudinal, "Walker", freespace=False), "Ego")
+    path = scenario(tmp_path, init, [(near, [speed(1.5)])], actors="Walker",
+                    entities=[("Ego", vehicle()), ("Target", vehicle()), ("Walker", ped)])
+    p, out = play(path, 5.0, ego=lambda t: (10 * t, -W / 2, 0.0, 10.0))
+    assert p.ego_init() == pytest.approx((0.0, -W / 2, 0.0, 0.0, 10.0))
+    # the ego's x = 10 t passes 30 m short of the walker after t = 3: it walks from 3.05
+    for t, st in out:
+        y = -12 + 1.5 * max(t - 3.05, 0.0)
+        assert st["Walker"][1] == pytest.approx(y, abs=1e-6), t

@@ -235,6 +235,7 @@ class ScenarioPlayer:
         self.ego = scenario.ego
         self.states: dict[str, EntityState] = {}
         self.t = 0.0
+        self._ego_init = None
         self.ego_actions: list = []          # (t, action) the storyboard gives the ego
         self.finished = False                # the storyboard's stop trigger fired
         self.warned: set = set()
@@ -291,6 +292,8 @@ class ScenarioPlayer:
                             self.states[name].v = a.speed
                         continue
                     self._start_action(self.states[name], a, 0.0)
+        e = self.states.get(self.ego)
+        self._ego_init = None if e is None else (e.x, e.y, e.z, e.yaw, e.v)
         self._acts = []
         for story in self.sc.stories:
             self._element("story", story.name, story)
@@ -317,8 +320,7 @@ class ScenarioPlayer:
 
     def ego_init(self) -> tuple | None:
         """(x, y, z, yaw, speed) the scenario's Init gives the ego (None without an ego)."""
-        st = self.states.get(self.ego)
-        return None if st is None else (st.x, st.y, st.z, st.yaw, st.v)
+        return self._ego_init
 
     # ---- positions
     def pose_of(self, pos: R.Position, st: EntityState | None = None):
