@@ -276,7 +276,7 @@ class _Ctx:
     def inside(self, el, rel: str, what: str) -> Path:
         p = Path(rel)
         full = (self.path.parent / p).resolve()
-        if p.is_absolute() or not full.is_relative_to(self.folder):
+        if not full.is_relative_to(self.folder):
             raise self.error(el, f"{what} {rel!r} lies outside the scenario's folder "
                                  f"{self.folder}; only files inside it are read")
         return full
