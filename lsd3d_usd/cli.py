@@ -25,6 +25,7 @@ COMMAND_MODULES = (
     "lsd3d_usd.views.commands",
     "lsd3d_usd.datasets.commands",
     "lsd3d_usd.sim_commands",
+    "lsd3d_usd.scenario_commands",
     "lsd3d_usd.env.commands",
     "lsd3d_usd.actors.commands",
     "lsd3d_usd.bench",

@@ -134,7 +134,7 @@ GROUP_TITLES = {"env": "environment (docs/env.md)", "surfels": "initial surfels"
                 "actors": "actors (docs/actors.md)"}
 
 
-def _generate(args) -> int:
+def generate_command(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.pipeline import RunOptions, generate
 
@@ -177,6 +177,12 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
                     "before GGDS: a complete scene without optimisation. Ctrl-C leaves a valid "
                     "scene that --resume continues. Every setting has a key (--list-options): "
                     "set it in a TOML file (--config) or with --set KEY=VALUE.")
+    add_generate_arguments(p)
+    p.set_defaults(func=generate_command, compiles_kernels=True)
+
+
+def add_generate_arguments(p) -> None:
+    """generate's options (also `scenario build`'s)."""
     p.add_argument("-o", "--output", help="scene folder to create or update")
     ct.add_tree_options(p, "generate")
     p.add_argument("--resume", action="store_true",
@@ -205,4 +211,3 @@ def register_generate(sub: argparse._SubParsersAction) -> None:
                       "weight of the perceptual loss (default: the prior's: 0 for the "
                       "procedural prior, whose targets are exact per pixel; 0.05 for a "
                       "diffusion prior)")
-    p.set_defaults(func=_generate, compiles_kernels=True)

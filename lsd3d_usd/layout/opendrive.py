@@ -594,11 +594,12 @@ def read_opendrive(path: str | Path, tolerance: float = DEFAULT_TOLERANCE,
                                            **_header(root)}})
     mid_links = _split_at_mid_road_links(path, root, roads, strict)
     lane_meta: dict[str, tuple[_Road, int, _Lane, bool]] = {}
+    section_s: dict[tuple[str, int], np.ndarray] = {}
     imported = 0
     for rid, road in list(roads.items()):
         try:
             with np.errstate(**_FP):
-                feats = _road_features(road, tolerance, lane_meta)
+                feats = _road_features(road, tolerance, lane_meta, section_s)
         except (_RoadError, ValueError, FloatingPointError, ZeroDivisionError, OverflowError) as e:
             _bad(path, rid, e, strict)
             skipped.append(f"road {rid}: {_one_line(e)}")
@@ -616,6 +617,7 @@ def read_opendrive(path: str | Path, tolerance: float = DEFAULT_TOLERANCE,
                 else "it has no <road>")
         raise InputError(f"{path}: no road could be imported ({what})")
     m.check_size(layout, str(path))
+    layout.metadata["opendrive_lanes"] = _lane_index(lane_meta, section_s)
     _link_lanes(root, roads, layout, lane_meta, _mid_road_pairs(roads, mid_links))
     layout.reindex()
     from lsd3d_usd.layout.opendrive_objects import read_objects_and_signals
@@ -647,13 +649,28 @@ def _lane_key(rid: str, k: int, lid: int) -> str:
     return f"{rid}_{k}_{lid}"
 
 
-def _road_features(road: _Road, tol: float, lane_meta) -> list:
+def _lane_index(lane_meta, section_s) -> dict:
+    """What keeps OpenDRIVE lanes addressable in the layout (scenario LanePositions): per
+    layout lane id its road id, OpenDRIVE lane id, direction and the road's s at each
+    vertex in the s direction (points of backward lanes run the other way)."""
+    out = {}
+    for lk, (road, k, ln, forward) in lane_meta.items():
+        s = section_s.get((road.id, k))
+        if s is not None:
+            out[lk] = {"road": road.id, "lane": int(ln.id), "forward": bool(forward),
+                       "s": [round(float(v), 6) for v in s]}
+    return out
+
+
+def _road_features(road: _Road, tol: float, lane_meta, section_s=None) -> list:
     feats = []
     rid = road.id
     in_junction = road.junction not in ("-1", "", None)
     points = 0
     for k, sec in enumerate(road.sections):
         s = _sample_section(road, sec, tol, points)
+        if section_s is not None:
+            section_s[(road.id, k)] = s
         points += len(s) * 3 * (1 + len(sec.left) + len(sec.right))
         bnd = _boundaries(road, sec, s)
         drive_left = drive_right = None
