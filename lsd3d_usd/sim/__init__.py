@@ -2,13 +2,21 @@
 
 ``import lsd3d_usd.sim`` registers the Gymnasium environment ``lsd3d_usd/Drive-v0``
 (`env.DriveEnv`): ``gymnasium.make("lsd3d_usd/Drive-v0", scene="out/crossing")``.
+`RemoteDriveEnv` (sim.remote) is the same API over `lsd3d-usd sim serve` (gRPC).
 """
 from __future__ import annotations
 
 ENV_ID = "lsd3d_usd/Drive-v0"
 
 
-def _register() -> None:
+def _register()
+
+
+def __getattr__(name):
+    if name == "RemoteDriveEnv":      # grpc is imported only by who uses it
+        from lsd3d_usd.sim.remote import RemoteDriveEnv
+        return RemoteDriveEnv
+    raise AttributeError(name) -> None:
     import gymnasium   # the env's API; imported here, not by `lsd3d-usd --help`
     if ENV_ID not in gymnasium.registry:
         gymnasium.register(id=ENV_ID, entry_point="lsd3d_usd.sim.env:DriveEnv",
@@ -16,3 +24,10 @@ def _register() -> None:
 
 
 _register()
+
+
+def __getattr__(name):
+    if name == "RemoteDriveEnv":      # grpc is imported only by who uses it
+        from lsd3d_usd.sim.remote import RemoteDriveEnv
+        return RemoteDriveEnv
+    raise AttributeError(name)
