@@ -9,14 +9,7 @@ from __future__ import annotations
 ENV_ID = "lsd3d_usd/Drive-v0"
 
 
-def _register()
-
-
-def __getattr__(name):
-    if name == "RemoteDriveEnv":      # grpc is imported only by who uses it
-        from lsd3d_usd.sim.remote import RemoteDriveEnv
-        return RemoteDriveEnv
-    raise AttributeError(name) -> None:
+def _register() -> None:
     import gymnasium   # the env's API; imported here, not by `lsd3d-usd --help`
     if ENV_ID not in gymnasium.registry:
         gymnasium.register(id=ENV_ID, entry_point="lsd3d_usd.sim.env:DriveEnv",

@@ -39,7 +39,8 @@ def encode(name: str, a, png: bool = False) -> sim_pb2.Tensor:
         Image.fromarray(np.ascontiguousarray(a)).save(buf, "PNG", compress_level=1)
         return sim_pb2.Tensor(name=name, dtype=a.dtype.str, shape=a.shape, data=buf.getvalue(),
                               encoding=sim_pb2.Tensor.PNG)
-    a = np.ascontiguousarray(a, a.dtype.newbyteorder("<") if a.dtype.byteorder == ">" else None)
+    # asarray, not ascontiguousarray: that one turns a scalar (shape ()) into shape (1,)
+    a = np.asarray(a, a.dtype.newbyteorder("<") if a.dtype.byteorder == ">" else None, order="C")
     return sim_pb2.Tensor(name=name, dtype=a.dtype.str, shape=a.shape, data=a.tobytes())
 
 
