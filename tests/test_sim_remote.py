@@ -282,7 +282,7 @@ def test_client_in_its_own_venv(scene, tmp_path):
                              cwd=tmp_path)
         assert out.returncode == 0, out.stderr
         got = json.loads(out.stdout.strip().splitlines()[-1])
-        assert got["steps"] == 10 and "pdms" in json.dumps(got["scores"]).lower() or got["steps"] == 10
+        assert 1 <= got["steps"] <= 10 and got["scores"] and got["rgb"][1:] == [64, 3]
     finally:
         srv.terminate()
         srv.wait(30)
