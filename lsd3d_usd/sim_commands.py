@@ -34,6 +34,17 @@ def _env_kwargs(args) -> dict:
                 outputs=tuple(args.outputs.split(",")) if args.outputs else ("rgb",))
 
 
+def _live(args):
+    """The Foxglove live view of --live (None without it: nothing listens)."""
+    if not args.live:
+        return None
+    from lsd3d_usd.sim.live import LiveView
+    view = LiveView(args.live_host, args.live_port, getattr(args, "allow_remote", False))
+    print(f"live view: ws://{args.live_host}:{view.port} (Foxglove: Open connection -> "
+          "Foxglove WebSocket)", flush=True)
+    return view
+
+
 def _run(args) -> int:
     from tqdm import tqdm
 
@@ -52,6 +63,7 @@ def _run(args) -> int:
     atomic_write_bytes(out / "run.json", json.dumps({
         "scene": str(scene.resolve()), "policy": args.policy, "seed": args.seed,
         "routes": routes, "argv": sys.argv[1:]}, indent=1).encode())
+    live = _live(args)
     show = not args.no_progress and sys.stderr.isatty()
     failed = []
     results = []
@@ -60,7 +72,7 @@ def _run(args) -> int:
             bar = tqdm(total=int(round(args.seconds * args.hz)), desc=f"episode {k}", unit="step",
                        disable=not show, leave=False)
             res = run_episode(env, args.policy, k, args.seed + k, route, out, video=args.video,
-                              mcap=args.mcap, progress=lambda e: bar.update(1))
+                              mcap=args.mcap, progress=lambda e: bar.update(1), live=live)
             bar.close()
             results.append(res)
             line = f"episode {k}: {res.reason}, {res.steps} steps, {summary_line(res.summary)} -> {res.folder}"
@@ -69,6 +81,8 @@ def _run(args) -> int:
                 failed.append(f"episode {k}: {res.error}")
     finally:
         env.close()
+        if live is not None:
+            live.close()
     if failed:
         raise InputError(f"{len(failed)} episode(s) ended by the policy: {failed[0]} "
                          f"(metrics.json has it; the other episodes are written)")
@@ -84,9 +98,11 @@ def _serve(args) -> int:
     scene = Path(args.scene)
     check_options(args.host, args.allow_remote, args.timeout, args.max_message_mb)
     env = DriveEnv(scene, **_env_kwargs(args))
+    live = None
     try:
+        live = _live(args)
         server, servicer, port = serve(env, args.host, args.port, args.allow_remote,
-                                       args.timeout, args.max_message_mb)
+                                       args.timeout, args.max_message_mb, live=live)
         print(f"sim serve: {scene} on {args.host}:{port} (Ctrl-C stops)", flush=True)
         done = threading.Event()
         signal.signal(signal.SIGTERM, lambda *a: done.set())
@@ -99,6 +115,8 @@ def _serve(args) -> int:
         server.stop(grace=2.0).wait()
     finally:
         env.close()
+        if live is not None:
+            live.close()
     return 0
 
 
@@ -136,6 +154,13 @@ def _env_arguments(r) -> None:
     r.add_argument("--cyclists", type=int, default=2, help="cyclists (default 2)")
     r.add_argument("--no-reference", action="store_true",
                    help="skip the planner's shadow run that ego progress (EP, PDMS) compares with")
+    r.add_argument("--live", action="store_true",
+                   help="stream the drive to Foxglove as it happens (foxglove-sdk WebSocket "
+                        "server; the topics of --mcap)")
+    r.add_argument("--live-host", default="127.0.0.1", help="the live view's address (default "
+                                                             "127.0.0.1)")
+    r.add_argument("--live-port", type=int, default=8765,
+                   help="the live view's port (default 8765; 0: a free one)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -286,3 +286,113 @@ def test_client_in_its_own_venv(scene, tmp_path):
     finally:
         srv.terminate()
         srv.wait(30)
+
+
+# ---- the live view: a WebSocket client in a few lines (no client library in the project)
+def _ws_connect(port: int):
+    import base64
+    import socket
+    s = socket.create_connection(("127.0.0.1", port), timeout=20)
+    key = base64.b64encode(os.urandom(16)).decode()
+    s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+               f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\nSec-WebSocket-Version: 13\r\n"
+               "Sec-WebSocket-Protocol: foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n").encode())
+    head = b""
+    while b"\r\n\r\n" not in head:
+        head += s.recv(1)
+    assert b" 101 " in head.split(b"\r\n")[0], head
+    return s
+
+
+def _recv_exact(s, n: int) -> bytes:
+    out = b""
+    while len(out) < n:
+        chunk = s.recv(n - len(out))
+        assert chunk, "connection closed"
+        out += chunk
+    return out
+
+
+def _ws_recv(s):
+    """(opcode, payload) of the next data frame (server frames: unmasked, unfragmented)."""
+    while True:
+        b0, b1 = _recv_exact(s, 2)
+        n = b1 & 0x7F
+        if n == 126:
+            n = int.from_bytes(_recv_exact(s, 2), "big")
+        elif n == 127:
+            n = int.from_bytes(_recv_exact(s, 8), "big")
+        data = _recv_exact(s, n)
+        if b0 & 0x0F in (1, 2):
+            return b0 & 0x0F, data
+
+
+def _ws_send_text(s, text: str):
+    data = text.encode()
+    mask = os.urandom(4)
+    head = bytes([0x81]) + (bytes([0x80 | len(data)]) if len(data) < 126
+                            else bytes([0x80 | 126]) + len(data).to_bytes(2, "big"))
+    s.sendall(head + mask + bytes(b ^ mask[i % 4] for i, b in enumerate(data)))
+
+
+def _decoder(channel: dict):
+    import base64
+
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+    fds = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for f in fds.file:
+        pool.Add(f)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+
+
+def test_live_view_streams_foxglove_messages(scene):
+    """A WebSocket client subscribes to the live view and receives images, a point cloud,
+    transforms, boxes and the scores, each decoding with its advertised Foxglove schema."""
+    from lsd3d_usd.sim.env import DriveEnv
+    from lsd3d_usd.sim.live import LiveView
+    env = DriveEnv(scene, **SETTINGS)
+    view = LiveView(port=0)
+    ws = _ws_connect(view.port)
+    try:
+        obs, info = env.reset(seed=2)
+        stream = view.episode(env, 0)
+        stream.write(obs, info)
+        channels = {}
+        while not {"/tf", "/LIDAR_TOP", "/CAM_FRONT/image", "/sim/scores"} <= \
+                {c["topic"] for c in channels.values()}:
+            op, data = _ws_recv(ws)
+            if op == 1:
+                m = json.loads(data)
+                if m.get("op") == "advertise":
+                    channels.update({c["id"]: c for c in m["channels"]})
+        subs = {k + 1: c for k, c in enumerate(channels.values())}
+        _ws_send_text(ws, json.dumps({"op": "subscribe", "subscriptions": [
+            {"id": sid, "channelId": c["id"]} for sid, c in subs.items()]}))
+        time.sleep(0.5)                       # the server takes the subscription
+        for _ in range(2):
+            obs, _, _, _, info = env.step(ACTION)
+            stream.write(obs, info)
+        got = {}
+        deadline = time.monotonic() + 20
+        want = {"/tf", "/LIDAR_TOP", "/CAM_FRONT/image", "/sim/scores", "/markers/annotations"}
+        while not want <= set(got) and time.monotonic() < deadline:
+            op, data = _ws_recv(ws)
+            if op == 2 and data[0] == 1:      # messageData: subscription id, log time, payload
+                c = subs[int.from_bytes(data[1:5], "little")]
+                payload = data[13:]
+                if c["encoding"] == "json":
+                    got[c["topic"]] = json.loads(payload)
+                else:
+                    got[c["topic"]] = _decoder(c).FromString(payload)
+        assert want <= set(got), sorted(got)
+        assert got["/tf"].child_frame_id == "ego" and got["/tf"].parent_frame_id
+        assert got["/CAM_FRONT/image"].format in ("jpeg", "png") and got["/CAM_FRONT/image"].data
+        cloud = got["/LIDAR_TOP"]
+        assert cloud.point_stride > 0 and len(cloud.data) % cloud.point_stride == 0
+        assert [f.name for f in cloud.fields][:3] == ["x", "y", "z"] and len(cloud.data) > 0
+        assert "pdms" in got["/sim/scores"] and got["/sim/scores"]["step"] >= 1
+    finally:
+        ws.close()
+        view.close()
+        env.close()

@@ -49,8 +49,10 @@ class _Refused(Exception):
 
 
 class DriveServicer(sim_pb2_grpc.DriveServicer):
-    def __init__(self, env, timeout: float = 60.0, reply_limit: int = 64 << 20, log=None):
+    def __init__(self, env, timeout: float = 60.0, reply_limit: int = 64 << 20, log=None,
+                 live=None):
         self.env = env
+        self.live, self._stream, self._episodes = live, None, 0   # sim.live.LiveView
         self.timeout = float(timeout)
         self.reply_limit = int(reply_limit)
         self.log = log or (lambda m: print(m, file=sys.stderr, flush=True))
@@ -148,6 +150,10 @@ class DriveServicer(sim_pb2_grpc.DriveServicer):
             try:
                 with self.env_lock:
                     obs, info = self.env.reset(seed=seed, options=options)
+                    if self.live is not None:
+                        self._stream = self.live.episode(self.env, self._episodes)
+                        self._episodes += 1
+                        self._stream.write(obs, info)
                 return self._reply(sim_pb2.ResetReply(
                     session=session, observation=encode_obs(self.env.observation_space, obs,
                                                             request.png),
@@ -177,6 +183,8 @@ class DriveServicer(sim_pb2_grpc.DriveServicer):
             try:
                 with self.env_lock:
                     obs, reward, term, trunc, info = self.env.step(a)
+                    if self._stream is not None:
+                        self._stream.write(obs, info)
                 info = dict(info)
                 scores = info.pop("scores")
                 return self._reply(sim_pb2.StepReply(
@@ -217,13 +225,14 @@ def check_options(host: str, allow_remote: bool, timeout: float, max_message_mb:
 
 
 def serve(env, host: str = "127.0.0.1", port: int = 50051, allow_remote: bool = False,
-          timeout: float = 60.0, max_message_mb: float = 64.0, log=None, workers: int = 4):
+          timeout: float = 60.0, max_message_mb: float = 64.0, log=None, workers: int = 4,
+          live=None):
     """Start the service on (host, port); returns (grpc server, servicer, bound port).
     ``port`` 0 picks a free one."""
     log = log or (lambda m: print(m, file=sys.stderr, flush=True))
     check_options(host, allow_remote, timeout, max_message_mb, log)
     limit = int(max_message_mb * 2**20)
-    servicer = DriveServicer(env, timeout, limit, log)
+    servicer = DriveServicer(env, timeout, limit, log, live)
     server = grpc.server(futures.ThreadPoolExecutor(max_workers=workers), options=[
         ("grpc.max_receive_message_length", REQUEST_LIMIT),
         ("grpc.max_send_message_length", limit)])
