@@ -25,6 +25,26 @@ def _check_out(out: Path, scene: Path) -> None:
                              "choose an empty or new folder")
 
 
+def _env_kwargs(args) -> dict:
+    return dict(rig=args.rig, lidar=args.lidar, width=args.width, action=args.action,
+                hz=args.hz, seconds=args.seconds, vehicles=args.vehicles,
+                pedestrians=args.pedestrians, cyclists=args.cyclists,
+                route_length=args.route_length,
+                ep_reference="none" if args.no_reference else "planner",
+                outputs=tuple(args.outputs.split(",")) if args.outputs else ("rgb",))
+
+
+def _live(args):
+    """The Foxglove live view of --live (None without it: nothing listens)."""
+    if not args.live:
+        return None
+    from lsd3d_usd.sim.live import LiveView
+    view = LiveView(args.live_host, args.live_port, getattr(args, "allow_remote", False))
+    print(f"live view: ws://{args.live_host}:{view.port} (Foxglove: Open connection -> "
+          "Foxglove WebSocket)", flush=True)
+    return view
+
+
 def _run(args) -> int:
     from tqdm import tqdm
 
@@ -36,18 +56,14 @@ def _run(args) -> int:
     _check_out(out, scene)
     if args.policy not in POLICIES and ":" not in args.policy:
         raise InputError(f"--policy {args.policy!r}: choose {', '.join(POLICIES)} or MODULE:CALLABLE")
-    env = DriveEnv(scene, rig=args.rig, lidar=args.lidar, width=args.width, action=args.action,
-                   hz=args.hz, seconds=args.seconds, vehicles=args.vehicles,
-                   pedestrians=args.pedestrians, cyclists=args.cyclists,
-                   route_length=args.route_length,
-                   ep_reference="none" if args.no_reference else "planner",
-                   outputs=tuple(args.outputs.split(",")) if args.outputs else ("rgb",))
+    env = DriveEnv(scene, **_env_kwargs(args))
     routes = plan_routes(env.scene.graph, args.route, args.routes, args.episodes,
                          args.route_length, args.seed)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_bytes(out / "run.json", json.dumps({
         "scene": str(scene.resolve()), "policy": args.policy, "seed": args.seed,
         "routes": routes, "argv": sys.argv[1:]}, indent=1).encode())
+    live = _live(args)
     show = not args.no_progress and sys.stderr.isatty()
     failed = []
     results = []
@@ -56,7 +72,7 @@ def _run(args) -> int:
             bar = tqdm(total=int(round(args.seconds * args.hz)), desc=f"episode {k}", unit="step",
                        disable=not show, leave=False)
             res = run_episode(env, args.policy, k, args.seed + k, route, out, video=args.video,
-                              mcap=args.mcap, progress=lambda e: bar.update(1))
+                              mcap=args.mcap, progress=lambda e: bar.update(1), live=live)
             bar.close()
             results.append(res)
             line = f"episode {k}: {res.reason}, {res.steps} steps, {summary_line(res.summary)} -> {res.folder}"
@@ -65,9 +81,42 @@ def _run(args) -> int:
                 failed.append(f"episode {k}: {res.error}")
     finally:
         env.close()
+        if live is not None:
+            live.close()
     if failed:
         raise InputError(f"{len(failed)} episode(s) ended by the policy: {failed[0]} "
                          f"(metrics.json has it; the other episodes are written)")
+    return 0
+
+
+def _serve(args) -> int:
+    import signal
+    import threading
+
+    from lsd3d_usd.sim.env import DriveEnv
+    from lsd3d_usd.sim.service import check_options, serve
+    scene = Path(args.scene)
+    check_options(args.host, args.allow_remote, args.timeout, args.max_message_mb)
+    env = DriveEnv(scene, **_env_kwargs(args))
+    live = None
+    try:
+        live = _live(args)
+        server, servicer, port = serve(env, args.host, args.port, args.allow_remote,
+                                       args.timeout, args.max_message_mb, live=live)
+        print(f"sim serve: {scene} on {args.host}:{port} (Ctrl-C stops)", flush=True)
+        done = threading.Event()
+        signal.signal(signal.SIGTERM, lambda *a: done.set())
+        try:
+            while not done.wait(0.5):
+                pass
+        except KeyboardInterrupt:
+            pass
+        servicer.stop()
+        server.stop(grace=2.0).wait()
+    finally:
+        env.close()
+        if live is not None:
+            live.close()
     return 0
 
 
@@ -81,6 +130,37 @@ def _report(args) -> int:
         from lsd3d_usd.scene import atomic_write_bytes
         atomic_write_bytes(args.json, json.dumps(runs, indent=1).encode())
     return 0
+
+
+def _env_arguments(r) -> None:
+    """The env's settings: the same options for `sim run` and `sim serve`."""
+    r.add_argument("--route-length", type=float, default=200.0, metavar="M",
+                   help="length of a drawn route in metres (default 200)")
+    r.add_argument("--rig", default="nuscenes6",
+                   help="sensor rig: a name (nuscenes6, waymo5), a rig FILE.toml, or none "
+                        "(world and scores only); default nuscenes6")
+    r.add_argument("--lidar", default="auto",
+                   help="auto (the rig's own), a preset (hdl32, waymo_top), a FILE.toml, or none")
+    r.add_argument("--width", type=int, default=480, help="camera width in pixels (default 480)")
+    r.add_argument("--outputs", default="rgb",
+                   help="camera outputs, comma-separated: rgb,depth,semantic,instance")
+    r.add_argument("--action", default="control", choices=("control", "trajectory"),
+                   help="control: (acceleration, steering angle); trajectory: 8 waypoints "
+                        "0.5 s apart in the ego frame (default control)")
+    r.add_argument("--seconds", type=float, default=60.0, help="time limit of an episode (s)")
+    r.add_argument("--hz", type=float, default=10.0, help="steps per second (default 10)")
+    r.add_argument("--vehicles", type=int, default=8, help="vehicles around the ego (default 8)")
+    r.add_argument("--pedestrians", type=int, default=12, help="pedestrians (default 12)")
+    r.add_argument("--cyclists", type=int, default=2, help="cyclists (default 2)")
+    r.add_argument("--no-reference", action="store_true",
+                   help="skip the planner's shadow run that ego progress (EP, PDMS) compares with")
+    r.add_argument("--live", action="store_true",
+                   help="stream the drive to Foxglove as it happens (foxglove-sdk WebSocket "
+                        "server; the topics of --mcap)")
+    r.add_argument("--live-host", default="127.0.0.1", help="the live view's address (default "
+                                                             "127.0.0.1)")
+    r.add_argument("--live-port", type=int, default=8765,
+                   help="the live view's port (default 8765; 0: a free one)")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -108,31 +188,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--routes", type=int, metavar="N", help="N episodes on N seeded random routes")
     r.add_argument("--episodes", type=int, metavar="N",
                    help="N episodes (on --route, or a route drawn per episode; default 1)")
-    r.add_argument("--route-length", type=float, default=200.0, metavar="M",
-                   help="length of a drawn route in metres (default 200)")
-    r.add_argument("--rig", default="nuscenes6",
-                   help="sensor rig: a name (nuscenes6, waymo5), a rig FILE.toml, or none "
-                        "(world and scores only); default nuscenes6")
-    r.add_argument("--lidar", default="auto",
-                   help="auto (the rig's own), a preset (hdl32, waymo_top), a FILE.toml, or none")
-    r.add_argument("--width", type=int, default=480, help="camera width in pixels (default 480)")
-    r.add_argument("--outputs", default="rgb",
-                   help="camera outputs, comma-separated: rgb,depth,semantic,instance")
-    r.add_argument("--action", default="control", choices=("control", "trajectory"),
-                   help="control: (acceleration, steering angle); trajectory: 8 waypoints "
-                        "0.5 s apart in the ego frame (default control)")
-    r.add_argument("--seconds", type=float, default=60.0, help="time limit of an episode (s)")
-    r.add_argument("--hz", type=float, default=10.0, help="steps per second (default 10)")
+    _env_arguments(r)
     r.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode k: seed + k)")
-    r.add_argument("--vehicles", type=int, default=8, help="vehicles around the ego (default 8)")
-    r.add_argument("--pedestrians", type=int, default=12, help="pedestrians (default 12)")
-    r.add_argument("--cyclists", type=int, default=2, help="cyclists (default 2)")
     r.add_argument("--video", action="store_true", help="an MP4 per camera per episode")
     r.add_argument("--mcap", action="store_true", help="an MCAP log per episode (Foxglove)")
-    r.add_argument("--no-reference", action="store_true",
-                   help="skip the planner's shadow run that ego progress (EP, PDMS) compares with")
     r.add_argument("--no-progress", action="store_true", help="no progress bars")
     r.set_defaults(func=_run, compiles_kernels=True)
+    v = s.add_parser("serve", help="serve the env over gRPC for a stack in its own process",
+                     description="Serve SCENE's closed-loop env over gRPC (the service in "
+                                 "lsd3d_usd/sim/proto/sim.proto): a driving stack in another "
+                                 "process or venv drives it with lsd3d_usd.sim.remote."
+                                 "RemoteDriveEnv. One episode at a time; loopback only unless "
+                                 "--allow-remote. docs/sim.md, \"Remote stacks\".")
+    v.add_argument("scene", metavar="SCENE", help="a generated scene folder")
+    v.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1)")
+    v.add_argument("--port", type=int, default=50051, help="port (default 50051; 0: a free one)")
+    v.add_argument("--allow-remote", action="store_true",
+                   help="allow a --host beyond loopback (no authentication, no encryption)")
+    v.add_argument("--timeout", type=float, default=60.0,
+                   help="a client silent this many seconds loses its episode (default 60)")
+    v.add_argument("--max-message-mb", type=float, default=64.0,
+                   help="largest reply (an observation) in MB (default 64); requests: 1 MB")
+    _env_arguments(v)
+    v.set_defaults(func=_serve, compiles_kernels=True)
     q = s.add_parser("report", help="compare runs: mean scores with 95 %% intervals, a plot",
                      description="A table of mean scores over each run's episodes with 95 %% "
                                  "confidence intervals (Student t), and with --png a bar plot.")

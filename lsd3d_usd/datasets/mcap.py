@@ -74,6 +74,10 @@ class McapWriter:
         for stale in self.root.glob(f".{self.name_}.mcap.*"):   # of a killed run
             stale.unlink()
         self._open(self.tmp)
+        self._static(info)
+
+    def _static(self, info) -> None:
+        """The rig's fixed transforms, once at the start of a log."""
         t0 = self._ns(0.0)
         for c in info.cameras:
             self._log("/tf_static", self._tf("ego", c.name, info.ego_from_camera[c.name], t0), t0)

@@ -2,6 +2,7 @@
 
 ``import lsd3d_usd.sim`` registers the Gymnasium environment ``lsd3d_usd/Drive-v0``
 (`env.DriveEnv`): ``gymnasium.make("lsd3d_usd/Drive-v0", scene="out/crossing")``.
+`RemoteDriveEnv` (sim.remote) is the same API over `lsd3d-usd sim serve` (gRPC).
 """
 from __future__ import annotations
 
@@ -16,3 +17,10 @@ def _register() -> None:
 
 
 _register()
+
+
+def __getattr__(name):
+    if name == "RemoteDriveEnv":      # grpc is imported only by who uses it
+        from lsd3d_usd.sim.remote import RemoteDriveEnv
+        return RemoteDriveEnv
+    raise AttributeError(name)

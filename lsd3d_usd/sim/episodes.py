@@ -201,8 +201,9 @@ def summary_line(s: dict) -> str:
 
 
 def run_episode(env, policy_spec: str, index: int, seed: int, route, out: Path,
-                video: bool = False, mcap: bool = False, progress=None) -> EpisodeResult:
-    """One episode into OUT/episode_<index>/ (see the module doc)."""
+                video: bool = False, mcap: bool = False, progress=None, live=None) -> EpisodeResult:
+    """One episode into OUT/episode_<index>/ (see the module doc); ``live``: a sim.live
+    LiveView that streams it too."""
     from lsd3d_usd.sim.policies import load_policy
     final = out / f"episode_{index:03d}"
     part = out / f".episode_{index:03d}.partial"
@@ -220,6 +221,9 @@ def run_episode(env, policy_spec: str, index: int, seed: int, route, out: Path,
             from lsd3d_usd.sim.record import EpisodeMcap
             writer = EpisodeMcap(part, env, index)
             writer.write(obs, info)
+        stream = live.episode(env, index) if live is not None else None
+        if stream is not None:
+            stream.write(obs, info)
         error = None
         reason = None
         while True:
@@ -235,6 +239,8 @@ def run_episode(env, policy_spec: str, index: int, seed: int, route, out: Path,
             rec.record(obs, info, action, reward)
             if writer is not None:
                 writer.write(obs, info)
+            if stream is not None:
+                stream.write(obs, info)
             if progress is not None:
                 progress(env)
             if term or trunc:

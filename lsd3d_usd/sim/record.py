@@ -53,7 +53,7 @@ class EpisodeMcap:
     """One episode's MCAP log in ``folder`` (episode_<index>.mcap, written as a hidden partial
     file and renamed by `close`). `write(obs, info)` after reset and after every step."""
 
-    def __init__(self, folder: Path, env, index: int):
+    def __init__(self, folder: Path | None, env, index: int, writer=None):
         self.env = env
         self.stem = f"episode_{index:03d}"
         rig = env.sensors
@@ -69,7 +69,9 @@ class EpisodeMcap:
         self.info = LogInfo(plan, env.settings.rig, cams, rig.lidar, rig.width, None,
                             rig.instances, env.scene.layout, self.ego_from_camera,
                             ego_from_lidar, list(env.route.ids))
-        self.writer = McapWriter(Path(folder), None, stem=self.stem, boxes_with_cameras=False)
+        # ``writer``: another sink of the same messages (sim.live: a Foxglove WebSocket server)
+        self.writer = writer or McapWriter(Path(folder), None, stem=self.stem,
+                                           boxes_with_cameras=False)
         self.writer.begin_log(self.info)
         self._actor_of = self._actor_index()
 
