@@ -303,6 +303,31 @@ class Pedestrians:
             return xy, yaw
         return np.asarray(xy) + aside * np.array([-math.sin(yaw), math.cos(yaw)]), yaw
 
+    def _make_room(self, i: int, p: Walker, ds: float, dt: float, others) -> None:
+        """A walker crossing the road and blocked by people waiting at the crosswalk's end
+        (who wait for the traffic, which waits for the crossing walker) asks them to step
+        back along their track at their walking speed; otherwise the three wait forever."""
+        if p.blocked < PASS_AFTER / 2:
+            return
+        u = min(p.u + ds, p.cum[-1])
+        xy, yaw = self._path_point(p, u)
+        box = (float(xy[0]), float(xy[1]), math.cos(yaw), math.sin(yaw), *map(float, self.half(p)))
+        P, Y, H = self._boxes
+        for j, q in enumerate(self.people):
+            if j == i or q.state not in (WAIT, STAND) or q.track < 0:
+                continue
+            if max(abs(P[j][0] - box[0]), abs(P[j][1] - box[1])) >= 2.5 or \
+                    not _overlap(box, P[j][0], P[j][1], Y[j], H[j]):
+                continue
+            t = self.w.tracks[q.track]
+            for back in (-1.0, 1.0):           # behind it on its track, else ahead
+                s_new = (q.s + back * q.v_des * dt) % t.length
+                xy_q, yaw_q = t.pose2d(s_new)
+                if self._free(j, xy_q, yaw_q, others):
+                    q.s, q.xy, q.yaw = s_new, xy_q, yaw_q
+                    self._boxes[0][j], self._boxes[1][j] = [float(xy_q[0]), float(xy_q[1])], float(yaw_q)
+                    break
+
     def _sidestep(self, i: int, p: Walker, dt: float, others) -> None:
         """Two people facing each other (on a crosswalk, at its end) would otherwise wait for
         each other forever: one that has stood PASS_AFTER seconds steps aside at its walking
@@ -342,6 +367,7 @@ class Pedestrians:
         else:
             p.v = 0.0
             p.blocked += dt
+            self._make_room(i, p, ds, dt, others)
             self._sidestep(i, p, dt, others)
         if p.occupying and p.u >= p.release_u:
             p.occupying = False
