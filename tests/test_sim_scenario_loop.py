@@ -25,6 +25,7 @@ def write_scenario(folder, name, init, events, actors="Target", stop=8.0):
     for who, a in init:
         ini.add_init_action(who, a)
     man = xosc.Maneuver("man")
+    events = events or [(sim_time(1e3, name="never"), [speed(1)])]    # a maneuver needs one
     for k, (trig, acts) in enumerate(events):
         ev = xosc.Event(f"ev{k}", xosc.Priority.parallel)
         for j, a in enumerate(acts):
