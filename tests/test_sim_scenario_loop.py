@@ -165,7 +165,11 @@ def test_sim_run_scenario_folder_and_report(road_scene, tmp_path, capsys):
     metas = [json.loads((out / f"episode_{k:03d}" / "metrics.json").read_text()) for k in range(2)]
     assert [m["scenario"]["name"] for m in metas] == ["braking_lead", "idle"]
     assert [m["reason"] for m in metas] == ["collision", "scenario_end"]
-    assert metas[1]["scenario"]["stop_trigger_fired"] and metas[1]["steps"] == 10
+    # the stop trigger (time > 1 s) fires at the first step after 1 s: the episode ends there
+    assert metas[1]["scenario"]["stop_trigger_fired"]
+    assert metas[1]["steps"][-1]["t"] == pytest.approx(1.1)
+    assert metas[1]["steps"][-1]["scenario"]["stop_trigger_fired"]
+    assert not metas[1]["steps"][-2]["scenario"]["stop_trigger_fired"]
     capsys.readouterr()
     assert main(["sim", "report", str(out)]) == 0
     table = capsys.readouterr().out
