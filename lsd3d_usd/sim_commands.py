@@ -26,12 +26,13 @@ def _check_out(out: Path, scene: Path) -> None:
 
 
 def _env_kwargs(args) -> dict:
+    # seeded traffic sizes only when given (a scenario's entities are its whole world)
+    traffic = {k: getattr(args, k) for k in ("vehicles", "pedestrians", "cyclists")
+               if getattr(args, k) is not None}
     return dict(rig=args.rig, lidar=args.lidar, width=args.width, action=args.action,
-                hz=args.hz, seconds=args.seconds, vehicles=args.vehicles,
-                pedestrians=args.pedestrians, cyclists=args.cyclists,
-                route_length=args.route_length,
+                hz=args.hz, seconds=args.seconds, route_length=args.route_length,
                 ep_reference="none" if args.no_reference else "planner",
-                outputs=tuple(args.outputs.split(",")) if args.outputs else ("rgb",))
+                outputs=tuple(args.outputs.split(",")) if args.outputs else ("rgb",), **traffic)
 
 
 def _live(args):
@@ -46,16 +47,16 @@ def _live(args):
 
 
 def _run(args) -> int:
-    from tqdm import tqdm
-
     from lsd3d_usd.scene import atomic_write_bytes
     from lsd3d_usd.sim.env import DriveEnv
-    from lsd3d_usd.sim.episodes import plan_routes, run_episode, summary_line
+    from lsd3d_usd.sim.episodes import plan_routes
     from lsd3d_usd.sim.policies import POLICIES
     scene, out = Path(args.scene), Path(args.output)
     _check_out(out, scene)
     if args.policy not in POLICIES and ":" not in args.policy:
         raise InputError(f"--policy {args.policy!r}: choose {', '.join(POLICIES)} or MODULE:CALLABLE")
+    if getattr(args, "scenario", None) is not None:
+        return _run_scenarios(args, scene, out, _env_kwargs(args))
     env = DriveEnv(scene, **_env_kwargs(args))
     routes = plan_routes(env.scene.graph, args.route, args.routes, args.episodes,
                          args.route_length, args.seed)
@@ -64,29 +65,76 @@ def _run(args) -> int:
         "scene": str(scene.resolve()), "policy": args.policy, "seed": args.seed,
         "routes": routes, "argv": sys.argv[1:]}, indent=1).encode())
     live = _live(args)
-    show = not args.no_progress and sys.stderr.isatty()
     failed = []
-    results = []
     try:
         for k, route in enumerate(routes):
-            bar = tqdm(total=int(round(args.seconds * args.hz)), desc=f"episode {k}", unit="step",
-                       disable=not show, leave=False)
-            res = run_episode(env, args.policy, k, args.seed + k, route, out, video=args.video,
-                              mcap=args.mcap, progress=lambda e: bar.update(1), live=live)
-            bar.close()
-            results.append(res)
-            line = f"episode {k}: {res.reason}, {res.steps} steps, {summary_line(res.summary)} -> {res.folder}"
-            print(line)
-            if res.error:
-                failed.append(f"episode {k}: {res.error}")
+            _episode(args, env, k, route, out, failed, live)
     finally:
         env.close()
         if live is not None:
             live.close()
+    return _failed(failed)
+
+
+def _episode(args, env, k, route, out, failed: list, live=None) -> None:
+    """Episode k into OUT; a policy's failure is added to ``failed``."""
+    from tqdm import tqdm
+
+    from lsd3d_usd.sim.episodes import run_episode, summary_line
+    show = not args.no_progress and sys.stderr.isatty()
+    bar = tqdm(total=int(round(args.seconds * args.hz)), desc=f"episode {k}", unit="step",
+               disable=not show, leave=False)
+    res = run_episode(env, args.policy, k, args.seed + k, route, out, video=args.video,
+                      mcap=args.mcap, progress=lambda e: bar.update(1), live=live)
+    bar.close()
+    name = f" [{env.scenario_state()['name']}]" if env.scenario is not None else ""
+    print(f"episode {k}{name}: {res.reason}, {res.steps} steps, {summary_line(res.summary)} -> {res.folder}")
+    if res.error:
+        failed.append(f"episode {k}: {res.error}")
+
+
+def _failed(failed) -> int:
     if failed:
         raise InputError(f"{len(failed)} episode(s) ended by the policy: {failed[0]} "
                          f"(metrics.json has it; the other episodes are written)")
     return 0
+
+
+def _run_scenarios(args, scene: Path, out: Path, kw: dict) -> int:
+    """--scenario FILE|DIR: an env per scenario file on the scene opened once; --episodes
+    episodes of each (default 1), numbered on across the files."""
+    from lsd3d_usd.scene import atomic_write_bytes
+    from lsd3d_usd.sim.env import DriveEnv
+    from lsd3d_usd.sim.episodes import MAX_EPISODES
+    from lsd3d_usd.sim.scenario.world import scenario_files
+    from lsd3d_usd.sim.scene import SimScene
+    if args.route is not None or args.routes is not None:
+        raise InputError("--scenario: the scenario's Init and routes place the ego; drop --route/--routes")
+    files = scenario_files(args.scenario)
+    n = args.episodes or 1
+    if not 1 <= n * len(files) <= MAX_EPISODES:
+        raise InputError(f"--episodes {n} x {len(files)} scenarios: at most {MAX_EPISODES} episodes")
+    opened = SimScene(scene)
+    live = None
+    try:
+        envs = [DriveEnv(opened, scenario=str(f), **kw) for f in files]   # every file read first
+        out.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(out / "run.json", json.dumps({
+            "scene": str(scene.resolve()), "policy": args.policy, "seed": args.seed,
+            "scenarios": [str(f.resolve()) for f in files], "episodes_per_scenario": n,
+            "argv": sys.argv[1:]}, indent=1).encode())
+        live = _live(args)
+        failed = []
+        k = 0
+        for env in envs:
+            for _ in range(n):
+                _episode(args, env, k, None, out, failed, live)
+                k += 1
+    finally:
+        opened.close()
+        if live is not None:
+            live.close()
+    return _failed(failed)
 
 
 def _serve(args) -> int:
@@ -149,9 +197,9 @@ def _env_arguments(r) -> None:
                         "0.5 s apart in the ego frame (default control)")
     r.add_argument("--seconds", type=float, default=60.0, help="time limit of an episode (s)")
     r.add_argument("--hz", type=float, default=10.0, help="steps per second (default 10)")
-    r.add_argument("--vehicles", type=int, default=8, help="vehicles around the ego (default 8)")
-    r.add_argument("--pedestrians", type=int, default=12, help="pedestrians (default 12)")
-    r.add_argument("--cyclists", type=int, default=2, help="cyclists (default 2)")
+    r.add_argument("--vehicles", type=int, help="vehicles around the ego (default 8; none with --scenario)")
+    r.add_argument("--pedestrians", type=int, help="pedestrians (default 12; none with --scenario)")
+    r.add_argument("--cyclists", type=int, help="cyclists (default 2; none with --scenario)")
     r.add_argument("--no-reference", action="store_true",
                    help="skip the planner's shadow run that ego progress (EP, PDMS) compares with")
     r.add_argument("--live", action="store_true",
@@ -189,6 +237,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--episodes", type=int, metavar="N",
                    help="N episodes (on --route, or a route drawn per episode; default 1)")
     _env_arguments(r)
+    r.add_argument("--scenario", metavar="FILE.xosc|DIR",
+                   help="play an OpenSCENARIO file, or every .xosc in a folder (an episode each): "
+                        "its entities are the world, the ego starts at its Init (docs/sim.md)")
     r.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode k: seed + k)")
     r.add_argument("--video", action="store_true", help="an MP4 per camera per episode")
     r.add_argument("--mcap", action="store_true", help="an MCAP log per episode (Foxglove)")

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -59,6 +60,7 @@ class EnvSettings:
     exposure: float = 0.0
     route_length: float = 200.0       # m of a drawn route (when none is given)
     ep_reference: str = "none"        # "planner": EP against the planner's progress (a shadow run)
+    scenario: str | None = None       # an OpenSCENARIO file: its entities are the world
     limits: VehicleLimits = field(default_factory=VehicleLimits)
 
     def check(self) -> "EnvSettings":
@@ -119,6 +121,24 @@ class DriveEnv(gym.Env):
         self._bev = None
         self.world = None
         self.route: Route | None = None
+        self.scenario = None
+        if self.settings.scenario is not None:
+            self._open_scenario(settings)
+
+    def _open_scenario(self, given: dict) -> None:
+        """Read the scenario once (one error line when it cannot be played). Its entities are
+        the whole world: seeded traffic beside them is refused rather than silently mixed
+        (the traffic model does not know the storyboard's entities)."""
+        from lsd3d_usd.sim.scenario.reader import read_scenario
+        s = self.settings
+        extra = [k for k in ("vehicles", "cyclists", "pedestrians") if given.get(k)]
+        if extra:
+            raise InputError(f"scenario {s.scenario}: {extra[0]}={given[extra[0]]}: seeded traffic "
+                             "beside a scenario's entities is not supported (leave it out)")
+        s.vehicles = s.cyclists = s.pedestrians = 0
+        self.scenario = read_scenario(s.scenario)
+        if not self.scenario.ego or self.scenario.ego not in self.scenario.entities:
+            raise InputError(f"{s.scenario}: the scenario has no entity for the ego")
 
     # ---- spaces
     def _action_space(self):
@@ -155,36 +175,29 @@ class DriveEnv(gym.Env):
         s = self.settings
         rng = self.np_random
         g = self.scene.graph
-        if options.get("route"):
+        if self.scenario is not None:
+            self._reset_scenario(options)
+        elif options.get("route"):
             self.route = g.route(parse_route(options["route"]))
         else:
             ids = random_routes(g, 1, s.route_length, int(rng.integers(2**31)))[0]
             self.route = g.route(ids)
-        d0 = float(options.get("start", min(5.0, self.route.length / 4)))
-        x, y, yaw = self.route.pose2d(d0)
-        z = float(self.route.point(d0)[2])
         lim = self.limits
-        v0 = float(options.get("speed", s.start_speed))
+        if self.scenario is not None:
+            v0 = float(options.get("speed", self._ego_init[4]))
+        else:
+            d0 = float(options.get("start", min(5.0, self.route.length / 4)))
+            x, y, yaw = self.route.pose2d(d0)
+            z = float(self.route.point(d0)[2])
+            v0 = float(options.get("speed", s.start_speed))
         if not (math.isfinite(v0) and 0.0 <= v0 <= lim.v_max):
             raise InputError(f"reset options: speed {v0!r} outside 0 .. {lim.v_max}")
-        self.ego = EgoState(x - lim.box_offset * math.cos(yaw), y - lim.box_offset * math.sin(yaw),
-                            yaw, v0, z=z)
-        kinds = _kinds(rng, s.vehicles)
-        vdims = [self.scene.dims("vehicle", k) for k in kinds]
-        cdims = self.scene.dims("cyclist")
-        pkinds = [["adult", "adult_broad", "child"][int(rng.integers(3))] for _ in range(s.pedestrians)]
-        pdims = [self.scene.dims("pedestrian", k) for k in pkinds]
-        spec = AgentSpec([(d[0], d[1]) for d in vdims], [(cdims[0], cdims[1])] * s.cyclists,
-                         [(k, d[0], d[1], k == "child") for k, d in zip(pkinds, pdims)])
-        self.world = World(self.scene.layout, g, self.route, self.ego, lim, spec,
-                           int(rng.integers(2**31)))
-        veh = self.world.slots
-        labels = ["cyclist" if v.cyclist else "vehicle" for v in veh] + \
-            ["pedestrian"] * len(self.world.street.crowd.people)
-        vkinds = iter(kinds)
-        agent_kinds = [None if v.cyclist else next(vkinds, None) for v in veh] + \
-            [p.kind for p in self.world.street.crowd.people]
-        self.actors = self.scene.actors_for(labels, agent_kinds)
+        if self.scenario is not None:
+            self._world_from_scenario(v0)
+        else:
+            self.ego = EgoState(x - lim.box_offset * math.cos(yaw), y - lim.box_offset * math.sin(yaw),
+                                yaw, v0, z=z)
+            self._seeded_world(rng)
         self.sensors.start_episode(self.actors, int(rng.integers(2**31)))
         pts, _ = self.route.polyline()
         reference = self._reference(seed, options) if s.ep_reference == "planner" else None
@@ -201,6 +214,64 @@ class DriveEnv(gym.Env):
         self.last = self.scores.update(self._step_state())
         self._pose_actors()
         return self._observe(), self._info(self.last)
+
+    def _seeded_world(self, rng) -> None:
+        """The street of actors.street around the ego: seeded traffic and pedestrians."""
+        s, g, lim = self.settings, self.scene.graph, self.limits
+        kinds = _kinds(rng, s.vehicles)
+        vdims = [self.scene.dims("vehicle", k) for k in kinds]
+        cdims = self.scene.dims("cyclist")
+        pkinds = [["adult", "adult_broad", "child"][int(rng.integers(3))] for _ in range(s.pedestrians)]
+        pdims = [self.scene.dims("pedestrian", k) for k in pkinds]
+        spec = AgentSpec([(d[0], d[1]) for d in vdims], [(cdims[0], cdims[1])] * s.cyclists,
+                         [(k, d[0], d[1], k == "child") for k, d in zip(pkinds, pdims)])
+        self.world = World(self.scene.layout, g, self.route, self.ego, lim, spec,
+                           int(rng.integers(2**31)))
+        veh = self.world.slots
+        labels = ["cyclist" if v.cyclist else "vehicle" for v in veh] + \
+            ["pedestrian"] * len(self.world.street.crowd.people)
+        vkinds = iter(kinds)
+        agent_kinds = [None if v.cyclist else next(vkinds, None) for v in veh] + \
+            [p.kind for p in self.world.street.crowd.people]
+        self.actors = self.scene.actors_for(labels, agent_kinds)
+
+    def _reset_scenario(self, options: dict) -> None:
+        """A fresh player at Init; the ego's route from where Init puts it."""
+        from lsd3d_usd.sim.scenario.player import ScenarioPlayer
+        from lsd3d_usd.sim.scenario.world import ego_route_ids
+        if "start" in options:
+            raise InputError("reset options: start: the scenario's Init places the ego")
+        g = self.scene.graph
+        self.player = ScenarioPlayer(self.scenario, self.scene.layout, self.dt)
+        self.player.start()
+        self._ego_init = self.player.ego_init()
+        ids = parse_route(options["route"]) if options.get("route") else \
+            ego_route_ids(self.player, g, self._ego_init)
+        self.route = g.route(ids)
+
+    def _world_from_scenario(self, v0: float) -> None:
+        """The ego at the scenario's Init (its reference point, the rear axle centre, is the
+        ego frame's origin); the entities drawn with the scene's template of their class
+        whose bounding box is nearest to theirs."""
+        from lsd3d_usd.sim.scenario.world import ScenarioWorld
+        x, y, _, yaw, _ = self._ego_init
+        lim = self.limits
+        c = (x + lim.box_offset * math.cos(yaw), y + lim.box_offset * math.sin(yaw))
+        d, _ = self.route.project(c)
+        self.ego = EgoState(x, y, yaw, v0, z=float(self.route.point(d)[2]))
+        self.world = ScenarioWorld(self.player, self.scene.graph, self.route, self.ego, lim)
+        labels = self.world.labels()
+        kinds = [self.scene.closest_kind(lab, (e.length, e.width, e.height))
+                 for lab, e in zip(labels, self.world.entities)]
+        self.actors = self.scene.actors_for(labels, kinds)
+
+    def scenario_state(self) -> dict | None:
+        """The scenario's own outcome so far (None without a scenario)."""
+        if self.scenario is None:
+            return None
+        return {"file": str(self.scenario.path), "name": Path(self.scenario.path).stem,
+                "ego": self.scenario.ego, "stop_trigger_fired": bool(self.player.finished),
+                "storyboard_completed": bool(self.player.completed)}
 
     def _reference(self, seed, options) -> tuple[np.ndarray, np.ndarray]:
         """(t, progress) of the planner on the same episode without sensors: the reference
@@ -268,6 +339,8 @@ class DriveEnv(gym.Env):
             terminated, reason = True, "off_road"
         elif complete:
             terminated, reason = True, "route_complete"
+        elif self.scenario is not None and self.player.finished:
+            terminated, reason = True, "scenario_end"
         truncated = not terminated and self.t >= s.seconds - 1e-9
         if truncated:
             reason = "time_limit"
@@ -375,7 +448,8 @@ class DriveEnv(gym.Env):
                 "stop_distance_m": float(self.world.ego_stop_distance()),
                 "leader_gap_m": float(gap), "leader_speed": float(v_lead),
                 "occupied_crosswalks": sorted(self.world.occupied_crosswalks()),
-                "command": COMMANDS[self._command()]}
+                "command": COMMANDS[self._command()],
+                **({"scenario": self.scenario_state()} if self.scenario is not None else {})}
 
     def render(self):
         if self.render_mode != "rgb_array":

@@ -81,6 +81,9 @@ class _Recorder:
         self.steps.append({"t": info["t"], "reward": reward,
                            "action": None if action is None else np.asarray(action).round(5).tolist(),
                            **sc})
+        if "scenario" in info:          # the storyboard's state at this step
+            self.steps[-1]["scenario"] = {k: info["scenario"][k]
+                                          for k in ("stop_trigger_fired", "storyboard_completed")}
         self.rows.append(("ego", "ego", info["t"], e.x, e.y, e.z, e.yaw, e.v))
         self.ego_path.append((e.x, e.y))
         for b in info["boxes"]:
@@ -255,6 +258,8 @@ def run_episode(env, policy_spec: str, index: int, seed: int, route, out: Path,
                 "error": error, "steps": env.k, "clipped_actions": env.clipped,
                 "settings": {k: v for k, v in asdict(env.settings).items()},
                 "summary_line": summary_line(summary)}
+        if getattr(env, "scenario", None) is not None:
+            meta["scenario"] = env.scenario_state()
         files.update(rec.write(part, meta, summary))
         if final.exists():
             shutil.rmtree(final)

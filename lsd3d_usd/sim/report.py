@@ -54,23 +54,47 @@ def mean_ci(values) -> tuple[float | None, float | None, int]:
     return float(v.mean()), half, len(v)
 
 
+def _groups(folder, eps: list[dict]) -> list[tuple[str, list[dict]]]:
+    """A run's rows: the whole run, or one per scenario when its episodes played scenarios
+    ("RUN [name]", in first-episode order)."""
+    if not any(isinstance(e.get("scenario"), dict) for e in eps):
+        return [(str(folder), eps)]
+    by: dict[str, list] = {}
+    for e in eps:
+        sc = e.get("scenario") if isinstance(e.get("scenario"), dict) else {}
+        by.setdefault(str(sc.get("name", "-")), []).append(e)
+    return [(f"{folder} [{name}]", group) for name, group in by.items()]
+
+
 def compare(folders) -> dict:
-    """{run: {score: {mean, ci95, n}, "episodes": n, "reasons": {...}, "policy": ...}}."""
+    """{row: {score: {mean, ci95, n}, "episodes": n, "reasons": {...}, "policy": ...}}: a row
+    per run, or per run and scenario (with "scenario_end": the share of its episodes whose
+    stop trigger fired, "completed": whose storyboard completed)."""
     runs = {}
     for f in folders:
-        eps = read_run(f)
-        row = {"episodes": len(eps), "policy": sorted({str(e.get("policy")) for e in eps}),
-               "reasons": {}}
-        for e in eps:
-            r = str(e.get("reason"))
-            row["reasons"][r] = row["reasons"].get(r, 0) + 1
-        for k in SCORES:
-            m, h, n = mean_ci(e["summary"].get(k) for e in eps)
-            row[k] = {"mean": m, "ci95": h, "n": n}
-        m, h, n = mean_ci(float(e["summary"].get("at_fault_collisions", 0) > 0) for e in eps)
-        row["collided"] = {"mean": m, "ci95": h, "n": n}
-        runs[str(f)] = row
+        for key, eps in _groups(f, read_run(f)):
+            runs[key] = _row(eps)
     return runs
+
+
+def _row(eps: list[dict]) -> dict:
+    row = {"episodes": len(eps), "policy": sorted({str(e.get("policy")) for e in eps}),
+           "reasons": {}}
+    for e in eps:
+        r = str(e.get("reason"))
+        row["reasons"][r] = row["reasons"].get(r, 0) + 1
+    for k in SCORES:
+        m, h, n = mean_ci(e["summary"].get(k) for e in eps)
+        row[k] = {"mean": m, "ci95": h, "n": n}
+    m, h, n = mean_ci(float(e["summary"].get("at_fault_collisions", 0) > 0) for e in eps)
+    row["collided"] = {"mean": m, "ci95": h, "n": n}
+    scs = [e["scenario"] for e in eps if isinstance(e.get("scenario"), dict)]
+    if scs:
+        row["scenario"] = str(scs[0].get("name"))
+        for k, field in (("scenario_end", "stop_trigger_fired"), ("completed", "storyboard_completed")):
+            m, h, n = mean_ci(float(bool(s.get(field))) for s in scs)
+            row[k] = {"mean": m, "ci95": h, "n": n}
+    return row
 
 
 def format_table(runs: dict) -> str:
@@ -85,7 +109,11 @@ def format_table(runs: dict) -> str:
                          f"{m:7.3f} ±{h:6.3f}" if h is not None else f"{m:7.3f}        ")
         name = run if len(run) <= 30 else "…" + run[-29:]
         lines.append(f"{name:30s} {row['episodes']:3d} " + " ".join(f"{c:>15s}" for c in cells))
-        lines.append(f"{'':30s}     ended: " + ", ".join(f"{k} {v}" for k, v in sorted(row["reasons"].items())))
+        ended = ", ".join(f"{k} {v}" for k, v in sorted(row["reasons"].items()))
+        if "scenario_end" in row:
+            ended += (f"; stop trigger fired {row['scenario_end']['mean']:.2f}, "
+                      f"storyboard completed {row['completed']['mean']:.2f}")
+        lines.append(f"{'':30s}     ended: " + ended)
     return "\n".join(lines)
 
 

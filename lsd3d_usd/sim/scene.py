@@ -201,6 +201,15 @@ class SimScene:
             opts = [t for t in opts if t.kind == kind] or opts
         return opts[k % len(opts)]
 
+    def closest_kind(self, label: str, dims) -> str | None:
+        """The kind of ``label``'s templates whose bounding box (length, width, height) is
+        nearest to ``dims`` (a scenario entity drawn with the scene's own assets)."""
+        opts = self.templates.get(label) or self.templates[A.VEHICLE_CLASS]
+        want = np.asarray(dims, np.float64)[:3]
+        best = min(opts, key=lambda t: (float(np.abs(np.asarray(t.dims, np.float64)[:3] - want).sum()),
+                                        str(t.kind)))
+        return best.kind
+
     def dims(self, label: str, kind: str | None = None) -> np.ndarray:
         return np.asarray(self.template(label, 0, kind).dims, np.float64)
 

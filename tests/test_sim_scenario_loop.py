@@ -1,0 +1,177 @@
+"""Scenarios in the closed loop: a scene built from a scenario's road (`scenario build`), its
+entities as DriveEnv's world (scored, labelled by the sensors), its outcome in the episode."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("scenariogeneration")
+from scenariogeneration import xosc  # noqa: E402
+
+from lsd3d_usd.errors import InputError  # noqa: E402
+from tests.test_sim_scenario import W, dyn, lanepos, sim_time, speed, vehicle, write_road  # noqa: E402
+
+V50 = 50 / 3.6
+
+
+def write_scenario(folder, name, init, events, actors="Target", stop=8.0):
+    """Ego and Target on the shared road; ``events``: [(trigger, [action])] of ``actors``."""
+    ents = xosc.Entities()
+    for n in ("Ego", "Target"):
+        ents.add_scenario_object(n, vehicle())
+    ini = xosc.Init()
+    for who, a in init:
+        ini.add_init_action(who, a)
+    man = xosc.Maneuver("man")
+    events = events or [(sim_time(1e3, name="never"), [speed(1)])]    # a maneuver needs one
+    for k, (trig, acts) in enumerate(events):
+        ev = xosc.Event(f"ev{k}", xosc.Priority.parallel)
+        for j, a in enumerate(acts):
+            ev.add_action(f"ev{k}a{j}", a)
+        ev.add_trigger(trig)
+        man.add_event(ev)
+    mg = xosc.ManeuverGroup("mg")
+    mg.add_actor(actors)
+    mg.add_maneuver(man)
+    act = xosc.Act("act", sim_time(0, rule="greaterOrEqual", name="go"))
+    act.add_maneuver_group(mg)
+    story = xosc.Story("story")
+    story.add_act(act)
+    sb = xosc.StoryBoard(ini, sim_time(stop, name="stop", point="stop"))
+    sb.add_story(story)
+    sce = xosc.Scenario(name, "lsd3d", xosc.ParameterDeclarations(), ents, sb,
+                        xosc.RoadNetwork(roadfile="road.xodr"), xosc.Catalog())
+    path = folder / f"{name}.xosc"
+    sce.write_xml(str(path))
+    return path
+
+
+def braking_lead(folder):
+    """The lead 30 m ahead at 50 km/h brakes at 6 m/s^2 to a stop after 2 s."""
+    return write_scenario(folder, "braking_lead",
+                          [("Ego", lanepos(10)), ("Ego", speed(V50)), ("Target", lanepos(40)),
+                           ("Target", speed(V50))],
+                          [(sim_time(2.0, rule="greaterOrEqual"), [speed(0, "linear", "rate", 6.0)])])
+
+
+def cut_in(folder):
+    """A slower vehicle on the neighbouring lane changes into the ego's lane ahead when the
+    ego's time headway to it falls below 1 s."""
+    th = xosc.EntityTrigger("hw", 0, xosc.ConditionEdge.rising,
+                            xosc.TimeHeadwayCondition("Target", 1.0, xosc.Rule.lessThan,
+                                                      alongroute=True, freespace=False), "Ego")
+    lc = xosc.RelativeLaneChangeAction(0, "Ego", dyn("sinusoidal", "time", 2.5))
+    return write_scenario(folder, "cut_in",
+                          [("Ego", lanepos(10)), ("Ego", speed(12)), ("Target", lanepos(45, -2)),
+                           ("Target", speed(8))], [(th, [lc])], stop=12.0)
+
+
+@pytest.fixture(scope="module")
+def road_scene(tmp_path_factory):
+    """A scene built by `scenario build` around a straight two-lane road (400 m)."""
+    from lsd3d_usd.cli import main
+    folder = tmp_path_factory.mktemp("xosc")
+    write_road(folder / "road.xodr")
+    path = braking_lead(folder)
+    scene = folder / "scene"
+    assert main(["scenario", "build", str(path), "-o", str(scene), "--steps", "0", "--no-actors",
+                 "--surfels", "3000", "--resolution", "64x48", "--views", "4",
+                 "--env-resolution", "128x64", "--no-progress"]) == 0
+    return folder, scene
+
+
+def drive(scene, path, policy, **kw):
+    from lsd3d_usd.sim.env import DriveEnv
+    from lsd3d_usd.sim.policies import load_policy
+    env = DriveEnv(str(scene), scenario=str(path), rig="none", lidar="none", seconds=20.0, **kw)
+    try:
+        obs, info = env.reset(seed=0)
+        first = (obs["ego"]["pose"].copy(), float(obs["ego"]["speed"]), info)
+        pol = load_policy(policy, env)
+        while True:
+            obs, _, term, trunc, info = env.step(pol(obs, info))
+            if term or trunc:
+                return env, first, info
+    finally:
+        env.close()
+
+
+def test_braking_lead_discriminates(road_scene):
+    folder, scene = road_scene
+    path = folder / "braking_lead.xosc"
+    env, (pose, v0, first), info = drive(scene, path, "planner")
+    # the ego starts where Init puts it (rear axle at s = 10 on lane -1), at 50 km/h
+    assert pose[[0, 1, 3]] == pytest.approx([10.0, -W / 2, 0.0], abs=1e-6)
+    assert v0 == pytest.approx(V50, abs=1e-4) and env.settings.vehicles == 0
+    assert [b["id"] for b in first["boxes"]] == ["vehicle:Target"]
+    assert first["boxes"][0]["center"] == pytest.approx([40 + 1.4, -W / 2], abs=1e-6)
+    assert info["reason"] == "scenario_end" and info["scores"]["nc"] == 1.0
+    assert info["scenario"]["stop_trigger_fired"] and info["scenario"]["name"] == "braking_lead"
+    env, _, info = drive(scene, path, "constant")
+    assert info["reason"] == "collision"
+    assert not info["scenario"]["stop_trigger_fired"]
+
+
+def test_cut_in_planner_no_collision(road_scene):
+    folder, scene = road_scene
+    path = cut_in(folder)
+    env, _, info = drive(scene, path, "planner")
+    assert info["reason"] == "scenario_end" and info["scores"]["nc"] == 1.0
+    # the target did change into the ego's lane
+    tgt = [b for b in info["boxes"] if b["id"] == "vehicle:Target"][0]
+    assert tgt["center"][1] == pytest.approx(-W / 2, abs=0.05)
+
+
+def test_sensors_show_and_label_the_lead(road_scene):
+    from lsd3d_usd.sim.env import DriveEnv
+    folder, scene = road_scene
+    path = write_scenario(folder, "lead_ahead", [("Ego", lanepos(10)), ("Target", lanepos(25))], [])
+    env = DriveEnv(str(scene), scenario=str(path), rig="nuscenes6", cameras=("CAM_FRONT",),
+                   width=64, outputs=("rgb", "instance"), lidar="auto")
+    try:
+        obs, info = env.reset(seed=0)
+        iid = int(env.sensors.instances.ids[1])      # actor 0 is the ego, 1 the first entity
+        row = [r for r in env.sensors.instances.rows if r["id"] == iid][0]
+        assert row["class"] == "vehicle" and row["role"] == "moving"
+        assert (obs["cameras"]["CAM_FRONT"]["instance"] == iid).sum() > 20
+        n = int(obs["lidar"]["count"])
+        assert (obs["lidar"]["instance"][:n] == iid).sum() > 20
+    finally:
+        env.close()
+
+
+def test_scenario_settings_refused(road_scene):
+    from lsd3d_usd.sim.env import DriveEnv
+    folder, scene = road_scene
+    with pytest.raises(InputError, match="vehicles=3: seeded traffic"):
+        DriveEnv(str(scene), scenario=str(folder / "braking_lead.xosc"), rig="none", vehicles=3)
+    with pytest.raises(InputError, match="nope.xosc"):
+        DriveEnv(str(scene), scenario=str(folder / "nope.xosc"), rig="none")
+
+
+def test_sim_run_scenario_folder_and_report(road_scene, tmp_path, capsys):
+    from lsd3d_usd.cli import main
+    folder, scene = road_scene
+    sets = tmp_path / "set"
+    sets.mkdir()
+    write_road(sets / "road.xodr")
+    braking_lead(sets)
+    write_scenario(sets, "idle", [("Ego", lanepos(10)), ("Target", lanepos(100))], [], stop=1.0)
+    out = tmp_path / "run"
+    assert main(["sim", "run", str(scene), "-o", str(out), "--scenario", str(sets), "--rig", "none",
+                 "--no-reference", "--policy", "constant", "--seconds", "10", "--no-progress"]) == 0
+    metas = [json.loads((out / f"episode_{k:03d}" / "metrics.json").read_text()) for k in range(2)]
+    assert [m["scenario"]["name"] for m in metas] == ["braking_lead", "idle"]
+    assert [m["reason"] for m in metas] == ["collision", "scenario_end"]
+    # the stop trigger (time > 1 s) fires at the first step after 1 s: the episode ends there
+    assert metas[1]["scenario"]["stop_trigger_fired"]
+    assert metas[1]["steps"][-1]["t"] == pytest.approx(1.1)
+    assert metas[1]["steps"][-1]["scenario"]["stop_trigger_fired"]
+    assert not metas[1]["steps"][-2]["scenario"]["stop_trigger_fired"]
+    capsys.readouterr()
+    assert main(["sim", "report", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "braking_lead" in table and "idle" in table
+    assert np.isfinite(metas[0]["summary"]["nc"])
