@@ -480,12 +480,15 @@ def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = 
     argument group per subtree (``titles`` names them). Defaults are suppressed so only flags
     given on the command line reach :func:`from_args`; --help shows each leaf's default.
     ``flags`` ({key: "--flag" or "--no-flag"}) gives flags to leaves of a tree another command
-    also uses without them (a bool leaf's "--no-..." flag turns it off). Returns the groups by
-    subtree name ("" = the parser itself)."""
+    also uses without them (a bool leaf's "--no-..." flag turns it off), or "" to leave a
+    leaf without its flag on this command. Returns the groups by subtree name ("" = the parser
+    itself)."""
     groups: dict = {"": parser}
     for lf in leaves(cls):
         m = lf.meta
         given = (flags or {}).get(lf.key)
+        if given == "":
+            continue
         if given:
             m = {**m, "negate": given, "flag": None} if given.startswith("--no-") and \
                 lf.base is bool else {**m, "flag": given}
