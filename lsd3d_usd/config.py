@@ -19,11 +19,9 @@ from lsd3d_usd.actors.config import ActorsConfig
 from lsd3d_usd.env.config import EnvConfig
 from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.ggds.priors.registry import PriorConfig
+from lsd3d_usd.layout.config import STYLES
 from lsd3d_usd.proxy.chunks import ProxyParams
 from lsd3d_usd.splats.config import SplatsConfig, SurfelConfig
-
-STYLES = ("urban", "suburban", "highway")
-
 
 @dataclass
 class GenerateConfig:
