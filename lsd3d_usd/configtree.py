@@ -475,17 +475,24 @@ def default_text(lf: Leaf) -> str:
 
 
 def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = None,
-                  flags: dict | None = None) -> dict:
+                  flags: dict | None = None, required: tuple = (),
+                  exclusive: tuple[tuple[str, ...], ...] = ()) -> dict:
     """One argparse flag per leaf that has ``flag`` (and a ``--no-x`` for ``negate``), in one
     argument group per subtree (``titles`` names them). Defaults are suppressed so only flags
     given on the command line reach :func:`from_args`; --help shows each leaf's default.
     ``flags`` ({key: "--flag" or "--no-flag"}) gives flags to leaves of a tree another command
-    also uses without them (a bool leaf's "--no-..." flag turns it off). Returns the groups by
-    subtree name ("" = the parser itself)."""
+    also uses without them (a bool leaf's "--no-..." flag turns it off), or "" to leave a
+    leaf without its flag on this command. Returns the groups by subtree name ("" = the parser
+    itself). ``required`` keys' flags must be given; the keys of each ``exclusive`` tuple
+    are flags of one mutually exclusive group (argparse refuses two of them together, as it
+    would hand-declared ones)."""
     groups: dict = {"": parser}
+    excl: dict = {}     # a tuple of keys -> its group, made at the first of its keys
     for lf in leaves(cls):
         m = lf.meta
         given = (flags or {}).get(lf.key)
+        if given == "":
+            continue
         if given:
             m = {**m, "negate": given, "flag": None} if given.startswith("--no-") and \
                 lf.base is bool else {**m, "flag": given}
@@ -496,6 +503,11 @@ def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = 
             title = (titles or {}).get(head)
             groups[head] = parser.add_argument_group(title) if head and title else parser
         target = groups[head]
+        together = next((t for t in exclusive if lf.key in t), None)
+        if together is not None:
+            if together not in excl:
+                excl[together] = target.add_mutually_exclusive_group()
+            target = excl[together]
         dest = dest_prefix + lf.key
         shown = default_text(lf).replace("%", "%%")   # argparse formats help with %
         m = {**m, "help": m["help"].replace("%", "%%")}
@@ -508,6 +520,8 @@ def add_arguments(parser, cls, dest_prefix: str = "cfg:", titles: dict | None = 
         suffix = f" (default: {shown})" if shown not in ("", "None") else ""
         kw: dict[str, Any] = {"dest": dest, "default": argparse.SUPPRESS,
                               "help": m["help"] + suffix}
+        if lf.key in required:
+            kw.update(required=True, help=m["help"])   # given every time: no default to show
         if lf.base is bool:
             kw.update(action="store_const", const="true")
         elif m["choices"] is not None:

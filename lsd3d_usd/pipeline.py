@@ -366,8 +366,8 @@ def _ggds_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
             "phases": [[r.name for r in ph] for ph in phases], "complete": False})
     n = sum(len(ph) for ph in phases)
     run.log(f"ggds: {name}: {n} region(s) in {len(phases)} phase(s)")
-    return run_regions(sc, name, phases=phases, ggds=ct.to_dict(cfg.ggds),
-                       prior=ct.to_dict(cfg.prior), env=ct.to_dict(cfg.env), seed=cfg.seed,
+    return run_regions(sc, name, phases=phases, ggds=cfg.ggds, prior=cfg.prior, env=cfg.env,
+                       seed=cfg.seed,
                        stop_at=p.stop_at,
                        keep_checkpoint=run.keep_checkpoint,
                        workers=run.workers or os.cpu_count() or 1, executor=run.executor,

@@ -148,3 +148,29 @@ def test_stored_configuration_without_a_newer_leaf_keeps_its_old_behaviour():
     # options a stored configuration predates read back as off, whatever the default
     stored = ct.from_dict(RegionConfig, {"mode": "chunk"})
     assert stored.fit_context is False and stored.share_views is False
+
+
+def test_a_prior_declares_its_options_as_its_own_configuration_class():
+    from dataclasses import dataclass
+
+    from lsd3d_usd.configtree import option
+    from lsd3d_usd.errors import InputError
+    from lsd3d_usd.ggds.priors import registry as R
+
+    @dataclass
+    class FlatOptions:
+        strength: float = option(0.5, help="how flat", lo=0.0, hi=1.0)
+
+    R.PRIORS.register("flat_opts", R.PriorEntry(lambda a, c, s: None, lambda a, c: None,
+                                                config=FlatOptions))
+    try:
+        got = R.prior_options(R.PriorConfig(name="flat_opts", options={"strength": "0.25"}))
+        assert got == FlatOptions(strength=0.25)        # typed, from --set text
+        with pytest.raises(InputError, match=r"prior.options.strength: must be in"):
+            R.prior_options(R.PriorConfig(name="flat_opts", options={"strength": "2"}))
+        with pytest.raises(InputError, match="did you mean 'strength'"):
+            R.check_prior(R.PriorConfig(name="flat_opts", options={"strenght": "0.1"}))
+        with pytest.raises(InputError, match="takes no such option"):
+            R.check_prior(R.PriorConfig(options={"strength": "0.1"}))   # procedural: none
+    finally:
+        R.PRIORS.unregister("flat_opts")

@@ -246,7 +246,8 @@ def test_cli_negative_value_parses_and_a_missing_value_still_fails():
     from lsd3d_usd.cli import build_parser
     args = build_parser().parse_args(["layout", "import", "m.osm", "--origin", "-1.5,-2",
                                       "-o", "o.usda"])
-    assert args.origin == "-1.5,-2"
+    from lsd3d_usd import configtree as ct
+    assert ct.from_args(args)["origin"] == "-1.5,-2"     # flags of layout.config's tree
     with pytest.raises(SystemExit):
         build_parser().parse_args(["layout", "import", "m.osm", "--origin", "--bbox", "1,2,3,4"])
 

@@ -4,7 +4,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lsd3d_usd.errors import InputError
+from lsd3d_usd import configtree as ct
+from lsd3d_usd.batch.config import BatchRunConfig
 
 
 def _batch(args) -> int:
@@ -17,15 +18,12 @@ def _batch(args) -> int:
     # local import: not loaded for --help
     from .tasks import plan_batch
 
+    run, _ = ct.from_command_line(args, BatchRunConfig)
     spec = load_spec(args.spec)
-    spec.executor, spec.address = args.executor, args.address
-    retries = args.retries if args.retries is not None else (
+    spec.executor, spec.address = run.executor, run.address
+    retries = run.retries if run.retries is not None else (
         spec.retries if spec.retries is not None else DEFAULT_RETRIES)
-    if retries < 0:
-        raise InputError(f"--retries {retries}: must be >= 0")
-    workers = args.workers if args.workers is not None else spec.workers
-    if workers is not None and workers < 1:
-        raise InputError(f"--workers {workers}: must be >= 1")
+    workers = run.workers if run.workers is not None else spec.workers
     if args.dry_run:
         print(f"output: {spec.output}")
         for sc in spec.scenes:
@@ -37,7 +35,7 @@ def _batch(args) -> int:
                 deps = f" (after {', '.join(names)})" if t.deps else ""
                 print(f"{t.id:40s} {t.kind:6s} {t.inputs_hash}{deps}")
         return 0
-    ex = make_executor(args.executor, workers, args.address)
+    ex = make_executor(run.executor, workers, run.address)
     err = lambda *a: print(*a, file=sys.stderr)  # noqa: E731
     progress = not args.no_progress and sys.stderr.isatty()
     try:
@@ -64,15 +62,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "already done with the same inputs (state in <output>/batch-state.json). "
                     "Exit 0 when every task succeeded, 1 with one line per failed task.")
     p.add_argument("spec", help="batch spec (.toml)")
-    p.add_argument("--executor", choices=("local", "ray"), default="local",
-                   help="local: a process pool on this machine (default); ray: a Ray cluster "
-                        "(needs `pip install ray`)")
-    p.add_argument("--address", help="Ray cluster address (e.g. auto or ray://head:10001); "
-                                     "without it a local Ray instance is started")
-    p.add_argument("--workers", type=int,
-                   help="tasks at once (default: the spec's [batch].workers, else all CPUs)")
-    p.add_argument("--retries", type=int,
-                   help="re-runs of a failed task before it is reported (default 2)")
+    ct.add_arguments(p, BatchRunConfig)
     p.add_argument("--dry-run", action="store_true",
                    help="check the spec and list the tasks with their input hashes; run nothing")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

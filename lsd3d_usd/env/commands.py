@@ -5,10 +5,9 @@ import argparse
 import sys
 import time
 
-from lsd3d_usd.cliutil import check_output_path, size_type
-
-WEATHERS = ("clear", "partly-cloudy", "overcast", "fog", "rain", "snow")
-SEASONS = ("spring", "summer", "autumn", "winter")
+from lsd3d_usd import configtree as ct
+from lsd3d_usd.cliutil import check_output_path
+from lsd3d_usd.env.config import SKY_FLAGS, SkyConfig
 
 
 def _env(args) -> int:
@@ -18,16 +17,18 @@ def _env(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.env.prompt import build_params, unknown_words
 
-    w, h = args.resolution
+    cfg, _ = ct.from_command_line(args, SkyConfig, ct.flag_names(SkyConfig) | SKY_FLAGS)
+    e = cfg.env
+    w, h = e.resolution
     check_resolution(w, h)
     out = check_output_path(args.output, "-o", suffixes=(".exr",), what="environment map")
     if args.usd:
         check_output_path(args.usd, "--usd", suffixes=(".usda", ".usdc", ".usd"), what="env layer")
-    fields = dict(seed=args.seed, turbidity=args.turbidity, cloud_coverage=args.cloud_coverage,
-                  fog_density=args.fog_density, north_deg=args.north, color_space=args.color_space)
-    params, unknown = build_params(args.prompt, when=args.when, lat=args.lat, lon=args.lon,
-                                   weather=args.weather, season=args.season,
-                                   time_of_day=args.time_of_day, **fields)
+    fields = dict(seed=cfg.seed, turbidity=cfg.turbidity, cloud_coverage=cfg.cloud_coverage,
+                  fog_density=cfg.fog_density, north_deg=cfg.north, color_space=cfg.color_space)
+    params, unknown = build_params(e.prompt, when=e.when, lat=e.lat, lon=e.lon,
+                                   weather=e.weather, season=e.season,
+                                   time_of_day=cfg.time_of_day, **fields)
     if unknown:
         print(f"lsd3d-usd: warning: prompt words not understood (ignored): {unknown_words(unknown)}",
               file=sys.stderr)
@@ -59,31 +60,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "explicit flags, which override the prompt. The EXR is reused when its parameters "
                     "are unchanged.",
         formatter_class=argparse.ArgumentDefaultsHelpFormatter)
-    p.add_argument("--prompt", help="free text: weather, season, month, time of day, city")
-    p.add_argument("--when", help="local date-time, ISO 8601, e.g. 2026-06-21T13:00+02:00 (without an "
-                                  "offset: the place's standard time)")
-    p.add_argument("--time-of-day", dest="time_of_day",
-                   help="a time word solved for the place and date (dawn, sunrise, morning, noon, "
-                        "afternoon, evening, golden hour, sunset, dusk, night, ...)")
-    p.add_argument("--lat", type=float, help="latitude in degrees (north positive); with --lon")
-    p.add_argument("--lon", type=float, help="longitude in degrees (east positive); with --lat")
-    p.add_argument("--weather", choices=WEATHERS, help="weather (default: from the prompt, else clear)")
-    p.add_argument("--season", choices=SEASONS,
-                   help="season: sets the date (hemisphere-aware) unless --when is given, and the "
-                        "ground / vegetation hints")
-    p.add_argument("--resolution", type=size_type("--resolution"), default=(2048, 1024),
-                   help="WIDTHxHEIGHT, 2:1")
-    p.add_argument("--seed", type=int, default=0, help="seed of the cloud noise")
-    p.add_argument("--turbidity", type=float, help="atmospheric turbidity 1.7..10 (default per weather)")
-    p.add_argument("--cloud-coverage", dest="cloud_coverage", type=float,
-                   help="fraction of the sky covered by clouds, 0..1 (default per weather)")
-    p.add_argument("--fog-density", dest="fog_density", type=float,
-                   help="fog extinction in 1/m (visibility = 3.912 / density; default per weather)")
-    p.add_argument("--north", type=float, default=0.0,
-                   help="angle (deg, counter-clockwise about +Z) from +Y to north in the stage")
-    p.add_argument("--color-space", dest="color_space", choices=("lin_rec709", "acescg"),
-                   default="lin_rec709", help="colour space of the EXR (tagged in the file and on the "
-                                              "USD texture)")
+    ct.add_arguments(p, SkyConfig, flags=SKY_FLAGS)
     p.add_argument("-o", "--output", required=True, help="output .exr path")
     p.add_argument("--usd", help="also write (or add a variant to) this env layer, e.g. "
                                  "scene/layers/env.usda: /World/Env with a DomeLight_1")

@@ -8,9 +8,11 @@ import sys
 import time
 import warnings
 
+from lsd3d_usd import configtree as ct
 from lsd3d_usd.cliutil import check_output_path
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout import importers
+from lsd3d_usd.layout.config import LayoutExportConfig, LayoutGenerateConfig, LayoutImportConfig
 from lsd3d_usd.scene import provenance
 
 import numpy as np
@@ -30,11 +32,7 @@ def register(subparsers) -> None:
                     "junctions, roundabouts) with city blocks, buildings, trees and parking, chunk by "
                     "chunk (100 m). Deterministic per seed; the block description is stored in the "
                     "layer so it can be replayed.")
-    g.add_argument("--seed", type=int, default=0, help="master seed (default 0)")
-    g.add_argument("--extent", default="400x400",
-                   help="WIDTHxHEIGHT in metres, from the origin (default 400x400)")
-    g.add_argument("--style", default="urban", choices=("urban", "suburban", "highway"),
-                   help="road/building style (default urban)")
+    ct.add_arguments(g, LayoutGenerateConfig)
     g.add_argument("-o", "--output", required=True, help="output layer (.usda or .usdc)")
     g.set_defaults(func=_generate)
 
@@ -47,24 +45,7 @@ def register(subparsers) -> None:
                     "that cannot be read are skipped with a warning naming them. See docs/layout.md.")
     i.add_argument("input", help="map file (.xodr, .osm, .osm.pbf, ...)")
     i.add_argument("-o", "--output", required=True, help="output layer (.usda or .usdc)")
-    i.add_argument("--format", default=None, metavar="NAME",
-                   help="read as this format instead of detecting it (one of the names above)")
-    i.add_argument("--tolerance", type=float, default=0.02,
-                   help="max distance of the sampled polylines from the exact curves, m (default 0.02)")
-    i.add_argument("--strict", action="store_true",
-                   help="fail on the first bad element instead of skipping it with a warning")
-    i.add_argument("--origin", default=None, metavar="LAT,LON",
-                   help="geographic origin of the layout's (0, 0) for Lanelet2 / OSM, degrees "
-                        "(default: the file's own, see docs/layout.md)")
-    i.add_argument("--bbox", default=None, metavar="MINLON,MINLAT,MAXLON,MAXLAT",
-                   help="OSM: read only this area (degrees), e.g. a district of a city file")
-    i.add_argument("--no-clip", dest="clip", action="store_false",
-                   help="OSM: keep the ways touching the area whole instead of cutting every "
-                        "feature at --bbox or, without it, at the file's <bounds>")
-    i.add_argument("--frame", default=None, metavar="LAYOUT",
-                   help="write the layout in the frame of this georeferenced layout (or scene): "
-                        "every point is moved through longitude/latitude, so maps of one place "
-                        "from different formats overlay (both need a geoReference)")
+    ct.add_arguments(i, LayoutImportConfig)
     i.set_defaults(func=_import)
 
     gr = sub.add_parser(
@@ -86,11 +67,7 @@ def register(subparsers) -> None:
                     "arcs and paramPoly3 within --tolerance, lane widths, links and junctions.")
     x.add_argument("input", help="layout layer or scene")
     x.add_argument("-o", "--output", required=True, help="output file (.xodr)")
-    x.add_argument("--tolerance", type=float, default=0.02,
-                   help="max distance of the fitted reference lines from the lane centres, m "
-                        "(vertices within half of it; default 0.02)")
-    x.add_argument("--validate", action="store_true",
-                   help="check the file against the ASAM OpenDRIVE XSD (needs scenariogeneration)")
+    ct.add_arguments(x, LayoutExportConfig)
     x.set_defaults(func=_export)
 
     s = sub.add_parser("info", help="summarise a layout layer",
@@ -120,16 +97,17 @@ def _generate(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.layout import generator, usdio
 
+    c, _ = ct.from_command_line(args, LayoutGenerateConfig)
     _check_output(args.output)
     t0 = time.perf_counter()
-    extent = generator.parse_extent(args.extent)
-    desc = generator.plan(args.seed, extent, args.style)
+    extent = generator.parse_extent(c.extent)
+    desc = generator.plan(c.seed, extent, c.style)
     n_chunks = len(desc["chunks"])
     with _tqdm(n_chunks, "layout") as bar:
         layout = generator.build(desc, progress=bar)
     t1 = time.perf_counter()
     path = usdio.write_layout(layout, args.output, provenance(
-        "layout.generate", {"extent": list(extent), "style": args.style}, seed=args.seed,
+        "layout.generate", {"extent": list(extent), "style": c.style}, seed=c.seed,
         timings={"generate_s": round(t1 - t0, 3), "write_s": round(time.perf_counter() - t1, 3)}))
     _print_summary(layout, path)
     return 0
@@ -151,29 +129,30 @@ def _import(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.layout import usdio
 
+    c, _ = ct.from_command_line(args, LayoutImportConfig)
     _check_output(args.output)
-    origin = _parse_floats(args.origin, 2, "--origin", "LAT,LON in degrees, e.g. 48.137,11.575")
-    bbox = _parse_floats(args.bbox, 4, "--bbox", "MINLON,MINLAT,MAXLON,MAXLAT in degrees")
-    opts = importers.ImportOptions(tolerance=args.tolerance, strict=args.strict, origin=origin,
-                                   bbox=bbox, clip=args.clip)
+    origin = _parse_floats(c.origin, 2, "--origin", "LAT,LON in degrees, e.g. 48.137,11.575")
+    bbox = _parse_floats(c.bbox, 4, "--bbox", "MINLON,MINLAT,MAXLON,MAXLAT in degrees")
+    opts = importers.ImportOptions(tolerance=c.tolerance, strict=c.strict, origin=origin,
+                                   bbox=bbox, clip=c.clip)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        layout, imp = importers.read_map(args.input, opts, format=args.format)
+        layout, imp = importers.read_map(args.input, opts, format=c.format)
     for w in caught:
         if issubclass(w.category, UserWarning):
             print(f"lsd3d-usd: warning: {w.message}", file=sys.stderr)
-    if args.frame:
+    if c.frame:
         from lsd3d_usd.layout import georef
-        target = georef.of_layout(usdio.read_layout(args.frame))
+        target = georef.of_layout(usdio.read_layout(c.frame))
         if target is None:
             from lsd3d_usd.errors import InputError
-            raise InputError(f"--frame {args.frame}: that layout has no geoReference")
+            raise InputError(f"--frame {c.frame}: that layout has no geoReference")
         layout = georef.reproject(layout, target)
     src = layout.metadata.get("source", {})
-    params = {"source": str(args.input), "format": imp.name, "tolerance": args.tolerance}
-    if args.frame:
-        params["frame"] = str(args.frame)
+    params = {"source": str(args.input), "format": imp.name, "tolerance": c.tolerance}
+    if c.frame:
+        params["frame"] = str(c.frame)
     for key in ("origin", "originFrom", "bbox", "clip"):
         if key in src:
             params[key] = src[key]
@@ -207,12 +186,13 @@ def _export(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.layout import opendrive_export, usdio
 
+    c, _ = ct.from_command_line(args, LayoutExportConfig)
     check_output_path(args.output, "-o", suffixes=(".xodr",), what="OpenDRIVE file")
     layout = usdio.read_layout(args.input)
     t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        rep = opendrive_export.write_opendrive(layout, args.output, tolerance=args.tolerance)
+        rep = opendrive_export.write_opendrive(layout, args.output, tolerance=c.tolerance)
     for w in caught:
         if issubclass(w.category, UserWarning):
             print(f"lsd3d-usd: warning: {w.message}", file=sys.stderr)
@@ -220,7 +200,7 @@ def _export(args) -> int:
     print(f"{args.output}: {sum(len(v) for v in rep.roads.values())} roads from "
           f"{len(rep.roads)} lanes, {rep.junctions} junctions; geometry {geoms}; fit within "
           f"{rep.max_curve_deviation * 100:.2f} cm ({time.perf_counter() - t0:.2f} s)")
-    if args.validate:
+    if c.validate:
         errors = opendrive_export.validate(args.output)
         if errors:
             raise InputError(f"{args.output}: not valid against the OpenDRIVE XSD: {errors[0]}"

@@ -8,9 +8,12 @@ from pathlib import Path
 import numpy as np
 from pxr import Usd, UsdGeom, UsdSemantics
 
+from lsd3d_usd import configtree as ct
 from lsd3d_usd import limits, scene
 from lsd3d_usd.cliutil import add_limit_option, check_output_path
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.splats.config import (WRITE_FLAGS, Export3dgsConfig, ExportPlyConfig,
+                                     ImportConfig, InitConfig)
 from lsd3d_usd.splats.preview import DEFAULT_FRACTION
 
 SCENE_ROOT = "scene.usda"
@@ -141,11 +144,11 @@ def _init(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.splats.init import mesh_to_surfels
 
-    _check_fraction(args)
+    c, _ = ct.from_command_line(args, InitConfig, ct.flag_names(InitConfig) | WRITE_FLAGS)
     if args.output is not None:
         _check_output(args.output)
     stage = scene.open_stage(args.input)
-    root = args.root or (scene.PROXY_PATH if stage.GetPrimAtPath(scene.PROXY_PATH) else "/")
+    root = c.root or (scene.PROXY_PATH if stage.GetPrimAtPath(scene.PROXY_PATH) else "/")
     if not stage.GetPrimAtPath(root):
         raise InputError(f"{args.input}: no prim at {root}")
     meshes = _stage_meshes(stage, root, Usd.TimeCode.Default())
@@ -153,24 +156,25 @@ def _init(args) -> int:
         raise InputError(f"{args.input}: no Mesh prims under {root}")
     V, F, ids = meshes
     color = "semantic"
-    if args.color != "semantic":
+    if c.color != "semantic":
         try:
-            color = tuple(float(x) for x in args.color.split(","))
+            color = tuple(float(x) for x in c.color.split(","))
             assert len(color) == 3
         except (ValueError, AssertionError):
-            raise InputError(f"--color {args.color!r}: use 'semantic' or R,G,B (linear, e.g. 0.5,0.5,0.5)") from None
+            raise InputError(f"--color {c.color!r}: use 'semantic' or R,G,B (linear, e.g. 0.5,0.5,0.5)") from None
     t0 = time.perf_counter()
-    field = mesh_to_surfels(V, F, ids, count=args.count, seed=args.seed, color=color,
-                            opacity=args.opacity, sh_degree=args.sh_degree)
+    field = mesh_to_surfels(V, F, ids, count=c.count, seed=c.seed, color=color,
+                            opacity=c.opacity, sh_degree=c.sh_degree)
     dt = time.perf_counter() - t0
     out = args.output or (args.input if _is_scene(args.input) else None)
     if out is None:
         raise InputError("splats init: give -o OUT (a .usdc file or a scene folder)")
-    prov = scene.provenance("splats.init", {"count": args.count, "color": args.color, "opacity": args.opacity,
-                                            "sh_degree": args.sh_degree, "root": root,
-                                            "triangles": int(len(F))}, seed=args.seed,
+    prov = scene.provenance("splats.init", {"count": c.count, "color": c.color, "opacity": c.opacity,
+                                            "sh_degree": c.sh_degree, "root": root,
+                                            "triangles": int(len(F))}, seed=c.seed,
                             timings={"init_s": round(dt, 3)})
-    path = _write_surfels(field, out, args.prim, prov, args.retire_runs, args.preview_fraction)
+    path = _write_surfels(field, out, c.write.prim, prov, args.retire_runs,
+                          c.write.splats.preview_fraction)
     area = float(np.pi * np.sum(field.scales[:, 0].astype(np.float64) * field.scales[:, 1]))
     print(f"{field.n} surfels on {len(F)} triangles ({area:.1f} m^2) in {dt:.2f} s -> {path}")
     return 0
@@ -183,14 +187,14 @@ def _import_ply(args) -> int:
     from lsd3d_usd.hashing import file_hash
     from lsd3d_usd.splats.ply import read_ply
 
-    _check_fraction(args)
+    c, _ = ct.from_command_line(args, ImportConfig, ct.flag_names(ImportConfig) | WRITE_FLAGS)
     _check_output(args.output)
     field = read_ply(args.input, max_vertices=args.max_vertices)
     digest = file_hash(args.input)
     prov = scene.provenance("splats.import-ply", {"source": str(Path(args.input).name)},
                             inputsHash=f"ply-{digest}")
-    path = _write_surfels(field, args.output, args.prim, prov, args.retire_runs,
-                          args.preview_fraction)
+    path = _write_surfels(field, args.output, c.write.prim, prov, args.retire_runs,
+                          c.write.splats.preview_fraction)
     print(f"{field.n} surfels (SH degree {field.sh_degree}) -> {path}")
     return 0
 
@@ -199,10 +203,11 @@ def _export_ply(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.splats.ply import write_ply
 
+    c, _ = ct.from_command_line(args, ExportPlyConfig)
     _check_output(args.output, (".ply",), scene_ok=False)
-    field = _read_stage_surfels(args.input, args.prim, args.time)
-    path = write_ply(args.output, field, layout=args.layout, thin=args.thin)
-    print(f"{field.n} surfels -> {path} ({args.layout} layout)")
+    field = _read_stage_surfels(args.input, c.prim, c.time)
+    path = write_ply(args.output, field, layout=c.layout, thin=c.thin)
+    print(f"{field.n} surfels -> {path} ({c.layout} layout)")
     return 0
 
 
@@ -210,23 +215,13 @@ def _export_3dgs(args) -> int:
     # local import: not loaded for --help
     from lsd3d_usd.splats.ply import write_gaussian_splat_file
 
+    c, _ = ct.from_command_line(args, Export3dgsConfig)
     _check_output(args.output, scene_ok=False)
-    field = _read_stage_surfels(args.input, args.prim, args.time)
-    prov = scene.provenance("splats.export-3dgs", {"thin": args.thin})
-    path = write_gaussian_splat_file(args.output, field, args.out_prim, args.thin, prov)
-    print(f"{field.n} surfels -> {path} (ParticleField3DGaussianSplat, thin axis {args.thin} x smaller scale)")
+    field = _read_stage_surfels(args.input, c.prim, c.time)
+    prov = scene.provenance("splats.export-3dgs", {"thin": c.thin})
+    path = write_gaussian_splat_file(args.output, field, c.out_prim, c.thin, prov)
+    print(f"{field.n} surfels -> {path} (ParticleField3DGaussianSplat, thin axis {c.thin} x smaller scale)")
     return 0
-
-
-def _check_fraction(args) -> None:
-    if not 0.0 <= args.preview_fraction <= 1.0:
-        raise InputError(f"--preview-fraction {args.preview_fraction:g}: a fraction in [0, 1]")
-
-
-def _preview_option(q) -> None:
-    q.add_argument("--preview-fraction", type=float, default=DEFAULT_FRACTION, metavar="F",
-                   help="share of the surfels in the UsdGeom.Points preview for USD tools "
-                        f"without ParticleField (docs/usd.md; 0 = none; default {DEFAULT_FRACTION})")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -247,17 +242,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--retire-runs", action="store_true",
                    help="replace a scene's surfels even though GGDS runs were optimised on them "
                         "(the runs are muted and marked stale)")
-    q.add_argument("--count", type=int, default=2_000_000,
-                   help="number of surfels (paper: 1.8-2.2 M per scene, at most 4 M; default 2000000)")
-    q.add_argument("--seed", type=int, default=0, help="random seed (same seed, same surfels)")
-    q.add_argument("--color", default="semantic",
-                   help="'semantic' (class colours) or a linear R,G,B triple such as 0.5,0.5,0.5")
-    q.add_argument("--opacity", type=float, default=0.8, help="initial opacity in [0, 1] (default 0.8)")
-    q.add_argument("--sh-degree", type=int, default=0, choices=(0, 1, 2, 3),
-                   help="spherical-harmonics degree of the colour (default 0: view-independent)")
-    q.add_argument("--root", help="only meshes under this prim path (default /World/Proxy or the whole stage)")
-    q.add_argument("--prim", default="/World/Surfels", help="prim path of the written surfels")
-    _preview_option(q)
+    ct.add_arguments(q, InitConfig, flags=WRITE_FLAGS)
     q.set_defaults(func=_init)
 
     q = ss.add_parser("import-ply", help="3DGS/2DGS PLY -> surfel USD",
@@ -270,8 +255,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     q.add_argument("--retire-runs", action="store_true",
                    help="replace a scene's surfels even though GGDS runs were optimised on them "
                         "(the runs are muted and marked stale)")
-    q.add_argument("--prim", default="/World/Surfels", help="prim path of the written surfels")
-    _preview_option(q)
+    ct.add_arguments(q, ImportConfig, flags=WRITE_FLAGS)
     add_limit_option(q, limits.PLY_VERTICES)
     q.set_defaults(func=_import_ply)
 
@@ -286,13 +270,5 @@ def register(sub: argparse._SubParsersAction) -> None:
         q.add_argument("input", help="scene folder or USD file")
         q.add_argument("-o", "--output", required=True,
                        help="output .ply file" if name == "export-ply" else "output .usdc/.usda file")
-        q.add_argument("--prim", help="read only this ParticleField prim")
-        q.add_argument("--time", type=float, help="time code to read (default: the default time)")
-        q.add_argument("--thin", type=float, default=1e-3,
-                       help="3DGS third axis as a fraction of the smaller disk scale (default 0.001)")
-        if name == "export-ply":
-            q.add_argument("--layout", choices=("2dgs", "3dgs"), default="2dgs",
-                           help="2dgs: scale_0..1 (2DGS, gsplat 2DGS); 3dgs: scale_0..2 with the thin axis")
-        else:
-            q.add_argument("--out-prim", default="/World/Surfels", help="prim path in the output file")
+        ct.add_arguments(q, ExportPlyConfig if name == "export-ply" else Export3dgsConfig)
         q.set_defaults(func=fn)

@@ -6,7 +6,9 @@ import sys
 import time
 import webbrowser
 
+from lsd3d_usd import configtree as ct
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.viewer.config import ViewConfig
 
 
 def _view(args) -> int:
@@ -14,22 +16,23 @@ def _view(args) -> int:
     from lsd3d_usd.viewer.server import is_loopback, make_server
     from lsd3d_usd.viewer.service import ViewerService
 
-    if not 0 <= args.port <= 65535:
-        raise InputError(f"--port {args.port}: must be 0-65535 (0 = any free port)")
+    c, _ = ct.from_command_line(args, ViewConfig)
+    if not 0 <= c.port <= 65535:
+        raise InputError(f"--port {c.port}: must be 0-65535 (0 = any free port)")
 
-    if not is_loopback(args.host) and not args.allow_remote:
-        raise InputError(f"--host {args.host}: not a loopback address; serving a scene to other machines "
+    if not is_loopback(c.host) and not c.allow_remote:
+        raise InputError(f"--host {c.host}: not a loopback address; serving a scene to other machines "
                          "needs --allow-remote (anyone who can reach the port can read the scene)")
 
     def log(msg):
         print(f"view: {msg}", file=sys.stderr, flush=True)
 
-    if not is_loopback(args.host) and args.allow_remote:
-        print(f"lsd3d-usd view: warning: serving {args.scene} on {args.host}: anyone who can reach "
-              f"port {args.port} can read this scene's surfels, layout and plots", file=sys.stderr, flush=True)
+    if not is_loopback(c.host) and c.allow_remote:
+        print(f"lsd3d-usd view: warning: serving {args.scene} on {c.host}: anyone who can reach "
+              f"port {c.port} can read this scene's surfels, layout and plots", file=sys.stderr, flush=True)
     t0 = time.perf_counter()
-    service = ViewerService(args.scene, validate=not args.no_validate, log=log)
-    server = make_server(service, args.host, args.port, allow_remote=args.allow_remote, quiet=args.quiet)
+    service = ViewerService(args.scene, validate=c.validate, log=log)
+    server = make_server(service, c.host, c.port, allow_remote=c.allow_remote, quiet=c.quiet)
     try:
         cfg = service.config()  # the first page load then finds the chunk buffers ready
         log(f"{sum(c.n for c in cfg.chunks.values())} surfels in {len(cfg.chunks)} chunks "
@@ -41,7 +44,7 @@ def _view(args) -> int:
     shown = f"[{host}]" if ":" in host else host
     url = f"http://{shown}:{port}/"
     print(url, flush=True)
-    if args.open:
+    if c.open:
         webbrowser.open(url)
     try:
         server.serve_forever(poll_interval=0.25)
@@ -61,14 +64,5 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "time, cameras, proxy/lane/chunk overlays. Prints the URL; Ctrl-C stops it. Packed "
                     "chunk buffers are cached under SCENE/viewer_cache/. See docs/viewer.md.")
     p.add_argument("scene", help="scene folder (holding scene.usda), or its scene.usda")
-    p.add_argument("--port", type=int, default=8021, help="TCP port (default 8021; 0 = any free port)")
-    p.add_argument("--host", default="127.0.0.1",
-                   help="address to listen on (default 127.0.0.1, this machine only)")
-    p.add_argument("--allow-remote", action="store_true",
-                   help="allow a --host other than loopback (prints a warning: anyone who can reach "
-                        "the port can read the scene)")
-    p.add_argument("--open", action="store_true", help="open the page in the default browser")
-    p.add_argument("--quiet", action="store_true", help="do not log requests")
-    p.add_argument("--no-validate", action="store_true",
-                   help="skip the background validation whose problems the page lists")
+    ct.add_arguments(p, ViewConfig)
     p.set_defaults(func=_view)

@@ -17,10 +17,11 @@ Hooks follow gsplat's strategies: `step_post_backward(params, optimizer, step)` 
 optimizer update."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import torch
 
+from lsd3d_usd.ggds.settings import StrategyConfig
 from lsd3d_usd.render.projection import quat_to_rotmat
 
 
@@ -31,16 +32,14 @@ def _tangents(quats: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
 
 
 @dataclass
-class MCMCStrategy:
-    noise_scale: float = 0.5          # tangent-plane noise in units of the surfel's std-dev
-    gate_sharpness: float = 100.0     # k in sigmoid(-k (opacity - t)): only near-dead surfels move
-    gate_threshold: float = 0.005     # t
-    relocate_every: int = 50          # steps between relocations (0 = never)
-    dead_opacity: float = 0.005       # surfels below this are relocated
-    max_relocate_frac: float = 0.05   # at most this fraction per relocation
-    densify_frac: float = 0.0         # redundant surfels moved to high residual per relocation
-    redundant_coef: float = 0.25      # "redundant": the 3D filter keeps less of its opacity
+class MCMCStrategy(StrategyConfig):
+    """The strategy of a run: its settings are ggds.settings.StrategyConfig's leaves (declared
+    once, with their help and limits there), plus the seed of its noise and relocations."""
     seed: int = 0
+
+    @classmethod
+    def of(cls, config: StrategyConfig, seed: int) -> "MCMCStrategy":
+        return cls(**{f.name: getattr(config, f.name) for f in fields(config)}, seed=seed)
 
     def __post_init__(self):
         self._gen = torch.Generator().manual_seed(int(self.seed))

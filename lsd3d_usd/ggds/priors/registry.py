@@ -4,8 +4,9 @@
 A registered prior is a :class:`PriorEntry`: a factory ``make(arg, config, seed) -> Prior``
 plus a ``check(arg, config)`` run before anything is written (missing files, a device torch
 cannot see), the prior's class (its default loss weights are known without making it),
-whether it is cheap on a CPU (eval's prior baselines run only such priors unasked), and the
-options it takes beyond ``--prior NAME[:ARG]`` (``--set prior.options.KEY=VALUE``).
+whether it is cheap on a CPU (eval's prior baselines run only such priors unasked), and its
+own configuration class: the options it takes beyond ``--prior NAME[:ARG]``
+(``--set prior.options.KEY=VALUE``), which ``prior_options`` gives it typed.
 ``--prior NAME[:ARG]`` selects one: ``procedural`` or ``diffusers:DIR``.
 """
 from __future__ import annotations
@@ -15,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+from lsd3d_usd import configtree as ct
 from lsd3d_usd.configtree import option
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.registry import Registry
@@ -75,7 +77,9 @@ class PriorEntry:
     help: str = ""
     prior_class: str = "lsd3d_usd.ggds.priors.base:Prior"   # "module:Class" of what make returns
     cheap_on_cpu: bool = False    # a target in well under a second per view on 2 cores
-    options: dict = field(default_factory=dict)   # {KEY: help} of prior.options it reads
+    # the options it takes beyond NAME:ARG, a configtree dataclass of option leaves: their
+    # values (prior.options.KEY=VALUE) reach make typed and checked through prior_options()
+    config: type | None = None
 
     def prior_type(self) -> type:
         module, _, name = self.prior_class.partition(":")
@@ -145,12 +149,22 @@ PRIORS = Registry("lsd3d_usd.priors", "prior", {
 def check_prior(cfg: PriorConfig) -> None:
     """Everything about the prior that can be checked without loading it."""
     entry = PRIORS.get(cfg.kind)
-    for key in cfg.options:
-        if key not in entry.options:
-            takes = ", ".join(sorted(entry.options)) or "none"
-            raise InputError(f"prior.options.{key}: the {cfg.kind} prior takes no such option "
-                             f"(its options: {takes})")
+    prior_options(cfg)
     entry.check(cfg.arg, cfg)
+
+
+def prior_options(cfg: PriorConfig):
+    """The chosen prior's options as its own configuration class (PriorEntry.config), from
+    ``cfg.options`` (text from --set, or TOML values), checked; None for a prior without one."""
+    entry = PRIORS.get(cfg.kind)
+    if entry.config is None:
+        if cfg.options:
+            key = sorted(cfg.options)[0]
+            raise InputError(f"prior.options.{key}: the {cfg.kind} prior takes no such option "
+                             "(its options: none)")
+        return None
+    values = ct.flatten(dict(cfg.options), entry.config, "prior.options: ")
+    return ct.apply(entry.config(), values, "prior.options.")
 
 
 def make_prior(cfg: PriorConfig, seed: int = 0):

@@ -10,23 +10,26 @@ from tqdm import tqdm
 from lsd3d_usd import registry
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.env.config import EnvConfig
 from lsd3d_usd.execution import ERROR, OK, SUSPECT, make_executor
+from lsd3d_usd.ggds.priors.registry import PriorConfig
 from lsd3d_usd.ggds.regions.task import RegionJob, run_region
+from lsd3d_usd.ggds.settings import GGDSConfig
 from lsd3d_usd.ggds.run.store import (read_plan, refresh_run_layer, region_progress,
                                       region_task, run_summary, write_plan,
                                       write_region_task, write_json)
 from lsd3d_usd.memtune import peak_rss_mb
 
 
-def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: dict, prior: dict,
-                env: dict, seed: int, stop_at: int | None = None,
+def run_regions(sc: S.Scene, run: str, *, phases: list, ggds: GGDSConfig, prior: PriorConfig,
+                env: EnvConfig, seed: int, stop_at: int | None = None,
                 keep_checkpoint: bool = False, workers: int = 1, executor: str = "local",
                 address: str | None = None, retries: int = 2, term_state=None,
                 progress: bool = True, log=print) -> dict:
     """Run every unfinished region of ``phases`` (regions.plan) phase by phase (in this
     process when one worker or one region; else on a local pool or Ray), updating the run
     layer as regions finish; a region with a checkpoint resumes from it. ``ggds`` / ``prior``
-    / ``env``: the run's configuration trees as plain dicts. Returns the run summary (also
+    / ``env``: the run's configuration trees (serialised only for a worker process). Returns the run summary (also
     ggds/<run>/summary.json)."""
     plan = read_plan(sc, run)
     t0 = time.perf_counter()

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import resource
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, fields, replace
 
 from lsd3d_usd import configtree as ct
 from lsd3d_usd import registry
 from lsd3d_usd import scene as S
 from lsd3d_usd.conditioning.scene import Conditioning
 from lsd3d_usd.conditioning.visibility import views_seeing
+from lsd3d_usd.env.config import EnvConfig
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.execution import task_log
 from lsd3d_usd.ggds.priors.registry import PriorConfig, make_prior
@@ -31,8 +32,8 @@ TASK_TARGET = "lsd3d_usd.ggds.regions.task:run_region_task"
 @dataclass(kw_only=True)
 class RegionJob:
     """A region of run ``run`` of the scene at ``scene``: its chunk ``keys`` and ``region``
-    name ("" for a whole-scene region), the run's configuration trees as plain dicts
-    (``ggds``, ``prior``, ``env`` as GenerateConfig.to_dict gives them), the scene ``seed``,
+    name ("" for a whole-scene region), the run's configuration trees (``ggds``, ``prior``,
+    ``env``; plain dicts only in the payload that crosses to a worker), the scene ``seed``,
     the chunks already finished in this run (their optimised surfels condition it), where to
     stop, whether to keep the checkpoint, the log file, and the parent's portable registry
     entries (a backend or prior registered by target)."""
@@ -40,9 +41,9 @@ class RegionJob:
     run: str
     region: str
     keys: list
-    ggds: dict
-    prior: dict
-    env: dict
+    ggds: GGDSConfig
+    prior: PriorConfig
+    env: EnvConfig
     seed: int
     finished: list = field(default_factory=list)
     stop_at: int | None = None
@@ -50,13 +51,20 @@ class RegionJob:
     log: str | None = None
     registrations: dict = field(default_factory=dict)
 
+    TREES = {"ggds": GGDSConfig, "prior": PriorConfig, "env": EnvConfig}
+
     def payload(self) -> dict:
-        """The job as an executor payload (plain data naming the task function)."""
-        return {"target": TASK_TARGET, **asdict(self)}
+        """The job as an executor payload (plain data naming the task function): the only
+        place its configuration trees become dicts, as they cross to another process."""
+        data = {f.name: getattr(self, f.name) for f in fields(self)}
+        data.update({k: ct.to_dict(data[k]) for k in self.TREES})
+        return {"target": TASK_TARGET, **data}
 
     @classmethod
     def from_payload(cls, payload: dict) -> "RegionJob":
-        return cls(**{k: v for k, v in payload.items() if k != "target"})
+        data = {k: v for k, v in payload.items() if k != "target"}
+        data.update({k: ct.from_dict(tree, data[k]) for k, tree in cls.TREES.items()})
+        return cls(**data)
 
 
 def run_region(job: RegionJob, *, term_state=None, progress: bool = False, log=None,
@@ -67,7 +75,7 @@ def run_region(job: RegionJob, *, term_state=None, progress: bool = False, log=N
     t_start = time.perf_counter()
     sc = S.Scene(job.scene)
     region = Region(tuple(tuple(k) for k in job.keys), job.region)
-    g = ct.from_dict(GGDSConfig, job.ggds)
+    g = job.ggds
     rcfg = g.regions
     seed = int(job.seed)
     layout = read_layout(sc.layer_path("layout"))
@@ -100,7 +108,7 @@ def run_region(job: RegionJob, *, term_state=None, progress: bool = False, log=N
         fit_views = views_seeing(region_fit_views(layout, g, seed, region), field_.positions)
     else:
         fit_views = region_fit_views(layout, g, seed, region)
-    cond = Conditioning.of_scene(sc, proxy=proxy, prompt=job.env.get("prompt") or "")
+    cond = Conditioning.of_scene(sc, proxy=proxy, prompt=job.env.prompt or "")
     context = None if whole else region_context(sc, job.run, region,
                                                 {tuple(k) for k in job.finished},
                                                 rcfg.band_m, size)
@@ -116,7 +124,7 @@ def run_region(job: RegionJob, *, term_state=None, progress: bool = False, log=N
     store = RegionRunStore(sc, job.run, region.name, owners, refresh=refresh,
                            checkpoint_meta={"keys": [list(k) for k in region.keys]})
     resume = store.has_checkpoint()
-    prior = make_prior(ct.from_dict(PriorConfig, job.prior), seed=seed)
+    prior = make_prior(job.prior, seed=seed)
     t0, c0 = time.perf_counter(), cpu_seconds()
     inputs_s = t0 - t_start
     summary = run_ggds(inputs, prior, g, store, resume=resume, stop_at=job.stop_at,

@@ -37,13 +37,7 @@ class RunState:
         sh_scale[0] = 1.0
         self.optimizer = SelectiveAdam(self.params, self.lrs(0), lr_scales={"sh": sh_scale},
                                        eps_by_key={"sh": config.lr.adam_eps_sh})
-        st = config.strategy
-        self.strategy = MCMCStrategy(noise_scale=st.noise_scale, gate_sharpness=st.gate_sharpness,
-                                     gate_threshold=st.gate_threshold,
-                                     relocate_every=st.relocate_every, dead_opacity=st.dead_opacity,
-                                     max_relocate_frac=st.max_relocate_frac,
-                                     densify_frac=st.densify_frac,
-                                     redundant_coef=st.redundant_coef, seed=config.seed)
+        self.strategy = MCMCStrategy.of(config.strategy, config.seed)
         self.face_index = None if face_index is None else np.asarray(face_index, np.int64).copy()
         # Per-surfel σ of the 3D smoothing filter (optim/antialias.py), or None when off.
         self.filter3d = (torch.from_numpy(filter_sigma(field.positions, list(cameras),
