@@ -397,6 +397,9 @@ class DriveEnv(gym.Env):
         e, lim = self.ego, self.limits
         c = e.box_centre(lim)
         self.actors.set_pose(0, float(c[0]), float(c[1]), e.z, e.yaw)
+        # the ego's own body is not drawn: its cameras sit where the real car's are, not
+        # where the procedural car's cabin would put them (the LiDAR leaves it out too)
+        self.actors.set_visible(0, False)
         for q, ((x, y, z, yaw), shown) in enumerate(zip(self.world.poses(), self.world.shown())):
             self.actors.set_pose(q + 1, x, y, z, yaw)
             self.actors.set_visible(q + 1, shown)

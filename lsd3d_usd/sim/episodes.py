@@ -138,7 +138,13 @@ class _Recorder:
 
         from lsd3d_usd.sim.birdseye import _polygons
         env = self.env
-        fig, ax = plt.subplots(figsize=(8, 8), dpi=110)
+        pts, _ = env.route.polyline()
+        ego = np.array(self.ego_path)
+        lo = np.vstack([pts[:, :2], ego]).min(0) - 25
+        hi = np.vstack([pts[:, :2], ego]).max(0) + 25
+        w, h = hi - lo
+        fig, ax = plt.subplots(figsize=(9, float(np.clip(9 * h / max(w, 1.0), 3.0, 12.0)) + 0.6),
+                               dpi=110)
         for poly in _polygons(env.scene.drivable):
             x, y = poly.exterior.xy
             ax.fill(x, y, color="0.82", zorder=0, lw=0)
@@ -148,22 +154,20 @@ class _Recorder:
         for b in env.scene.layout.buildings:
             fp = np.vstack([b.footprint, b.footprint[:1]])
             ax.fill(fp[:, 0], fp[:, 1], color="#d9c9b0", zorder=1, lw=0)
-        pts, _ = env.route.polyline()
         ax.plot(pts[:, 0], pts[:, 1], color="tab:green", lw=6, alpha=0.35, label="route", zorder=2)
         colours = {"vehicle": "tab:blue", "cyclist": "tab:orange", "pedestrian": "tab:pink"}
         for trail in self.agent_paths.values():
             p = np.array([q[:2] for q in trail], float)
+            jump = np.flatnonzero(np.hypot(*np.diff(p, axis=0).T) > 10.0)   # left and came back
+            p = np.insert(p, jump + 1, np.nan, axis=0)
             c = colours.get(trail[0][2], "0.4")
             ax.plot(p[:, 0], p[:, 1], color=c, lw=0.8, alpha=0.7, zorder=3)
             ax.plot(p[-1, 0], p[-1, 1], "o", ms=2.5, color=c, zorder=3)
-        ego = np.array(self.ego_path)
         ax.plot(ego[:, 0], ego[:, 1], color="tab:red", lw=2, label="ego", zorder=4)
         ax.plot(ego[0, 0], ego[0, 1], "s", color="tab:red", ms=6, zorder=5)
         for ev in self.events:
             ax.plot(ev["xy"][0], ev["xy"][1], "x" if ev["kind"] == "collision" else "^",
                     color="black", ms=10, mew=2, zorder=6)
-        lo = np.vstack([pts[:, :2], ego]).min(0) - 25
-        hi = np.vstack([pts[:, :2], ego]).max(0) + 25
         ax.set_xlim(lo[0], hi[0])
         ax.set_ylim(lo[1], hi[1])
         ax.set_aspect("equal")
