@@ -249,6 +249,7 @@ class LaneGraph:
         if tab is None:
             return None
         A, B, L, S0 = tab
+        p = np.asarray(xy, np.float64)[:2]
         keep = np.ones(len(L), bool)
         if cars_only:
             keep &= ~self.bike[L]
@@ -256,13 +257,22 @@ class LaneGraph:
             keep &= np.isin(L, np.asarray(list(lanes), np.int64))
         if not keep.any():
             return None
-        A, B, L, S0 = A[keep], B[keep], L[keep], S0[keep]
-        p = np.asarray(xy, np.float64)[:2]
-        d = B - A
-        dd = np.einsum("ij,ij->i", d, d)
-        f = np.clip(np.einsum("ij,ij->i", p - A, d) / np.maximum(dd, 1e-18), 0.0, 1.0)
-        q = A + f[:, None] * d
-        dist = np.hypot(p[0] - q[:, 0], p[1] - q[:, 1])
+        # segments whose box lies within reach first (a large map has many); all when none
+        reach = float(self.width.max()) + 5.0
+        near = keep & (np.minimum(A[:, 0], B[:, 0]) - reach <= p[0]) \
+            & (np.maximum(A[:, 0], B[:, 0]) + reach >= p[0]) \
+            & (np.minimum(A[:, 1], B[:, 1]) - reach <= p[1]) \
+            & (np.maximum(A[:, 1], B[:, 1]) + reach >= p[1])
+        for sel in ((near, keep) if near.any() else (keep,)):
+            A1, B1, L1, S1 = A[sel], B[sel], L[sel], S0[sel]
+            d = B1 - A1
+            dd = np.einsum("ij,ij->i", d, d)
+            f = np.clip(np.einsum("ij,ij->i", p - A1, d) / np.maximum(dd, 1e-18), 0.0, 1.0)
+            q = A1 + f[:, None] * d
+            dist = np.hypot(p[0] - q[:, 0], p[1] - q[:, 1])
+            if dist.min() <= reach:      # exact: every segment left out is farther than reach
+                break
+        A, B, L, S0 = A1, B1, L1, S1
         seg_yaw = np.arctan2(d[:, 1], d[:, 0])
         if heading is not None:
             rel = np.angle(np.exp(1j * (heading - seg_yaw)))

@@ -364,7 +364,13 @@ class DriveEnv(gym.Env):
         return float(np.interp(s, g.cum, g.points[:, 2]))
 
     def _all_agents(self) -> Agents:
-        """The world's agents and the scene's parked vehicles (static)."""
+        """The world's agents and the scene's parked vehicles (static), once per step."""
+        key = (id(self.world), self.k)
+        if getattr(self, "_agents_at", None) != key:
+            self._agents, self._agents_at = self._collect_agents(), key
+        return self._agents
+
+    def _collect_agents(self) -> Agents:
         ag = self.world.agents()
         if not self.scene.parked:
             return ag
