@@ -170,19 +170,6 @@ def pose_matrix(xyz, roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.nd
     return M
 
 
-def pose_matrix(xyz, roll_deg: float, pitch_deg: float, yaw_deg: float) -> np.ndarray:
-    """4x4 rigid transform R = Rz(yaw) Ry(pitch) Rx(roll), then the translation."""
-    r, p, y = (math.radians(v) for v in (roll_deg, pitch_deg, yaw_deg))
-    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
-    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    M = np.eye(4)
-    M[:3, :3] = Rz @ Ry @ Rx
-    M[:3, 3] = xyz
-    return M
-
-
 _PRESETS: dict[str, LidarModel] = {}   # registered names already read
 
 
