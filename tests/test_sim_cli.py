@@ -88,3 +88,30 @@ def test_bad_sim_input_is_one_line(scene, tmp_path, cli_error):
     (tmp_path / "full" / "notes.txt").write_text("mine")
     assert cli_error(["sim", "run", str(scene), "-o", str(tmp_path / "full")], "'notes.txt'")
     assert cli_error(["sim", "report", str(tmp_path / "full")], "no episode_*/metrics.json")
+
+
+CTRL_C = '''
+import numpy as np
+episodes = {"n": 0}
+
+def interrupted(obs, info):
+    if info["step"] == 0:
+        episodes["n"] += 1
+    if episodes["n"] == 2 and info["step"] >= 2:      # Ctrl-C during the second episode
+        raise KeyboardInterrupt
+    return np.array([0.5, 0.0], np.float32)
+'''
+
+
+def test_ctrl_c_keeps_the_finished_episodes_whole(scene, tmp_path, capsys, monkeypatch):
+    (tmp_path / "ctrlc_stack.py").write_text(CTRL_C)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    out = tmp_path / "run"
+    code = main(["sim", "run", str(scene), "-o", str(out), "--rig", "none", "--episodes", "3",
+                 "--seconds", "1", "--policy", "ctrlc_stack:interrupted", "--no-reference",
+                 "--no-progress"])
+    assert code == 130 and "interrupted" in capsys.readouterr().err
+    assert sorted(p.name for p in out.iterdir()) == ["episode_000", "run.json"]
+    m = json.loads((out / "episode_000" / "metrics.json").read_text())
+    assert m["reason"] == "time_limit" and len(m["steps"]) == 11
+    sys.modules.pop("ctrlc_stack", None)
