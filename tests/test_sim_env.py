@@ -188,3 +188,15 @@ def test_bad_actions_and_options(opened):
         load_policy("no_such_module:drive", env)
     with pytest.raises(InputError, match="choose planner, constant or MODULE:CALLABLE"):
         load_policy("ramdom", env)
+
+
+def test_stop_sign_the_planner_stops_at_and_constant_velocity_runs(opened):
+    env = DriveEnv(opened, rig="none", seconds=40.0, vehicles=0, pedestrians=0, cyclists=0)
+    route = "w_in,j_we,e_out"                     # the README sample's west approach: a stop sign
+    info = _drive(env, "planner", 0, route)
+    assert info["reason"] == "route_complete"
+    s = env.episode_summary()
+    assert s["infractions"]["stop_sign"] == 0 and s["driving_score"] == 1.0
+    info = _drive(env, "constant", 0, route)
+    s = env.episode_summary()
+    assert s["infractions"]["stop_sign"] == 1 and s["driving_score"] == pytest.approx(0.8 * s["rc"])

@@ -32,6 +32,9 @@ COMMANDS = ("left", "straight", "right", "follow")   # CARLA's high-level route 
 ACTION_MODES = ("control", "trajectory")
 MAX_AGENTS = 200
 ROUTE_END_MARGIN = 3.0    # m: the route is complete when the ego's front is this near its end
+STOP_SIGN_REACH = 15.0    # m between a stop sign and the stop line it governs
+STOP_ZONE = 4.0           # m before a stop sign's line where the ego's front must come to rest
+STOPPED = 0.1             # m/s: at rest (CARLA's stop-sign test uses the same speed)
 MAX_SECONDS = 3600.0
 
 
@@ -206,6 +209,7 @@ class DriveEnv(gym.Env):
                                   obstacle_ids=self.scene.obstacle_ids,
                                   route_length=self.route.length, reference=reference)
         self.tracker = TrajectoryTracker(lim.wheelbase, s.waypoint_spacing)
+        self.stops = self._stop_lines()
         self.t = 0.0
         self.k = 0
         self.clipped = 0
@@ -329,7 +333,8 @@ class DriveEnv(gym.Env):
         self.k += 1
         before = self.progress
         complete = self.world.ego_d + lim.length / 2 >= self.route.length - ROUTE_END_MARGIN
-        self.last = self.scores.update(self._step_state(complete))
+        ran_stop = self._stop_signs()
+        self.last = self.scores.update(self._step_state(complete, ran_stop))
         self.progress = max(self.progress, float(self.last["progress_m"]))
         self._pose_actors()
         terminated, reason = False, None
@@ -387,7 +392,52 @@ class DriveEnv(gym.Env):
                       np.concatenate([ag.width, W]), np.vstack([ag.velocity, np.zeros((n, 2))]),
                       list(ag.kind) + ["vehicle"] * n)
 
-    def _step_state(self, complete: bool = False) -> StepState:
+    def _stop_lines(self) -> list:
+        """[route distance, satisfied] of the stop lines with a stop sign that the route
+        crosses (CARLA scores running a stop sign; the layout's stop lines without a sign
+        are only paint)."""
+        import shapely
+        layout = self.scene.layout
+        signs = np.array([np.asarray(sg.position, float)[:2] for sg in layout.stop_signs]).reshape(-1, 2)
+        if not len(signs):
+            return []
+        pts, _ = self.route.polyline()
+        path = shapely.LineString(pts[:, :2])
+        out = []
+        for sl in layout.stop_lines:
+            line = np.asarray(sl.points, float)[:, :2]
+            if len(line) < 2 or np.min(np.hypot(*(signs[:, None, :] - line[None]).transpose(2, 0, 1))) \
+                    > STOP_SIGN_REACH:
+                continue
+            hit = path.intersection(shapely.LineString(line))
+            for p in getattr(hit, "geoms", [hit]):
+                if not p.is_empty and p.geom_type == "Point":
+                    out.append([self.route.project((p.x, p.y))[0], False])
+        return sorted(out)
+
+    def _stop_signs(self) -> bool:
+        """Update the stop lines ahead; True on the step the ego's front passes one where it
+        had not come to rest within STOP_ZONE m before it."""
+        front = self.world.ego_d + self.limits.length / 2
+        ran = False
+        for stop in self.stops:
+            d, ok = stop
+            if ok is None:
+                continue
+            if not ok and d - STOP_ZONE <= front <= d + 0.5 and self.ego.v < STOPPED:
+                stop[1] = ok = True
+            if front > d + 0.5:
+                ran = ran or not ok
+                stop[1] = None                # passed
+        return ran
+
+    def stop_sign_distance(self) -> float:
+        """Metres from the ego's front to the next stop sign's line it has yet to stop at."""
+        front = self.world.ego_d + self.limits.length / 2
+        return min((d - front for d, ok in self.stops if ok is False and d + 0.5 >= front),
+                   default=math.inf)
+
+    def _step_state(self, complete: bool = False, ran_stop: bool = False) -> StepState:
         e, lim = self.ego, self.limits
         c = e.box_centre(lim)
         g = self.scene.graph
@@ -397,7 +447,7 @@ class DriveEnv(gym.Env):
         in_junction = lp is not None and lp.distance <= g.width[lp.lane] / 2 and bool(g.junction[lp.lane])
         return StepState(self.t, c, e.yaw, e.v, lim.length, lim.width, agents=self._all_agents(),
                          progress=self.route.length if complete else self.world.ego_d, wrong_way=bool(wrong), in_junction=in_junction,
-                         lon_acc=e.a, lat_acc=e.v * e.yaw_rate)
+                         lon_acc=e.a, lat_acc=e.v * e.yaw_rate, stop_sign=ran_stop)
 
     def _pose_actors(self) -> None:
         e, lim = self.ego, self.limits
@@ -455,6 +505,7 @@ class DriveEnv(gym.Env):
                 "route": list(self.route.ids), "route_length_m": self.route.length,
                 "progress_m": self.progress, "clipped_actions": self.clipped,
                 "stop_distance_m": float(self.world.ego_stop_distance()),
+                "stop_sign_m": float(self.stop_sign_distance()),
                 "leader_gap_m": float(gap), "leader_speed": float(v_lead),
                 "occupied_crosswalks": sorted(self.world.occupied_crosswalks()),
                 "command": COMMANDS[self._command()],

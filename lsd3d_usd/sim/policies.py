@@ -70,6 +70,9 @@ class Planner:
         stop = info["stop_distance_m"]
         if math.isfinite(stop) and stop < best[0]:
             best = (stop, 0.0)
+        sign = info.get("stop_sign_m", math.inf)     # come to rest at a stop sign's line
+        if math.isfinite(sign) and sign + 0.5 < best[0]:
+            best = (sign + 0.5, 0.0)
         end = route.length - d_ego - front + p_end_overrun
         if end < best[0]:
             best = (end, 0.0)
