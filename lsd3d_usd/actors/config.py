@@ -15,13 +15,11 @@ class ActorsConfig:
                          alias="parked", lo=0, hi=100_000)
     moving: int = option(8, help="moving actors driven by IDM traffic over the lane graph",
                          flag="--moving", alias="moving", lo=0, hi=100_000)
-    # a street has people: as many as the layout's sidewalks and lanes take (fewer where
-    # there is no room; none without sidewalks)
-    pedestrians: int = option(12, help="pedestrians walking the sidewalks, crossing at "
+    pedestrians: int = option(0, help="pedestrians walking the sidewalks, crossing at "
                               "crosswalks and standing at corners",
                               flag="--pedestrians", alias="pedestrians", lo=0,
                               hi=int(PEDESTRIANS.value))
-    cyclists: int = option(2, help="cyclists on bike lanes, or the right part of driving "
+    cyclists: int = option(0, help="cyclists on bike lanes, or the right part of driving "
                            "lanes, in the IDM traffic",
                            flag="--cyclists", alias="cyclists", lo=0,
                            hi=int(CYCLISTS.value))

@@ -214,6 +214,8 @@ class SurfelField:
         what rendering wants, where semantics are optional)."""
         if not fields:
             return SurfelField.empty()
+        if len(fields) == 1:        # nothing to join: the field itself (a frame's common case)
+            return fields[0]
         deg = max(f.sh_degree for f in fields)
         fields = [f.with_sh_degree(deg) if f.sh_degree != deg else f for f in fields]
         classes = next((f.semantic_classes for f in fields if f.semantic_classes), ())

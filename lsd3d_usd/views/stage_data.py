@@ -298,7 +298,10 @@ class ChunkStreamer:
         self.version += 1
 
     def surfels(self, time=None):
-        """Surfels of the loaded chunks (in scene order), or None."""
+        """Surfels of the loaded chunks (in scene order), or None; joined once per loaded
+        set (a rig's frames between two loads share it)."""
+        if getattr(self, "_joined", None) is not None and self._joined[0] == self.version:
+            return self._joined[1]
         parts = []
         for key in sorted(self.loaded, key=lambda k: str(self.chunks[k][0])):
             if key not in self._fields:
@@ -308,7 +311,9 @@ class ChunkStreamer:
                                                   [p for p in prims if is_particle_field(p)])
             if self._fields[key] is not None:
                 parts.append(self._fields[key])
-        return SurfelField.concat(parts, drop_mismatched_semantics=True) if parts else None
+        joined = SurfelField.concat(parts, drop_mismatched_semantics=True) if parts else None
+        self._joined = (self.version, joined)
+        return joined
 
 
 def _scene_chunk_size(stage) -> float:
@@ -392,11 +397,19 @@ class SceneReader:
             self._lighting = lighting_from_stage(self.stage)
             self._occluder = proxy_occluder(self.stage)
             self._occluder_version = version
+            self._sun_seen = {}
         light = self._lighting
         vs, fs, cs, surf, fa, sa = [], [], [], [], [], []
         n = 0
         for q, a, M in shown:
-            V = self._occluder.visibility(actor_sample_points(M, a.dims), light.sun_dir)
+            # an actor that has not moved sees the sun as before (parked cars, a waiting queue)
+            key = (q, np.asarray(M, np.float64).tobytes())
+            V = self._sun_seen.get(key)
+            if V is None:
+                V = self._occluder.visibility(actor_sample_points(M, a.dims), light.sun_dir)
+                if len(self._sun_seen) > 4096:
+                    self._sun_seen.clear()
+                self._sun_seen[key] = V
             posed = {}
             if a.animated:      # limbs and wheels in their pose at this time
                 for (mi, _, local), W in zip(a.animated, self.actors.part_transforms(q, t)):
