@@ -59,6 +59,15 @@ def test_fd_seeds_below_one_is_refused_before_any_work(capsys, monkeypatch):
     assert "--fd-seeds 0: must be >= 1" in capsys.readouterr().err
 
 
+def _result(d: dict):
+    """An eval result (eval.result.EvalResult's attributes that bench ggds reads) of a
+    JSON-shaped dict."""
+    from types import SimpleNamespace
+    return SimpleNamespace(distances=SimpleNamespace(to_json=lambda: d["fd_effnet_lite0"]),
+                           geometry=SimpleNamespace(seen=d["geometry"]["seen"]),
+                           novel_elevated=d.get("novel_elevated", {}))
+
+
 def test_fd_ratios_are_seed_means(monkeypatch, tmp_path):
     """bench ggds's FD keys: each ratio is the mean over the eval seeds of FD / content, the
     prior's likewise, and fd_novel_over_prior the largest bin's quotient of the two means."""
@@ -70,11 +79,11 @@ def test_fd_ratios_are_seed_means(monkeypatch, tmp_path):
     def fake(o):
         seeds.append(o.cfg.seed)
         per, content, prior = canned[o.cfg.seed]
-        return {"fd_effnet_lite0": {
+        return _result({"fd_effnet_lite0": {
                     "seen_vs_novel": {"per_bin": {b: {"value": v} for b, v in per.items()}},
                     "seen_vs_heldout_lane": {"value": content},
                     "prior_baseline": {"prior_novel_over_content": prior}},
-                "geometry": {"seen": {"all": {"seed": o.cfg.seed}}}}
+                "geometry": {"seen": {"all": {"seed": o.cfg.seed}}}})
     monkeypatch.setattr(B, "evaluate", fake)
     res = B.fd_ratios(tmp_path, 2)
     assert seeds == [0, 1] and res["fd_seeds"] == 2
@@ -100,9 +109,9 @@ def test_fd_ratios_carry_novel_elevated(monkeypatch, tmp_path):
                 "heldout_lane": {"psnr_db": {"mean": 25.0}}}
 
     def fake(o):
-        return {"fd_effnet_lite0": {"seen_vs_novel": {"per_bin": {"1": {"value": 1.0}}},
-                                    "seen_vs_heldout_lane": {"value": 1.0}},
-                "geometry": {"seen": {"all": {}}}, "novel_elevated": elevated(o.cfg.seed)}
+        return _result({"fd_effnet_lite0": {"seen_vs_novel": {"per_bin": {"1": {"value": 1.0}}},
+                                            "seen_vs_heldout_lane": {"value": 1.0}},
+                        "geometry": {"seen": {"all": {}}}, "novel_elevated": elevated(o.cfg.seed)})
     monkeypatch.setattr(B, "evaluate", fake)
     res = B.fd_ratios(tmp_path, 2)
     assert res["novel_elevated"] == elevated(0)

@@ -2,6 +2,7 @@
 chunks untouched, a failing chunk named in one line with the scene left valid."""
 import json
 import shutil
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -333,7 +334,7 @@ def test_eval_measures_seams_of_a_chunked_scene(chunked):
     assert res["border_coverage"] > 0.5
     lo, hi = res["psnr_drop_matched_ci95_db"]
     assert lo <= hi and 0 < res["matched_border_frac"] <= 1
-    assert "class and distance matched" in _seams_html({"seams": res})
+    assert "class and distance matched" in _seams_html(SimpleNamespace(seams=res))
     none, why = measure_seams(sc, None, layout, proxy_arrays(sc.layer_path("proxy")), cams, frames)
     assert none is None and "no GGDS run" in why
     # PSNR of given views against the same targets: worse for a frame that is off its target

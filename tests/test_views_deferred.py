@@ -182,7 +182,8 @@ def test_frame_size_must_match_the_camera():
     (["--deferred", "--deferred-device", "gpu"], "--deferred-device 'gpu': expected cpu"),
 ])
 def test_cli_bad_deferred_flags(run_cli, tmp_path, args, match):
-    r = run_cli("render", tmp_path / "nowhere", "--camera", "/World/Cam", "-o", tmp_path / "o", *args)
+    (tmp_path / "scene").mkdir()
+    r = run_cli("render", tmp_path / "scene" / "nowhere", "--camera", "/World/Cam", "-o", tmp_path / "o", *args)
     assert r.returncode != 0
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and match in lines[0], r.stderr

@@ -89,7 +89,8 @@ def test_missing_camera_and_no_surfels_errors(scene_file, tmp_path, capsys):
     stage = scene.new_stage()
     to_usd(stage, "/World/Cam", Camera.from_fov(8, 8, 60.0))
     scene.save_stage(stage, tmp_path / "empty.usda")
-    assert main(["render", str(tmp_path / "empty.usda"), "--camera", "/World/Cam", "-o", str(tmp_path)]) == 1
+    assert main(["render", str(tmp_path / "empty.usda"), "--camera", "/World/Cam", "-o",
+                 str(tmp_path.parent / f"{tmp_path.name}_out")]) == 1
     assert "no surfels" in capsys.readouterr().err
     assert main(["render", str(scene_file), "--camera", "/World/Cameras/Front", "-o", str(tmp_path),
                  "--resolution", "axb"]) == 1
