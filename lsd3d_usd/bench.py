@@ -206,6 +206,9 @@ class SimBench:
                                flag="--steps", lo=1, hi=100_000)
     repeats: int | None = option(None, help="timed runs per configuration, the median reported "
                                             "(default 3, --quick 1)", flag="--repeats", lo=1, hi=100)
+    remote: bool = option(False, help="also the overhead of `sim serve` (gRPC) over the "
+                                      "in-process env at nuscenes6 480x270 + hdl32 (keys "
+                                      "remote_overhead_pct, remote_codec_pct)", flag="--remote")
     memory_seconds: float | None = option(None, help="also a closed-loop run this long (simulated "
                                                      "seconds, rig none) with RSS each minute",
                                           flag="--memory-seconds", lo=60.0, hi=86_400.0)
@@ -214,7 +217,7 @@ class SimBench:
 def _sim_run(c: SimBench) -> int:
     from lsd3d_usd.benchmarks.sim import main   # heavy: gymnasium, numba, a generate
     main(json_path=c.json, scene=c.scene, quick=c.quick, steps=c.steps, repeats=c.repeats,
-         memory_seconds=c.memory_seconds)
+         memory_seconds=c.memory_seconds, remote=c.remote)
     return 0
 
 

@@ -82,7 +82,7 @@ def memory_over(scene, seconds: float, seed: int = 0, log=print) -> dict:
 
 
 def main(json_path=None, *, scene=None, quick=False, steps=None, repeats=None,
-         memory_seconds=None, log=print) -> dict:
+         memory_seconds=None, remote=False, log=print) -> dict:
     steps = steps or (20 if quick else 100)
     repeats = repeats or (1 if quick else 3)
     with tempfile.TemporaryDirectory() as tmp:
@@ -103,6 +103,13 @@ def main(json_path=None, *, scene=None, quick=False, steps=None, repeats=None,
             log(f"bench sim: {name}: {got['steps_per_s']:.2f} steps/s (runs {got['runs']})")
         if memory_seconds:
             res.update(memory_over(target, memory_seconds, log=log))
+        if remote:
+            from lsd3d_usd.benchmarks.sim_remote import overhead
+            r = overhead(target, "nuscenes6", "hdl32", 480, max(5, steps // 10))
+            res.update({f"remote_{k}": (round(v, 4) if isinstance(v, float) else v)
+                        for k, v in r.items()})
+            log(f"bench sim: remote: {r['overhead_pct']:+.1f} % per step "
+                f"(codec {r['codec_pct']:.1f} %)")
         res["peak_rss_mb"] = round(_rss_mb(), 1)
     log(json.dumps(res, indent=1))
     if json_path:
