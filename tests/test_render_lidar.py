@@ -196,7 +196,7 @@ def test_sweep_directions_and_times():
 
 @pytest.mark.parametrize("table,key", [
     ({"beams": 0, "elevation_min": -10, "elevation_max": 10, "columns": 100}, "beams"),
-    ({"beams": 8, "elevation_min": -95, "elevation_max": 10, "columns": 100}, "elevations"),
+    ({"beams": 8, "elevation_min": -95, "elevation_max": 10, "columns": 100}, "elevation_min"),   # the key as given (issue 60)
     ({"elevations": [-10.0, 90.0], "columns": 100}, "elevations"),
     ({"beams": 8, "elevation_min": -10, "elevation_max": 10, "columns": 100,
       "min_range": 5.0, "max_range": 5.0}, "max_range"),
