@@ -158,6 +158,62 @@ def test_busy_then_free_after_a_silent_client(free_server):
         ch.close()
 
 
+KILLED_CLIENT = """
+import sys, time
+import grpc
+from lsd3d_usd.sim.proto import sim_pb2, sim_pb2_grpc
+stub = sim_pb2_grpc.DriveStub(grpc.insecure_channel(sys.argv[1]))
+print(stub.Reset(sim_pb2.ResetRequest(seed=3)).session, flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_killed_client_process_frees_the_server(free_server):
+    """A client process killed (SIGKILL) mid-episode: the server is ready for the next client
+    within --timeout."""
+    from lsd3d_usd.sim.proto import sim_pb2
+    target, servicer = free_server
+    servicer.timeout = 1.0
+    proc = subprocess.Popen([sys.executable, "-c", KILLED_CLIENT, target], stdout=subprocess.PIPE,
+                            text=True)
+    ch, stub = _stub(target)
+    try:
+        killed = proc.stdout.readline().strip()
+        assert killed
+        code, text = _status(lambda: stub.Reset(sim_pb2.ResetRequest(seed=4)))
+        assert code == grpc.StatusCode.RESOURCE_EXHAUSTED and "busy" in text
+        proc.kill()
+        proc.wait(10)
+        time.sleep(2.5)                              # > the timeout
+        nxt = stub.Reset(sim_pb2.ResetRequest(seed=4))
+        assert nxt.session and nxt.session != killed
+        ok = stub.Step(sim_pb2.StepRequest(session=nxt.session, action=_action(ACTION)))
+        assert len(ok.observation.tensors) > 0
+        stub.Close(sim_pb2.CloseRequest(session=nxt.session))
+    finally:
+        servicer.timeout = 30.0
+        if proc.poll() is None:
+            proc.kill()
+        ch.close()
+
+
+def test_a_1_gb_message_is_refused_and_the_server_serves_on(free_server):
+    from lsd3d_usd.sim.proto import sim_pb2
+    target, _ = free_server
+    ch, stub = _stub(target, send_limit=2**31 - 1)
+    try:
+        s = stub.Reset(sim_pb2.ResetRequest(seed=0)).session
+        huge = _action(np.zeros((1 << 28,), np.float32))          # 1 GiB of action
+        code, text = _status(lambda: stub.Step(sim_pb2.StepRequest(session=s, action=huge)))
+        assert code == grpc.StatusCode.RESOURCE_EXHAUSTED, text
+        del huge
+        ok = stub.Step(sim_pb2.StepRequest(session=s, action=_action(ACTION)))
+        assert len(ok.observation.tensors) > 0
+        stub.Close(sim_pb2.CloseRequest(session=s))
+    finally:
+        ch.close()
+
+
 def _action(a, **fields):
     from lsd3d_usd.sim.remote import encode
     t = encode("action", a)
