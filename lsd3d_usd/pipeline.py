@@ -333,7 +333,7 @@ def _actors_step(sc: S.Scene, p: Plan, run: RunOptions) -> dict:
     folder = sc.assets_dir
     A.ensure_library(folder)
     a = p.cfg.actors
-    if a.pedestrians or a.cyclists:
+    if a.pedestrians != 0 or a.cyclists != 0:      # None: the default number of them
         kinds = P.PEDESTRIAN_KINDS + P.CYCLIST_KINDS
         missing = [k for k in kinds if not (folder / f"{k}.usda").is_file()]
         if missing:
@@ -406,7 +406,7 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
             f"({'reused' if sinfo['reused'] else 'initialised'})")
     summary = {"scene": str(sc.root), "proxy": prep, "surfels": sinfo}
     a = cfg.actors
-    if a.enabled and (a.parked or a.moving or a.pedestrians or a.cyclists):
+    if a.enabled and (a.parked or a.moving or a.pedestrians != 0 or a.cyclists != 0):
         summary["actors"] = timed("actors_s", _actors_step, sc, p, run)
         run.log(f"actors: {summary['actors']['parked']} parked, "
                 f"{summary['actors']['moving']} moving, {summary['actors']['pedestrians']} "

@@ -21,7 +21,7 @@ NEAR_M = 40.0
 def kitti(tmp_path_factory):
     from lsd3d_usd.cli import main
     root = tmp_path_factory.mktemp("kitti")
-    generate_small(root / "scene", steps=0, actors=True, surfels=100_000)
+    generate_small(root / "scene", steps=0, actors=True, surfels=100_000, pedestrians=0, cyclists=0)
     assert main(["dataset", str(root / "scene"), "-o", str(root / "ds"), *ARGS]) == 0
     return root / "ds"
 

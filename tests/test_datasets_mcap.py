@@ -23,7 +23,7 @@ def recording(tmp_path_factory):
 
     from lsd3d_usd.cli import main
     root = tmp_path_factory.mktemp("mcap")
-    generate_small(root / "scene", steps=0, actors=True, surfels=100_000)
+    generate_small(root / "scene", steps=0, actors=True, surfels=100_000, pedestrians=0, cyclists=0)
     assert main(["dataset", str(root / "scene"), "-o", str(root / "ds"), *ARGS]) == 0
     files = sorted((root / "ds").glob("*.mcap"))
     assert [f.name for f in files] == ["lsd3d-0000-scene.mcap"]

@@ -32,7 +32,7 @@ def data(tmp_path_factory):
     """A scene whose surfels lie on the proxy, with traffic, as a nuScenes dataset: one log,
     1.5 s, cameras and LiDAR at 4 Hz, keyframes at 2 Hz, 160 px wide images."""
     root = tmp_path_factory.mktemp("nuscenes")
-    generate_small(root / "scene", steps=0, actors=True, surfels=100_000)
+    generate_small(root / "scene", steps=0, actors=True, surfels=100_000, pedestrians=0, cyclists=0)
     make(root / "scene", root / "ds")
     return root
 

@@ -43,8 +43,10 @@ def test_steps_zero_builds_a_valid_scene_and_reuses_it(tmp_path):
     assert names == ["surfels", "cameras", "actors", "env", "proxy", "layout"]
     assert summary["actors"]["moving"] > 0
     # Actor assets are referenced from the scene's own assets/ folder, never copied elsewhere.
-    assert sorted(p.name for p in (out / "assets").glob("*.usda")) == ["bus.usda", "car.usda",
-                                                                       "truck.usda", "van.usda"]
+    assert sorted(p.name for p in (out / "assets").glob("*.usda")) == [
+        "adult.usda", "adult_broad.usda", "bus.usda", "car.usda", "child.usda", "cyclist.usda",
+        "truck.usda", "van.usda"]                  # a street has people by default
+    assert summary["actors"]["pedestrians"] > 0
     errors = [p for p in validation.validate(out) if p.severity == "error"]
     assert errors == [], [p.line() for p in errors]
     # The layout layer is the input exactly as given.

@@ -23,7 +23,7 @@ def sensors(tmp_path_factory):
     from lsd3d_usd.views import rig
     from lsd3d_usd.views.options import RigOptions
     root = tmp_path_factory.mktemp("sensors")
-    generate_small(root / "scene", steps=0, actors=True, surfels=100_000)
+    generate_small(root / "scene", steps=0, actors=True, surfels=100_000, pedestrians=0, cyclists=0)
     # the ego creeps along a corner of the junction, looking across it (traffic passes in
     # front of it, none drives through it)
     traj = root / "poses.json"

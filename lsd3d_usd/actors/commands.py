@@ -20,7 +20,7 @@ def _add(args) -> int:
                      fps=a.fps, assets_dir=args.assets, pedestrians=a.pedestrians,
                      cyclists=a.cyclists)
     people = ""
-    if a.pedestrians or a.cyclists:
+    if a.pedestrians != 0 or a.cyclists != 0:       # None: the default number of them
         people = f", {len(res.pedestrian_kinds)} pedestrians, {len(res.cyclist_kinds)} cyclists"
     print(f"{res.layer}: {len(res.parked)} parked, {len(res.moving_kinds)} moving actors{people} "
           f"({res.seconds:g} s at {a.fps:g} samples/s, {res.tcps:g} time codes/s)")

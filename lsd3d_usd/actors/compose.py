@@ -58,6 +58,10 @@ def resolve_library(scene, assets_dir=None, people: bool = False) -> dict[str, P
     return A.library_assets(folder)
 
 
+DEFAULT_PEDESTRIANS = 12    # a street has people (`add_actors` with None)
+DEFAULT_CYCLISTS = 2
+
+
 def check_counts(**counts) -> None:
     """One error naming every count that is not a whole number in its range."""
     limits = {"pedestrians": MAX_PEDESTRIANS, "cyclists": MAX_CYCLISTS}
@@ -72,26 +76,36 @@ def check_counts(**counts) -> None:
 
 def add_actors(scene, layout, parked: int = 12, moving: int = 8, seed: int = 0, *,
                seconds: float = 8.0, fps: float = 10.0, assets_dir=None,
-               kinds: dict | None = None, pedestrians: int = 0, cyclists: int = 0) -> ActorsResult:
+               kinds: dict | None = None, pedestrians: int | None = 0,
+               cyclists: int | None = 0) -> ActorsResult:
     """Write the scene's actors layer: ``parked`` static actors in free parking slots,
     ``moving`` vehicles driven by the seeded IDM traffic model, ``pedestrians`` on the
     sidewalks and crosswalks and ``cyclists`` on bike lanes or the right of driving lanes
     (`street.simulate_street`), for ``seconds`` (samples at ``fps``, written at the scene's
     timeCodesPerSecond). Deterministic per seed. Replaces any previous actors layer (a step
-    owns its layer)."""
+    owns its layer). ``pedestrians`` / ``cyclists`` None: DEFAULT_PEDESTRIANS /
+    DEFAULT_CYCLISTS where the asset folder has such assets, else none (a default never
+    refuses a folder of vehicles only; an asked number does)."""
 
-    check_counts(parked=parked, moving=moving, pedestrians=pedestrians, cyclists=cyclists)
+    check_counts(parked=parked, moving=moving,
+                 **{k: v for k, v in (("pedestrians", pedestrians), ("cyclists", cyclists))
+                    if v is not None})
     if not (fps > 0) or not (seconds > 0):
         raise InputError(f"actors: need --fps > 0 and --seconds > 0 (got {fps}, {seconds})")
     CLIP_SECONDS.check(seconds, "actors: --seconds")
     FRAMES.check(fps * seconds, "actors: --fps x --seconds", what="time samples per actor")
-    ACTOR_SAMPLES.check((moving + pedestrians + cyclists) * fps * seconds,
+    ACTOR_SAMPLES.check((moving + (DEFAULT_PEDESTRIANS if pedestrians is None else pedestrians)
+                         + (DEFAULT_CYCLISTS if cyclists is None else cyclists)) * fps * seconds,
                         "actors: (--moving + --pedestrians + --cyclists) x --fps x --seconds")
     t0 = time.perf_counter()
-    library = resolve_library(scene, assets_dir, people=bool(pedestrians or cyclists))
+    library = resolve_library(scene, assets_dir, people=pedestrians != 0 or cyclists != 0)
     all_infos = {k: A.read_asset(p) for k, p in library.items()}
     by_class = {c: sorted(k for k, i in all_infos.items() if i.label == c)
                 for c in (P.PEDESTRIAN_CLASS, P.CYCLIST_CLASS)}
+    if pedestrians is None:
+        pedestrians = DEFAULT_PEDESTRIANS if by_class[P.PEDESTRIAN_CLASS] else 0
+    if cyclists is None:
+        cyclists = DEFAULT_CYCLISTS if by_class[P.CYCLIST_CLASS] else 0
     for cls, n, flag in ((P.PEDESTRIAN_CLASS, pedestrians, "pedestrians"), (P.CYCLIST_CLASS, cyclists, "cyclists")):
         if n and not by_class[cls]:
             raise InputError(f"actors: --{flag} {n}: the asset folder {assets_dir} has no asset of "

@@ -15,14 +15,18 @@ class ActorsConfig:
                          alias="parked", lo=0, hi=100_000)
     moving: int = option(8, help="moving actors driven by IDM traffic over the lane graph",
                          flag="--moving", alias="moving", lo=0, hi=100_000)
-    pedestrians: int = option(0, help="pedestrians walking the sidewalks, crossing at "
-                              "crosswalks and standing at corners",
-                              flag="--pedestrians", alias="pedestrians", lo=0,
-                              hi=int(PEDESTRIANS.value))
-    cyclists: int = option(0, help="cyclists on bike lanes, or the right part of driving "
-                           "lanes, in the IDM traffic",
-                           flag="--cyclists", alias="cyclists", lo=0,
-                           hi=int(CYCLISTS.value))
+    # a street has people: by default as many as the layout takes (None: 12 pedestrians and
+    # 2 cyclists where the asset folder has such assets and the layout sidewalks / lanes;
+    # fewer where there is no room, none without); a number asks for exactly that many
+    pedestrians: int | None = option(None, help="pedestrians walking the sidewalks, crossing at "
+                                     "crosswalks and standing at corners (default: 12 where the "
+                                     "assets and the layout's sidewalks allow)",
+                                     flag="--pedestrians", alias="pedestrians", lo=0,
+                                     hi=int(PEDESTRIANS.value))
+    cyclists: int | None = option(None, help="cyclists on bike lanes, or the right part of "
+                                  "driving lanes, in the IDM traffic (default: 2 where the "
+                                  "assets allow)", flag="--cyclists", alias="cyclists", lo=0,
+                                  hi=int(CYCLISTS.value))
     seconds: float = option(8.0, help="traffic duration in seconds", flag="--actor-seconds",
                             alias="actor_seconds", lo=0.1, hi=3600.0)
     fps: float = option(10.0, help="traffic samples per second, written as time samples",
