@@ -156,7 +156,8 @@ def generated(tmp_path_factory):
     base = tmp_path_factory.mktemp("viewer")
     root = base / "scene"
     cli("generate", "--layout", LAYOUT, "-o", root, "--steps", 0, "--surfels", 20000,
-        "--env-resolution", "256x128", "--parked", 2, "--moving", 3)
+        "--env-resolution", "256x128", "--parked", 2, "--moving", 3, "--pedestrians", 0,
+        "--cyclists", 0)
     # A GGDS run layer as `generate` writes it (per-chunk overs of the optimised attributes
     # over the initial surfels), here with recoloured and slightly moved surfels so that
     # switching it off changes the picture unmistakably.
