@@ -44,6 +44,15 @@ def small_scene(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="session")
+def sim_scene(tmp_path_factory):
+    """One small scene with traffic and people assets for the closed-loop tests that only
+    read it (sim env, CLI, remote service)."""
+    out = tmp_path_factory.mktemp("sim") / "scene"
+    generate_small(out, steps=0, actors=True, pedestrians=2, cyclists=1)
+    return out
+
+
 def error_line(result, *needles) -> str:
     """The one error line of a failed command: ``result`` a CompletedProcess, or (exit code,
     stderr). Exit 1, exactly one "lsd3d-usd: error: " line and it is the last line printed

@@ -5,15 +5,12 @@ import sys
 import pytest
 
 import lsd3d_usd  # noqa: F401
-from conftest import generate_small
 from lsd3d_usd.cli import main
 
 
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("simcli") / "scene"
-    generate_small(out, steps=0, actors=True, pedestrians=2, cyclists=1)
-    return out
+def scene(sim_scene):
+    return sim_scene          # conftest: one scene shared by the sim tests
 
 
 POLICY = '''

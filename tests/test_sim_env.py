@@ -9,7 +9,6 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import lsd3d_usd  # noqa: F401
-from conftest import generate_small
 from lsd3d_usd.actors.pedestrians import STAND
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.sim import ENV_ID
@@ -19,10 +18,8 @@ from lsd3d_usd.sim.scene import SimScene
 
 
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("sim") / "scene"
-    generate_small(out, steps=0, actors=True, pedestrians=2, cyclists=1)
-    return out
+def scene(sim_scene):
+    return sim_scene          # conftest: one scene shared by the sim tests
 
 
 @pytest.fixture(scope="module")

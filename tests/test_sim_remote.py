@@ -16,17 +16,15 @@ from pathlib import Path
 import grpc
 import numpy as np
 import pytest
-from conftest import ROOT, generate_small
+from conftest import ROOT
 
 SETTINGS = dict(rig="nuscenes6", width=64, seconds=1.0, vehicles=2, pedestrians=2, cyclists=1)
 ACTION = np.array([1.5, 0.05], np.float32)
 
 
 @pytest.fixture(scope="module")
-def scene(tmp_path_factory):
-    out = tmp_path_factory.mktemp("simremote") / "scene"
-    generate_small(out, steps=0, actors=True, pedestrians=2, cyclists=1)
-    return out
+def scene(sim_scene):
+    return sim_scene          # conftest: one scene shared by the sim tests
 
 
 @pytest.fixture(scope="module")
