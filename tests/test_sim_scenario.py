@@ -47,9 +47,10 @@ def sim_time(t, delay=0.0, edge="none", rule="greaterThan", name="time", point="
 
 
 def scenario(tmp_path, init, events, actors="Target", params=None, road=True, entities=None,
-             catalog=None, name="s.xosc"):
+             catalog=None, name="s.xosc", stop=100.0, title="t"):
     """A scenario: Ego and Target (vehicles) unless ``entities``; ``init``: [(entity, action)];
-    ``events``: [(trigger, [action])] in one maneuver of ``actors``."""
+    ``events``: [(trigger, [action])] in one maneuver of ``actors``; its stop trigger at
+    ``stop`` seconds."""
     if road:
         write_road(tmp_path / "road.xodr")
     ents = xosc.Entities()
@@ -73,12 +74,12 @@ def scenario(tmp_path, init, events, actors="Target", params=None, road=True, en
     act.add_maneuver_group(mg)
     story = xosc.Story("story")
     story.add_act(act)
-    sb = xosc.StoryBoard(ini, sim_time(100, name="stop", point="stop"))
+    sb = xosc.StoryBoard(ini, sim_time(stop, name="stop", point="stop"))
     sb.add_story(story)
     pd = xosc.ParameterDeclarations()
     for k, v in (params or {}).items():
         pd.add_parameter(xosc.Parameter(k, xosc.ParameterType.double, v))
-    sce = xosc.Scenario("t", "lsd3d", pd, ents, sb, xosc.RoadNetwork(roadfile="road.xodr"),
+    sce = xosc.Scenario(title, "lsd3d", pd, ents, sb, xosc.RoadNetwork(roadfile="road.xodr"),
                         catalog or xosc.Catalog())
     path = tmp_path / name
     sce.write_xml(str(path))

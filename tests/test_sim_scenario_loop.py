@@ -11,41 +11,15 @@ pytest.importorskip("scenariogeneration")
 from scenariogeneration import xosc  # noqa: E402
 
 from lsd3d_usd.errors import InputError  # noqa: E402
-from tests.test_sim_scenario import W, dyn, lanepos, sim_time, speed, vehicle, write_road  # noqa: E402
+from tests.test_sim_scenario import W, dyn, lanepos, scenario, sim_time, speed, write_road  # noqa: E402
 
 V50 = 50 / 3.6
 
 
 def write_scenario(folder, name, init, events, actors="Target", stop=8.0):
     """Ego and Target on the shared road; ``events``: [(trigger, [action])] of ``actors``."""
-    ents = xosc.Entities()
-    for n in ("Ego", "Target"):
-        ents.add_scenario_object(n, vehicle())
-    ini = xosc.Init()
-    for who, a in init:
-        ini.add_init_action(who, a)
-    man = xosc.Maneuver("man")
-    events = events or [(sim_time(1e3, name="never"), [speed(1)])]    # a maneuver needs one
-    for k, (trig, acts) in enumerate(events):
-        ev = xosc.Event(f"ev{k}", xosc.Priority.parallel)
-        for j, a in enumerate(acts):
-            ev.add_action(f"ev{k}a{j}", a)
-        ev.add_trigger(trig)
-        man.add_event(ev)
-    mg = xosc.ManeuverGroup("mg")
-    mg.add_actor(actors)
-    mg.add_maneuver(man)
-    act = xosc.Act("act", sim_time(0, rule="greaterOrEqual", name="go"))
-    act.add_maneuver_group(mg)
-    story = xosc.Story("story")
-    story.add_act(act)
-    sb = xosc.StoryBoard(ini, sim_time(stop, name="stop", point="stop"))
-    sb.add_story(story)
-    sce = xosc.Scenario(name, "lsd3d", xosc.ParameterDeclarations(), ents, sb,
-                        xosc.RoadNetwork(roadfile="road.xodr"), xosc.Catalog())
-    path = folder / f"{name}.xosc"
-    sce.write_xml(str(path))
-    return path
+    return scenario(folder, init, events, actors, road=False, name=f"{name}.xosc", stop=stop,
+                    title=name)
 
 
 def braking_lead(folder):
