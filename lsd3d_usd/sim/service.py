@@ -11,7 +11,6 @@ client sends lane ids and numbers only: no path it sends is ever opened.
 from __future__ import annotations
 
 import ipaddress
-import json
 import math
 import re
 import secrets
@@ -22,7 +21,6 @@ from concurrent import futures
 from dataclasses import asdict
 
 import grpc
-import numpy as np
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.sim.proto import sim_pb2, sim_pb2_grpc
