@@ -25,8 +25,8 @@ from lsd3d_usd.actors import assets as A
 from lsd3d_usd.actors import people as P
 from lsd3d_usd.actors.usdio import ROLE_ATTR, ActorSet, PlacedActor
 from lsd3d_usd.assetroots import check_scene
+from lsd3d_usd.datasets.maps import drivable_area as road_area
 from lsd3d_usd.errors import InputError
-from lsd3d_usd.layout.model import DRIVABLE_TYPES
 from lsd3d_usd.layout.routes import LaneGraph
 from lsd3d_usd.layout.usdio import layout_from_stage
 from lsd3d_usd.views.stage_data import SceneReader
@@ -37,25 +37,11 @@ PAINTS = 4                  # paint variants per vehicle kind
 
 
 def drivable_area(layout, margin: float = 0.25):
-    """The layout's drivable area (shapely): each drivable lane's width along its centre
-    line (flat ends), the layout's road areas, grown by ``margin`` m (a wheel on the lane
-    line is still on the road)."""
-    parts = []
-    for ln in layout.lanes:
-        if ln.lane_type not in DRIVABLE_TYPES or ln.length() < 1e-6:
-            continue
-        pts = np.asarray(ln.points, np.float64)[:, :2]
-        w = np.asarray(ln.widths, np.float64) if ln.widths is not None and len(ln.widths) else \
-            np.full(len(pts), 3.5)
-        line = shapely.LineString(pts)
-        parts.append(line.buffer(float(np.max(w)) / 2 + margin, cap_style="flat"))
-    for ra in getattr(layout, "road_areas", []):
-        poly = shapely.Polygon(np.asarray(ra.polygon, np.float64)[:, :2])
-        parts.append(poly if poly.is_valid else poly.buffer(0))
-    for cw in layout.crosswalks:
-        poly = shapely.Polygon(np.asarray(cw.polygon, np.float64)[:, :2])
-        parts.append(poly if poly.is_valid else poly.buffer(0))
-    return shapely.union_all(parts) if parts else shapely.Polygon()
+    """The layout's drivable area (shapely): the proxy's road surface (`datasets.maps`, the
+    one the images show and the nuScenes map masks hold), grown by ``margin`` m (a wheel on
+    the road's edge line is still on the road)."""
+    road = road_area(layout)
+    return road.buffer(margin) if margin and not road.is_empty else road
 
 
 def static_obstacles(layout) -> tuple[list, list]:
