@@ -32,6 +32,7 @@ def _env_kwargs(args) -> dict:
     return dict(rig=args.rig, lidar=args.lidar, width=args.width, action=args.action,
                 hz=args.hz, seconds=args.seconds, route_length=args.route_length,
                 ep_reference="none" if args.no_reference else "planner",
+                lod_px=0.0 if args.no_lod else args.lod_px,
                 outputs=tuple(args.outputs.split(",")) if args.outputs else ("rgb",), **traffic)
 
 
@@ -190,6 +191,11 @@ def _env_arguments(r) -> None:
     r.add_argument("--lidar", default="auto",
                    help="auto (the rig's own), a preset (hdl32, waymo_top), a FILE.toml, or none")
     r.add_argument("--width", type=int, default=480, help="camera width in pixels (default 480)")
+    r.add_argument("--lod-px", type=float, default=8.0, metavar="PX",
+                   help="cameras' level of detail: a merged node stands for its surfels when it "
+                        "covers at most PX pixels (default 8; docs/render.md)")
+    r.add_argument("--no-lod", action="store_true",
+                   help="cameras draw every surfel (full detail, slower)")
     r.add_argument("--outputs", default="rgb",
                    help="camera outputs, comma-separated: rgb,depth,semantic,instance")
     r.add_argument("--action", default="control", choices=("control", "trajectory"),

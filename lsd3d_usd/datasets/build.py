@@ -439,7 +439,7 @@ def run_log(root: Path, opt: DatasetOptions, plan: LogPlan, writer, lidar, timel
     info, samples = drive(plan, state / "work" / f"{plan.index:04d}", rig=opt.rig,
                           lidar=lidar, timeline=timeline, width=width, seed=opt.seed,
                           exposure=opt.exposure, tonemap=opt.tonemap, deferrer=deferrer,
-                          start_tick=start, log=log)
+                          start_tick=start, lod_px=opt.lod_px if opt.lod else 0.0, log=log)
     if part:
         try:
             writer.restore(info, part[1])

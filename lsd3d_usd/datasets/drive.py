@@ -94,7 +94,8 @@ class LogInfo:
 
 def drive(plan: LogPlan, work: Path, *, rig: str, lidar, timeline, width: int,
           seed: int = 0, exposure: float = 0.0, tonemap: str = "aces", deferrer=None,
-          stream_radius: float = DEFAULT_STREAM_RADIUS, start_tick: int = 0, log=print):
+          stream_radius: float = DEFAULT_STREAM_RADIUS, start_tick: int = 0,
+          lod_px: float = 0.0, log=print):
     """(LogInfo, iterator of Sample) of one log (module doc); ``work``: the log's work folder
     (rig.usda and the ego's asset). ``start_tick``: skip the ticks before it (a resumed log;
     every tick is a pure function of the scene, the plan and the seed, so the rest is the
@@ -108,7 +109,7 @@ def drive(plan: LogPlan, work: Path, *, rig: str, lidar, timeline, width: int,
         log(f"note: {n}")
     specs = list(load_rig(rig).cameras)
     by_name = {p.rsplit("/", 1)[-1]: p for p in paths}
-    reader = SceneReader(stage, stream_radius=stream_radius or None)
+    reader = SceneReader(stage, stream_radius=stream_radius or None, lod_px=lod_px)
     instances = Instances.of(reader.actors)
     layout = layout_from_stage(stage, str(plan.scene))     # routes need one (build checks)
     info = LogInfo(plan, rig, specs, lidar, int(width), timeline, instances, layout,

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 
 from lsd3d_usd.configtree import option
+from lsd3d_usd.views.options import DEFAULT_LOD_PX
 
 DEFAULT_VERSION = "v1.0-lsd3d"
 
@@ -47,6 +48,12 @@ class DatasetOptions:
     width: int | None = option(None, help="camera image width in pixels (default: the rig's "
                                           "native, 1600 for nuscenes6); heights follow each "
                                           "camera's aspect", flag="--width", metavar="WIDTH")
+    lod: bool = option(True, help="level of detail for camera frames: surfels far enough to "
+                                  "cover few pixels drawn as merged nodes (docs/render.md)",
+                       flag="--lod", negate="--no-lod")
+    lod_px: float = option(DEFAULT_LOD_PX, help="level-of-detail budget in pixels (a merged "
+                                                "node's bounding sphere on screen)",
+                           flag="--lod-px", metavar="PX", lo=0.5, hi=256.0)
     # set by batch specs and benchmarks, not by flags (field order: dataset.json's key order)
     exposure: float = 0.0
     tonemap: str = "aces"

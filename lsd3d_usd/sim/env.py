@@ -27,6 +27,7 @@ from lsd3d_usd.sim.control import TrajectoryTracker
 from lsd3d_usd.sim.dynamics import EgoState, VehicleLimits, clip_control, step_bicycle
 from lsd3d_usd.sim.metrics import Agents, ScoreKeeper, StepState
 from lsd3d_usd.sim.world import AgentSpec, World
+from lsd3d_usd.views.options import DEFAULT_LOD_PX
 
 COMMANDS = ("left", "straight", "right", "follow")   # CARLA's high-level route options
 ACTION_MODES = ("control", "trajectory")
@@ -60,6 +61,7 @@ class EnvSettings:
     lidar_max_points: int | None = None   # default: the LiDAR's rays per sweep
     start_speed: float = 0.0
     stream_radius: float = 300.0
+    lod_px: float = DEFAULT_LOD_PX    # camera level of detail (splats.lod); 0: full detail
     exposure: float = 0.0
     route_length: float = 200.0       # m of a drawn route (when none is given)
     ep_reference: str = "none"        # "planner": EP against the planner's progress (a shadow run)
@@ -86,6 +88,8 @@ class EnvSettings:
         bad = sorted(set(self.outputs) - {"rgb", "depth", "semantic", "instance"})
         if bad:
             raise InputError(f"outputs: unknown {bad[0]!r} (rgb, depth, semantic, instance)")
+        if not (0.0 <= self.lod_px <= 256.0):
+            raise InputError(f"--lod-px {self.lod_px}: must be within 0 .. 256 (0: full detail)")
         if not (16 <= int(self.width) <= 3840):
             raise InputError(f"--width {self.width}: must be within 16 .. 3840")
         return self
@@ -115,7 +119,8 @@ class DriveEnv(gym.Env):
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=self.settings.hz)
         self._own_scene = not isinstance(scene, SimScene)
-        self.scene = SimScene(scene, self.settings.stream_radius) if self._own_scene else scene
+        self.scene = SimScene(scene, self.settings.stream_radius,
+                                                             lod_px=self.settings.lod_px) if self._own_scene else scene
         self.sensors = SensorRig(self.scene, self.settings)
         self.dt = 1.0 / self.settings.hz
         self.limits = self.settings.limits

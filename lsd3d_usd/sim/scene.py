@@ -103,7 +103,8 @@ class SimActors:
 class SimScene:
     """A scene folder opened for driving (see the module doc)."""
 
-    def __init__(self, scene, stream_radius: float = 300.0, use_env: bool = True):
+    def __init__(self, scene, stream_radius: float = 300.0, use_env: bool = True,
+                 lod_px: float = 0.0):
         sp = Path(scene)
         root = (sp / S.ROOT_FILE if sp.is_dir() else sp).absolute()
         if not root.is_file():
@@ -123,7 +124,7 @@ class SimScene:
         shapely.prepare(self.drivable)
         self.obstacles, self.obstacle_ids = static_obstacles(self.layout)
         self.reader = SceneReader(self.stage, use_env=use_env, actors=False,
-                                  stream_radius=stream_radius)
+                                  stream_radius=stream_radius, lod_px=lod_px)
         self._tmp = None
         scene_actors = ActorSet(self.stage) if self.stage.GetPrimAtPath(S.ACTORS_PATH) else None
         self.parked: list[tuple[PlacedActor, np.ndarray]] = []

@@ -103,7 +103,7 @@ class SensorRig:
             frames = {}
             for c in self.cameras:
                 cam = rig_camera(c, M, self.width)
-                surf = reader.surfels(None, near=cam.center[None, :])
+                surf = reader.surfels_seen(cam)
                 f = composite(surf, reader.actors_at(self._code), cam, env,
                               instances=self.instances if self.labels else None)
                 d = {"rgb": display_uint8(f.rgb, self.s.exposure)}

@@ -203,6 +203,6 @@ def render_scene(reader, camera: Camera, time=None, sh_degree=None, instances=No
     """The scene of a stage_data.SceneReader seen by ``camera`` at ``time`` (a time code;
     None = the stage's earliest time): surfels + actors over the env. A streaming reader loads
     the chunks around the camera first. ``instances``: with ground truth (composite)."""
-    surfels = reader.surfels(time, near=camera.center[None, :])
+    surfels = reader.surfels_seen(camera, time)
     return composite(surfels, reader.actors_at(time), camera, reader.env(time), sh_degree,
                      instances)

@@ -23,6 +23,9 @@ RIG_WIDTH = 480  # rig frames: five cameras x frames add up; `render --camera` u
 # Chunks within this distance of a camera are loaded (views.stage_data.ChunkStreamer): well
 # beyond where 100 m chunks of surfels still cover more than a few pixels at rig resolutions.
 DEFAULT_STREAM_RADIUS = 300.0
+# splats.lod's budget for rig renders, datasets and the simulator (>= 40 dB against full detail
+# on the README sample's rig frames; docs/render.md)
+DEFAULT_LOD_PX = 8.0
 TONEMAPS = ("aces", "reinhard", "clamp")
 
 
@@ -118,6 +121,13 @@ class RigOptions:
                                                              "and unload those left behind "
                                                              "(0 = load the whole scene)",
                                   flag="--stream-radius", metavar="M")   # checked by render_rig
+    lod: bool = option(True, help="level of detail: surfels far enough to cover few pixels are "
+                                  "drawn as merged nodes, and nothing outside a camera's view "
+                                  "(docs/render.md)", flag="--lod", negate="--no-lod")
+    lod_px: float = option(DEFAULT_LOD_PX, help="level-of-detail budget: a merged node stands "
+                                                "for its surfels when its bounding sphere "
+                                                "covers at most this many pixels",
+                           flag="--lod-px", metavar="PX", lo=0.5, hi=256.0)
     video: bool = option(True, help="an MP4 per camera", negate="--no-video")
     overview: bool = option(True, help="the third-person overview camera",
                             negate="--no-overview")

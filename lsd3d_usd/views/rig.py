@@ -92,7 +92,8 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
         lidar=lidar)
     if not rig.overview:
         paths = [p for p in paths if not p.endswith("/" + OVERVIEW.name)]
-    reader = SceneReader(stage, use_env=use_env, stream_radius=stream_radius or None)
+    reader = SceneReader(stage, use_env=use_env, stream_radius=stream_radius or None,
+                         lod_px=rig.lod_px if rig.lod else 0.0)
     if not (reader.stream.chunks if reader.stream else reader.surfels() is not None):
         notes.append("the scene has no surfels: frames show actors over the env only")
     out = Path(out_dir).absolute()

@@ -46,6 +46,7 @@ from lsd3d_usd.scene import (
 )
 from lsd3d_usd.splats.field import SH_C0, SurfelField
 from lsd3d_usd.splats.init import transform_surfels
+from lsd3d_usd.splats.lod import LodTree, build_lod
 from lsd3d_usd.splats.usdio import is_particle_field, read_surfels, surfel_prims
 from lsd3d_usd.views.images import read_image
 
@@ -256,9 +257,12 @@ class ChunkStreamer:
     a chunk at the edge does not flicker in and out). Chunk (i, j) covers [i s, (i+1) s) ×
     [j s, (j+1) s) with s the scene's chunk size. Surfels of a loaded chunk are read once."""
 
-    def __init__(self, stage, radius: float, chunk_size: float | None = None):
+    def __init__(self, stage, radius: float, chunk_size: float | None = None,
+                 lod: bool = False):
         self.stage = stage
         self.radius = float(radius)
+        self.lod = bool(lod)            # a level-of-detail tree per chunk, built as it loads
+        self._trees: dict = {}          # key -> LodTree of its field (its leaves are the field)
         self.size = float(chunk_size or _scene_chunk_size(stage))
         self.chunks: dict = {}          # key -> [prim paths] (surfels and proxy)
         for root in (SURFELS_PATH, PROXY_PATH):
@@ -295,22 +299,33 @@ class ChunkStreamer:
         self.loaded = (self.loaded | add) - drop
         for k in drop:
             self._fields.pop(k, None)
+            self._trees.pop(k, None)
         self.version += 1
+
+    def _read(self, time):
+        """Loaded chunks' fields (and trees with lod), each read once, in scene order."""
+        keys = sorted(self.loaded, key=lambda k: str(self.chunks[k][0]))
+        for key in keys:
+            if key not in self._fields:
+                prims = [self.stage.GetPrimAtPath(p) for p in self.chunks[key]]
+                prims = [p for p in prims if p and p.IsLoaded()]
+                f = scene_surfels(self.stage, time, [p for p in prims if is_particle_field(p)])
+                if f is not None and self.lod:
+                    self._trees[key] = build_lod(f)
+                    f = self._trees[key].leaves     # the same surfels, in the tree's order
+                self._fields[key] = f
+        return keys
+
+    def trees(self, time=None) -> list[LodTree]:
+        """Level-of-detail trees of the loaded chunks (lod=True)."""
+        return [self._trees[k] for k in self._read(time) if k in self._trees]
 
     def surfels(self, time=None):
         """Surfels of the loaded chunks (in scene order), or None; joined once per loaded
         set (a rig's frames between two loads share it)."""
         if getattr(self, "_joined", None) is not None and self._joined[0] == self.version:
             return self._joined[1]
-        parts = []
-        for key in sorted(self.loaded, key=lambda k: str(self.chunks[k][0])):
-            if key not in self._fields:
-                prims = [self.stage.GetPrimAtPath(p) for p in self.chunks[key]]
-                prims = [p for p in prims if p and p.IsLoaded()]
-                self._fields[key] = scene_surfels(self.stage, time,
-                                                  [p for p in prims if is_particle_field(p)])
-            if self._fields[key] is not None:
-                parts.append(self._fields[key])
+        parts = [self._fields[k] for k in self._read(time) if self._fields[k] is not None]
         joined = SurfelField.concat(parts, drop_mismatched_semantics=True) if parts else None
         self._joined = (self.version, joined)
         return joined
@@ -338,12 +353,16 @@ class SceneReader:
     is the same as with everything loaded when the radius covers what the camera sees."""
 
     def __init__(self, stage, *, use_env: bool = True, actors: bool = True,
-                 textures: TextureCache | None = None, stream_radius: float | None = None):
+                 textures: TextureCache | None = None, stream_radius: float | None = None,
+                 lod_px: float = 0.0):
         self.stage = stage
+        self.lod_px = float(lod_px)     # > 0: surfels_seen draws a level-of-detail cut
         self.use_env = use_env
         self.textures = TextureCache() if textures is None else textures
         self.actors = ActorSet(stage) if actors else None
-        self.stream = ChunkStreamer(stage, stream_radius) if stream_radius else None
+        self.stream = (ChunkStreamer(stage, stream_radius, lod=self.lod_px > 0)
+                       if stream_radius else None)
+        self._tree = None
         self._prims = scene_surfel_prims(stage)
         self._static = not any(_might_vary(p) for p in self._prims)
         self._field = None
@@ -366,6 +385,33 @@ class SceneReader:
             self._field = scene_surfels(self.stage, time, self._prims)
             self._field_read = True
         return self._field
+
+    def surfels_seen(self, camera, time=None):
+        """The surfels to draw for ``camera`` (a render.camera.Camera) at ``time``: with
+        ``lod_px`` > 0 the level-of-detail cut of every loaded chunk (splats.lod: nodes whose
+        bounding sphere covers at most lod_px pixels stand for their children, nothing
+        outside the frustum), else all of them (`surfels`)."""
+        if self.lod_px <= 0:
+            return self.surfels(time, near=camera.center[None, :])
+        if self.stream is not None:
+            self.stream.update(camera.center[None, :])
+            trees = self.stream.trees(time)
+        else:
+            field = self.surfels(time)
+            if field is None:
+                return None
+            if self._tree is None or self._tree[0] is not field:
+                tree = build_lod(field)
+                field = tree.leaves             # the same surfels in the tree's order
+                if self._static:
+                    self._field = field         # kept once, not beside a copy
+                self._tree = (field, tree)
+            trees = [self._tree[1]]
+        if not trees:
+            return None
+        cuts = [t.cut_field(camera.viewmat, camera.K, camera.width, camera.height,
+                            camera.near, camera.far, self.lod_px) for t in trees]
+        return SurfelField.concat(cuts, drop_mismatched_semantics=True)
 
     def _memo(self, kind, time, make):
         hit = self._last.get(kind)
