@@ -7,6 +7,10 @@ then evaluates the triggers on the states at ``t`` (edges against the previous e
 delays as the edged value ``delay`` seconds earlier) and starts the events they fire: their
 actions begin at ``t``. Returns {entity: (x, y, z, yaw, speed)} at ``t``.
 
+With ``drive_ego`` the ego is played like every other entity (its own actions: esmini
+without an external driver, `sim run --policy scenario`) and ``ego_state`` is ignored;
+`ego_pose()` is where the storyboard puts it.
+
 Entities without an action keep following their lane (the lane graph of the layout, at
 their speed; pedestrians and entities off every lane go straight on). Positions are the
 OpenSCENARIO reference point (a vehicle's rear axle centre).
@@ -227,10 +231,11 @@ class _CondState:
 class ScenarioPlayer:
     """Steps a scenario's non-ego entities on a layout (see the module doc)."""
 
-    def __init__(self, scenario: R.Scenario, layout, dt: float):
+    def __init__(self, scenario: R.Scenario, layout, dt: float, drive_ego: bool = False):
         if not (dt > 0 and math.isfinite(dt)):
             raise InputError(f"scenario player: dt {dt} must be > 0")
         self.sc, self.layout, self.dt = scenario, layout, float(dt)
+        self.drive_ego = bool(drive_ego)
         self.graph = LaneGraph(layout)
         self.ego = scenario.ego
         self.states: dict[str, EntityState] = {}
@@ -288,9 +293,10 @@ class ScenarioPlayer:
                 if not isinstance(a, R.TeleportAction):
                     if name == self.ego:
                         self.ego_actions.append((0.0, a))
-                        if isinstance(a, R.SpeedAction) and a.speed is not None:
-                            self.states[name].v = a.speed
-                        continue
+                        if not self.drive_ego:
+                            if isinstance(a, R.SpeedAction) and a.speed is not None:
+                                self.states[name].v = a.speed
+                            continue
                     self._start_action(self.states[name], a, 0.0)
         e = self.states.get(self.ego)
         self._ego_init = None if e is None else (e.x, e.y, e.z, e.yaw, e.v)
@@ -733,7 +739,8 @@ class ScenarioPlayer:
             for who in (actors if pa.actor is None else [pa.actor]):
                 if who == self.ego:
                     self.ego_actions.append((t, pa.action))
-                    continue
+                    if not self.drive_ego:
+                        continue
                 r = self._start_action(self.state_of(who), pa.action, t)
                 if r is not None:
                     runs.append(r)
@@ -808,11 +815,11 @@ class ScenarioPlayer:
             raise InputError(f"scenario player: time {t} is before the last step {self.t}")
         t0, self.t = self.t, float(t)
         for name, st in self.states.items():
-            if name == self.ego:
+            if name == self.ego and not self.drive_ego:
                 continue
             self._advance(st, t0, self.t)
             st.still = st.still + (self.t - t0) if st.v < 1e-3 else 0.0
-        if self.ego in self.states and ego_state is not None:
+        if self.ego in self.states and ego_state is not None and not self.drive_ego:
             e = self.states[self.ego]
             x, y, yaw, v = (float(q) for q in ego_state[:4])
             e.odometer += math.hypot(x - e.x, y - e.y)
@@ -826,6 +833,11 @@ class ScenarioPlayer:
 
     def poses(self) -> dict:
         return {n: (st.x, st.y, st.z, st.yaw, st.v) for n, st in self.states.items() if n != self.ego}
+
+    def ego_pose(self) -> tuple:
+        """The ego's (x, y, z, yaw, speed) now (its reference point)."""
+        e = self.states[self.ego]
+        return e.x, e.y, e.z, e.yaw, e.v
 
     def _warn(self, where: str, what: str) -> None:
         if (where, what) in self.warned:
