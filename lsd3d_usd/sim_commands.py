@@ -29,6 +29,8 @@ def _env_kwargs(args) -> dict:
     # seeded traffic sizes only when given (a scenario's entities are its whole world)
     traffic = {k: getattr(args, k) for k in ("vehicles", "pedestrians", "cyclists")
                if getattr(args, k) is not None}
+    if getattr(args, "scenario", None) is not None:      # sim run --scenario: who the ego is
+        traffic.update(ego=args.ego, ego_driver="scenario" if args.policy == "scenario" else "policy")
     return dict(rig=args.rig, lidar=args.lidar, width=args.width, action=args.action,
                 hz=args.hz, seconds=args.seconds, route_length=args.route_length,
                 ep_reference="none" if args.no_reference else "planner",
@@ -58,6 +60,9 @@ def _run(args) -> int:
         raise InputError(f"--policy {args.policy!r}: choose {', '.join(POLICIES)} or MODULE:CALLABLE")
     if getattr(args, "scenario", None) is not None:
         return _run_scenarios(args, scene, out, _env_kwargs(args))
+    if args.ego is not None or args.policy == "scenario":
+        what = f"--ego {args.ego}" if args.ego is not None else "--policy scenario"
+        raise InputError(f"{what}: needs --scenario FILE.xosc|DIR")
     env = DriveEnv(scene, **_env_kwargs(args))
     routes = plan_routes(env.scene.graph, args.route, args.routes, args.episodes,
                          args.route_length, args.seed)
@@ -234,8 +239,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("-o", "--output", required=True, metavar="DIR", help="output folder")
     r.add_argument("--policy", default="planner",
                    help="planner (privileged rule-based driver), constant (constant velocity "
-                        "along the start heading) or MODULE:CALLABLE taking (obs, info) and "
-                        "returning an action (default planner)")
+                        "along the start heading), scenario (with --scenario: the storyboard's "
+                        "own actions drive the ego, no stack) or MODULE:CALLABLE taking "
+                        "(obs, info) and returning an action (default planner)")
     g = r.add_mutually_exclusive_group()
     g.add_argument("--route", metavar="IDS", help="lane ids of the route, comma-separated "
                                                   "(`lsd3d-usd layout lanes SCENE` lists them)")
@@ -246,6 +252,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--scenario", metavar="FILE.xosc|DIR",
                    help="play an OpenSCENARIO file, or every .xosc in a folder (an episode each): "
                         "its entities are the world, the ego starts at its Init (docs/sim.md)")
+    r.add_argument("--ego", metavar="NAME",
+                   help="with --scenario: the entity the ego is (default the first "
+                        "ScenarioObject); an error when a scenario has no entity NAME")
     r.add_argument("--seed", type=int, default=0, help="seed of episode 0 (episode k: seed + k)")
     r.add_argument("--video", action="store_true", help="an MP4 per camera per episode")
     r.add_argument("--mcap", action="store_true", help="an MCAP log per episode (Foxglove)")

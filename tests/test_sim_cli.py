@@ -40,7 +40,7 @@ def test_sim_run_writes_episodes_and_report(scene, tmp_path, capsys):
         assert len(m["steps"]) == 16 and m["reason"] == "time_limit"
         assert {"rc", "nc", "dac", "pdms", "driving_score", "hd_score"} <= set(m["summary"])
         rows = (ep / "trajectories.csv").read_text().splitlines()
-        assert rows[0] == "id,kind,t,x,y,z,yaw,speed" and sum(r.startswith("ego,") for r in rows) == 16
+        assert rows[0] == "id,kind,t,x,y,z,yaw,speed,point" and sum(r.startswith("ego,") for r in rows) == 16
         assert (ep / "birdseye.png").stat().st_size > 5000
         assert (ep / "CAM_FRONT.mp4").stat().st_size > 1000
     assert not list(out.glob(".episode_*"))

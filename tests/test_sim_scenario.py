@@ -29,6 +29,22 @@ def write_road(path, geometry=None, right=2, left=0, length=400.0):
     odr.write_xml(str(path))
 
 
+def write_junction(path, arm=100.0):
+    """A four-arm junction (scenariogeneration's CommonJunctionCreator, radius 15 m): roads
+    1..4 of ``arm`` m, each ending at the junction, connected straight on (1-3, 2-4) and 1-2."""
+    odr = xodr.OpenDrive("junction")
+    jc = xodr.CommonJunctionCreator(100, "j")
+    for k in range(1, 5):
+        r = xodr.create_road(xodr.Line(arm), id=k, left_lanes=1, right_lanes=1, lane_width=W)
+        jc.add_incoming_road_circular_geometry(r, 15.0, (k - 1) * math.pi / 2, "successor")
+        odr.add_road(r)
+    for a, b in ((1, 3), (2, 4), (1, 2)):
+        jc.add_connection(a, b)
+    odr.add_junction_creator(jc)
+    odr.adjust_roads_and_lanes()
+    odr.write_xml(str(path))
+
+
 def vehicle(name="car"):
     bb = xosc.BoundingBox(1.8, 4.5, 1.5, 1.4, 0, 0.75)
     fa = xosc.Axle(0.5, 0.8, 1.6, 2.8, 0.4)
@@ -359,3 +375,42 @@ def test_pedestrian_crosses_when_ego_30m_away(tmp_path):
     for t, st in out:
         y = -12 + 1.5 * max(t - 3.05, 0.0)
         assert st["Walker"][1] == pytest.approx(y, abs=1e-6), t
+
+
+@pytest.mark.parametrize("order", [("Car1", "Car2"), ("Car2", "Car1")])
+def test_synchronised_arrival_at_junction(tmp_path, order):
+    """Car2 synchronises its arrival at the end of road 2 with Car1's at the end of road 1
+    (both roads enter the junction): Car1 at 10 m/s from s = 20 gets there at 8 s, so must
+    Car2 (3 m/s from s = 40; the action from t = 1 s: 57 m in 7 s), whichever is moved first."""
+    write_junction(tmp_path / "road.xodr")
+
+    def at(road, s):
+        return xosc.TeleportAction(xosc.LanePosition(s, 0, -1, road))
+    sync = xosc.SynchronizeAction("Car1", xosc.LanePosition(100, 0, -1, 1), xosc.LanePosition(100, 0, -1, 2),
+                                  final_speed=xosc.AbsoluteSpeed(7.5))
+    ents = {"Car1": vehicle(), "Car2": vehicle()}
+    path = scenario(tmp_path, [("Ego", at(3, 10)), ("Car1", at(1, 20)), ("Car1", speed(10)),
+                               ("Car2", at(2, 40)), ("Car2", speed(3))],
+                    [(sim_time(1.0, rule="greaterOrEqual"), [sync])], actors="Car2", road=False,
+                    entities=[("Ego", vehicle())] + [(n, ents[n]) for n in order])
+    sc = read_scenario(path)
+    layout = read_opendrive(sc.road_file)
+    targets = {n: lane_position(layout, str(r), -1, 100.0)[:2] for n, r in (("Car1", 1), ("Car2", 2))}
+    _, out = play(path, 9.0)
+
+    def arrival(name):
+        """The time the entity's reference point passes its target (linear between steps)."""
+        tx, ty = targets[name]
+        prev = None
+        for t, st in out:
+            x, y, _, yaw, _ = st[name]
+            ahead = (tx - x) * math.cos(yaw) + (ty - y) * math.sin(yaw)
+            if ahead <= 0:
+                return t if prev is None else prev[0] + DT * prev[1] / (prev[1] - ahead)
+            prev = (t, ahead)
+        return math.inf
+    st = dict((round(t, 6), s) for t, s in out)
+    assert arrival("Car1") == pytest.approx(8.0, abs=1e-6)
+    assert arrival("Car2") == pytest.approx(arrival("Car1"), abs=0.05)
+    assert st[8.0]["Car2"][:2] == pytest.approx(targets["Car2"], abs=0.01)
+    assert st[4.0]["Car2"][4] == pytest.approx(57 / 7, abs=1e-6) and st[8.5]["Car2"][4] == pytest.approx(7.5)

@@ -11,7 +11,8 @@ pytest.importorskip("scenariogeneration")
 from scenariogeneration import xosc  # noqa: E402
 
 from lsd3d_usd.errors import InputError  # noqa: E402
-from tests.test_sim_scenario import W, dyn, lanepos, scenario, sim_time, speed, write_road  # noqa: E402
+from tests.test_sim_scenario import (  # noqa: E402
+    W, dyn, lanepos, scenario, sim_time, speed, vehicle, write_road)
 
 V50 = 50 / 3.6
 
@@ -149,3 +150,66 @@ def test_sim_run_scenario_folder_and_report(road_scene, tmp_path, capsys):
     table = capsys.readouterr().out
     assert "braking_lead" in table and "idle" in table
     assert np.isfinite(metas[0]["summary"]["nc"])
+
+
+def _csv_rows(path, who):
+    import csv
+    with open(path) as f:
+        return [r for r in csv.DictReader(f) if r["id"] == who]
+
+
+def test_policy_scenario_replays_the_egos_own_actions(road_scene, tmp_path):
+    """--policy scenario: the storyboard drives the ego (a linear SpeedAction 10 -> 20 m/s
+    over 2 s and a 3 s sinusoidal lane change from t = 1 s): the trajectory CSV's rear-axle
+    rows match the closed form within 1 cm, the lane boundary is crossed at 2.5 s."""
+    from lsd3d_usd.cli import main
+    folder, scene = road_scene
+    path = write_scenario(folder, "ego_replay",
+                          [("Ego", lanepos(10)), ("Ego", speed(10)), ("Target", lanepos(300))],
+                          [(sim_time(1.0, rule="greaterOrEqual"),
+                            [speed(20, "linear", "time", 2.0),
+                             xosc.AbsoluteLaneChangeAction(-2, dyn("sinusoidal", "time", 3.0))])],
+                          actors="Ego")
+    out = tmp_path / "run"
+    assert main(["sim", "run", str(scene), "-o", str(out), "--scenario", str(path), "--policy",
+                 "scenario", "--rig", "none", "--no-reference", "--hz", "20", "--seconds", "6",
+                 "--no-progress"]) == 0
+    ep = out / "episode_000"
+    rows = _csv_rows(ep / "trajectories.csv", "ego")
+    assert len(rows) == 121 and {r["point"] for r in rows} == {"rear_axle"}
+    for r in rows:
+        t, x, y, v = (float(r[k]) for k in ("t", "x", "y", "speed"))
+        u = min(max(t - 1.0, 0.0), 2.0)
+        ev = 10 + 5 * u
+        ex = 10 + 10 * t + 2.5 * u * u + 10 * max(t - 3.0, 0.0)
+        w = min(max((t - 1.0) / 3.0, 0.0), 1.0)
+        ey = -W / 2 - W * 0.5 * (1 - np.cos(np.pi * w))
+        assert (x, y, v) == pytest.approx((ex, ey, ev), abs=0.01), t
+    cross = next(float(r["t"]) for r in rows if float(r["y"]) <= -W)
+    assert cross == pytest.approx(2.5, abs=0.05)
+    # the other entity is reported at its OpenSCENARIO reference point, not its box centre
+    tgt = _csv_rows(ep / "trajectories.csv", "vehicle:Target")
+    assert {r["point"] for r in tgt} == {"reference"} and float(tgt[0]["x"]) == pytest.approx(300)
+    m = json.loads((ep / "metrics.json").read_text())
+    assert m["reason"] == "time_limit" and m["settings"]["ego_driver"] == "scenario"
+
+
+def test_ego_named_or_first(road_scene, cli_error, tmp_path):
+    from lsd3d_usd.sim.env import DriveEnv
+    folder, scene = road_scene
+    path = scenario(folder, [("A", lanepos(10)), ("B", lanepos(60))], [], road=False,
+                    name="two.xosc", entities=[("A", vehicle()), ("B", vehicle())], actors="B")
+    for ego, x in ((None, 10.0), ("B", 60.0)):
+        env = DriveEnv(str(scene), scenario=str(path), ego=ego, rig="none", ep_reference="none")
+        try:
+            obs, info = env.reset(seed=0)
+            assert obs["ego"]["pose"][0] == pytest.approx(x) and info["scenario"]["ego"] == (ego or "A")
+            assert [b["id"] for b in info["boxes"]] == [f"vehicle:{'B' if ego is None else 'A'}"]
+        finally:
+            env.close()
+    base = ["sim", "run", scene, "-o", tmp_path / "o", "--rig", "none", "--no-progress"]
+    cli_error(base + ["--scenario", path, "--ego", "Nobody"], "--ego 'Nobody'",
+              "two.xosc", "A, B")
+    cli_error(base + ["--ego", "A"], "--ego A: needs --scenario")
+    cli_error(base + ["--policy", "scenario"], "--policy scenario: needs --scenario")
+    assert not (tmp_path / "o").exists()

@@ -60,6 +60,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "split: one task per chunk, then a scene task for the rest of `generate`. A failed "
                     "task is retried, the others continue; re-running the command skips tasks "
                     "already done with the same inputs (state in <output>/batch-state.json). "
+                    "A [dataset] table makes the scenes into a dataset, a [scenarios] table "
+                    "runs `sim run --scenario` on each scene. "
                     "Exit 0 when every task succeeded, 1 with one line per failed task.")
     p.add_argument("spec", help="batch spec (.toml)")
     ct.add_arguments(p, BatchRunConfig)

@@ -67,10 +67,10 @@ def run_batch(spec: BatchSpec, executor, retries: int = DEFAULT_RETRIES, progres
                 p.check()
         for tid in todo:
             plan = plan_of[tid]
-            if hasattr(plan, "prepare"):             # the dataset (batch.dataset)
-                if "dataset" not in prepared:
+            if hasattr(plan, "prepare"):             # the dataset, the scenario runs
+                if id(plan) not in prepared:
                     plan.prepare()
-                    prepared.add("dataset")
+                    prepared.add(id(plan))
             elif plan.scene.name not in prepared:
                 prepare_scene(plan)
                 prepared.add(plan.scene.name)

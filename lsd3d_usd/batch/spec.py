@@ -116,7 +116,7 @@ RUN_KEYS = {"force": _bool, "region_workers": _int(1)}
 # batch-only keys of a scene (and of [defaults], except name/output)
 SCENE_KEYS = {"name": _str, "output": _path, "split_chunks": _split}
 BATCH_KEYS = {"output": _path, "workers": _int(1), "retries": _int(0), "allowed_outputs": _paths}
-TOP_KEYS = ("batch", "defaults", "scene", "dataset")
+TOP_KEYS = ("batch", "defaults", "scene", "dataset", "scenarios")
 
 
 @dataclass
@@ -146,6 +146,7 @@ class BatchSpec:
     workers: int | None = None
     retries: int | None = None
     dataset: object = None           # batch.dataset.DatasetSpec of a [dataset] table, or None
+    scenarios: object = None         # batch.scenarios.ScenariosSpec of a [scenarios] table
     executor: str = "local"          # where tasks run (set by the command); a scene's GGDS
     address: str | None = None       # regions use the same executor
 
@@ -286,6 +287,15 @@ def parse_spec(data: dict, path: Path) -> BatchSpec:
             raise InputError(f"{w}: dataset.output: {d_out} holds the batch output {output}; "
                              "use a subfolder of it")
         spec.dataset.output = d_out
+    if "scenarios" in data:
+        from lsd3d_usd.batch.scenarios import parse_scenarios
+        spec.scenarios = parse_scenarios(data["scenarios"], f"{w}: scenarios", base, output)
+        s_out = _check_output(spec.scenarios.output, roots, f"{w}: scenarios.output", strict=True)
+        for sc in spec.scenes:
+            if s_out == sc.output or s_out.is_relative_to(sc.output) or sc.output.is_relative_to(s_out):
+                raise InputError(f"{w}: scenarios.output: {s_out} overlaps the output of scene "
+                                 f"{sc.name!r} ({sc.output}); use a folder of its own")
+        spec.scenarios.output = s_out
     return spec
 
 

@@ -158,13 +158,17 @@ def plan_scene(sc: SceneSpec, logs_dir: Path, executor: str = "local",
 
 
 def plan_batch(spec: BatchSpec) -> list:
-    """The scenes' plans, then (with a [dataset] table) the dataset's (batch.dataset)."""
+    """The scenes' plans, then (with a [dataset] table) the dataset's (batch.dataset), then
+    (with a [scenarios] table) the scenario runs' (batch.scenarios)."""
     logs = spec.output / ".batch"
     layouts: dict = {}
     plans = [plan_scene(sc, logs, spec.executor, spec.address, layouts) for sc in spec.scenes]
     if spec.dataset is not None:
         from lsd3d_usd.batch.dataset import plan_dataset
         plans.append(plan_dataset(spec, plans, Task, logs, read_layout_for))
+    if spec.scenarios is not None:
+        from lsd3d_usd.batch.scenarios import plan_scenarios
+        plans.append(plan_scenarios(spec, [p for p in plans if isinstance(p, ScenePlan)], Task, logs))
     return plans
 
 
@@ -225,8 +229,13 @@ def _run_dataset_merge(p: dict, log) -> dict:
     return run_merge_task(p, log)
 
 
+def _run_scenarios(p: dict, log) -> dict:
+    from lsd3d_usd.batch.scenarios import run_scenarios_task
+    return run_scenarios_task(p, log)
+
+
 RUNS = {"chunk": _run_chunk, "scene": _run_scene, "dataset_log": _run_dataset_log,
-        "dataset_merge": _run_dataset_merge}
+        "dataset_merge": _run_dataset_merge, "sim_scenarios": _run_scenarios}
 
 
 def run_task(payload: dict) -> dict:

@@ -66,6 +66,8 @@ class EnvSettings:
     route_length: float = 200.0       # m of a drawn route (when none is given)
     ep_reference: str = "none"        # "planner": EP against the planner's progress (a shadow run)
     scenario: str | None = None       # an OpenSCENARIO file: its entities are the world
+    ego: str | None = None            # the scenario's entity the ego is (None: the first)
+    ego_driver: str = "policy"        # "scenario": the storyboard drives the ego, not the action
     limits: VehicleLimits = field(default_factory=VehicleLimits)
 
     def check(self) -> "EnvSettings":
@@ -92,6 +94,11 @@ class EnvSettings:
             raise InputError(f"--lod-px {self.lod_px}: must be within 0 .. 256 (0: full detail)")
         if not (16 <= int(self.width) <= 3840):
             raise InputError(f"--width {self.width}: must be within 16 .. 3840")
+        if self.ego_driver not in ("policy", "scenario"):
+            raise InputError(f"ego_driver {self.ego_driver!r}: policy or scenario")
+        if self.scenario is None and (self.ego is not None or self.ego_driver == "scenario"):
+            what = f"--ego {self.ego}" if self.ego is not None else "--policy scenario"
+            raise InputError(f"{what}: needs a scenario (--scenario FILE.xosc|DIR)")
         return self
 
 
@@ -144,7 +151,7 @@ class DriveEnv(gym.Env):
             raise InputError(f"scenario {s.scenario}: {extra[0]}={given[extra[0]]}: seeded traffic "
                              "beside a scenario's entities is not supported (leave it out)")
         s.vehicles = s.cyclists = s.pedestrians = 0
-        self.scenario = read_scenario(s.scenario)
+        self.scenario = read_scenario(s.scenario, s.ego)
         if not self.scenario.ego or self.scenario.ego not in self.scenario.entities:
             raise InputError(f"{s.scenario}: the scenario has no entity for the ego")
 
@@ -251,7 +258,8 @@ class DriveEnv(gym.Env):
         if "start" in options:
             raise InputError("reset options: start: the scenario's Init places the ego")
         g = self.scene.graph
-        self.player = ScenarioPlayer(self.scenario, self.scene.layout, self.dt)
+        self.player = ScenarioPlayer(self.scenario, self.scene.layout, self.dt,
+                                     drive_ego=self.settings.ego_driver == "scenario")
         self.player.start()
         self._ego_init = self.player.ego_init()
         ids = parse_route(options["route"]) if options.get("route") else \
@@ -289,7 +297,7 @@ class DriveEnv(gym.Env):
 
         from lsd3d_usd.sim.policies import Planner
         kw = {k: v for k, v in asdict(self.settings).items() if k != "limits"}
-        kw.update(rig="none", lidar="none", ep_reference="none")
+        kw.update(rig="none", lidar="none", ep_reference="none", ego_driver="policy")
         shadow = DriveEnv(self.scene, limits=self.limits, **kw)
         obs, info = shadow.reset(seed=seed, options={**options, "route": self.route.ids})
         policy = Planner(shadow)
@@ -326,14 +334,17 @@ class DriveEnv(gym.Env):
             acc, steer = self.tracker(np.clip(a, lo, hi), self.ego.v, self.dt)
             if s.steer == "rate":
                 steer = (steer - self.ego.delta) / self.dt
-        acc, steer, clipped = clip_control(acc, steer, lim, s.steer == "rate" and s.action == "control")
-        if clipped and s.action == "control":
-            self.clipped += 1
-        self.ego = step_bicycle(self.ego, acc, steer, self.dt, lim,
-                                rate=(s.steer == "rate" and s.action == "control"))
-        self.ego.z = self._ground_z()
-        self.world.place_ego(self.ego)
-        self.world.step(self.dt)
+        if s.ego_driver == "scenario":
+            self._ego_from_storyboard()
+        else:
+            acc, steer, clipped = clip_control(acc, steer, lim, s.steer == "rate" and s.action == "control")
+            if clipped and s.action == "control":
+                self.clipped += 1
+            self.ego = step_bicycle(self.ego, acc, steer, self.dt, lim,
+                                    rate=(s.steer == "rate" and s.action == "control"))
+            self.ego.z = self._ground_z()
+            self.world.place_ego(self.ego)
+            self.world.step(self.dt)
         self.t += self.dt
         self.k += 1
         before = self.progress
@@ -362,6 +373,21 @@ class DriveEnv(gym.Env):
         if reason:
             info["reason"] = reason
         return self._observe(), float(reward), terminated, truncated, info
+
+    def _ego_from_storyboard(self) -> None:
+        """--policy scenario: the storyboard moves the ego with the other entities; its
+        acceleration, yaw rate and steering angle are the finite differences the bicycle
+        model would need for the same motion (what the comfort scores and the observation
+        read)."""
+        prev, lim = self.ego, self.limits
+        self.world.step(self.dt)
+        x, y, _, yaw, v = self.player.ego_pose()
+        rate = math.remainder(yaw - prev.yaw, 2 * math.pi) / self.dt
+        delta = math.atan(lim.wheelbase * rate / v) if v > 0.1 else prev.delta
+        self.ego = EgoState(x, y, yaw, v, float(np.clip(delta, -lim.delta_max, lim.delta_max)),
+                            (v - prev.v) / self.dt, prev.z, rate)
+        self.world.place_ego(self.ego)
+        self.ego.z = self._ground_z()
 
     def close(self):
         if self._own_scene and getattr(self, "scene", None) is not None:

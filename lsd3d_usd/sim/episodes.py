@@ -1,7 +1,10 @@
 """`sim run`: episodes of a policy driving a scene, each written to its own folder.
 
 OUT/episode_<k>/ holds ``metrics.json`` (settings, route, seed, reason it ended, per-step
-scores and the episode's), ``trajectories.csv`` (the ego and every agent at every step),
+scores and the episode's), ``trajectories.csv`` (the ego and every agent at every step; its ``point`` column names the
+point a row reports: ``rear_axle`` the ego's rear axle centre (the ego frame's origin),
+``reference`` a scenario entity's OpenSCENARIO reference point (a vehicle's rear axle
+centre), ``box_centre`` a traffic agent's bounding box centre),
 ``birdseye.png`` (route, ego path, agents' paths, infractions marked), with ``video`` an MP4
 per camera, and with ``mcap`` an MCAP log written by the datasets' MCAP writer. An episode is
 written to a hidden partial folder and renamed when complete, so Ctrl-C leaves every finished
@@ -84,14 +87,19 @@ class _Recorder:
         if "scenario" in info:          # the storyboard's state at this step
             self.steps[-1]["scenario"] = {k: info["scenario"][k]
                                           for k in ("stop_trigger_fired", "storyboard_completed")}
-        self.rows.append(("ego", "ego", info["t"], e.x, e.y, e.z, e.yaw, e.v))
+        self.rows.append(("ego", "ego", info["t"], e.x, e.y, e.z, e.yaw, e.v, "rear_axle"))
         self.ego_path.append((e.x, e.y))
+        refs = env.world.reference_poses() if hasattr(env.world, "reference_poses") else {}
         for b in info["boxes"]:
             if b["id"].startswith("parked:"):
                 continue
-            v = float(np.hypot(*b["velocity"]))
-            self.rows.append((b["id"], b["kind"], info["t"], b["center"][0], b["center"][1],
-                              float("nan"), b["yaw"], v))
+            if b["id"] in refs:
+                x, y, z, yaw, v = refs[b["id"]]
+                self.rows.append((b["id"], b["kind"], info["t"], x, y, z, yaw, v, "reference"))
+            else:
+                v = float(np.hypot(*b["velocity"]))
+                self.rows.append((b["id"], b["kind"], info["t"], b["center"][0], b["center"][1],
+                                  float("nan"), b["yaw"], v, "box_centre"))
             self.agent_paths.setdefault(b["id"], []).append((b["center"][0], b["center"][1], b["kind"]))
         for key, what in (("new_collisions", "collision"),):
             for c in sc.get(key) or []:
@@ -112,10 +120,10 @@ class _Recorder:
                                               json.dumps(_jsonable(data), indent=1).encode())
         buf = io.StringIO()
         w = csv.writer(buf)
-        w.writerow(["id", "kind", "t", "x", "y", "z", "yaw", "speed"])
+        w.writerow(["id", "kind", "t", "x", "y", "z", "yaw", "speed", "point"])
         for r in self.rows:
             w.writerow([r[0], r[1], f"{r[2]:.3f}"] + [("" if not math.isfinite(v) else f"{v:.4f}")
-                                                     for v in r[3:]])
+                                                     for v in r[3:-1]] + [r[-1]])
         files["trajectories"] = atomic_write_bytes(folder / "trajectories.csv", buf.getvalue().encode())
         files["birdseye"] = self._birdseye(folder / "birdseye.png", meta)
         if self.frames:

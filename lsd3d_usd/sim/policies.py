@@ -8,6 +8,9 @@
   model's rules, ``info["stop_distance_m"]``), and the end of the route.
 - ``constant``: keeps its start speed (the route's first lane's limit when it starts still)
   along its start heading: no steering, no braking.
+- ``scenario``: no driver: the scenario's storyboard drives the ego with its own actions
+  (the env made with ``ego_driver="scenario"``, which ignores the action; esmini plays a
+  scenario so without an external driver).
 - ``MODULE:CALLABLE``: any importable callable with the same signature (a factory taking
   the env is called first when it is a class or carries ``make_policy``).
 
@@ -25,7 +28,7 @@ from lsd3d_usd.actors.traffic import IDMParams
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.sim.control import TrackerGains, pure_pursuit
 
-POLICIES = ("planner", "constant")
+POLICIES = ("planner", "constant", "scenario")
 p_end_overrun = 1.0        # m: the planner aims its front this far past the route's end
 JERK = 4.0                 # m/s^3 the planner's acceleration changes by at most ...
 COMFORT_BRAKE = 3.0        # ... unless it must brake harder than this (m/s^2)
@@ -213,13 +216,28 @@ class Constant:
                         np.float32)
 
 
+class ScenarioEgo:
+    """The storyboard drives (module doc): a zero action of the env's action space."""
+
+    def __init__(self, env):
+        if getattr(env.settings, "ego_driver", "policy") != "scenario":
+            raise InputError("--policy scenario: the env must be made with a scenario and "
+                             "ego_driver='scenario' (sim run --scenario FILE --policy scenario)")
+        self.action = np.zeros(env.action_space.shape, np.float32)
+
+    def __call__(self, obs, info):
+        return self.action
+
+
 def load_policy(spec: str, env):
-    """A policy for ``env``: "planner", "constant" or "MODULE:CALLABLE". A class, or a
-    callable with ``make_policy``, is called with the env to make the policy."""
+    """A policy for ``env``: "planner", "constant", "scenario" or "MODULE:CALLABLE". A class,
+    or a callable with ``make_policy``, is called with the env to make the policy."""
     if spec == "planner":
         return Planner(env)
     if spec == "constant":
         return Constant(env)
+    if spec == "scenario":
+        return ScenarioEgo(env)
     mod, _, attr = str(spec).partition(":")
     if not mod or not attr:
         raise InputError(f"--policy {spec!r}: choose {', '.join(POLICIES)} or MODULE:CALLABLE")

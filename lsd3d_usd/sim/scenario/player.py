@@ -7,6 +7,10 @@ then evaluates the triggers on the states at ``t`` (edges against the previous e
 delays as the edged value ``delay`` seconds earlier) and starts the events they fire: their
 actions begin at ``t``. Returns {entity: (x, y, z, yaw, speed)} at ``t``.
 
+With ``drive_ego`` the ego is played like every other entity (its own actions: esmini
+without an external driver, `sim run --policy scenario`) and ``ego_state`` is ignored;
+`ego_pose()` is where the storyboard puts it.
+
 Entities without an action keep following their lane (the lane graph of the layout, at
 their speed; pedestrians and entities off every lane go straight on). Positions are the
 OpenSCENARIO reference point (a vehicle's rear axle centre).
@@ -188,7 +192,17 @@ class _Trajectory(_Run):
         st.v, st.odometer = v, st.odometer + moved
 
 
+def _remaining(target, x: float, y: float, yaw: float) -> float:
+    """Distance to ``target`` while it lies ahead (0 once passed: arrived)."""
+    dx, dy = target[0] - x, target[1] - y
+    return math.hypot(dx, dy) if dx * math.cos(yaw) + dy * math.sin(yaw) > 0 else 0.0
+
+
 class _Synchronize(_Run):
+    """The entity's speed each step is its distance to its target over the master's time to
+    the master's target, both from the states at the step's start (`ScenarioPlayer.before`):
+    with the master at constant speed the two remaining distances keep their ratio, so the
+    two arrive at the same instant, whatever order the entities are moved in."""
     domains = ("long",)
 
     def __init__(self, action, where, t0, st, player):
@@ -197,14 +211,28 @@ class _Synchronize(_Run):
         self.target = player.pose_of(action.position, st)[:2]
         self.master_target = player.pose_of(action.master_position, st)[:2]
 
-    def speed(self, t, st: EntityState) -> float:
-        m = self.player.state_of(self.action.master)
-        dm = math.hypot(self.master_target[0] - m.x, self.master_target[1] - m.y)
-        d = math.hypot(self.target[0] - st.x, self.target[1] - st.y)
-        if d < 0.5 or dm < 0.5 or m.v <= 0.01:
-            self.done = d < 0.5 or dm < 0.5
-            return self.action.final_speed if (self.done and self.action.final_speed is not None) else st.v
-        return d / (dm / m.v)
+    def advance(self, t0: float, t1: float, st: EntityState) -> tuple[float, float]:
+        """(distance to move over [t0, t1], speed at t1)."""
+        h = t1 - t0
+        self.player.state_of(self.action.master)
+        mx, my, myaw, mv = self.player.before[self.action.master]
+        x, y, yaw, v = self.player.before[st.name]
+        d = _remaining(self.target, x, y, yaw)
+        dm = _remaining(self.master_target, mx, my, myaw)
+        final = self.action.final_speed
+        if d <= 0 or dm <= 0:            # one of them is there already: the action ends
+            self.done = True
+            v = final if final is not None else v
+            return v * h, v
+        if mv <= 0.01:                   # the master stands: no arrival time to match yet
+            return v * h, v
+        tau = dm / mv
+        vs = d / tau
+        if tau <= h + EPS:               # both arrive within this step, at t0 + tau
+            self.done = True
+            vf = final if final is not None else vs
+            return d + vf * (h - tau), vf
+        return vs * h, vs
 
 
 # ---------------------------------------------------------------- storyboard runtime
@@ -227,16 +255,18 @@ class _CondState:
 class ScenarioPlayer:
     """Steps a scenario's non-ego entities on a layout (see the module doc)."""
 
-    def __init__(self, scenario: R.Scenario, layout, dt: float):
+    def __init__(self, scenario: R.Scenario, layout, dt: float, drive_ego: bool = False):
         if not (dt > 0 and math.isfinite(dt)):
             raise InputError(f"scenario player: dt {dt} must be > 0")
         self.sc, self.layout, self.dt = scenario, layout, float(dt)
+        self.drive_ego = bool(drive_ego)
         self.graph = LaneGraph(layout)
         self.ego = scenario.ego
         self.states: dict[str, EntityState] = {}
         self.t = 0.0
         self._ego_init = None
         self.ego_actions: list = []          # (t, action) the storyboard gives the ego
+        self.before: dict = {}               # (x, y, yaw, v) per entity at the last step's start
         self.finished = False                # the storyboard's stop trigger fired
         self.warned: set = set()
         self._cond: dict[int, _CondState] = {}
@@ -288,9 +318,10 @@ class ScenarioPlayer:
                 if not isinstance(a, R.TeleportAction):
                     if name == self.ego:
                         self.ego_actions.append((0.0, a))
-                        if isinstance(a, R.SpeedAction) and a.speed is not None:
-                            self.states[name].v = a.speed
-                        continue
+                        if not self.drive_ego:
+                            if isinstance(a, R.SpeedAction) and a.speed is not None:
+                                self.states[name].v = a.speed
+                            continue
                     self._start_action(self.states[name], a, 0.0)
         e = self.states.get(self.ego)
         self._ego_init = None if e is None else (e.x, e.y, e.z, e.yaw, e.v)
@@ -507,7 +538,9 @@ class ScenarioPlayer:
                     v = run.vt
                 else:
                     v = run.speed(t1, st)
-            else:                        # distance-based or synchronising: sub-steps
+            elif isinstance(run, _Synchronize):
+                dist, v = run.advance(t0, t1, st)
+            else:                        # distance-based: sub-steps
                 n = 8
                 dist, v = 0.0, st.v
                 for k in range(n):
@@ -733,7 +766,8 @@ class ScenarioPlayer:
             for who in (actors if pa.actor is None else [pa.actor]):
                 if who == self.ego:
                     self.ego_actions.append((t, pa.action))
-                    continue
+                    if not self.drive_ego:
+                        continue
                 r = self._start_action(self.state_of(who), pa.action, t)
                 if r is not None:
                     runs.append(r)
@@ -807,12 +841,13 @@ class ScenarioPlayer:
         if t < self.t - EPS:
             raise InputError(f"scenario player: time {t} is before the last step {self.t}")
         t0, self.t = self.t, float(t)
+        self.before = {n: (st.x, st.y, st.yaw, st.v) for n, st in self.states.items()}
         for name, st in self.states.items():
-            if name == self.ego:
+            if name == self.ego and not self.drive_ego:
                 continue
             self._advance(st, t0, self.t)
             st.still = st.still + (self.t - t0) if st.v < 1e-3 else 0.0
-        if self.ego in self.states and ego_state is not None:
+        if self.ego in self.states and ego_state is not None and not self.drive_ego:
             e = self.states[self.ego]
             x, y, yaw, v = (float(q) for q in ego_state[:4])
             e.odometer += math.hypot(x - e.x, y - e.y)
@@ -826,6 +861,11 @@ class ScenarioPlayer:
 
     def poses(self) -> dict:
         return {n: (st.x, st.y, st.z, st.yaw, st.v) for n, st in self.states.items() if n != self.ego}
+
+    def ego_pose(self) -> tuple:
+        """The ego's (x, y, z, yaw, speed) now (its reference point)."""
+        e = self.states[self.ego]
+        return e.x, e.y, e.z, e.yaw, e.v
 
     def _warn(self, where: str, what: str) -> None:
         if (where, what) in self.warned:

@@ -206,14 +206,22 @@ class Scenario:
     stop: Trigger | None
     parameters: dict
     unsupported: list                    # [Unsupported]
+    ego_name: str = ""                   # chosen by `choose_ego` (--ego); "": the first entity
 
     @property
     def ego(self) -> str:
-        """The ego's name: the entity named Ego or hero (any case), else the first."""
-        for n in self.entities:
-            if n.lower() in ("ego", "hero"):
-                return n
-        return next(iter(self.entities), "")
+        """The ego's name: the one `choose_ego` named, else the first ScenarioObject (as
+        esmini and ScenarioRunner take the first as the hero by default)."""
+        return self.ego_name or next(iter(self.entities), "")
+
+    def choose_ego(self, name: str | None) -> None:
+        """Make entity ``name`` the ego (None: keep the default)."""
+        if name is None:
+            return
+        if name not in self.entities:
+            have = ", ".join(self.entities) or "none"
+            raise InputError(f"--ego {name!r}: not an entity of {self.path} (its entities: {have})")
+        self.ego_name = name
 
 
 # ---------------------------------------------------------------- XML
@@ -679,8 +687,9 @@ def _entity(ctx: _Ctx, so) -> Entity:
     return e
 
 
-def read_scenario(path: str | Path) -> Scenario:
-    """Read an OpenSCENARIO file (see the module doc)."""
+def read_scenario(path: str | Path, ego: str | None = None) -> Scenario:
+    """Read an OpenSCENARIO file (see the module doc); ``ego``: the entity the ego is
+    (default the first ScenarioObject)."""
     path = Path(path)
     ctx = _Ctx(path)
     root = parse_file(path)
@@ -758,5 +767,7 @@ def read_scenario(path: str | Path) -> Scenario:
                             _trigger(ctx, _kid(act, "StopTrigger"))))
         stories.append(Story(st.get("name", ""), acts))
     params = dict(scope)
-    return Scenario(path, version, road_file, entities, init, stories,
-                    _trigger(ctx, _kid(sb, "StopTrigger")), params, ctx.unsupported)
+    sc = Scenario(path, version, road_file, entities, init, stories,
+                  _trigger(ctx, _kid(sb, "StopTrigger")), params, ctx.unsupported)
+    sc.choose_ego(ego)
+    return sc

@@ -59,9 +59,10 @@ def ego_route_ids(player: ScenarioPlayer, graph: LaneGraph, ego_init) -> list[st
     routes = [a for t, a in player.ego_actions if t == 0.0 and isinstance(a, R.AssignRouteAction)]
     if routes:
         st = player.states[player.ego]
+        kept = st.plan                   # the plan a storyboard-driven ego follows stays
         player._route(st, routes[-1])
         ids += [player.graph.ids[j] for j in st.plan if player.graph.ids[j] != ids[-1]]
-        st.plan = []
+        st.plan = kept
     # extend from the last lane with the longest path of successors that repeats no lane
     start = graph.index[ids[-1]]
     best, best_len = [], 0.0
@@ -120,6 +121,12 @@ class ScenarioWorld:
             c, s = math.cos(st.yaw), math.sin(st.yaw)
             out.append((st.x + c * cx - s * cy, st.y + s * cx + c * cy, st.z, st.yaw, st.v))
         return out
+
+    def reference_poses(self) -> dict:
+        """Agent id (as in `agents`) -> (x, y, z, yaw, speed) of the entity's OpenSCENARIO
+        reference point (a vehicle's rear axle centre), what the trajectory CSV reports."""
+        return {f"{lab}:{n}": (st.x, st.y, st.z, st.yaw, st.v)
+                for lab, n, st in zip(self.labels(), self.names, (self.player.states[n] for n in self.names))}
 
     def shown(self) -> list[bool]:
         return [True] * len(self.names)
