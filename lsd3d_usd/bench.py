@@ -224,6 +224,40 @@ def _sim_run(c: SimBench) -> int:
 SIM = Benchmark("closed loop: env steps per second with no sensors, one front camera and "
                 "nuscenes6 + hdl32 at 480x270; memory over a long episode", SimBench, _sim_run)
 
+@dataclass
+class FrameBench:
+    json: str | None = option(None, help="write results as JSON (keys frame_480x270_s, "
+                                         "frame_960x540_s, full_step_s (nuscenes6 480x270 + "
+                                         "hdl32), corridor_over_sample, each also _no_lod; "
+                                         "lod_psnr_db (lowest over the rig's frames), "
+                                         "lod_psnr_db_overview, drawn_surfels)",
+                              flag="--json", metavar="OUT.json")
+    scene: str | None = option(None, help="scene (default: the README sample generated with "
+                                          "generate's defaults, a few minutes)",
+                               flag="--scene", metavar="SCENE")
+    corridor: str | None = option(None, help="a long scene (e.g. the README's 1 km corridor): "
+                                             "its middle frame over the scene's",
+                                  flag="--corridor", metavar="SCENE")
+    quick: bool = option(False, help="no GGDS, 3 poses, 1 repeat", flag="--quick")
+    poses: int | None = option(None, help="poses along the longest route (default 5, --quick "
+                                          "3)", flag="--poses", lo=1, hi=100)
+    repeats: int | None = option(None, help="timed frames per pose and mode (default 3)",
+                                 flag="--repeats", lo=1, hi=100)
+    lod_px: float = option(8.0, help="level-of-detail budget in pixels", flag="--lod-px",
+                           lo=0.5, hi=256.0)
+
+
+def _frame_run(c: FrameBench) -> int:
+    from lsd3d_usd.benchmarks.frame import main   # heavy: numba, a generate
+    main(json_path=c.json, scene=c.scene, corridor=c.corridor, quick=c.quick, poses=c.poses,
+         repeats=c.repeats, lod_px=c.lod_px)
+    return 0
+
+
+FRAME = Benchmark("one sensor frame: 480x270 / 960x540 camera frames and a nuscenes6 + hdl32 "
+                  "sim step with and without level of detail, its PSNR, a long scene's frame "
+                  "over the sample's", FrameBench, _frame_run)
+
 BENCHMARKS = Registry("lsd3d_usd.benchmarks", "benchmark", {
     "render": "lsd3d_usd.bench:RENDER",
     "ggds": "lsd3d_usd.bench:GGDS",
@@ -231,6 +265,7 @@ BENCHMARKS = Registry("lsd3d_usd.benchmarks", "benchmark", {
     "lidar": "lsd3d_usd.bench:LIDAR",
     "dataset": "lsd3d_usd.bench:DATASET",
     "sim": "lsd3d_usd.bench:SIM",
+    "frame": "lsd3d_usd.bench:FRAME",
 })
 
 

@@ -169,6 +169,12 @@ def test_degenerate_fields():
     cam = _camera()
     start, count = empty.cut(cam.viewmat, cam.K, cam.width, cam.height, cam.near, cam.far, 8.0)
     assert len(start) == 0
+    # a camera that sees none of a field: an empty field, not an error
+    away = _camera(eye=(0.0, -40.0, 3.0), at=(0.0, -80.0, 3.0))
+    t = build_lod(_field(n=200, extent=10.0))
+    for b in (0.0, 8.0):
+        got = t.cut_field(away.viewmat, away.K, away.width, away.height, away.near, away.far, b)
+        assert got.n == 0 and got.sh.shape[1:] == t.nodes.sh.shape[1:]
     one = _field(n=1, classes=False)
     t = build_lod(one)
     assert t.leaves.n == 1

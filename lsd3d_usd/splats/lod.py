@@ -101,7 +101,8 @@ class LodTree:
         _gather(start, at, f.orientations, out[1])
         _gather(start, at, f.scales, out[2])
         _gather(start, at, f.opacities[:, None], out[3][:, None])
-        _gather(start, at, f.sh.reshape(f.n, -1), out[4].reshape(total, -1))
+        k = f.sh.shape[1] * 3
+        _gather(start, at, f.sh.reshape(f.n, k), out[4].reshape(total, k))
         if sem is not None:
             _gather(start, at, f.semantic_ids[:, None], sem[:, None])
         return SurfelField(*out, sem, f.semantic_classes)
@@ -239,20 +240,14 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
 
     # moments per row, level by level: a node's from its children's (parallel-axis theorem,
     # exact); W weight, mu mean, C covariance, r bounding radius, votes per class
-    s = leaves.scales.astype(np.float64)
-    W = leaves.opacities.astype(np.float64) * np.abs(s[:, 0] * s[:, 1]) + 1e-30
-    rot = quat_to_matrix(leaves.orientations)
-    C = (np.einsum("ni,nj->nij", rot[:, :, 0], rot[:, :, 0]) * (s[:, 0] ** 2)[:, None, None]
-         + np.einsum("ni,nj->nij", rot[:, :, 1], rot[:, :, 1]) * (s[:, 1] ** 2)[:, None, None])
+    W, C, normal_w = _leaf_moments(leaves.orientations, leaves.scales, leaves.opacities)
     mu, r = pos, rad
-    normal_w = rot[:, :, 2] * W[:, None]
     sh_w = leaves.sh.astype(np.float64).reshape(n, -1) * W[:, None]
     log_t = np.log1p(-np.minimum(leaves.opacities.astype(np.float64), _OPACITY_CAP))
-    votes = None
-    if leaves.semantic_ids is not None:
-        c = leaves.semantic_ids.astype(np.int64) + 1        # -1 (unlabelled) -> column 0
-        votes = np.zeros((n, int(c.max(initial=0)) + 1))
-        votes[np.arange(n), c] = W
+    c = (np.zeros(n, np.int64) if leaves.semantic_ids is None
+         else leaves.semantic_ids.astype(np.int64) + 1)      # -1 (unlabelled) -> column 0
+    votes = np.zeros((n, int(c.max(initial=0)) + 1))
+    votes[np.arange(n), c] = W
 
     parts, centres, radii = [], [pos], [rad]
     first_parts, last_parts = [np.zeros(n, np.int64)], [np.zeros(n, np.int64)]
@@ -262,28 +257,20 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
         cell_code = child_code >> np.uint64(3 if k else 0)
         starts = np.flatnonzero(np.r_[True, cell_code[1:] != cell_code[:-1]]).astype(np.int64)
         m = len(starts)
-        seg = np.repeat(np.arange(m), np.diff(np.r_[starts, len(cell_code)]))
-        Wn = np.add.reduceat(W, starts)
-        mun = np.add.reduceat(mu * W[:, None], starts) / Wn[:, None]
-        d = mu - mun[seg]
-        Cn = np.add.reduceat((C + np.einsum("ni,nj->nij", d, d)) * W[:, None, None],
-                             starts) / Wn[:, None, None]
-        rn = np.maximum.reduceat(np.sqrt((d * d).sum(axis=1)) + r, starts)
-        normal_w = np.add.reduceat(normal_w, starts)
-        sh_w = np.add.reduceat(sh_w, starts)
-        log_t = np.add.reduceat(log_t, starts)
+        ends = np.r_[starts[1:], len(cell_code)].astype(np.int64)
+        W, mu, C, r, normal_w, sh_w, log_t, votes = _merge(
+            starts, ends, W, mu, C, r, normal_w, sh_w, log_t, votes)
         sem = None
-        if votes is not None:
-            votes = np.add.reduceat(votes, starts)
+        if leaves.semantic_ids is not None:
             sem = (np.argmax(votes, axis=1) - 1).astype(np.int32)
-        fit = _fit_nodes(Cn, mun, normal_w, sh_w / Wn[:, None], log_t, leaves.sh.shape[1])
+        fit = _fit_nodes(C, mu, normal_w, sh_w / W[:, None], log_t, leaves.sh.shape[1])
         parts.append(SurfelField(*fit, sem, leaves.semantic_classes))
-        centres.append(mun)
-        radii.append(rn)
+        centres.append(mu)
+        radii.append(r)
         first_parts.append(starts + prev_offset)
-        last_parts.append(np.r_[starts[1:], len(cell_code)] + prev_offset)
+        last_parts.append(ends + prev_offset)
         roots = np.arange(offset, offset + m, dtype=np.int64)
-        W, mu, C, r, child_code = Wn, mun, Cn, rn, cell_code[starts]
+        child_code = cell_code[starts]
         prev_offset, offset = offset, offset + m
         if m == 1:
             levels = k + 1
@@ -291,6 +278,68 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
     all_nodes = SurfelField.concat([leaves] + parts)
     return LodTree(all_nodes, n, np.concatenate(centres), np.concatenate(radii),
                    np.concatenate(first_parts), np.concatenate(last_parts), roots, levels)
+
+
+@nb.njit(cache=True, nogil=True)
+def _leaf_moments(quats, scales, opac):
+    """Per surfel: weight (opacity x area), disk covariance (3, 3), weighted normal."""
+    n = quats.shape[0]
+    W = np.empty(n)
+    C = np.empty((n, 3, 3))
+    N = np.empty((n, 3))
+    for i in range(n):
+        x, y, z, w = (np.float64(quats[i, 0]), np.float64(quats[i, 1]),
+                      np.float64(quats[i, 2]), np.float64(quats[i, 3]))
+        q = math.sqrt(x * x + y * y + z * z + w * w)
+        x, y, z, w = x / q, y / q, z / q, w / q
+        ax = (1 - 2 * (y * y + z * z), 2 * (x * y + z * w), 2 * (x * z - y * w))
+        ay = (2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w))
+        az = (2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y))
+        su, sv = np.float64(scales[i, 0]), np.float64(scales[i, 1])
+        W[i] = np.float64(opac[i]) * abs(su * sv) + 1e-30
+        for a in range(3):
+            N[i, a] = az[a] * W[i]
+            for b in range(3):
+                C[i, a, b] = su * su * ax[a] * ax[b] + sv * sv * ay[a] * ay[b]
+    return W, C, N
+
+
+@nb.njit(cache=True, nogil=True)
+def _merge(starts, ends, W, mu, C, r, nw, shw, lt, votes):
+    """One level up: each node [starts[j], ends[j]) of the rows below, summed."""
+    m = starts.shape[0]
+    Wn = np.zeros(m)
+    mun = np.zeros((m, 3))
+    Cn = np.zeros((m, 3, 3))
+    rn = np.zeros(m)
+    nwn = np.zeros((m, 3))
+    shn = np.zeros((m, shw.shape[1]))
+    ltn = np.zeros(m)
+    vn = np.zeros((m, votes.shape[1]))
+    for j in range(m):
+        for i in range(starts[j], ends[j]):
+            Wn[j] += W[i]
+            for a in range(3):
+                mun[j, a] += W[i] * mu[i, a]
+                nwn[j, a] += nw[i, a]
+            for a in range(shw.shape[1]):
+                shn[j, a] += shw[i, a]
+            for a in range(votes.shape[1]):
+                vn[j, a] += votes[i, a]
+            ltn[j] += lt[i]
+        for a in range(3):
+            mun[j, a] /= Wn[j]
+        for i in range(starts[j], ends[j]):
+            d0, d1, d2 = mu[i, 0] - mun[j, 0], mu[i, 1] - mun[j, 1], mu[i, 2] - mun[j, 2]
+            d = (d0, d1, d2)
+            for a in range(3):
+                for b in range(3):
+                    Cn[j, a, b] += W[i] * (C[i, a, b] + d[a] * d[b])
+            rn[j] = max(rn[j], math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) + r[i])
+        for a in range(3):
+            for b in range(3):
+                Cn[j, a, b] /= Wn[j]
+    return Wn, mun, Cn, rn, nwn, shn, ltn, vn
 
 
 def _fit_nodes(C, mu, normal_sum, sh, log_t, k):
