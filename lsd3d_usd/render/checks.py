@@ -90,13 +90,22 @@ def first_bad_array(arrs, lo, hi):
 def first_short_quat(q, min_norm):
     """Smallest row index of q (N, 4) whose norm (in float64) is below min_norm, -1 if none."""
     m2 = min_norm * min_norm
-    for i in range(q.shape[0]):
-        s = 0.0
-        for c in range(4):
-            v = np.float64(q[i, c])
-            s += v * v
-        if s < m2:
-            return i
+    n = q.shape[0]
+    for start in range(0, n, 16384):  # a vectorised count per block, then the search
+        stop = min(n, start + 16384)
+        short = 0
+        for i in range(start, stop):
+            v0, v1 = np.float64(q[i, 0]), np.float64(q[i, 1])
+            v2, v3 = np.float64(q[i, 2]), np.float64(q[i, 3])
+            short += (v0 * v0 + v1 * v1 + v2 * v2 + v3 * v3) < m2
+        if short:
+            for i in range(start, stop):
+                s = 0.0
+                for c in range(4):
+                    v = np.float64(q[i, c])
+                    s += v * v
+                if s < m2:
+                    return i
     return -1
 
 

@@ -31,7 +31,10 @@ code differs from the pre-distortion kernels by a few instructions).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 f32 = np.float32
 _HALF = np.float32(0.5)
@@ -67,6 +70,28 @@ def exp_neg(y):
     f2 = f * f
     p = (_ONE + _P1 * f) + f2 * ((_P2 + _P3 * f) + f2 * ((_P4 + _P5 * f) + f2 * _P6))
     return p * (f32(np.int32(1) << (np.int32(24) - n)) * _TWO_M24)
+
+
+@intrinsic
+def prefetch_row(typingctx, arr, row):
+    """Hint the CPU to load row `row` of the 2-D array arr into the cache (llvm.prefetch;
+    no effect on results, no bounds check)."""
+    def codegen(context, builder, sig, args):
+        aryty = sig.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        r = context.cast(builder, args[1], sig.args[1], types.intp)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary,
+                                       [r, context.get_constant(types.intp, 0)], wraparound=False)
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+        fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0i8")
+        builder.call(fn, [builder.bitcast(ptr, i8p), i32(0), i32(3), i32(1)])  # read, keep, data
+        return context.get_dummy_value()
+    return types.void(arr, row), codegen
+
+
+_PREFETCH = 16  # pairs ahead
 
 
 @njit(cache=True)
@@ -152,12 +177,15 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
     m = rects.shape[0]
     nch = 16
     step = (m + nch - 1) // nch
+    # tile of a pixel column / row by table (rects lie inside the image): an integer
+    # division by the runtime tile size per rectangle corner cost as much as the counting
+    tof = np.arange(max(ntx, nty) * tile, dtype=np.int32) // np.int32(tile)
     cnt = np.zeros((nch, ntiles), np.int64)
     surf_off = np.zeros(m + 1, np.int64)
     for ch in prange(nch):
         for k in range(ch * step, min(m, (ch + 1) * step)):
-            tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
-            ty0, ty1 = rects[k, 2] // tile, rects[k, 3] // tile
+            tx0, tx1 = tof[rects[k, 0]], tof[rects[k, 1]]
+            ty0, ty1 = tof[rects[k, 2]], tof[rects[k, 3]]
             surf_off[k + 1] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
             for ty in range(ty0, ty1 + 1):
                 for tx in range(tx0, tx1 + 1):
@@ -176,8 +204,8 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
     out = np.empty(npairs, np.int32)
     for ch in prange(nch):
         for k in range(ch * step, min(m, (ch + 1) * step)):
-            tx0, tx1 = rects[k, 0] // tile, rects[k, 1] // tile
-            for ty in range(rects[k, 2] // tile, rects[k, 3] // tile + 1):
+            tx0, tx1 = tof[rects[k, 0]], tof[rects[k, 1]]
+            for ty in range(tof[rects[k, 2]], tof[rects[k, 3]] + 1):
                 for tx in range(tx0, tx1 + 1):
                     t = ty * ntx + tx
                     out[cnt[ch, t]] = k
@@ -192,6 +220,9 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
         _radix_by_depth(out[lo:lo + n], depth_bits)
         for q in range(n):
             k = lo + q
+            if q + _PREFETCH < n:  # the rows are random: ask for them ahead of the copy
+                prefetch_row(prm, out[k + _PREFETCH])
+                prefetch_row(rects, out[k + _PREFETCH])
             sidx = out[k]
             for c in range(prm.shape[1]):
                 pair_prm[k, c] = prm[sidx, c]
