@@ -71,8 +71,10 @@ class Scorer:
     """The run's held-out targets of eval's views, scored as they are rendered. ``why`` says
     why there is no score (no run, or a prior that is slow on the CPU)."""
 
-    def __init__(self, sc, run: str | None, proxy):
+    def __init__(self, sc, run: str | None, proxy, keep=()):
         t = time.perf_counter()
+        self.keep = set(keep)          # families whose targets are kept (the seam measure's)
+        self.targets: dict[str, list] = {}
         self.sp, self.why = run_prior(sc, run, proxy)
         self.errors: dict[str, list] = {}
         self._j = 0
@@ -88,10 +90,16 @@ class Scorer:
         if self.sp is None:
             return None
         t = time.perf_counter()
-        target, gb = self.sp.heldout_target(camera, rgb, self._j)
+        key = object()      # the prior's per-view cache entry, dropped below: never scored again
+        target, gb = self.sp.heldout_target(camera, rgb, self._j, key=key)
         self._j += 1
+        forget = getattr(self.sp.prior, "forget", None)
+        if forget is not None:
+            forget([key])
         self.errors.setdefault(family, []).append(
             view_error(rgb, target, gb.semantic.cpu().numpy()))
+        if family in self.keep:
+            self.targets.setdefault(family, []).append(target)
         self.seconds += time.perf_counter() - t
         return target
 

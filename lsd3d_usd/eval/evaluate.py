@@ -52,6 +52,9 @@ from lsd3d_usd.views.stage_data import read_dome, scene_surfels
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 FEATURES = "effnet_lite0"
+# the trajectory's PSNR scores every 3rd frame: frames 0.5 m apart show nearly the same
+# pixels, and each target costs a G-buffer and a prior image (~0.3 s at 320x180)
+TRAJ_SCORE_EVERY = 3
 
 
 @dataclass
@@ -291,7 +294,7 @@ def _load(o: EvalOptions) -> Inputs:
     off_path = OP.off_path_views(layout, o.cfg.off_path_per_bin, w, o.cfg.seed + 3,
                                  OP.run_regions(sc, seen.run))
     traj, traj_info = V.lane_trajectory(layout, o.cfg.frames, o.cfg.step_m, w, h)
-    scorer = CP.Scorer(sc, seen.run, proxy)
+    scorer = CP.Scorer(sc, seen.run, proxy, keep=("seen", "heldout"))
     seams_ref = None
     if o.cfg.seams_reference is not None:   # checked before any rendering: a bad one fails at once
         seams_ref = seams_reference(o.cfg.seams_reference, sc, seen.run, proxy)
@@ -396,13 +399,14 @@ def _score(inp: Inputs, family: str, camera, rgb) -> None:
 
 def _render_trajectory(inp: Inputs, o: EvalOptions, r: Renders, dfr, bar) -> dict:
     """The trajectory frames; returns their temporal warp errors (``temporal_warp_err``)."""
-    for cam in inp.traj:
+    for i, cam in enumerate(inp.traj):
         fr = render_view(inp.surfels, inp.env, cam)
         r.traj_frames.append({k: fr[k] for k in ("alpha", "depth_median", "depth_expected")})
         r.traj_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
         if inp.deferrer is not None:
             dfr.add("traj", inp.deferrer, fr["rgb"], cam, o, target=False)
-        _score(inp, "trajectory", cam, fr["rgb"])
+        if i % TRAJ_SCORE_EVERY == 0:
+            _score(inp, "trajectory", cam, fr["rgb"])
         bar.update(1)
     temporal = T.trajectory_warp_errors(inp.traj, r.traj_img, r.traj_frames)
     temporal.update(inp.traj_info)
@@ -509,8 +513,12 @@ def _seams(inp: Inputs, o: EvalOptions, r: Renders) -> tuple[dict | None, str | 
         skip = [None] * len(inp.seen_sel)
         frame_sets += [skip + r.heldout_frames,
                        itertools.chain(skip, reference_frames(seams_ref[0], heldout))]
+    sc_t = inp.scorer.targets
+    targets = (sc_t.get("seen", []) + sc_t.get("heldout", [])
+               if len(sc_t.get("seen", [])) == len(inp.seen_sel) else None)
     stats, why = seam_stats(inp.sc, inp.seen.run, inp.layout, inp.proxy,
-                            [v.camera for v in inp.seen_sel] + list(heldout), *frame_sets)
+                            [v.camera for v in inp.seen_sel] + list(heldout), *frame_sets,
+                            targets=targets)
     seams = stats[0].result() if stats is not None else None
     if seams_ref is not None and not ref_why:
         if seams is None:

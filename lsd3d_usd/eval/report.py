@@ -83,27 +83,30 @@ def elevated_sheet(path: Path, views, images, cols: int = 4) -> Path:
 
 def off_path_sheet(path: Path, off, images, prior_images, cols: int = 3) -> Path:
     """The off-path views: one row per bin, for each of its first ``cols`` stations the
-    prior's image of the camera (when the prior baseline made one) beside the surfels'."""
+    prior's image of the camera (when the prior baseline made one) beside the surfels'. One
+    mosaic in one axes (tens of subplots cost seconds)."""
     plt = _plt()
     keys = [k for k, idx in off.bins.items() if idx]
-    pair = 2 if prior_images else 1
     n = min(cols, max(len(off.bins[k]) for k in keys))
     h, w = images[0].shape[:2]
-    fig, ax = plt.subplots(len(keys), n * pair, figsize=(1.6 * n * pair, 1.6 * len(keys) * h / w + 0.4),
-                           squeeze=False)
+    gap = 3
+    sources = ([prior_images] if prior_images else []) + [images]
+    tiles = len(sources) * n
+    mosaic = np.ones((len(keys) * (h + gap) - gap, tiles * (w + gap) - gap, 3), np.float32)
     for r, k in enumerate(keys):
-        for c in range(n * pair):
-            a = ax[r, c]
-            a.set_xticks([]); a.set_yticks([])
-            i = off.bins[k][c // pair] if c // pair < len(off.bins[k]) else None
-            if i is None:
-                a.axis("off")
-                continue
-            prior = pair == 2 and c % 2 == 0
-            a.imshow(prior_images[i] if prior else images[i])
-            if r == 0:
-                a.set_title("prior" if prior else "surfels", fontsize=7)
-        ax[r, 0].set_ylabel(k, fontsize=7)
+        for c in range(tiles):
+            s = c // len(sources)
+            if s < len(off.bins[k]):
+                im = sources[c % len(sources)][off.bins[k][s]]
+                mosaic[r * (h + gap):r * (h + gap) + h, c * (w + gap):c * (w + gap) + w] = im
+    fig, ax = plt.subplots(figsize=(1.4 * tiles + 1.0, 1.4 * len(keys) * h / w + 0.5))
+    ax.imshow(np.clip(mosaic, 0, 1))
+    ax.set_yticks([r * (h + gap) + h / 2 for r in range(len(keys))])
+    ax.set_yticklabels(keys, fontsize=7)
+    names = ["prior", "surfels"] if prior_images else ["surfels"]
+    ax.set_xticks([c * (w + gap) + w / 2 for c in range(tiles)])
+    ax.set_xticklabels([names[c % len(names)] for c in range(tiles)], fontsize=7)
+    ax.xaxis.tick_top()
     fig.tight_layout(pad=0.2)
     return _save_fig(fig, path)
 
