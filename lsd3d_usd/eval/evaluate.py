@@ -129,7 +129,8 @@ def display(rgb: np.ndarray, tonemap: str, exposure: float) -> np.ndarray:
 def evaluate(o: EvalOptions) -> EvalResult:
     """Render every view family, measure it, write the report and eval.json (its
     ``to_json()``); the families are rendered in a fixed order (seen, novel, held-out,
-    elevated, trajectory) because the deferrer draws its noise in call order."""
+    elevated, off-path, trajectory) because the deferrer draws its noise in call order.
+    Every view is scored against the run's target as it is rendered (class_psnr.Scorer)."""
     t_start = time.perf_counter()
     timings = {}
     t = time.perf_counter()
