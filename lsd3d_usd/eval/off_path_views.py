@@ -97,7 +97,7 @@ def camera_at(point, heading: float, lateral: float, height: float, yaw_deg: flo
     return rig_camera(model, ego, width)
 
 
-def _regions(layout, regions) -> list:
+def _regions(regions) -> list:
     """Chunk-key sets of the regions (None: the whole layout)."""
     if not regions:
         return [None]
@@ -126,7 +126,7 @@ def off_path_views(layout, per_bin: int, width: int, seed: int, regions=None) ->
     graph = LaneGraph(layout)
     if not len(graph):
         raise InputError("layout has no drivable lanes: the off-path views stand on them")
-    regs = _regions(layout, regions)
+    regs = _regions(regions)
     cands = [_candidates(graph, float(layout.chunk_size), r) for r in regs]
     cands = [c for c in cands if c] or [_candidates(graph, float(layout.chunk_size), None)]
     if not cands[0]:

@@ -99,7 +99,8 @@ def off_path_sheet(path: Path, off, images, prior_images, cols: int = 3) -> Path
             if s < len(off.bins[k]):
                 im = sources[c % len(sources)][off.bins[k][s]]
                 mosaic[r * (h + gap):r * (h + gap) + h, c * (w + gap):c * (w + gap) + w] = im
-    fig, ax = plt.subplots(figsize=(1.4 * tiles + 1.0, 1.4 * len(keys) * h / w + 0.5))
+    fig_w = 1.4 * tiles + 1.0
+    fig, ax = plt.subplots(figsize=(fig_w, 1.4 * len(keys) * h / w + 0.5))
     ax.imshow(np.clip(mosaic, 0, 1))
     ax.set_yticks([r * (h + gap) + h / 2 for r in range(len(keys))])
     ax.set_yticklabels(keys, fontsize=7)
@@ -107,7 +108,8 @@ def off_path_sheet(path: Path, off, images, prior_images, cols: int = 3) -> Path
     ax.set_xticks([c * (w + gap) + w / 2 for c in range(tiles)])
     ax.set_xticklabels([names[c % len(names)] for c in range(tiles)], fontsize=7)
     ax.xaxis.tick_top()
-    fig.tight_layout(pad=0.2)
+    # room for the bin keys on the left (tight_layout clips them beside an image axes)
+    fig.subplots_adjust(left=0.95 / fig_w, right=0.99, top=0.95, bottom=0.01)
     return _save_fig(fig, path)
 
 
