@@ -53,7 +53,8 @@ def test_eval_end_to_end(small_scene, tmp_path):
     assert res["run"] == runs[0].name and "training cameras" in res["seen_views_source"]
     assert res["counts"] == {"train_views": 4, "seen": 3, "novel": 4, "novel_per_bin": 2,
                              "heldout_lane": 3, "trajectory_frames": 4, "reference": 3,
-                             "elevated": 17, "elevated_per_height": 4, "overview": 5}
+                             "elevated": 17, "elevated_per_height": 4, "overview": 5,
+                             "off_path": 27, "off_path_per_bin": 3}
     fd = res["fd_effnet_lite0"]
     for r in [fd["seen_vs_novel"]["overall"], *fd["seen_vs_novel"]["per_bin"].values(),
               fd["vs_reference"]["seen"], fd["vs_reference"]["novel"], fd["seen_vs_heldout_lane"]]:

@@ -65,7 +65,10 @@ def _result(d: dict):
     from types import SimpleNamespace
     return SimpleNamespace(distances=SimpleNamespace(to_json=lambda: d["fd_effnet_lite0"]),
                            geometry=SimpleNamespace(seen=d["geometry"]["seen"]),
-                           novel_elevated=d.get("novel_elevated", {}))
+                           novel_elevated=d.get("novel_elevated", {}),
+                           novel_off_path=d.get("novel_off_path", {}),
+                           seen_views=d.get("seen_views", {}), novel_views=d.get("novel_views", {}),
+                           temporal=d.get("temporal_warp_err", {}))
 
 
 def test_fd_ratios_are_seed_means(monkeypatch, tmp_path):
@@ -121,3 +124,36 @@ def test_fd_ratios_carry_novel_elevated(monkeypatch, tmp_path):
     assert res["elevated_fd_over_prior"] == pytest.approx(1.5)
     assert res["psnr_overview_per_camera"] == {"Top": 17.0, "SouthWest": 19.0}
     assert res["psnr_overview"] == pytest.approx(18.0) and res["elevated_psnr_heldout_lane"] == 25.0
+
+
+def test_fd_ratios_carry_novel_off_path_and_per_class_psnr(monkeypatch, tmp_path):
+    """eval's novel_off_path and psnr_db_per_class in bench ggds: the off-path bins' PSNR and
+    FD over the prior are seed means, off_path_fd_over_prior the largest bin's; the families'
+    per-class PSNR is seed 0's."""
+    from lsd3d_usd.benchmarks import ggds as B
+
+    def cls(v):
+        return {"road": v, "sidewalk": None, "building": v - 2, "vegetation": v, "terrain": v}
+
+    def fake(o):
+        s = o.cfg.seed
+        return _result({"fd_effnet_lite0": {"seen_vs_novel": {"per_bin": {"1": {"value": 1.0}}},
+                                            "seen_vs_heldout_lane": {"value": 1.0}},
+                        "geometry": {"seen": {"all": {}}},
+                        "seen_views": {"psnr_db_per_class": cls(30.0 + s)},
+                        "novel_views": {"1": {"psnr_db_per_class": cls(28.0)}},
+                        "novel_off_path": {"psnr_db_per_bin": {"lateral_0": 30.0 + s,
+                                                               "height_3": 26.0},
+                                           "fd_over_prior_per_bin": {"lateral_0": 1.0,
+                                                                     "height_3": 1.2 + s},
+                                           "psnr_db_per_class": cls(27.0 + 2 * s)}})
+    monkeypatch.setattr(B, "evaluate", fake)
+    res = B.fd_ratios(tmp_path, 2)
+    assert res["off_path_psnr_db_per_bin"] == {"lateral_0": 30.5, "height_3": 26.0}
+    assert res["off_path_fd_over_prior_per_bin"] == {"lateral_0": 1.0, "height_3": 1.7}
+    assert res["off_path_fd_over_prior"] == pytest.approx(1.7)
+    assert res["off_path_psnr_db_per_class"] == {"road": 28.0, "building": 26.0,
+                                                 "vegetation": 28.0, "terrain": 28.0}
+    assert res["psnr_db_per_class"]["seen"] == cls(30.0)
+    assert res["psnr_db_per_class"]["novel_1"] == cls(28.0)
+    assert res["psnr_db_per_class"]["off_path"] == cls(27.0)

@@ -128,6 +128,14 @@ def quality(layout_path, *, steps=None, surfels=None, resolution=(480, 270), pro
         + (f", Overview cameras PSNR {res['psnr_overview']:.2f} dB" if "psnr_overview" in res else "")
         + (f", elevated fd / the prior's max {res['elevated_fd_over_prior']:.2f}"
            if "elevated_fd_over_prior" in res else ""))
+    if "off_path_psnr_db_per_bin" in res:
+        ratio = res.get("off_path_fd_over_prior_per_bin", {})
+        log("off-path bins: " + "; ".join(
+            f"{k} {v:.2f} dB" + (f", fd / the prior's {ratio[k]:.2f}" if k in ratio else "")
+            for k, v in res["off_path_psnr_db_per_bin"].items()))
+    for fam, cls in (res.get("psnr_db_per_class") or {}).items():
+        log(f"PSNR per class, {fam}: " + ", ".join(f"{c} {v:.2f}" for c, v in cls.items()
+                                                   if v is not None))
     return res
 
 
@@ -226,6 +234,42 @@ def fd_ratios(scene_dir: Path, seeds: int = 1) -> dict:
         out["fd_prior_novel_over_content"] = max(prior.values())
         out["fd_novel_over_prior"] = max(mean[b] / max(prior[b], 1e-12) for b in bins)
     out.update(_elevated_keys([r.novel_elevated for r in runs]))
+    out.update(_off_path_keys(runs))
+    return out
+
+
+def _off_path_keys(runs: list) -> dict:
+    """bench ggds's keys of eval's novel_off_path and per-class PSNR over the eval seeds
+    (fd_ratios): off_path_psnr_db_per_bin and off_path_fd_over_prior_per_bin (seed means),
+    off_path_fd_over_prior (largest over the bins), off_path_psnr_db_per_class (seed mean),
+    and seed 0's psnr_db_per_class of every family."""
+    ops = [r.novel_off_path for r in runs]
+    out = {}
+
+    def mean(key):
+        if not all(op.get(key) for op in ops):
+            return None
+        keys = list(ops[0][key])
+        vals = {k: [op[key][k] for op in ops] for k in keys}
+        return {k: round(float(np.mean(v)), 3) for k, v in vals.items() if None not in v}
+    if ops[0]:
+        out["novel_off_path"] = ops[0]
+    for key, name in (("psnr_db_per_bin", "off_path_psnr_db_per_bin"),
+                      ("fd_over_prior_per_bin", "off_path_fd_over_prior_per_bin"),
+                      ("psnr_db_per_class", "off_path_psnr_db_per_class")):
+        m = mean(key)
+        if m:
+            out[name] = m
+    if "off_path_fd_over_prior_per_bin" in out:
+        out["off_path_fd_over_prior"] = max(out["off_path_fd_over_prior_per_bin"].values())
+    r = runs[0]
+    fams = {"seen": r.seen_views, **{f"novel_{b}": v for b, v in r.novel_views.items()},
+            **{("heldout_lane" if g == "heldout_lane" else f"elevated_{g}"): v
+               for g, v in r.novel_elevated.items()},
+            "off_path": r.novel_off_path, "trajectory": r.temporal}
+    per_class = {k: v["psnr_db_per_class"] for k, v in fams.items() if v.get("psnr_db_per_class")}
+    if per_class:
+        out["psnr_db_per_class"] = per_class
     return out
 
 
@@ -299,6 +343,9 @@ def main(json_path=None, *, quick=False, layout=None, steps=None, fd=True, strip
               "psnr_overview": q.get("psnr_overview"),
               "elevated_psnr_db_per_height": q.get("elevated_psnr_db_per_height"),
               "elevated_fd_over_prior": q.get("elevated_fd_over_prior"),
+              "off_path_psnr_db_per_bin": q.get("off_path_psnr_db_per_bin"),
+              "off_path_fd_over_prior": q.get("off_path_fd_over_prior"),
+              "psnr_db_per_class": q.get("psnr_db_per_class"),
               "depth_rel_err": q["depth_rel_err"], "normal_err_deg": q["normal_err_deg"],
               "off_surface_frac": q["off_surface_frac"], "timing": timing, "quality": q,
               "quality_runs": runs}

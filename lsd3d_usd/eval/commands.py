@@ -43,6 +43,7 @@ def _eval(args) -> int:
                          for b, v in pb["prior_novel_over_content"].items())
         print(f"fd_effnet_lite0 novel over content change, scene / the prior's own images: {rows}")
     _print_elevated(res.novel_elevated)
+    _print_off_path(res.novel_off_path)
     if fds.vs_reference is not None:
         r = fds.vs_reference
         print(f"fd_effnet_lite0 vs reference: seen {r['seen']['value']:.2f}, novel {r['novel']['value']:.2f}")
@@ -87,6 +88,20 @@ def _print_elevated(ne: dict) -> None:
         lane = ne.get("heldout_lane", {}).get("psnr_db", {}).get("mean")
         print("elevated views: " + "; ".join(parts)
               + (f" (held-out lane views PSNR {lane:.2f} dB)" if lane is not None else ""))
+
+
+def _print_off_path(op: dict) -> None:
+    psnr, ratio = op.get("psnr_db_per_bin"), op.get("fd_over_prior_per_bin") or {}
+    if not op:
+        return
+    parts = [f"{k} " + (f"PSNR {psnr[k]:.2f} dB" if psnr and psnr[k] is not None else "")
+             + (f", fd {ratio[k]:.2f}x the prior's" if k in ratio else "")
+             for k in op["bins"]]
+    print(f"off-path views ({op['stations']} per bin): " + "; ".join(parts))
+    cls = op.get("psnr_db_per_class")
+    if cls:
+        print("off-path PSNR per class: " + ", ".join(
+            f"{c} {v:.2f} dB" for c, v in cls.items() if v is not None))
 
 
 def _pct(x) -> str:

@@ -25,20 +25,21 @@ from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.conditioning.elevated_sampling import ELEVATED
+from lsd3d_usd.eval import class_psnr as CP
 from lsd3d_usd.eval import elevated_views as E
 from lsd3d_usd.eval import geometry as G
 from lsd3d_usd.eval import metrics as M
 from lsd3d_usd.eval import models, report
 from lsd3d_usd.eval import temporal as T
 from lsd3d_usd.eval import lane_views as V
+from lsd3d_usd.eval import off_path_views as OP
 from lsd3d_usd.eval.options import EvalConfig
 from lsd3d_usd.eval.prior_baseline import baseline_fd, open_baseline
 from lsd3d_usd.eval.render import render_view
 from lsd3d_usd.eval.result import (Counts, DeferredResult, Distances, EvalResult, Geometry,
                                    MultiviewDepth, SeenVsNovel)
 from lsd3d_usd.eval.seams import paired_matched_drop
-from lsd3d_usd.eval.seams_eval import (pooled_psnr, reference_frames, seam_stats,
-                                       seams_reference, view_errors)
+from lsd3d_usd.eval.seams_eval import reference_frames, seam_stats, seams_reference
 from lsd3d_usd.ggds.losses.effnet import EffNetFeatureExtractor
 from lsd3d_usd.ggds.priors.scene import load_scene_prior
 from lsd3d_usd.layout.usdio import read_layout
@@ -51,6 +52,9 @@ from lsd3d_usd.views.stage_data import read_dome, scene_surfels
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 FEATURES = "effnet_lite0"
+# the trajectory's PSNR scores every 3rd frame: frames 0.5 m apart show nearly the same
+# pixels, and each target costs a G-buffer and a prior image (~0.3 s at 320x180)
+TRAJ_SCORE_EVERY = 3
 
 
 @dataclass
@@ -125,7 +129,8 @@ def display(rgb: np.ndarray, tonemap: str, exposure: float) -> np.ndarray:
 def evaluate(o: EvalOptions) -> EvalResult:
     """Render every view family, measure it, write the report and eval.json (its
     ``to_json()``); the families are rendered in a fixed order (seen, novel, held-out,
-    elevated, trajectory) because the deferrer draws its noise in call order."""
+    elevated, off-path, trajectory) because the deferrer draws its noise in call order.
+    Every view is scored against the run's target as it is rendered (class_psnr.Scorer)."""
     t_start = time.perf_counter()
     timings = {}
     t = time.perf_counter()
@@ -134,11 +139,13 @@ def evaluate(o: EvalOptions) -> EvalResult:
     w, h = o.cfg.resolution
     o.log(f"eval: {inp.surfels.n:,} surfels; seen: {inp.seen.source}; {len(inp.seen_sel)} seen + "
           f"{len(inp.novel)} novel views ({len(o.cfg.bin_values())} bins) + {len(inp.elev)} elevated "
-          f"views + {len(inp.traj)} trajectory frames at {w}x{h}")
+          f"views + {len(inp.off_path.views)} off-path views + {len(inp.traj)} trajectory frames "
+          f"at {w}x{h}")
 
     t = time.perf_counter()
     bar = tqdm(total=len(inp.seen_sel) + len(inp.novel) + len(inp.heldout) + len(inp.elev)
-               + len(inp.traj), desc="eval render", unit="view", disable=not o.progress)
+               + len(inp.off_path.views) + len(inp.traj), desc="eval render", unit="view",
+               disable=not o.progress)
     dfr = DeferredImages()
     r = Renders()
     _render_seen(inp, o, r, dfr, bar)
@@ -147,6 +154,9 @@ def evaluate(o: EvalOptions) -> EvalResult:
     _render_elevated(inp, o, r, bar)
     timings["render_seen_novel_s"] = time.perf_counter() - t
     t = time.perf_counter()
+    _render_off_path(inp, o, r, bar)
+    timings["render_off_path_s"] = time.perf_counter() - t
+    t = time.perf_counter()
     temporal = _render_trajectory(inp, o, r, dfr, bar)
     bar.close()
     timings["render_trajectory_s"] = time.perf_counter() - t
@@ -154,13 +164,15 @@ def evaluate(o: EvalOptions) -> EvalResult:
         timings["deferred_s"] = dfr.seconds
     if inp.base is not None:
         timings["prior_baseline_s"] = inp.base.seconds
+    timings["psnr_targets_s"] = inp.scorer.seconds
 
     t = time.perf_counter()
     fds = _distances(inp, o, r, dfr)
     timings["features_fd_s"] = time.perf_counter() - t
-    t = time.perf_counter()
-    novel_elevated, psnr_why = _elevated_family(inp, r, fds)
-    timings["elevated_psnr_s"] = time.perf_counter() - t
+    novel_elevated = _novel_elevated(inp.elev, fds.groups, inp.scorer, fds.fd_elev,
+                                     fds.distances)
+    novel_off_path = _novel_off_path(inp.off_path, inp.scorer, fds)
+    psnr_why = inp.scorer.why
     t = time.perf_counter()
     seams, why, ref_why = _seams(inp, o, r)
     timings["seams_s"] = time.perf_counter() - t
@@ -170,7 +182,7 @@ def evaluate(o: EvalOptions) -> EvalResult:
         unavailable.insert(0, {"metric": "fd_effnet_lite0.vs_reference",
                                "reason": "no --reference DIR of images given"})
     for metric, reason in (("seams", why), ("seams.vs_reference", ref_why),
-                           ("novel_elevated.psnr_db", psnr_why),
+                           ("psnr_db", psnr_why),
                            ("fd_effnet_lite0.prior_baseline", inp.base_why)):
         if reason:
             unavailable.append({"metric": metric, "reason": reason})
@@ -187,19 +199,23 @@ def evaluate(o: EvalOptions) -> EvalResult:
                       novel_per_bin=cfg.per_bin, heldout_lane=len(inp.heldout),
                       trajectory_frames=len(inp.traj), reference=fds.n_ref, elevated=len(elev),
                       elevated_per_height=cfg.per_height,
-                      overview=sum(ev.group == E.OVERVIEW for ev in elev)),
-        novel_views={f"{b:g}": _bin_stats([nv for nv in inp.novel if nv.bin_m == b])
-                     for b in cfg.bin_values()},
-        novel_elevated=novel_elevated, distances=fds.distances,
+                      overview=sum(ev.group == E.OVERVIEW for ev in elev),
+                      off_path=len(inp.off_path.views), off_path_per_bin=cfg.off_path_per_bin),
+        seen_views=_psnr_entry(inp.scorer.family("seen")),
+        novel_views={f"{b:g}": _bin_stats(inp, b) for b in cfg.bin_values()},
+        novel_elevated=novel_elevated, novel_off_path=novel_off_path, distances=fds.distances,
         geometry=Geometry(seen=r.agree["seen"].result(), novel=r.agree["novel"].result()),
-        multiview=_multiview(cfg.bin_values(), r), seams=seams, temporal=temporal,
+        multiview=_multiview(cfg.bin_values(), r), seams=seams,
+        temporal={**temporal, **_psnr_entry(inp.scorer.family("trajectory"))},
         deferred=fds.deferred, unavailable=unavailable, warnings=fds.warnings,
         timings={k: round(v, 2) for k, v in timings.items()})
     t = time.perf_counter()
     files = report.write_report(inp.out_dir, result, sc, r.seen_img, r.novel_img, inp.novel,
                                 r.traj_img, seen_frames=r.seen_frames, seen_gb=r.seen_gb,
                                 deferred=dfr if inp.deferrer is not None else None,
-                                elevated=(elev, r.elev_img))
+                                elevated=(elev, r.elev_img),
+                                off_path=(inp.off_path, r.off_img,
+                                          inp.base.images["off_path"] if inp.base else None))
     result.timings["report_s"] = round(time.perf_counter() - t, 2)
     result.files = {k: str(v) for k, v in files.items()}
     report.write_json(inp.out_dir / "eval.json", result.to_json())
@@ -226,9 +242,12 @@ class Inputs:
     novel: list
     heldout: list
     elev: list
+    off_path: OP.OffPathSet
     traj: list
     traj_info: dict
     seams_ref: tuple | None
+    scorer: CP.Scorer            # PSNR per view and class against the run's targets
+    reuse_targets: bool          # the prior baseline's images are the scorer's targets
 
 
 def _load(o: EvalOptions) -> Inputs:
@@ -273,14 +292,19 @@ def _load(o: EvalOptions) -> Inputs:
                             o.cfg.seed + 2, w, h, V.fov_of(seen_sel), train_centres=centres)
     if o.cfg.overview:
         elev += E.overview_views(stage, layout, w, h, train_centres=centres)
+    off_path = OP.off_path_views(layout, o.cfg.off_path_per_bin, w, o.cfg.seed + 3,
+                                 OP.run_regions(sc, seen.run))
     traj, traj_info = V.lane_trajectory(layout, o.cfg.frames, o.cfg.step_m, w, h)
+    scorer = CP.Scorer(sc, seen.run, proxy, keep=("seen", "heldout"))
     seams_ref = None
     if o.cfg.seams_reference is not None:   # checked before any rendering: a bad one fails at once
         seams_ref = seams_reference(o.cfg.seams_reference, sc, seen.run, proxy)
     return Inputs(sc=sc, weights=weights, ref_imgs=ref_imgs, out_dir=out_dir, deferrer=deferrer,
                   base=base, base_why=base_why, stage=stage, surfels=surfels, env=env,
                   layout=layout, proxy=proxy, seen=seen, seen_sel=seen_sel, novel=novel,
-                  heldout=heldout, elev=elev, traj=traj, traj_info=traj_info, seams_ref=seams_ref)
+                  heldout=heldout, elev=elev, off_path=off_path, traj=traj, traj_info=traj_info,
+                  seams_ref=seams_ref, scorer=scorer,
+                  reuse_targets=base is not None and base.same_images(scorer.sp))
 
 
 @dataclass
@@ -293,7 +317,7 @@ class Renders:
     heldout_img: list = field(default_factory=list)
     heldout_frames: list = field(default_factory=list)
     elev_img: list = field(default_factory=list)
-    elev_frames: list = field(default_factory=list)
+    off_img: list = field(default_factory=list)
     traj_img: list = field(default_factory=list)
     traj_frames: list = field(default_factory=list)
     agree: dict = field(default_factory=dict)       # "seen" / "novel": G.ClassAgreement
@@ -314,8 +338,7 @@ def _render_seen(inp: Inputs, o: EvalOptions, r: Renders, dfr, bar) -> None:
         r.seen_gb.append(gb)
         if inp.deferrer is not None:
             dfr.add("seen", inp.deferrer, fr["rgb"], v.camera, o)
-        if inp.base is not None:
-            inp.base.add("seen", fr["rgb"], v.camera)
+        _score(inp, "seen", v.camera, fr["rgb"])
         bar.update(1)
 
 
@@ -333,8 +356,7 @@ def _render_novel(inp: Inputs, o: EvalOptions, r: Renders, dfr, bar) -> None:
         r.novel_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
         if inp.deferrer is not None:
             dfr.add("novel", inp.deferrer, fr["rgb"], nv.view.camera, o)
-        if inp.base is not None:
-            inp.base.add("novel", fr["rgb"], nv.view.camera)
+        _score(inp, "novel", nv.view.camera, fr["rgb"])
         e = G.reprojection_depth_error(inp.seen_sel[nv.source].camera, r.seen_frames[nv.source],
                                        r.seen_gb[nv.source], nv.view.camera, fr, gb)
         if e is not None:
@@ -348,29 +370,44 @@ def _render_heldout(inp: Inputs, o: EvalOptions, r: Renders, bar) -> None:
         fr = render_view(inp.surfels, inp.env, cam)
         r.heldout_frames.append(fr)
         r.heldout_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
-        if inp.base is not None:
-            inp.base.add("heldout", fr["rgb"], cam)
+        _score(inp, "heldout", cam, fr["rgb"])
         bar.update(1)
 
 
 def _render_elevated(inp: Inputs, o: EvalOptions, r: Renders, bar) -> None:
     for ev in inp.elev:
         fr = render_view(inp.surfels, inp.env, ev.camera)
-        r.elev_frames.append({"rgb": fr["rgb"]})    # all the PSNR needs
         r.elev_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
-        if inp.base is not None:
-            inp.base.add("elevated", fr["rgb"], ev.camera)
+        _score(inp, "elevated", ev.camera, fr["rgb"])
         bar.update(1)
+
+
+def _render_off_path(inp: Inputs, o: EvalOptions, r: Renders, bar) -> None:
+    for v in inp.off_path.views:
+        fr = render_view(inp.surfels, inp.env, v.camera)
+        r.off_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
+        _score(inp, "off_path", v.camera, fr["rgb"])
+        bar.update(1)
+
+
+def _score(inp: Inputs, family: str, camera, rgb) -> None:
+    """PSNR of one render against the run's target, and the prior baseline's image of the
+    view (the same target, made once, when the two are the same image)."""
+    target = inp.scorer.add(family, camera, rgb)
+    if inp.base is not None and family != "trajectory":
+        inp.base.add(family, rgb, camera, target=target if inp.reuse_targets else None)
 
 
 def _render_trajectory(inp: Inputs, o: EvalOptions, r: Renders, dfr, bar) -> dict:
     """The trajectory frames; returns their temporal warp errors (``temporal_warp_err``)."""
-    for cam in inp.traj:
+    for i, cam in enumerate(inp.traj):
         fr = render_view(inp.surfels, inp.env, cam)
         r.traj_frames.append({k: fr[k] for k in ("alpha", "depth_median", "depth_expected")})
         r.traj_img.append(display(fr["rgb"], o.cfg.tonemap, o.cfg.exposure))
         if inp.deferrer is not None:
             dfr.add("traj", inp.deferrer, fr["rgb"], cam, o, target=False)
+        if i % TRAJ_SCORE_EVERY == 0:
+            _score(inp, "trajectory", cam, fr["rgb"])
         bar.update(1)
     temporal = T.trajectory_warp_errors(inp.traj, r.traj_img, r.traj_frames)
     temporal.update(inp.traj_info)
@@ -384,6 +421,7 @@ class Features:
     distances: Distances
     fd_elev: dict
     groups: list
+    fd_off: dict                # off-path bin -> FD of the seen views against its views
     deferred: DeferredResult | None
     warnings: list
     n_ref: int
@@ -422,10 +460,14 @@ def _distances(inp: Inputs, o: EvalOptions, r: Renders, dfr) -> Features:
     groups = list(dict.fromkeys(ev.group for ev in elev))   # heights, then overview
     groups_arr = np.array([ev.group for ev in elev])
     f_elev = embed(r.elev_img) if r.elev_img else None
+    off_bins = {k: np.asarray(i, int) for k, i in inp.off_path.bins.items() if i}
+    f_off = embed(r.off_img) if r.off_img else None
+    fd_off = {k: fd(f_seen, f_off[i]) for k, i in off_bins.items()}
     if inp.base is not None:
         dist.prior_baseline = baseline_fd(fd, embed, inp.base.images, bins, bins_arr,
                                           dist.to_json(), inp.base.sp,
-                                          elevated=(groups, groups_arr, f_elev) if elev else None)
+                                          elevated=(groups, groups_arr, f_elev) if elev else None,
+                                          off_path=(off_bins, f_off) if off_bins else None)
     n_ref = 0
     if inp.ref_imgs is not None:
         f_ref = embed(inp.ref_imgs)
@@ -454,20 +496,8 @@ def _distances(inp: Inputs, o: EvalOptions, r: Renders, dfr) -> Features:
             f"Fréchet distances from fewer samples than feature dimensions ({f_seen.shape[1]}-d; "
             f"smallest set {min(smallest)}): covariances are rank-deficient and values are biased "
             "upwards; compare only values computed with equal sample counts")
-    return Features(distances=dist, fd_elev=fd_elev, groups=groups, deferred=deferred,
-                    warnings=notes, n_ref=n_ref)
-
-
-def _elevated_family(inp: Inputs, r: Renders, feats: Features) -> tuple[dict, str | None]:
-    """The ``novel_elevated`` entry and why its PSNR is missing (None when measured): the
-    elevated views (and the held-out lane views, for scale) against the run's targets."""
-    errs, psnr_why = (None, None)
-    if inp.elev:
-        errs, psnr_why = view_errors(inp.sc, inp.seen.run, inp.proxy,
-                                     list(inp.heldout) + [ev.camera for ev in inp.elev],
-                                     r.heldout_frames + r.elev_frames)
-    return (_novel_elevated(inp.elev, feats.groups, errs, len(inp.heldout), feats.fd_elev,
-                            feats.distances), psnr_why)
+    return Features(distances=dist, fd_elev=fd_elev, groups=groups, fd_off=fd_off,
+                    deferred=deferred, warnings=notes, n_ref=n_ref)
 
 
 def _seams(inp: Inputs, o: EvalOptions, r: Renders) -> tuple[dict | None, str | None, str | None]:
@@ -484,8 +514,12 @@ def _seams(inp: Inputs, o: EvalOptions, r: Renders) -> tuple[dict | None, str | 
         skip = [None] * len(inp.seen_sel)
         frame_sets += [skip + r.heldout_frames,
                        itertools.chain(skip, reference_frames(seams_ref[0], heldout))]
+    sc_t = inp.scorer.targets
+    targets = (sc_t.get("seen", []) + sc_t.get("heldout", [])
+               if len(sc_t.get("seen", [])) == len(inp.seen_sel) else None)
     stats, why = seam_stats(inp.sc, inp.seen.run, inp.layout, inp.proxy,
-                            [v.camera for v in inp.seen_sel] + list(heldout), *frame_sets)
+                            [v.camera for v in inp.seen_sel] + list(heldout), *frame_sets,
+                            targets=targets)
     seams = stats[0].result() if stats is not None else None
     if seams_ref is not None and not ref_why:
         if seams is None:
@@ -541,30 +575,33 @@ class DeferredImages:
         self.seconds += time.perf_counter() - t
 
 
-def _bin_stats(nvs: list) -> dict:
-    if not nvs:
+def _bin_stats(inp: Inputs, b: float) -> dict:
+    """A novel bin's ``novel_views`` entry: pose medians and PSNR (all, per class)."""
+    idx = [i for i, nv in enumerate(inp.novel) if nv.bin_m == b]
+    if not idx:
         return {}
-    near = np.array([nv.nearest_train_m for nv in nvs])
-    yaw = np.abs([nv.yaw_deg for nv in nvs])
-    return {"count": len(nvs), "nearest_train_m_median": round(float(np.median(near)), 3),
-            "abs_yaw_deg_median": round(float(np.median(yaw)), 2)}
+    near = np.array([inp.novel[i].nearest_train_m for i in idx])
+    yaw = np.abs([inp.novel[i].yaw_deg for i in idx])
+    return {"count": len(idx), "nearest_train_m_median": round(float(np.median(near)), 3),
+            "abs_yaw_deg_median": round(float(np.median(yaw)), 2),
+            **_psnr_entry(inp.scorer.family("novel", idx) if inp.scorer.ok else [])}
 
 
-def _psnr_stats(vals: list) -> dict:
-    if not vals:
+def _psnr_entry(errors: list) -> dict:
+    """``psnr_db`` {mean, median, min, max, views} and ``psnr_db_per_class`` of a family's
+    views against the run's targets (nothing without targets)."""
+    if not errors:
         return {}
-    a = np.asarray(vals, np.float64)
-    return {"mean": round(float(a.mean()), 3), "median": round(float(np.median(a)), 3),
-            "min": round(float(a.min()), 3), "max": round(float(a.max()), 3), "views": len(a)}
+    return {"psnr_db": CP.psnr_stats(errors), "psnr_db_per_class": CP.per_class(errors)}
 
 
-def _novel_elevated(elev: list, groups: list, errs, n_held: int, fd_elev: dict,
+def _novel_elevated(elev: list, groups: list, scorer: CP.Scorer, fd_elev: dict,
                     dist: Distances) -> dict:
     """The ``novel_elevated`` entry: per height (and "overview") the pose medians, PSNR
-    against the run's held-out targets (errs: (sse, values) of the held-out lane views, then
-    the elevated ones; None when there are no targets), FD seen vs elevated and its ratios;
-    "heldout_lane": the same PSNR of the lane views, the scale to read them against."""
-    psnr = [pooled_psnr([e]) for e in errs] if errs is not None else None
+    against the run's held-out targets (all and per class; missing without targets), FD seen
+    vs elevated and its ratios; "heldout_lane": the same PSNR of the lane views, the scale to
+    read them against."""
+    errs = scorer.family("elevated")
     content = (dist.seen_vs_heldout_lane or {}).get("value")
     pb = (dist.prior_baseline or {}).get("elevated")
     out = {}
@@ -573,11 +610,10 @@ def _novel_elevated(elev: list, groups: list, errs, n_held: int, fd_elev: dict,
         r = fd_elev[g]
         row = {"views": len(idx), **E.group_stats([elev[i] for i in idx]),
                "fd": round(r.value, 6), "fd_n": [r.n1, r.n2]}
-        if psnr is not None:
-            vals = [psnr[n_held + i] for i in idx]
-            row["psnr_db"] = _psnr_stats(vals)
+        if errs:
+            row.update(_psnr_entry([errs[i] for i in idx]))
             if g == E.OVERVIEW:
-                row["psnr_db_per_camera"] = {elev[i].name: round(v, 3) for i, v in zip(idx, vals)}
+                row["psnr_db_per_camera"] = {elev[i].name: CP.pooled([errs[i]]) for i in idx}
         if content:
             row["fd_over_content"] = round(r.value / max(content, 1e-12), 4)
         if pb is not None:
@@ -589,6 +625,42 @@ def _novel_elevated(elev: list, groups: list, errs, n_held: int, fd_elev: dict,
         if "elevated_per_height" in (dist.vs_reference or {}):
             row["fd_vs_reference"] = dist.vs_reference["elevated_per_height"][g]["value"]
         out[g] = row
-    if psnr is not None and n_held:
-        out["heldout_lane"] = {"psnr_db": _psnr_stats(psnr[:n_held])}
+    if errs and scorer.family("heldout"):
+        out["heldout_lane"] = _psnr_entry(scorer.family("heldout"))
+    return out
+
+
+def _novel_off_path(off: OP.OffPathSet, scorer: CP.Scorer, feats: Features) -> dict:
+    """The ``novel_off_path`` entry: per bin PSNR against the run's targets of the same
+    cameras (pooled over the bin's views), FD of the seen views against the bin's views over
+    the content change, and that over the prior's own ratio for the same cameras
+    (``fd_over_prior_per_bin``: 1 = the scene departs from the seen views as its prior's
+    images do); the family's PSNR per class."""
+    if not off.views:
+        return {}
+    errs = scorer.family("off_path")
+    dist = feats.distances
+    content = (dist.seen_vs_heldout_lane or {}).get("value")
+    pb = (dist.prior_baseline or {}).get("off_path")
+    out = {"views": len(off.views), "stations": off.stations,
+           "regions": off.regions, "rig_camera": f"{OP.RIG} {OP.RIG_CAMERA}",
+           "bins": {k: {"lateral_m": p[0], "height_m": p[1], "yaw_deg": p[2]}
+                    for k, p in OP.bin_poses().items()}}
+    if errs:
+        out["psnr_db_per_bin"] = {k: CP.pooled([errs[i] for i in idx])
+                                  for k, idx in off.bins.items()}
+        out["psnr_db_per_class"] = CP.per_class(errs)
+        out["psnr_db_per_class_per_bin"] = {k: CP.per_class([errs[i] for i in idx])
+                                            for k, idx in off.bins.items()}
+    out["fd_per_bin"] = {k: round(r.value, 6) for k, r in feats.fd_off.items()}
+    if content:
+        out["fd_over_content_per_bin"] = {k: round(r.value / max(content, 1e-12), 4)
+                                          for k, r in feats.fd_off.items()}
+    if pb is not None and content:
+        prior = pb["prior_off_path_over_content"]
+        out["prior_fd_over_content_per_bin"] = prior
+        out["fd_over_prior_per_bin"] = {
+            k: round(out["fd_over_content_per_bin"][k] / max(prior[k], 1e-12), 4) for k in prior}
+        out["fd_vs_prior_images_per_bin"] = {k: v["value"] for k, v in
+                                             pb["scene_vs_prior_images"].items()}
     return out

@@ -80,6 +80,11 @@ class EvalConfig:
     overview: bool = option(True, help="score the scene's Overview cameras (/World/Cameras/"
                                        "Overview/*) with the elevated views",
                             negate="--no-overview")
+    off_path_per_bin: int = option(3, help="off-path views per bin (stations on the lanes; "
+                                           "0 = none): lateral offsets, camera heights and "
+                                           "yaws a driving stack's cameras take "
+                                           "(novel_off_path in the JSON)",
+                                   flag="--off-path-per-bin", lo=0, hi=100_000)
     resolution: tuple[int, int] = option((320, 180), help="render size WxH", flag="--resolution",
                                          lo=16, hi=8192, metavar="WxH")
     frames: int = option(24, help="trajectory frames for the temporal check", flag="--frames",

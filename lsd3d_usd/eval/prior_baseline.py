@@ -19,6 +19,7 @@ import time
 import numpy as np
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.ggds.priors.registry import PRIORS
 from lsd3d_usd.ggds.priors.scene import load_scene_prior, recorded_prior_is_cheap
 from lsd3d_usd.views.deferred import DEFAULT_STEPS, Deferrer
 
@@ -55,26 +56,34 @@ class PriorImages:
                                    override="--no-prior-baseline")
         self.deferrer = Deferrer(self.sp, 1.0, DEFAULT_STEPS)
         self.display = display
-        self.images = {"seen": [], "novel": [], "heldout": [], "elevated": []}
+        self.images = {"seen": [], "novel": [], "heldout": [], "elevated": [], "off_path": []}
         self.seconds = time.perf_counter() - t
 
-    def add(self, kind: str, rgb: np.ndarray, camera) -> None:
+    def same_images(self, sp) -> bool:
+        """Whether ``sp``'s held-out targets are this baseline's images: the same prior, and
+        one whose image at t = 1 depends on the view alone (cheap on the CPU: procedural)."""
+        return (sp is not None and sp.spec == self.sp.spec and sp.seed == self.sp.seed
+                and PRIORS.get(sp.spec.split(":", 1)[0]).cheap_on_cpu)
+
+    def add(self, kind: str, rgb: np.ndarray, camera, target: np.ndarray | None = None) -> None:
         """``rgb``: the scene's render of ``camera``. The procedural prior's image at t = 1
         does not depend on it; a diffusion prior's starts from it (then the baseline measures
-        the scene too, not the views alone)."""
+        the scene too, not the views alone). ``target``: that image already made (the run's
+        held-out target of the same view, when same_images), not made again."""
         t = time.perf_counter()
-        y = self.deferrer.images(rgb, camera, (1.0,), fine=True)[0]
+        y = target if target is not None else self.deferrer.images(rgb, camera, (1.0,), fine=True)[0]
         self.images[kind].append(self.display(y))
         self.seconds += time.perf_counter() - t
 
 
 def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, sp,
-                elevated=None) -> dict:
-    """``images``: the prior's display images {"seen", "novel", "heldout", "elevated"} (novel
-    in the order of ``bins_arr``); ``scene_fd``: eval's fd_effnet_lite0 of the scene (with
-    seen_vs_heldout_lane); ``sp``: the ScenePrior. ``fd(a, b)`` -> FDResult. ``elevated``:
-    (group keys, group of each elevated view, the scene's features of those views), or None.
-    Returns the ``prior_baseline`` entry."""
+                elevated=None, off_path=None) -> dict:
+    """``images``: the prior's display images {"seen", "novel", "heldout", "elevated",
+    "off_path"} (novel in the order of ``bins_arr``); ``scene_fd``: eval's fd_effnet_lite0 of
+    the scene (with seen_vs_heldout_lane); ``sp``: the ScenePrior. ``fd(a, b)`` -> FDResult.
+    ``elevated``: (group keys, group of each elevated view, the scene's features of those
+    views), or None; ``off_path``: ({bin key: indices of its views}, the scene's features of
+    the off-path views), or None. Returns the ``prior_baseline`` entry."""
     f_seen, f_novel = embed(images["seen"]), embed(images["novel"])
     content = fd(f_seen, embed(images["heldout"]))
     per_bin = {f"{b:g}": fd(f_seen, f_novel[bins_arr == b]) for b in bins}
@@ -82,15 +91,13 @@ def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, sp,
     extra = {}
     if elevated is not None and images["elevated"]:
         groups, groups_arr, f_scene = elevated
-        f_elev = embed(images["elevated"])
-        per_group = {g: fd(f_seen, f_elev[groups_arr == g]) for g in groups}
-        # the scene's elevated images against the prior's own images of the same cameras
-        vs_prior = {g: fd(f_scene[groups_arr == g], f_elev[groups_arr == g]) for g in groups}
-        extra["elevated"] = {
-            "seen_vs_elevated": {g: r.to_json() for g, r in per_group.items()},
-            "prior_elevated_over_content": {g: round(r.value / max(content.value, 1e-12), 4)
-                                            for g, r in per_group.items()},
-            "scene_vs_prior_images": {g: r.to_json() for g, r in vs_prior.items()}}
+        idx = {g: np.flatnonzero(groups_arr == g) for g in groups}
+        extra["elevated"] = _grouped(fd, f_seen, embed(images["elevated"]), f_scene, idx,
+                                     content, "elevated")
+    if off_path is not None and images["off_path"]:
+        idx, f_scene = off_path
+        extra["off_path"] = _grouped(fd, f_seen, embed(images["off_path"]), f_scene, idx,
+                                     content, "off_path")
     scene_content = scene_fd["seen_vs_heldout_lane"]["value"]
     scene_ratio = {k: v["value"] / max(scene_content, 1e-12)
                    for k, v in scene_fd["seen_vs_novel"]["per_bin"].items()}
@@ -106,3 +113,16 @@ def baseline_fd(fd, embed, images: dict, bins, bins_arr, scene_fd: dict, sp,
                              for k in prior_ratio},
         **extra,
     }
+
+
+def _grouped(fd, f_seen, f_prior, f_scene, idx: dict, content, what: str) -> dict:
+    """The prior's images of family ``what``'s groups of views (``idx``: key -> indices)
+    against its seen images and over its content change, and the scene's images of those
+    views against the prior's."""
+    per = {k: fd(f_seen, f_prior[i]) for k, i in idx.items()}
+    return {f"seen_vs_{what}": {k: r.to_json() for k, r in per.items()},
+            f"prior_{what}_over_content": {k: round(r.value / max(content.value, 1e-12), 4)
+                                           for k, r in per.items()},
+            # the scene's images against the prior's own images of the same cameras
+            "scene_vs_prior_images": {k: fd(f_scene[i], f_prior[i]).to_json()
+                                      for k, i in idx.items()}}

@@ -81,6 +81,38 @@ def elevated_sheet(path: Path, views, images, cols: int = 4) -> Path:
     return _save_fig(fig, path)
 
 
+def off_path_sheet(path: Path, off, images, prior_images, cols: int = 3) -> Path:
+    """The off-path views: one row per bin, for each of its first ``cols`` stations the
+    prior's image of the camera (when the prior baseline made one) beside the surfels'. One
+    mosaic in one axes (tens of subplots cost seconds)."""
+    plt = _plt()
+    keys = [k for k, idx in off.bins.items() if idx]
+    n = min(cols, max(len(off.bins[k]) for k in keys))
+    h, w = images[0].shape[:2]
+    gap = 3
+    sources = ([prior_images] if prior_images else []) + [images]
+    tiles = len(sources) * n
+    mosaic = np.ones((len(keys) * (h + gap) - gap, tiles * (w + gap) - gap, 3), np.float32)
+    for r, k in enumerate(keys):
+        for c in range(tiles):
+            s = c // len(sources)
+            if s < len(off.bins[k]):
+                im = sources[c % len(sources)][off.bins[k][s]]
+                mosaic[r * (h + gap):r * (h + gap) + h, c * (w + gap):c * (w + gap) + w] = im
+    fig_w = 1.4 * tiles + 1.0
+    fig, ax = plt.subplots(figsize=(fig_w, 1.4 * len(keys) * h / w + 0.5))
+    ax.imshow(np.clip(mosaic, 0, 1))
+    ax.set_yticks([r * (h + gap) + h / 2 for r in range(len(keys))])
+    ax.set_yticklabels(keys, fontsize=7)
+    names = ["prior", "surfels"] if prior_images else ["surfels"]
+    ax.set_xticks([c * (w + gap) + w / 2 for c in range(tiles)])
+    ax.set_xticklabels([names[c % len(names)] for c in range(tiles)], fontsize=7)
+    ax.xaxis.tick_top()
+    # room for the bin keys on the left (tight_layout clips them beside an image axes)
+    fig.subplots_adjust(left=0.95 / fig_w, right=0.99, top=0.95, bottom=0.01)
+    return _save_fig(fig, path)
+
+
 def fd_plot(path: Path, result: EvalResult) -> Path:
     plt = _plt()
     fd = result.distances
@@ -259,6 +291,52 @@ def _elevated_html(result: EvalResult) -> str:
     return out
 
 
+def _off_path_html(result: EvalResult) -> str:
+    op = result.novel_off_path
+    if not op:
+        return "<p>no off-path views (--off-path-per-bin 0)</p>"
+    psnr = op.get("psnr_db_per_bin", {})
+    rows = [[html.escape(k), f"{b['lateral_m']:g}", f"{b['height_m']:g}", f"{b['yaw_deg']:g}",
+             _fmt(psnr.get(k), digits=2), _fmt(op.get("fd_per_bin", {}).get(k), digits=1),
+             _fmt(op.get("fd_over_content_per_bin", {}).get(k)),
+             _fmt(op.get("prior_fd_over_content_per_bin", {}).get(k)),
+             _fmt(op.get("fd_over_prior_per_bin", {}).get(k)),
+             _fmt(op.get("fd_vs_prior_images_per_bin", {}).get(k), digits=1)]
+            for k, b in op["bins"].items()]
+    return (f"<p>{op['stations']} stations on the drivable lanes ({op['regions']} region(s)), "
+            f"one camera per bin at each, {html.escape(op['rig_camera'])} intrinsics, each bin "
+            "changing one thing from the on-path camera (lane centre, 1.6 m, along the lane): "
+            "PSNR against the run's target of the same camera, FD of the bin's features against "
+            "the seen views' over the content change, for the scene and the prior's own images "
+            "of the same cameras, and their ratio.</p>"
+            + _table(["bin", "lateral (m)", "height (m)", "yaw (°)", "PSNR vs prior (dB)",
+                      "FD vs seen", "FD / content", "prior's FD / content", "scene / prior",
+                      "FD vs the prior's images"], rows))
+
+
+def _class_html(result: EvalResult) -> str:
+    """PSNR per semantic class of every family (the run's targets)."""
+    fams = [("seen", result.seen_views)]
+    fams += [(f"novel {b} m", v) for b, v in result.novel_views.items()]
+    fams += [("held-out lane" if g == "heldout_lane" else
+              ("Overview cameras" if g == "overview" else f"elevated {g} m"), v)
+             for g, v in result.novel_elevated.items()]
+    op = result.novel_off_path
+    if op.get("psnr_db_per_class"):
+        fams.append(("off-path (all bins)", {"psnr_db": {"mean": None},
+                                              "psnr_db_per_class": op["psnr_db_per_class"]}))
+    fams.append(("trajectory", result.temporal))
+    fams = [(n, v) for n, v in fams if v.get("psnr_db_per_class")]
+    if not fams:
+        return "<p>not measured (see Not computed)</p>"
+    classes = list(fams[0][1]["psnr_db_per_class"])
+    rows = [[html.escape(n), _fmt((v.get("psnr_db") or {}).get("mean"), digits=2)]
+            + [_fmt(v["psnr_db_per_class"].get(c), digits=2) for c in classes] for n, v in fams]
+    return ("<p>PSNR (dB) of the renders against the GGDS run's targets of the same views, "
+            "over the pixels of each class in the proxy G-buffer the prior conditioned on.</p>"
+            + _table(["views", "all (mean of views)"] + classes, rows))
+
+
 def _table(header, rows) -> str:
     th = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "".join("<tr>" + "".join(f"<td>{c}</td>" for c in r) + "</tr>" for r in rows)
@@ -359,6 +437,8 @@ img{{max-width:100%}}code{{background:#f4f4f4}}</style></head><body>
 seed {result.seed}.</p>
 <h2>Seen and novel views</h2>{img('contact_sheet', 'contact sheet')}
 <h2>Elevated views (novel_elevated)</h2>{_elevated_html(result)}{img('elevated', 'elevated views')}
+<h2>Off the training path (novel_off_path)</h2>{_off_path_html(result)}{img('off_path', 'off-path views per bin: prior and surfels')}
+<h2>PSNR per class</h2>{_class_html(result)}
 <h2>Fréchet distance of EfficientNet-Lite0 features (fd_effnet_lite0; not FID)</h2>
 {fd_table}{img('fd_plot', 'FD by distance')}{ref}
 <h2>Geometry against the proxy</h2>{geo}{img('geometry', 'geometry panel')}
@@ -374,7 +454,7 @@ seed {result.seed}.</p>
 
 
 def write_report(out_dir: Path, result: EvalResult, sc, seen_img, novel_img, novel, traj_img, *,
-                 seen_frames, seen_gb, deferred=None, elevated=None) -> dict:
+                 seen_frames, seen_gb, deferred=None, elevated=None, off_path=None) -> dict:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     files = {"contact_sheet": contact_sheet(out_dir / "eval_contact_sheet.png", seen_img, novel_img,
@@ -388,6 +468,8 @@ def write_report(out_dir: Path, result: EvalResult, sc, seen_img, novel_img, nov
                                         if result.deferred is not None else None)}
     if elevated is not None and elevated[0]:
         files["elevated"] = elevated_sheet(out_dir / "eval_elevated.png", *elevated)
+    if off_path is not None and off_path[0].views:
+        files["off_path"] = off_path_sheet(out_dir / "eval_off_path.png", *off_path)
     if deferred is not None:
         files["deferred"] = deferred_sheet(out_dir / "eval_deferred.png", seen_img, deferred, traj_img)
     if result.run:

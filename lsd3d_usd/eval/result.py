@@ -26,6 +26,8 @@ class Counts:
     elevated: int
     elevated_per_height: int
     overview: int
+    off_path: int = 0
+    off_path_per_bin: int = 0
 
 
 @dataclass
@@ -106,8 +108,10 @@ class EvalResult:
     heights_m: list[float]
     pitch_deg: list[float]
     counts: Counts
-    novel_views: dict[str, dict]         # per bin: count and pose medians
+    seen_views: dict                     # PSNR vs the run's targets, all and per class
+    novel_views: dict[str, dict]         # per bin: count, pose medians, PSNR
     novel_elevated: dict[str, dict]      # per height, "overview", "heldout_lane"
+    novel_off_path: dict                 # per lateral / height / yaw bin (eval.off_path_views)
     distances: Distances
     geometry: Geometry
     multiview: MultiviewDepth
@@ -124,8 +128,9 @@ class EvalResult:
                "composed_layers": self.composed_layers, "surfels": self.surfels,
                "resolution": self.resolution, "tonemap": self.tonemap, "seed": self.seed,
                "bins_m": self.bins_m, "heights_m": self.heights_m, "pitch_deg": self.pitch_deg,
-               "counts": asdict(self.counts), "novel_views": self.novel_views,
-               "novel_elevated": self.novel_elevated, "fd_effnet_lite0": self.distances.to_json(),
+               "counts": asdict(self.counts), "seen_views": self.seen_views,
+               "novel_views": self.novel_views, "novel_elevated": self.novel_elevated,
+               "novel_off_path": self.novel_off_path, "fd_effnet_lite0": self.distances.to_json(),
                "geometry": asdict(self.geometry), "multiview_depth_err": self.multiview.to_json(),
                "seams": self.seams, "temporal_warp_err": self.temporal}
         if self.deferred is not None:

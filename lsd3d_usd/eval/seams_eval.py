@@ -76,13 +76,14 @@ def measure_seams(sc, run: str | None, layout, proxy, cameras, frames) -> tuple[
     return (stats[0].result(), None) if stats is not None else (None, why)
 
 
-def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
+def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets, targets=None):
     """([eval.seams.SeamStats per set of rendered frames], None), or (None, why not):
     measure_seams before its summary. Several frame sets (other scenes of the same layout
     rendered from the same cameras) share the border bands, the G-buffers and the run's
     targets (at t = 1 the procedural prior's target is its own render, whatever the frame:
     made once per view), for comparing scenes view by view (eval.seams.paired_matched_drop).
-    A set's frame may be None: that set leaves the view out (its first set has them all)."""
+    A set's frame may be None: that set leaves the view out (its first set has them all).
+    ``targets``: the run's targets of the cameras already made (eval's scorer), or None."""
     chunks = read_chunk_map(sc.layer_path("surfels"))
     keys = set(chunks)
     if len(keys) < 2:
@@ -96,7 +97,8 @@ def seam_stats(sc, run: str | None, layout, proxy, cameras, *frame_sets):
     stats = [SeamStats(float(layout.chunk_size), keys, bounds=bounds) for _ in frame_sets]
     for j, (cam, *frames) in enumerate(zip(cameras, *frame_sets)):
         gb = render_gbuffer(V, F, cam, C)
-        tgt, _ = sp.heldout_target(cam, frames[0]["rgb"], j)
+        tgt = (targets[j] if targets is not None
+               else sp.heldout_target(cam, frames[0]["rgb"], j)[0])
         for st, fr in zip(stats, frames):
             if fr is not None:
                 st.add(fr["rgb"], tgt, fr["alpha"], surfel_depth(fr), fr["normal_world"], gb)

@@ -64,10 +64,11 @@ class ScenePrior:
         prior baseline)."""
         return self.conditioning.gbuffer(camera, fine=fine)
 
-    def heldout_target(self, camera, rgb: np.ndarray, j: int, *, t: float = 1.0):
+    def heldout_target(self, camera, rgb: np.ndarray, j: int, *, t: float = 1.0, key=None):
         """(target (H, W, 3) array, the G-buffer it conditioned on): what held-out view ``j``
-        of a run is scored against (priors.base.heldout_target) for the render ``rgb``."""
-        gb = self.conditioning.gbuffer(camera)
+        of a run is scored against (priors.base.heldout_target) for the render ``rgb``.
+        ``key``: the G-buffer's key (a caller that forgets the prior's per-view cache)."""
+        gb = self.conditioning.gbuffer(camera, key=key)
         x = torch.from_numpy(np.ascontiguousarray(rgb, np.float32))
         return heldout_target(self.prior, x, gb, self.env, j, t=t).numpy(), gb
 
