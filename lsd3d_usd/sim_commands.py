@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.views.options import DEFAULT_LOD_PX
 
 
 def _check_out(out: Path, scene: Path) -> None:
@@ -196,9 +197,9 @@ def _env_arguments(r) -> None:
     r.add_argument("--lidar", default="auto",
                    help="auto (the rig's own), a preset (hdl32, waymo_top), a FILE.toml, or none")
     r.add_argument("--width", type=int, default=480, help="camera width in pixels (default 480)")
-    r.add_argument("--lod-px", type=float, default=8.0, metavar="PX",
+    r.add_argument("--lod-px", type=float, default=DEFAULT_LOD_PX, metavar="PX",
                    help="cameras' level of detail: a merged node stands for its surfels when it "
-                        "covers at most PX pixels (default 8; docs/render.md)")
+                        "covers at most PX pixels (default 6; docs/render.md)")
     r.add_argument("--no-lod", action="store_true",
                    help="cameras draw every surfel (full detail, slower)")
     r.add_argument("--outputs", default="rgb",

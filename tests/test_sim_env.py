@@ -183,7 +183,7 @@ def test_bad_actions_and_options(opened):
         DriveEnv(opened, action="fly")
     with pytest.raises(InputError, match="cannot import 'no_such_module'"):
         load_policy("no_such_module:drive", env)
-    with pytest.raises(InputError, match="choose planner, constant or MODULE:CALLABLE"):
+    with pytest.raises(InputError, match="choose planner, constant, scenario or MODULE:CALLABLE"):
         load_policy("ramdom", env)
 
 

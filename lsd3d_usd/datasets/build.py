@@ -286,7 +286,9 @@ def input_digests(opt: DatasetOptions) -> dict:
 
 def check_resume(state: Path, sig: dict, out) -> None:
     old = read_record(state / "dataset.json", out)
-    diff = sorted(k for k in set(old) | set(sig) if k != "inputs" and old.get(k) != sig.get(k))
+    # a key missing on either side differs (a dropped "routes": null is not the default)
+    diff = sorted(k for k in set(old) | set(sig) if k != "inputs" and
+                  (k not in old or k not in sig or old[k] != sig[k]))
     if diff:
         raise InputError(f"-o {out}: --resume, but the dataset was made with other "
                          f"settings ({diff[0]}: {old.get(diff[0])!r} there, "
