@@ -34,7 +34,7 @@ from lsd3d_usd.actors.relight import (
     proxy_occluder,
 )
 from lsd3d_usd.actors.usdio import ActorSet
-from lsd3d_usd.env.lookup import env_lookup
+from lsd3d_usd.env.lookup import env_lookup, env_lookup_pinhole
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
     ACTORS_PATH,
@@ -159,6 +159,13 @@ class EnvMap:
             d = np.stack([d[..., 0], -d[..., 2], d[..., 1]], axis=-1)
         image = torch.from_numpy(np.ascontiguousarray(self.image, np.float32))
         return env_lookup(image, torch.from_numpy(d.astype(np.float32))).numpy()
+
+    def pixels(self, camera) -> np.ndarray:
+        """(H, W, 3) float32 radiance along each pixel's ray of a render.camera.Camera: what
+        lookup(pixel_directions(camera)) gives (within float32 rounding), in one pass."""
+        return env_lookup_pinhole(np.asarray(self.image, np.float32), camera.width, camera.height,
+                                  camera.fx, camera.fy, camera.cx, camera.cy, camera.pose[:3, :3],
+                                  self.world_from_dome, self.pole_axis == "Y")
 
 
 class TextureCache:
