@@ -82,7 +82,8 @@ def env_lookup_pinhole(image: np.ndarray, width: int, height: int, fx: float, fy
     h, w = int(height), int(width)
     out = np.empty((h * w, img.shape[2]), img.dtype)
     _lookup_pinhole(img, float(fx), float(fy), float(cx), float(cy),
-                    np.ascontiguousarray(rotation, np.float64), np.ascontiguousarray(world_from_dome, np.float64),
+                    np.ascontiguousarray(rotation, np.float64),
+                    np.ascontiguousarray(world_from_dome, np.float64),
                     bool(pole_y), img[0].mean(0, dtype=np.float64), img[H - 1].mean(0, dtype=np.float64),
                     h, w, out)
     return out.reshape(h, w, img.shape[2])
