@@ -17,9 +17,11 @@ is selected at render time.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from pxr import Usd, UsdGeom, UsdLux
 
 from lsd3d_usd.actors.assets import mesh_data_from_prim
@@ -90,69 +92,131 @@ def lighting_from_stage(stage) -> Lighting:
 
 
 class Occluder:
-    """Triangles (world) for shadow rays, bucketed in a uniform XY grid."""
+    """Triangles (world) for shadow rays, bucketed in a uniform XY grid (dense, CSR: the
+    triangles of cell (i, j) are items[start[c]:start[c + 1]], c = (i - i0) nj + (j - j0))."""
 
     def __init__(self, vertices, faces, cell: float = 8.0):
         V = np.asarray(vertices, np.float64).reshape(-1, 3)
         F = np.asarray(faces, np.int64).reshape(-1, 3)
-        self.tri = V[F] if len(F) else np.zeros((0, 3, 3))
+        self.tri = np.ascontiguousarray(V[F]) if len(F) else np.zeros((0, 3, 3))
         self.cell = float(cell)
         self.zmax = float(self.tri[..., 2].max()) if len(self.tri) else 0.0
-        self.grid: dict[tuple[int, int], np.ndarray] = {}
+        self.i0 = self.j0 = 0
+        self.ni = self.nj = 0
+        self.start = np.zeros(1, np.int64)
+        self.items = np.zeros(0, np.int64)
         if len(self.tri):
             lo = np.floor(self.tri[..., :2].min(1) / cell).astype(np.int64)
             hi = np.floor(self.tri[..., :2].max(1) / cell).astype(np.int64)
-            buckets: dict = {}
-            for f in range(len(self.tri)):
-                for i in range(lo[f, 0], hi[f, 0] + 1):
-                    for j in range(lo[f, 1], hi[f, 1] + 1):
-                        buckets.setdefault((i, j), []).append(f)
-            self.grid = {k: np.asarray(v, np.int64) for k, v in buckets.items()}
+            self.i0, self.j0 = (int(x) for x in lo.min(0))
+            self.ni, self.nj = (int(x) for x in hi.max(0) - lo.min(0) + 1)
+            span = hi - lo + 1                       # cells covered by each triangle's box
+            count = span[:, 0] * span[:, 1]
+            face = np.repeat(np.arange(len(F)), count)
+            k = np.arange(len(face)) - np.repeat(np.cumsum(count) - count, count)
+            i = lo[face, 0] + k // span[face, 1] - self.i0
+            j = lo[face, 1] + k % span[face, 1] - self.j0
+            c = i * self.nj + j
+            order = np.argsort(c, kind="stable")
+            self.items = face[order]
+            self.start = np.concatenate([[0], np.cumsum(np.bincount(c, minlength=self.ni * self.nj))])
 
-    def _candidates(self, o, d, tmax) -> np.ndarray:
-        n = max(2, int(np.ceil(tmax * np.linalg.norm(d[:2]) / (0.5 * self.cell))) + 1)
-        ts = np.linspace(0.0, tmax, n)
-        cells = set()
-        for p in o[None, :2] + ts[:, None] * d[None, :2]:
-            ci, cj = int(np.floor(p[0] / self.cell)), int(np.floor(p[1] / self.cell))
-            for di in (-1, 0, 1):
-                for dj in (-1, 0, 1):
-                    cells.add((ci + di, cj + dj))
-        found = [self.grid[c] for c in cells if c in self.grid]
-        return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
+    def hits(self, origins, directions, tmax: float = 500.0) -> np.ndarray:
+        """(n,) bool: whether each ray origin + t d (0 < t < tmax) hits a triangle
+        (Moller-Trumbore, float64). Each ray tests the triangles of the cells within one
+        cell of points every half cell along it (up to the tallest triangle for a rising ray)."""
+        o = np.ascontiguousarray(np.asarray(origins, np.float64).reshape(-1, 3))
+        d = np.ascontiguousarray(np.asarray(directions, np.float64).reshape(-1, 3))
+        out = np.zeros(len(o), bool)
+        if len(self.tri) and len(o):
+            _rays_hit(self.tri, self.zmax, self.cell, self.i0, self.j0, self.ni, self.nj,
+                      self.start, self.items, o, np.broadcast_to(d, o.shape).copy(), float(tmax), out)
+        return out
 
     def hit(self, origin, direction, tmax: float = 500.0) -> bool:
-        """Whether the ray origin + t d (0 < t < tmax) hits a triangle (Moller-Trumbore)."""
-        o = np.asarray(origin, np.float64)
-        d = np.asarray(direction, np.float64)
-        d = d / np.linalg.norm(d)
-        if not len(self.tri):
-            return False
-        if d[2] > 1e-9:  # rising ray: nothing above the tallest triangle
-            tmax = min(tmax, max(0.0, (self.zmax - o[2]) / d[2]))
-        idx = self._candidates(o, d, tmax)
-        if not len(idx):
-            return False
-        T = self.tri[idx]
-        e1, e2 = T[:, 1] - T[:, 0], T[:, 2] - T[:, 0]
-        p = np.cross(d, e2)
-        det = np.einsum("ij,ij->i", e1, p)
-        ok = np.abs(det) > 1e-12
-        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
-        s = o - T[:, 0]
-        u = np.einsum("ij,ij->i", s, p) * inv
-        q = np.cross(s, e1)
-        v = (q @ d) * inv
-        t = np.einsum("ij,ij->i", e2, q) * inv
-        return bool(np.any(ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-4) & (t < tmax)))
+        """Whether the ray origin + t d (0 < t < tmax) hits a triangle."""
+        return bool(self.hits(origin, direction, tmax)[0])
 
     def visibility(self, points, sun_dir) -> float:
         """Fraction of ``points`` (k,3) that see the sun."""
+        return float(self.visibility_many(np.asarray(points, np.float64).reshape(1, -1, 3), sun_dir)[0])
+
+    def visibility_many(self, points, sun_dir) -> np.ndarray:
+        """(m,) fraction of each row of ``points`` (m, k, 3) that sees the sun: every actor's
+        sample points in one pass."""
+        pts = np.asarray(points, np.float64)
         s = np.asarray(sun_dir, np.float64)
         if s[2] <= 0:
-            return 0.0
-        pts = np.asarray(points, np.float64).reshape(-1, 3)
-        return float(np.mean([not self.hit(p, s) for p in pts]))
+            return np.zeros(pts.shape[0])
+        lit = ~self.hits(pts.reshape(-1, 3), np.broadcast_to(s, (pts.shape[0] * pts.shape[1], 3)))
+        return lit.reshape(pts.shape[:2]).mean(1) if pts.shape[1] else np.full(pts.shape[0], np.nan)
+
+
+@njit(cache=True)
+def _rays_hit(tri, zmax, cell, i0, j0, ni, nj, start, items, O, D, tmax0, out):
+    """Occluder.hits, ray by ray: candidate cells marked once per ray, each triangle tested
+    once per ray, stopping at the first hit (the answer is only whether one exists)."""
+    cell_seen = np.zeros(ni * nj, np.int64)
+    tri_seen = np.zeros(tri.shape[0], np.int64)
+    for r in range(O.shape[0]):
+        stamp = r + 1
+        ox, oy, oz = O[r, 0], O[r, 1], O[r, 2]
+        dx, dy, dz = D[r, 0], D[r, 1], D[r, 2]
+        nd = math.sqrt(dx * dx + dy * dy + dz * dz)
+        dx, dy, dz = dx / nd, dy / nd, dz / nd
+        tmax = tmax0
+        if dz > 1e-9:  # rising ray: nothing above the tallest triangle
+            tmax = min(tmax, max(0.0, (zmax - oz) / dz))
+        n = max(2, int(math.ceil(tmax * math.sqrt(dx * dx + dy * dy) / (0.5 * cell))) + 1)
+        step = tmax / (n - 1)
+        found = False
+        for k in range(n):
+            t = tmax if k == n - 1 else k * step
+            ci = int(math.floor((ox + t * dx) / cell)) - i0
+            cj = int(math.floor((oy + t * dy) / cell)) - j0
+            for i in range(ci - 1, ci + 2):
+                if i < 0 or i >= ni:
+                    continue
+                for j in range(cj - 1, cj + 2):
+                    if j < 0 or j >= nj:
+                        continue
+                    c = i * nj + j
+                    if cell_seen[c] == stamp:
+                        continue
+                    cell_seen[c] = stamp
+                    for m in range(start[c], start[c + 1]):
+                        f = items[m]
+                        if tri_seen[f] == stamp:
+                            continue
+                        tri_seen[f] = stamp
+                        if _ray_triangle(tri, f, ox, oy, oz, dx, dy, dz, tmax):
+                            found = True
+                            break
+                    if found:
+                        break
+                if found:
+                    break
+            if found:
+                break
+        out[r] = found
+
+
+@njit(cache=True, inline="always")
+def _ray_triangle(tri, f, ox, oy, oz, dx, dy, dz, tmax):
+    ax, ay, az = tri[f, 0, 0], tri[f, 0, 1], tri[f, 0, 2]
+    e1x, e1y, e1z = tri[f, 1, 0] - ax, tri[f, 1, 1] - ay, tri[f, 1, 2] - az
+    e2x, e2y, e2z = tri[f, 2, 0] - ax, tri[f, 2, 1] - ay, tri[f, 2, 2] - az
+    px, py, pz = dy * e2z - dz * e2y, dz * e2x - dx * e2z, dx * e2y - dy * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if not abs(det) > 1e-12:
+        return False
+    inv = 1.0 / det
+    sx, sy, sz = ox - ax, oy - ay, oz - az
+    u = (sx * px + sy * py + sz * pz) * inv
+    qx, qy, qz = sy * e1z - sz * e1y, sz * e1x - sx * e1z, sx * e1y - sy * e1x
+    v = (qx * dx + qy * dy + qz * dz) * inv
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv
+    return u >= 0 and v >= 0 and u + v <= 1 and t > 1e-4 and t < tmax
 
 
 def actor_sample_points(M: np.ndarray, dims) -> np.ndarray:

@@ -65,31 +65,84 @@ def env_lookup(image: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
     return out.reshape(*batch, C)
 
 
+def env_lookup_pinhole(image: np.ndarray, width: int, height: int, fx: float, fy: float,
+                       cx: float, cy: float, rotation: np.ndarray, world_from_dome: np.ndarray,
+                       pole_y: bool = False) -> np.ndarray:
+    """(height, width, C) radiance of latlong ``image`` (H, W, C) along the rays through the
+    pixel centres of a pinhole camera whose world rotation ``rotation`` has the right, down
+    and forward directions as columns, in one pass and without (height, width, 3) temporaries:
+    the directions of render.camera.pixel_directions, taken into the dome frame
+    (world_from_dome^T d; ``pole_y``: then from a Y pole axis to Z), rounded to float32 and
+    sampled as env_lookup samples them."""
+    img = np.ascontiguousarray(image)
+    if img.ndim != 3 or img.shape[0] < 2 or img.dtype not in (np.float32, np.float64):
+        raise ValueError(f"env_lookup_pinhole: image must be float (H, W, C) with H >= 2, got "
+                         f"{img.dtype} {img.shape}")
+    H = img.shape[0]
+    h, w = int(height), int(width)
+    out = np.empty((h * w, img.shape[2]), img.dtype)
+    _lookup_pinhole(img, float(fx), float(fy), float(cx), float(cy),
+                    np.ascontiguousarray(rotation, np.float64),
+                    np.ascontiguousarray(world_from_dome, np.float64),
+                    bool(pole_y), img[0].mean(0, dtype=np.float64), img[H - 1].mean(0, dtype=np.float64),
+                    h, w, out)
+    return out.reshape(h, w, img.shape[2])
+
+
 @njit(parallel=True, cache=True)
 def _lookup(image, dirs, top, bottom, out):
     """env_lookup's sampling, point by point (same formulas, float64)."""
-    H, W, C = image.shape
     for n in prange(dirs.shape[0]):
-        x, y, z = float(dirs[n, 0]), float(dirs[n, 1]), float(dirs[n, 2])
-        norm = max(math.sqrt(x * x + y * y + z * z), 1e-12)
-        x, y, z = x / norm, y / norm, z / norm
-        u = 0.5 - math.atan2(x, -y) / (2 * math.pi)
-        v = 0.5 - math.asin(min(max(z, -1.0), 1.0)) / math.pi
-        px = u * W - 0.5
-        py = v * H - 0.5
-        x0f = math.floor(px)
-        fx = px - x0f
-        x0 = int(x0f) % W
-        x1 = (x0 + 1) % W
-        y0 = min(max(math.floor(py), 0.0), H - 2.0)
-        fy = min(max(py - y0, 0.0), 1.0)
-        r0 = int(y0)
-        wt = min(max(-py / 0.5, 0.0), 1.0)
-        wb = min(max((py - (H - 1)) / 0.5, 0.0), 1.0)
-        for c in range(C):
-            val = ((image[r0, x0, c] * (1 - fx) + image[r0, x1, c] * fx) * (1 - fy)
-                   + (image[r0 + 1, x0, c] * (1 - fx) + image[r0 + 1, x1, c] * fx) * fy)
-            out[n, c] = val * (1 - wt - wb) + top[c] * wt + bottom[c] * wb
+        _sample(image, float(dirs[n, 0]), float(dirs[n, 1]), float(dirs[n, 2]), top, bottom, out, n)
+
+
+@njit(parallel=True, cache=True)
+def _lookup_pinhole(image, fx, fy, cx, cy, R, D, pole_y, top, bottom, h, w, out):
+    """env_lookup_pinhole, pixel by pixel into out (h w, C)."""
+    for r in prange(h):
+        b = (r + 0.5 - cy) / fy
+        for col in range(w):
+            a = (col + 0.5 - cx) / fx
+            # pixel_directions: a R0 + b R1 + R2, normalised
+            x = a * R[0, 0] + b * R[0, 1] + R[0, 2]
+            y = a * R[1, 0] + b * R[1, 1] + R[1, 2]
+            z = a * R[2, 0] + b * R[2, 1] + R[2, 2]
+            nrm = math.sqrt(x * x + y * y + z * z)
+            x, y, z = x / nrm, y / nrm, z / nrm
+            # into the dome frame: d @ world_from_dome
+            dx = x * D[0, 0] + y * D[1, 0] + z * D[2, 0]
+            dy = x * D[0, 1] + y * D[1, 1] + z * D[2, 1]
+            dz = x * D[0, 2] + y * D[1, 2] + z * D[2, 2]
+            if pole_y:
+                dy, dz = -dz, dy
+            _sample(image, float(np.float32(dx)), float(np.float32(dy)), float(np.float32(dz)),
+                    top, bottom, out, r * w + col)
+
+
+@njit(cache=True, inline="always")
+def _sample(image, x, y, z, top, bottom, out, n):
+    """Bilinear latlong sample of ``image`` in direction (x, y, z) into out[n] (float64
+    inside; an index, not a row view: views in a parallel loop contend on their refcount)."""
+    H, W, C = image.shape
+    norm = max(math.sqrt(x * x + y * y + z * z), 1e-12)
+    x, y, z = x / norm, y / norm, z / norm
+    u = 0.5 - math.atan2(x, -y) / (2 * math.pi)
+    v = 0.5 - math.asin(min(max(z, -1.0), 1.0)) / math.pi
+    px = u * W - 0.5
+    py = v * H - 0.5
+    x0f = math.floor(px)
+    fx = px - x0f
+    x0 = int(x0f) % W
+    x1 = (x0 + 1) % W
+    y0 = min(max(math.floor(py), 0.0), H - 2.0)
+    fy = min(max(py - y0, 0.0), 1.0)
+    r0 = int(y0)
+    wt = min(max(-py / 0.5, 0.0), 1.0)
+    wb = min(max((py - (H - 1)) / 0.5, 0.0), 1.0)
+    for c in range(C):
+        val = ((image[r0, x0, c] * (1 - fx) + image[r0, x1, c] * fx) * (1 - fy)
+               + (image[r0 + 1, x0, c] * (1 - fx) + image[r0 + 1, x1, c] * fx) * fy)
+        out[n, c] = val * (1 - wt - wb) + top[c] * wt + bottom[c] * wb
 
 
 class EnvMap:

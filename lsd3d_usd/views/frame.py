@@ -13,7 +13,7 @@ import numpy as np
 import torch
 
 from lsd3d_usd.render.camera import Camera, pixel_rays
-from lsd3d_usd.render.gbuffer import render_gbuffer
+from lsd3d_usd.render.gbuffer import render_depth
 from lsd3d_usd.render.raster_types import RasterSettings
 from lsd3d_usd.render.rasterize import rasterize
 from lsd3d_usd.splats.field import SurfelField
@@ -58,6 +58,8 @@ def env_background(env, camera: Camera) -> np.ndarray | None:
     """(H, W, 3) env radiance along each pixel's ray, or None without an env."""
     if env is None:
         return None
+    if hasattr(env, "pixels"):      # views.stage_data.EnvMap: rays and lookup in one pass
+        return env.pixels(camera)
     _, d = pixel_rays(camera)
     return env.lookup(d)
 
@@ -134,7 +136,7 @@ def composite(surfels, actors, camera: Camera, env=None, sh_degree=None,
         s_a = out.alpha.numpy()
         dmed = out.depth_median.numpy()
         dexp = out.depth_expected.numpy()
-        s_depth = np.where(dmed > 0, dmed, np.where(s_a > 1e-4, dexp, np.inf)).astype(np.float32)
+        s_depth = np.where(dmed > 0, dmed, np.where(s_a > 1e-4, dexp, np.float32(np.inf)))
         if want:
             s_code = out.semantic.numpy()
             s_normal = out.normal.numpy()
@@ -144,25 +146,29 @@ def composite(surfels, actors, camera: Camera, env=None, sh_degree=None,
         dmed = np.zeros((H, W), np.float32)
         dexp = np.zeros((H, W), np.float32)
         s_depth = np.full((H, W), np.inf, np.float32)
-    bg = env_background(env, camera)
-    under = np.zeros((H, W, 3), np.float32) if bg is None else bg.astype(np.float32)
+    # whole-image passes only where every pixel needs one; actor pixels by their mask
+    bg = env_background(env, camera)     # a fresh array: the actors are drawn into it
+    under = np.zeros((H, W, 3), np.float32) if bg is None else np.asarray(bg, np.float32)
     a_mask = np.zeros((H, W), bool)
     a_depth = np.full((H, W), np.inf, np.float32)
     a_face = np.full((H, W), -1, np.int64)
     if len(actors.faces):
-        g = render_gbuffer(actors.vertices, actors.faces, camera)
-        a_face = g.face_index
-        a_mask = g.face_index >= 0
-        a_depth = np.where(a_mask, g.depth, np.inf).astype(np.float32)
-        a_rgb = np.zeros((H, W, 3), np.float32)
-        a_rgb[a_mask] = actors.colors[g.face_index[a_mask]]
-        under = np.where(a_mask[..., None], a_rgb, under)
+        zbuf, a_face = render_depth(actors.vertices, actors.faces, camera)
+        a_mask = a_face >= 0
+        a_depth[a_mask] = zbuf[a_mask]
+        under[a_mask] = actors.colors[a_face[a_mask]]
     front = a_mask & (a_depth < s_depth)
-    rgb = np.where(front[..., None], under, s_rgb + (1.0 - s_a)[..., None] * under)
-    alpha = np.where(front | a_mask, 1.0, s_a).astype(np.float32)
-    depth_exp = np.where(front, a_depth, np.where(dexp > 0, dexp, np.where(a_mask, a_depth, 0.0)))
-    frame = Frame(rgb.astype(np.float32), alpha, np.minimum(a_depth, s_depth),
-                  depth_exp.astype(np.float32), front)
+    rgb = (1.0 - s_a)[..., None] * under
+    rgb += s_rgb
+    rgb[front] = under[front]
+    alpha = s_a.copy()
+    alpha[a_mask] = 1.0
+    depth_exp = np.where(dexp > 0, dexp, np.float32(0.0))
+    at = a_mask & (front | ~(dexp > 0))
+    depth_exp[at] = a_depth[at]
+    depth = s_depth.copy()
+    depth[a_mask] = np.minimum(a_depth[a_mask], s_depth[a_mask])
+    frame = Frame(rgb, alpha, depth, depth_exp, front)
     if want:
         frame.labels = _labels(front, a_mask, a_depth, a_face, s_a, dmed, s_code, s_normal,
                                actors, instances, H, W)

@@ -14,22 +14,34 @@ TONEMAPS = ("aces", "reinhard", "clamp")
 
 
 def tonemap(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.ndarray:
-    """Scene-linear -> display-linear in [0, 1]."""
-    x = np.maximum(rgb * (2.0 ** exposure), 0.0)
+    """Scene-linear image (an array) -> display-linear in [0, 1]."""
+    # in place on one copy: a frame per step (the simulator) need not allocate ten images
+    x = np.asarray(np.multiply(rgb, 2.0 ** exposure))
+    np.maximum(x, 0.0, out=x)
     if method == "aces":  # Narkowicz's fit of the ACES filmic curve
-        y = (x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)
+        y = np.multiply(x, 2.51)
+        y += 0.03
+        y *= x
+        den = np.multiply(x, 2.43)
+        den += 0.59
+        den *= x
+        den += 0.14
+        y /= den
     elif method == "reinhard":
-        y = x / (1.0 + x)
+        y = np.add(x, 1.0)
+        np.divide(x, y, out=y)
     elif method == "clamp":
         y = x
     else:
         raise InputError(f"unknown tone map {method!r}; choose from {', '.join(TONEMAPS)}")
-    return np.clip(y, 0.0, 1.0)
+    return np.clip(y, 0.0, 1.0, out=y)
 
 
 def display_uint8(rgb: np.ndarray, exposure: float = 0.0, method: str = "aces") -> np.ndarray:
     """Scene-linear RGB -> what a screen shows: tone-mapped, sRGB-encoded, 8 bit."""
-    return np.round(srgb_encode(tonemap(rgb, exposure, method)) * 255.0).astype(np.uint8)
+    y = srgb_encode(tonemap(rgb, exposure, method))
+    y *= 255.0
+    return np.round(y, out=y).astype(np.uint8)
 
 
 def read_image(path) -> np.ndarray:

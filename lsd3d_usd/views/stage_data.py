@@ -34,7 +34,7 @@ from lsd3d_usd.actors.relight import (
     proxy_occluder,
 )
 from lsd3d_usd.actors.usdio import ActorSet
-from lsd3d_usd.env.lookup import env_lookup
+from lsd3d_usd.env.lookup import env_lookup, env_lookup_pinhole
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
     ACTORS_PATH,
@@ -160,6 +160,13 @@ class EnvMap:
             d = np.stack([d[..., 0], -d[..., 2], d[..., 1]], axis=-1)
         image = torch.from_numpy(np.ascontiguousarray(self.image, np.float32))
         return env_lookup(image, torch.from_numpy(d.astype(np.float32))).numpy()
+
+    def pixels(self, camera) -> np.ndarray:
+        """(H, W, 3) float32 radiance along each pixel's ray of a render.camera.Camera: what
+        lookup(pixel_directions(camera)) gives (within float32 rounding), in one pass."""
+        return env_lookup_pinhole(np.asarray(self.image, np.float32), camera.width, camera.height,
+                                  camera.fx, camera.fy, camera.cx, camera.cy, camera.pose[:3, :3],
+                                  self.world_from_dome, self.pole_axis == "Y")
 
 
 class TextureCache:
@@ -370,6 +377,7 @@ class SceneReader:
         self._lighting = None
         self._occluder = None
         self._occluder_version = -1
+        self._meshes = {}  # actor index -> (actor, its meshes joined): see _actor_mesh
         self._last = {}  # per kind, (time, value) of the last call: a rig's cameras share a time
 
     def surfels(self, time=None, near=None):
@@ -429,6 +437,22 @@ class SceneReader:
         """Actor geometry in world space at ``time``, relit by the scene's lighting."""
         return self._memo("actors", time, self._place_actors)
 
+    def _actor_mesh(self, q, a):
+        """Actor ``a``'s meshes as one (asset frame): vertices, faces, albedo per face, and
+        where each mesh's vertices start (read once per actor, not per frame)."""
+        hit = self._meshes.get(q)
+        if hit is None or hit[0] is not a:
+            sizes = [len(m.vertices) for m in a.meshes]
+            ranges = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
+            if a.meshes:
+                geo = (np.concatenate([m.vertices for m in a.meshes]).astype(np.float64),
+                       np.concatenate([m.faces + int(r) for m, r in zip(a.meshes, ranges)]),
+                       np.concatenate([m.colors for m in a.meshes]), ranges)
+            else:
+                geo = (np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros((0, 3), np.float32), ranges)
+            hit = self._meshes[q] = (a, geo)
+        return hit[1]
+
     def _place_actors(self, time) -> ActorFrame:
         if self.actors is None or not len(self.actors):
             return ActorFrame.empty()
@@ -445,30 +469,32 @@ class SceneReader:
             self._occluder_version = version
             self._sun_seen = {}
         light = self._lighting
-        vs, fs, cs, surf, fa, sa = [], [], [], [], [], []
+        # sun visibility: an actor that has not moved sees the sun as before (parked cars, a
+        # waiting queue); the others' shadow rays in one pass
+        keys = [(q, np.asarray(M, np.float64).tobytes()) for q, _, M in shown]
+        todo = [i for i, k in enumerate(keys) if k not in self._sun_seen]
+        if todo:
+            seen = self._occluder.visibility_many(
+                np.stack([actor_sample_points(shown[i][2], shown[i][1].dims) for i in todo]),
+                light.sun_dir)
+            if len(self._sun_seen) + len(todo) > 4096:
+                self._sun_seen.clear()
+            self._sun_seen.update((keys[i], float(v)) for i, v in zip(todo, seen))
+        vis = [self._sun_seen[k] for k in keys]
+        vs, fs, cs, fv, surf, fa, sa = [], [], [], [], [], [], []
         n = 0
-        for q, a, M in shown:
-            # an actor that has not moved sees the sun as before (parked cars, a waiting queue)
-            key = (q, np.asarray(M, np.float64).tobytes())
-            V = self._sun_seen.get(key)
-            if V is None:
-                V = self._occluder.visibility(actor_sample_points(M, a.dims), light.sun_dir)
-                if len(self._sun_seen) > 4096:
-                    self._sun_seen.clear()
-                self._sun_seen[key] = V
-            posed = {}
-            if a.animated:      # limbs and wheels in their pose at this time
-                for (mi, _, local), W in zip(a.animated, self.actors.part_transforms(q, t)):
-                    posed[mi] = local @ W[:3, :3].T + W[:3, 3]
-            for mi, m in enumerate(a.meshes):
-                v = posed[mi] if mi in posed else m.vertices @ M[:3, :3].T + M[:3, 3]
-                tri = v[m.faces]
-                nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-                nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+        for (q, a, M), V in zip(shown, vis):
+            local, a_faces, a_colors, ranges = self._actor_mesh(q, a)
+            if len(local):
+                v = local @ M[:3, :3].T + M[:3, 3]
+                if a.animated:      # limbs and wheels in their pose at this time
+                    for (mi, _, part), W in zip(a.animated, self.actors.part_transforms(q, t)):
+                        v[ranges[mi]:ranges[mi + 1]] = part @ W[:3, :3].T + W[:3, 3]
                 vs.append(v)
-                fs.append(m.faces + n)
-                cs.append(m.colors * light.factor(nrm, V))
-                fa.append(np.full(len(m.faces), q, np.int64))
+                fs.append(a_faces + n)
+                cs.append(a_colors)
+                fv.append(np.full(len(a_faces), V))
+                fa.append(np.full(len(a_faces), q, np.int64))
                 n += len(v)
             if a.surfels is not None:
                 f = transform_surfels(a.surfels, M)
@@ -480,9 +506,15 @@ class SceneReader:
                                         f.semantic_ids, f.semantic_classes))
                 sa.append(np.full(f.n, q, np.int64))
         empty = ActorFrame.empty()
-        return ActorFrame(np.concatenate(vs) if vs else empty.vertices,
-                          np.concatenate(fs) if fs else empty.faces,
-                          (np.concatenate(cs) if cs else empty.colors).astype(np.float32),
+        verts, faces, colors = empty.vertices, empty.faces, empty.colors
+        if vs:
+            # every face's normal and light factor in one pass
+            verts, faces = np.concatenate(vs), np.concatenate(fs)
+            tri = verts[faces]
+            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-12)
+            colors = np.concatenate(cs) * light.factor(nrm, np.concatenate(fv))
+        return ActorFrame(verts, faces, colors.astype(np.float32),
                           SurfelField.concat(surf, drop_mismatched_semantics=True) if surf else None,
                           np.concatenate(fa) if fa else empty.face_actor,
                           np.concatenate(sa) if sa else empty.surfel_actor)
