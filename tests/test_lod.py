@@ -191,3 +191,21 @@ def test_degenerate_fields():
             assert np.all(np.isfinite(a))
         np.testing.assert_allclose(np.linalg.norm(nodes.orientations, axis=1), 1.0, atol=1e-5)
         assert np.all((nodes.opacities >= 0) & (nodes.opacities <= 0.999))
+
+
+def test_cuts_of_several_trees_gather_into_one_field():
+    a, b = _field(n=300, seed=8), _field(n=200, seed=9, sh_degree=0, classes=False)
+    ta, tb = build_lod(a), build_lod(b)
+    cam = _camera(eye=(0.0, -60.0, 4.0))
+    from lsd3d_usd.splats.field import SurfelField
+    from lsd3d_usd.splats.lod import gather_cuts
+    cuts = [t.cut(cam.viewmat, cam.K, cam.width, cam.height, cam.near, cam.far, 4.0)
+            for t in (ta, tb)]
+    got = gather_cuts([ta, tb], cuts)
+    want = SurfelField.concat([ta.nodes.subset(_rows(*cuts[0])), tb.nodes.subset(_rows(*cuts[1]))],
+                              drop_mismatched_semantics=True)
+    for name in ("positions", "orientations", "scales", "opacities", "sh"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    # b has no semantics: a's are kept with -1 for b's rows, as concat does
+    np.testing.assert_array_equal(got.semantic_ids, want.semantic_ids)
+    assert got.semantic_classes == want.semantic_classes

@@ -89,23 +89,43 @@ class LodTree:
 
     def gather(self, start: np.ndarray, count: np.ndarray) -> SurfelField:
         """Rows given as runs, copied into one SurfelField."""
-        f = self.nodes
+        return gather_cuts([self], [(start, count)])
+
+
+def gather_cuts(trees: list[LodTree], cuts: list) -> SurfelField:
+    """The rows of several trees' cuts ((start, count) runs each) copied once into one
+    SurfelField (SH padded to the highest degree; semantics kept where the trees share one
+    class table, dropped otherwise, as SurfelField.concat does)."""
+    fields = [t.nodes for t in trees]
+    k = max((f.sh.shape[1] for f in fields), default=1)
+    classes = next((f.semantic_classes for f in fields if f.semantic_classes), ())
+    same = all(not f.semantic_classes or f.semantic_classes == classes for f in fields)
+    has_sem = same and any(f.semantic_ids is not None for f in fields)
+    total = int(sum(int(np.sum(c)) for _, c in cuts))
+    pos, quat = np.empty((total, 3), np.float32), np.empty((total, 4), np.float32)
+    scl, opa = np.empty((total, 2), np.float32), np.empty(total, np.float32)
+    sh = np.zeros((total, k, 3), np.float32)
+    sem = np.full(total, -1, np.int32) if has_sem else None
+    base = 0
+    for f, (start, count) in zip(fields, cuts):
         at = np.zeros(len(count) + 1, np.int64)
         np.cumsum(count, out=at[1:])
-        total = int(at[-1])
-        sem = None if f.semantic_ids is None else np.empty(total, np.int32)
-        out = (np.empty((total, 3), np.float32), np.empty((total, 4), np.float32),
-               np.empty((total, 2), np.float32), np.empty(total, np.float32),
-               np.empty((total,) + f.sh.shape[1:], np.float32))
-        _gather(start, at, f.positions, out[0])
-        _gather(start, at, f.orientations, out[1])
-        _gather(start, at, f.scales, out[2])
-        _gather(start, at, f.opacities[:, None], out[3][:, None])
-        k = f.sh.shape[1] * 3
-        _gather(start, at, f.sh.reshape(f.n, k), out[4].reshape(total, k))
-        if sem is not None:
+        at += base
+        kf = f.sh.shape[1]
+        _gather(start, at, f.positions, pos)
+        _gather(start, at, f.orientations, quat)
+        _gather(start, at, f.scales, scl)
+        _gather(start, at, f.opacities[:, None], opa[:, None])
+        if kf == k:
+            _gather(start, at, f.sh.reshape(f.n, 3 * k), sh.reshape(total, 3 * k))
+        else:   # a lower degree: its bands into the first of each surfel's SH rows
+            part = np.zeros((int(at[-1] - base), kf * 3), np.float32)
+            _gather(start, at - base, f.sh.reshape(f.n, 3 * kf), part)
+            sh[base:at[-1], :kf] = part.reshape(-1, kf, 3)
+        if has_sem and f.semantic_ids is not None:
             _gather(start, at, f.semantic_ids[:, None], sem[:, None])
-        return SurfelField(*out, sem, f.semantic_classes)
+        base = int(at[-1])
+    return SurfelField(pos, quat, scl, opa, sh, sem, classes if has_sem else ())
 
 
 @nb.njit(cache=True, nogil=True)

@@ -46,7 +46,7 @@ from lsd3d_usd.scene import (
 )
 from lsd3d_usd.splats.field import SH_C0, SurfelField
 from lsd3d_usd.splats.init import transform_surfels
-from lsd3d_usd.splats.lod import LodTree, build_lod
+from lsd3d_usd.splats.lod import LodTree, build_lod, gather_cuts
 from lsd3d_usd.splats.usdio import is_particle_field, read_surfels, surfel_prims
 from lsd3d_usd.views.images import read_image
 
@@ -417,9 +417,9 @@ class SceneReader:
             trees = [self._tree[1]]
         if not trees:
             return None
-        cuts = [t.cut_field(camera.viewmat, camera.K, camera.width, camera.height,
-                            camera.near, camera.far, self.lod_px) for t in trees]
-        return SurfelField.concat(cuts, drop_mismatched_semantics=True)
+        cuts = [t.cut(camera.viewmat, camera.K, camera.width, camera.height, camera.near,
+                      camera.far, self.lod_px) for t in trees]
+        return gather_cuts(trees, cuts)
 
     def _memo(self, kind, time, make):
         hit = self._last.get(kind)
