@@ -213,3 +213,30 @@ def test_ego_named_or_first(road_scene, cli_error, tmp_path):
     cli_error(base + ["--ego", "A"], "--ego A: needs --scenario")
     cli_error(base + ["--policy", "scenario"], "--policy scenario: needs --scenario")
     assert not (tmp_path / "o").exists()
+
+
+def test_entities_are_drawn_at_their_bounding_box(road_scene):
+    """A scenario's 10 m x 2.6 m x 3.6 m truck gets the scene's nearest vehicle asset stretched
+    to that box: its dims and its mesh's extent follow the box, and the camera labels it."""
+    from lsd3d_usd.sim.env import DriveEnv
+    folder, scene = road_scene
+    bb = xosc.BoundingBox(2.6, 10.0, 3.6, 2.0, 0, 1.8)
+    axle = xosc.Axle(0.5, 0.8, 2.2, 6.0, 0.5)
+    truck = xosc.Vehicle("truck", xosc.VehicleCategory.truck, bb, axle,
+                         xosc.Axle(0.5, 0.8, 2.2, 0, 0.5), 30, 5, 5)
+    path = scenario(folder, [("Ego", lanepos(10)), ("Target", lanepos(30))], [], road=False,
+                    entities=[("Ego", vehicle()), ("Target", truck)], name="truck.xosc")
+    env = DriveEnv(str(scene), scenario=str(path), rig="none", lidar="none")
+    try:
+        env.reset(seed=0)
+        a = env.actors.actors[1]                  # actor 0 is the ego, 1 the first entity
+        np.testing.assert_allclose(a.dims, (10.0, 2.6, 3.6))
+        kind = env.scene.closest_kind(a.label, (10.0, 2.6, 3.6))
+        t = next(t for t in env.scene.templates[a.label] if t.kind == kind)
+        s = np.array([10.0, 2.6, 3.6]) / np.asarray(t.dims, np.float64)
+        v0 = np.concatenate([m.vertices for m in t.meshes])
+        v1 = np.concatenate([m.vertices for m in a.meshes])
+        np.testing.assert_allclose(v1.max(0) - v1.min(0), (v0.max(0) - v0.min(0)) * s, rtol=1e-9)
+        assert not np.allclose(s, 1.0)            # the asset was not already this size
+    finally:
+        env.close()

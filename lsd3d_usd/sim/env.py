@@ -269,7 +269,7 @@ class DriveEnv(gym.Env):
     def _world_from_scenario(self, v0: float) -> None:
         """The ego at the scenario's Init (its reference point, the rear axle centre, is the
         ego frame's origin); the entities drawn with the scene's template of their class
-        whose bounding box is nearest to theirs."""
+        whose bounding box is nearest to theirs, stretched to their box."""
         from lsd3d_usd.sim.scenario.world import ScenarioWorld
         x, y, _, yaw, _ = self._ego_init
         lim = self.limits
@@ -280,7 +280,8 @@ class DriveEnv(gym.Env):
         labels = self.world.labels()
         kinds = [self.scene.closest_kind(lab, (e.length, e.width, e.height))
                  for lab, e in zip(labels, self.world.entities)]
-        self.actors = self.scene.actors_for(labels, kinds)
+        boxes = [(e.length, e.width, e.height) for e in self.world.entities]
+        self.actors = self.scene.actors_for(labels, kinds, boxes)
 
     def scenario_state(self) -> dict | None:
         """The scenario's own outcome so far (None without a scenario)."""

@@ -68,6 +68,24 @@ def static_obstacles(layout) -> tuple[list, list]:
     return polys, ids
 
 
+def scaled_actor(a: PlacedActor, dims) -> PlacedActor:
+    """``a`` stretched per axis to ``dims`` (length, width, height) about its frame's origin
+    (the box's bottom centre, so it stays on the ground and centred); surfel disks scale by
+    the mean stretch. Degenerate sizes (zero, not finite) keep the asset's own."""
+    want = np.asarray(dims, np.float64)[:3]
+    have = np.asarray(a.dims, np.float64)[:3]
+    if not (np.all(np.isfinite(want)) and np.all(want > 0) and np.all(have > 0)):
+        return a
+    s = want / have
+    meshes = [replace(m, vertices=np.asarray(m.vertices, np.float64) * s) for m in a.meshes]
+    surfels = a.surfels
+    if surfels is not None:
+        g = float(np.cbrt(np.prod(s)))
+        surfels = replace(surfels, positions=surfels.positions * s.astype(np.float32),
+                          scales=surfels.scales * np.float32(g))
+    return replace(a, meshes=meshes, surfels=surfels, dims=want.copy())
+
+
 class SimActors:
     """The agents of an episode as `views` reads actors (the interface of
     actors.usdio.ActorSet): geometry in each agent's own frame, placed by `set_poses`."""
@@ -200,15 +218,19 @@ class SimScene:
     def dims(self, label: str, kind: str | None = None) -> np.ndarray:
         return np.asarray(self.template(label, 0, kind).dims, np.float64)
 
-    def actors_for(self, labels: list[str], kinds: list) -> SimActors:
+    def actors_for(self, labels: list[str], kinds: list, dims: list | None = None) -> SimActors:
         """The episode's actors: the ego (role "ego", a car), then one per agent (vehicles,
-        cyclists, pedestrians in `World.agents` order), then the scene's parked actors."""
+        cyclists, pedestrians in `World.agents` order), then the scene's parked actors.
+        ``dims``: per agent (length, width, height) its asset is scaled to (a scenario
+        entity's bounding box), or None: the asset's own size."""
         acts, mats = [], []
         ego = self.template(A.VEHICLE_CLASS, 0, "car")
         acts.append(replace(ego, path="/World/Actors/Ego/Ego_000", role="ego"))
         mats.append(np.eye(4))
         for q, (label, kind) in enumerate(zip(labels, kinds)):
             t = self.template(label, q, kind)
+            if dims is not None and dims[q] is not None:
+                t = scaled_actor(t, dims[q])
             acts.append(replace(t, path=f"/World/Actors/Sim/{label.capitalize()}_{q:03d}",
                                 role="moving"))
             mats.append(np.eye(4))
