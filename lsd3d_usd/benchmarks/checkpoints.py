@@ -24,6 +24,7 @@ from lsd3d_usd.datasets.nuscenes import NuScenesWriter
 from lsd3d_usd.datasets.timeline import Timeline
 from lsd3d_usd.sensors.camera import camera_in_ego
 from lsd3d_usd.sensors.rigs import load_rig
+from lsd3d_usd.views.boxes import Box, CameraBox
 
 WIDTH, POINTS = 8, 64            # tiny files: only the tables' rows matter here
 
@@ -57,13 +58,11 @@ def _samples(info: LogInfo, actors: int):
         if tick.lidar:
             s.lidar = LidarShot("LIDAR_TOP", sweep, np.eye(4))
         if tick.keyframe:
-            entry = {"box_2d": [1.0, 1.0, 5.0, 3.0], "visible_fraction": 0.9, "pixels": 12,
-                     "truncated": 0.0}
-            s.boxes = [{"prim": f"/World/Actors/a{i}", "class": "vehicle", "kind": "car",
-                        "role": "traffic", "num_lidar_pts": 5, "pixels": 12,
-                        "velocity_world": [5.0, 0.0, 0.0], "rotation_xyzw": [0, 0, 0, 1],
-                        "size": [4.5, 1.9, 1.6], "center": [20.0 + 3 * i, 3.0, 0.8],
-                        "cameras": {names[i % 6]: entry, names[(i + 1) % 6]: entry}}
+            entry = CameraBox((1.0, 1.0, 5.0, 3.0), 12, 13, 0.9, 0.0, (1, 1, 5, 3))
+            s.boxes = [Box(f"/World/Actors/a{i}", "vehicle", 7, "car", (20.0 + 3 * i, 3.0, 0.8),
+                           (4.5, 1.9, 1.6), (0, 0, 0, 1), (5.0, 0.0, 0.0), instance_id=i + 1,
+                           role="traffic", cameras={names[i % 6]: entry, names[(i + 1) % 6]: entry},
+                           num_lidar_pts=5, pixels=12)
                        for i in range(actors)]
         yield s
 

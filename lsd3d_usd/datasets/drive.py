@@ -68,7 +68,7 @@ class Sample:
     world_from_ego: np.ndarray
     cameras: list = field(default_factory=list)
     lidar: LidarShot | None = None
-    boxes: list = field(default_factory=list)   # views.boxes dicts (+ keyframe entries)
+    boxes: list = field(default_factory=list)   # views.boxes.Box (+ keyframe counts)
     timing: dict = field(default_factory=dict)  # seconds: cameras, lidar, boxes
 
     @property
@@ -154,8 +154,8 @@ def _samples(info: LogInfo, stage, by_name, reader, track, tcps, seed, exposure,
                                             info.ego_from_camera[spec.name], frame.labels))
                 if actors_frame is not None:
                     a0 = time.perf_counter()
-                    camera_boxes(s.boxes, cam, spec.name, frame.labels, actors_frame,
-                                 info.instances)
+                    s.boxes = camera_boxes(s.boxes, cam, spec.name, frame.labels,
+                                           actors_frame, info.instances)
                     alone += time.perf_counter() - a0
         if tick.keyframe:
             _keyframe_stats(s)
@@ -173,9 +173,10 @@ def _keyframe_stats(s: Sample) -> None:
         n = dict(zip(ids.tolist(), counts.tolist()))
     else:
         n = {}
+    out = []
     for b in s.boxes:
-        b["num_lidar_pts"] = int(n.get(b["instance_id"], 0))
-        seen = sum(e["pixels"] for e in b["cameras"].values())
-        alone = sum(e["pixels_alone"] for e in b["cameras"].values())
-        b["pixels"] = int(seen)
-        b["visible_fraction"] = float(seen / alone) if alone else 0.0
+        seen = sum(e.pixels for e in b.cameras.values())
+        alone = sum(e.pixels_alone for e in b.cameras.values())
+        out.append(b.with_counts(int(n.get(b.instance_id, 0)), int(seen),
+                                 float(seen / alone) if alone else 0.0))
+    s.boxes = out

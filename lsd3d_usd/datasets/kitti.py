@@ -29,6 +29,7 @@ from scipy.spatial.transform import Rotation
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.datasets.writers import encode_image, write_bytes
+from lsd3d_usd.views.boxes import Box, CameraBox
 
 KITTI_TYPE = {"car": "Car", "van": "Van", "truck": "Truck", "bus": "Misc"}
 CLASS_TYPE = {"pedestrian": "Pedestrian", "cyclist": "Cyclist"}
@@ -48,17 +49,17 @@ def _wrap(a: float) -> float:
     return float((a + np.pi) % (2 * np.pi) - np.pi)
 
 
-def label_line(b: dict, entry: dict, cam_from_world: np.ndarray) -> str:
-    R = Rotation.from_quat(b["rotation_xyzw"]).as_matrix()
-    L_, W_, H_ = b["size"]
-    bottom = np.asarray(b["center"]) - R[:, 2] * H_ / 2
+def label_line(b: Box, entry: CameraBox, cam_from_world: np.ndarray) -> str:
+    R = Rotation.from_quat(b.rotation_xyzw).as_matrix()
+    L_, W_, H_ = b.size
+    bottom = np.asarray(b.center) - R[:, 2] * H_ / 2
     loc = cam_from_world[:3, :3] @ bottom + cam_from_world[:3, 3]
     d = cam_from_world[:3, :3] @ R[:, 0]
     ry = _wrap(np.arctan2(-d[2], d[0]))
     alpha = _wrap(ry - np.arctan2(loc[0], loc[2]))
-    x0, y0, x1, y1 = entry["box_2d"]
-    vals = [kitti_type(b["class"], b["kind"]), f"{entry['truncated']:.2f}",
-            str(occluded(entry["visible_fraction"])), f"{alpha:.4f}",
+    x0, y0, x1, y1 = entry.box_2d
+    vals = [kitti_type(b.label, b.kind), f"{entry.truncated:.2f}",
+            str(occluded(entry.visible_fraction)), f"{alpha:.4f}",
             f"{x0:.2f}", f"{y0:.2f}", f"{x1:.2f}", f"{y1:.2f}",
             f"{H_:.4f}", f"{W_:.4f}", f"{L_:.4f}",
             f"{loc[0]:.4f}", f"{loc[1]:.4f}", f"{loc[2]:.4f}", f"{ry:.4f}"]
@@ -100,8 +101,9 @@ class KittiWriter:
         pts[:, :3], pts[:, 3] = sw.xyz, sw.intensity
         write_bytes(t / "velodyne" / f"{fid}.bin", pts.tobytes())
         cam_from_world = np.linalg.inv(s.world_from_ego @ self.ego_from_cam)
-        lines = [label_line(b, b["cameras"][self.cam], cam_from_world) for b in s.boxes
-                 if "box_2d" in b["cameras"].get(self.cam, {})]
+        seen = [(b, b.cameras.get(self.cam)) for b in s.boxes]
+        lines = [label_line(b, e, cam_from_world) for b, e in seen
+                 if e is not None and e.box_2d is not None]
         write_bytes(t / "label_2" / f"{fid}.txt", "".join(ln + "\n" for ln in lines).encode())
         P = np.hstack([shot.K, np.zeros((3, 1))])
         calib = [f"P{i}: {_row(P)}" for i in range(4)]

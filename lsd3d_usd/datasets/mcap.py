@@ -241,18 +241,19 @@ class McapWriter:
         ents = []
         for b in boxes:
             from scipy.spatial.transform import Rotation
-            x, y, z, w = Rotation.from_quat(b["rotation_xyzw"]).as_quat()
-            c = pal[b["class_id"] if 0 <= b["class_id"] < 256 else L.UNLABELLED] / 255.0
+            x, y, z, w = Rotation.from_quat(b.rotation_xyzw).as_quat()
+            c = pal[b.class_id if 0 <= b.class_id < 256 else L.UNLABELLED] / 255.0
+            cx, cy, cz = b.center
+            sx, sy, sz = b.size
             cube = fm.CubePrimitive(
-                pose=fm.Pose(position=fm.Vector3(x=b["center"][0], y=b["center"][1],
-                                                 z=b["center"][2]),
+                pose=fm.Pose(position=fm.Vector3(x=cx, y=cy, z=cz),
                              orientation=fm.Quaternion(x=x, y=y, z=z, w=w)),
-                size=fm.Vector3(x=b["size"][0], y=b["size"][1], z=b["size"][2]),
+                size=fm.Vector3(x=sx, y=sy, z=sz),
                 color=fm.Color(r=float(c[0]), g=float(c[1]), b=float(c[2]), a=0.5))
             meta = [fm.KeyValuePair(key=k, value=str(v)) for k, v in (
-                ("class", b["class"]), ("kind", b["kind"]), ("prim", b["prim"]),
-                ("speed", f"{np.linalg.norm(b['velocity_world']):.3f}"))]
-            ents.append(fm.SceneEntity(timestamp=stamp, frame_id="world", id=b["prim"],
+                ("class", b.label), ("kind", b.kind), ("prim", b.prim),
+                ("speed", f"{b.speed():.3f}"))]
+            ents.append(fm.SceneEntity(timestamp=stamp, frame_id="world", id=b.prim,
                                        lifetime=fm.Duration(0, 0), frame_locked=False,
                                        metadata=meta, cubes=[cube]))
         return fm.SceneUpdate(entities=ents)

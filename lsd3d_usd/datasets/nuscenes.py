@@ -170,29 +170,29 @@ class NuScenesWriter:
     def _annotations(self, s, ts) -> None:
         stok = self._sample_token(s.tick.keyframe_index)
         for b in s.boxes:
-            if b.get("num_lidar_pts", 0) <= 0 and b.get("pixels", 0) <= 0:
+            n_lidar = b.num_lidar_pts or 0
+            if n_lidar <= 0 and (b.pixels or 0) <= 0:
                 continue            # nothing of it sensed: not annotated (as nuScenes)
-            cat = M.actor_category(b["class"], b["kind"])
-            inst = self.instances.get(b["prim"])
+            cat = M.actor_category(b.label, b.kind)
+            inst = self.instances.get(b.prim)
             if inst is None:
-                inst = self.instances[b["prim"]] = {
-                    "token": token(*self.key, "instance", b["prim"]),
+                inst = self.instances[b.prim] = {
+                    "token": token(*self.key, "instance", b.prim),
                     "category_token": token("category", cat), "nbr_annotations": 0,
                     "first_annotation_token": "", "last_annotation_token": "",
-                    "prim": b["prim"]}
-            atok = token(*self.key, "sample_annotation", b["prim"], ts)
-            speed = float(np.linalg.norm(b["velocity_world"]))
-            attr = M.attribute(cat, b["role"], speed)
+                    "prim": b.prim}
+            atok = token(*self.key, "sample_annotation", b.prim, ts)
+            attr = M.attribute(cat, b.role, b.speed())
             from scipy.spatial.transform import Rotation
-            R = Rotation.from_quat(b["rotation_xyzw"]).as_matrix()
-            L_, W_, H_ = b["size"]
+            R = Rotation.from_quat(b.rotation_xyzw).as_matrix()
+            L_, W_, H_ = b.size
             row = {"token": atok, "sample_token": stok, "instance_token": inst["token"],
-                   "visibility_token": M.visibility_token(b.get("visible_fraction", 0.0)),
+                   "visibility_token": M.visibility_token(b.visible_fraction or 0.0),
                    "attribute_tokens": [token("attribute", attr)] if attr else [],
-                   "translation": (np.asarray(b["center"]) - self.origin).tolist(),
+                   "translation": (np.asarray(b.center) - self.origin).tolist(),
                    "size": [W_, L_, H_], "rotation": quat_wxyz(R), "prev": "", "next": "",
-                   "num_lidar_pts": int(b.get("num_lidar_pts", 0)), "num_radar_pts": 0}
-            last = self.last_ann.get(b["prim"])
+                   "num_lidar_pts": int(n_lidar), "num_radar_pts": 0}
+            last = self.last_ann.get(b.prim)
             if last is not None:
                 row["prev"] = last["token"]
                 last["next"] = atok
@@ -200,15 +200,15 @@ class NuScenesWriter:
                 inst["first_annotation_token"] = atok
             inst["last_annotation_token"] = atok
             inst["nbr_annotations"] += 1
-            self.last_ann[b["prim"]] = row
+            self.last_ann[b.prim] = row
             self.rows["sample_annotation"].append(row)
             self._image_annotations(b, row, cat)
 
     def _image_annotations(self, b, ann, cat) -> None:
         """2D boxes per camera (image_annotations.json, the devkit's 2D table): the tight box
         of the actor's instance pixels, with its visible fraction in that camera."""
-        for channel, e in sorted(b["cameras"].items()):
-            if "box_2d" not in e or channel not in self.keyframe_sd:
+        for channel, e in sorted(b.cameras.items()):
+            if e.box_2d is None or channel not in self.keyframe_sd:
                 continue
             sd = self.keyframe_sd[channel]
             self.rows["image_annotations"].append({
@@ -216,10 +216,10 @@ class NuScenesWriter:
                 "instance_token": ann["instance_token"], "category_name": cat,
                 "attribute_tokens": ann["attribute_tokens"],
                 "visibility_token": ann["visibility_token"], "filename": sd["filename"],
-                "bbox_corners": [float(v) for v in e["box_2d"]],
+                "bbox_corners": [float(v) for v in e.box_2d],
                 "num_lidar_pts": ann["num_lidar_pts"], "num_radar_pts": 0,
-                "visible_fraction": float(e["visible_fraction"]), "pixels": int(e["pixels"]),
-                "truncated": float(e["truncated"]),
+                "visible_fraction": float(e.visible_fraction), "pixels": int(e.pixels),
+                "truncated": float(e.truncated),
                 "prev": "", "next": ""})
 
     # ---------------------------------------------------------------- resuming

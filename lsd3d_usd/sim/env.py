@@ -528,10 +528,7 @@ class DriveEnv(gym.Env):
 
     def _info(self, scores: dict) -> dict:
         """Privileged data and the scores: never part of the observation."""
-        ag = self._all_agents()
-        boxes = [{"id": str(ag.ids[i]), "kind": ag.kind[i], "center": ag.xy[i].tolist(),
-                  "yaw": float(ag.yaw[i]), "length": float(ag.length[i]), "width": float(ag.width[i]),
-                  "velocity": ag.velocity[i].tolist()} for i in range(len(ag))]
+        boxes = [b.to_json() for b in self._all_agents().boxes()]     # sim.metrics.AgentBox
         gap, v_lead = self.world.ego_leader()
         return {"t": round(self.t, 9), "step": self.k, "scores": scores, "boxes": boxes,
                 "route": list(self.route.ids), "route_length_m": self.route.length,

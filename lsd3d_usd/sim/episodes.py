@@ -28,6 +28,7 @@ import numpy as np
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout.routes import parse_route, random_routes
 from lsd3d_usd.scene import atomic_write_bytes
+from lsd3d_usd.sim.metrics import AgentBox
 
 MAX_EPISODES = 1000
 
@@ -90,17 +91,17 @@ class _Recorder:
         self.rows.append(("ego", "ego", info["t"], e.x, e.y, e.z, e.yaw, e.v, "rear_axle"))
         self.ego_path.append((e.x, e.y))
         refs = env.world.reference_poses() if hasattr(env.world, "reference_poses") else {}
-        for b in info["boxes"]:
-            if b["id"].startswith("parked:"):
+        for b in map(AgentBox.from_json, info["boxes"]):
+            if b.id.startswith("parked:"):
                 continue
-            if b["id"] in refs:
-                x, y, z, yaw, v = refs[b["id"]]
-                self.rows.append((b["id"], b["kind"], info["t"], x, y, z, yaw, v, "reference"))
+            if b.id in refs:
+                x, y, z, yaw, v = refs[b.id]
+                self.rows.append((b.id, b.kind, info["t"], x, y, z, yaw, v, "reference"))
             else:
-                v = float(np.hypot(*b["velocity"]))
-                self.rows.append((b["id"], b["kind"], info["t"], b["center"][0], b["center"][1],
-                                  float("nan"), b["yaw"], v, "box_centre"))
-            self.agent_paths.setdefault(b["id"], []).append((b["center"][0], b["center"][1], b["kind"]))
+                v = float(np.hypot(*b.velocity))
+                self.rows.append((b.id, b.kind, info["t"], b.center[0], b.center[1],
+                                  float("nan"), b.yaw, v, "box_centre"))
+            self.agent_paths.setdefault(b.id, []).append((b.center[0], b.center[1], b.kind))
         for key, what in (("new_collisions", "collision"),):
             for c in sc.get(key) or []:
                 self.events.append({"t": info["t"], "kind": what, "with": c, "xy": [e.x, e.y]})

@@ -74,6 +74,29 @@ def _f64(a) -> np.ndarray:
     return np.asarray(a, dtype=np.float64)
 
 
+@dataclass(frozen=True)
+class AgentBox:
+    """One agent's ground footprint at a step: ``info["boxes"]`` holds ``to_json()`` of each
+    (plain dicts: the Gymnasium info crosses processes in sim.remote and users index it);
+    the sim's own readers (policies, episodes, record) read it back with `from_json`."""
+    id: str                         # vehicle:k, cyclist:k, pedestrian:k, parked:<prim path>
+    kind: str                       # in KINDS
+    center: tuple[float, float]     # m
+    yaw: float                      # rad
+    length: float                   # m
+    width: float                    # m
+    velocity: tuple[float, float]   # m/s
+
+    def to_json(self) -> dict:
+        return {"id": self.id, "kind": self.kind, "center": list(self.center), "yaw": self.yaw,
+                "length": self.length, "width": self.width, "velocity": list(self.velocity)}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "AgentBox":
+        return cls(d["id"], d["kind"], tuple(d["center"]), d["yaw"], d["length"], d["width"],
+                   tuple(d["velocity"]))
+
+
 @dataclass
 class Agents:
     """Other agents at one step: N boxes with velocities, kinds and stable ids."""
@@ -105,6 +128,11 @@ class Agents:
 
     def __len__(self) -> int:
         return len(self.xy)
+
+    def boxes(self) -> list[AgentBox]:
+        return [AgentBox(str(self.ids[i]), self.kind[i], tuple(self.xy[i].tolist()),
+                         float(self.yaw[i]), float(self.length[i]), float(self.width[i]),
+                         tuple(self.velocity[i].tolist())) for i in range(len(self))]
 
     @classmethod
     def empty(cls) -> "Agents":

@@ -27,6 +27,7 @@ import numpy as np
 from lsd3d_usd.actors.traffic import IDMParams
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.sim.control import TrackerGains, pure_pursuit
+from lsd3d_usd.sim.metrics import AgentBox
 
 POLICIES = ("planner", "constant", "scenario")
 p_end_overrun = 1.0        # m: the planner aims its front this far past the route's end
@@ -80,9 +81,9 @@ class Planner:
         if end < best[0]:
             best = (end, 0.0)
         heading = route.heading(d_ego)
-        boxes = [b for b in info["boxes"]
-                 if abs(b["center"][0] - ego.x) < self.horizon + 10
-                 and abs(b["center"][1] - ego.y) < self.horizon + 10]
+        boxes = [b for b in map(AgentBox.from_json, info["boxes"])
+                 if abs(b.center[0] - ego.x) < self.horizon + 10
+                 and abs(b.center[1] - ego.y) < self.horizon + 10]
         if not boxes:
             return best
         # every box, and every crossing agent's straight path over 3 s, against the route
@@ -91,10 +92,10 @@ class Planner:
         ds = np.arange(lo, min(d_ego + self.horizon + 10.0, route.length) + 1.0, 1.0)
         R = route.points(ds)[:, :2]
         taus = np.arange(0.0, 3.01, 0.25)
-        C = np.array([b["center"] for b in boxes], np.float64)
-        V = np.array([b["velocity"] for b in boxes], np.float64)
-        half = np.array([0.5 * b["width"] if b["kind"] != "pedestrian" else 0.5 for b in boxes])
-        blen = np.array([b["length"] for b in boxes])
+        C = np.array([b.center for b in boxes], np.float64)
+        V = np.array([b.velocity for b in boxes], np.float64)
+        half = np.array([0.5 * b.width if b.kind != "pedestrian" else 0.5 for b in boxes])
+        blen = np.array([b.length for b in boxes])
         P = C[:, None, :] + V[:, None, :] * taus[None, :, None]          # (n, T, 2)
         dist, along = _nearest_on(R, ds, P.reshape(-1, 2))
         dist, along = dist.reshape(P.shape[:2]), along.reshape(P.shape[:2])

@@ -25,8 +25,10 @@ import numpy as np
 from lsd3d_usd.datasets.drive import LIDAR_CHANNEL, CameraShot, LidarShot, LogInfo, LogPlan, Sample
 from lsd3d_usd.datasets.mcap import McapWriter
 from lsd3d_usd.semantics import CLASS_ID
+from lsd3d_usd.sim.metrics import AgentBox
 from lsd3d_usd.sensors.camera import camera_in_ego, rig_camera
 from lsd3d_usd.views import labels as L
+from lsd3d_usd.views.boxes import Box
 
 SCORES_TOPIC = "/sim/scores"
 FALLBACK_HEIGHT = {"vehicle": 1.6, "cyclist": 1.7, "pedestrian": 1.75}   # m
@@ -91,26 +93,25 @@ class EpisodeMcap:
                 out[f"{label.lower()}:{k if k < n_slots else k - n_slots}"] = q
         return out
 
-    def _boxes(self, boxes: list[dict]) -> list[dict]:
+    def _boxes(self, boxes: list[dict]) -> list[Box]:
+        """info["boxes"] (sim.metrics.AgentBox dicts) as 3D boxes for the writer."""
         env = self.env
         placed = env.actors.transforms()
         dims = [a.dims for a in env.actors.actors]
         cls = env.sensors.instances.class_ids()
         out = []
-        for b in boxes:
-            q = self._actor_of.get(b["id"])
+        for b in map(AgentBox.from_json, boxes):
+            q = self._actor_of.get(b.id)
             if q is not None:
                 h, z0, cid = float(dims[q][2]), float(placed[q][2, 3]), int(cls[q])
             else:
-                h = FALLBACK_HEIGHT.get(b["kind"], 1.6)
-                z0, cid = float(env.ego.z), CLASS_ID.get(b["kind"], L.UNLABELLED)
-            yaw = float(b["yaw"])
-            vx, vy = b["velocity"]
-            out.append({"prim": b["id"], "class": b["kind"], "kind": b["kind"], "class_id": cid,
-                        "center": [b["center"][0], b["center"][1], z0 + h / 2],
-                        "size": [b["length"], b["width"], h],
-                        "rotation_xyzw": [0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)],
-                        "velocity_world": [vx, vy, 0.0]})
+                h = FALLBACK_HEIGHT.get(b.kind, 1.6)
+                z0, cid = float(env.ego.z), CLASS_ID.get(b.kind, L.UNLABELLED)
+            yaw = float(b.yaw)
+            (x, y), (vx, vy) = b.center, b.velocity
+            out.append(Box(b.id, b.kind, cid, b.kind, (x, y, z0 + h / 2), (b.length, b.width, h),
+                           (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)), (vx, vy, 0.0),
+                           yaw=yaw))
         return out
 
     def write(self, obs: dict, info: dict) -> None:

@@ -99,7 +99,8 @@ def render_preview(scene_path, camera_path: str, out_dir, *, times=(None,), reso
             code = stage.GetStartTimeCode() if t is None else float(t)
             boxes = actor_boxes(reader.actors, instances, lboxes, code, tcps, None)
             name = camera_path.rstrip("/").rsplit("/", 1)[-1]
-            camera_boxes(boxes, cam, name, frame.labels, reader.actors_at(t), instances)
+            boxes = camera_boxes(boxes, cam, name, frame.labels, reader.actors_at(t),
+                                 instances)
             written.append(write_boxes(Path(out_dir) / "boxes" / f"{k:04d}.json", k,
                                        code / tcps, boxes))
         if deferrer is not None:

@@ -127,7 +127,8 @@ def render_rig(scene_path, out_dir, rig: RigOptions | None = None, *,
             if frame.labels is not None:
                 write_ground_truth(frames[name][-1], frame.labels, outputs)
                 if boxes is not None:
-                    camera_boxes(boxes, cam, name, frame.labels, reader.actors_at(code), instances)
+                    boxes = camera_boxes(boxes, cam, name, frame.labels, reader.actors_at(code),
+                                         instances)
             if video:
                 images[name].append(display_uint8(frame.rgb, exposure, tonemap_method))
             if deferrer is not None:
