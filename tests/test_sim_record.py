@@ -113,8 +113,12 @@ def test_ego_images_and_clouds_are_the_env_s(episode):
 
 
 def test_boxes_and_scores_per_step(episode):
+    from lsd3d_usd.sim.metrics import AgentBox
     seen, _, msgs = episode
     assert any(len(s["boxes"]) >= 3 for s in seen)
+    # info["boxes"] stays plain dicts (the Gymnasium info API), each an AgentBox's JSON
+    assert all(type(b) is dict and AgentBox.from_json(b).to_json() == b
+               for s in seen for b in s["boxes"])
     kinds = set()
     for upd, s in zip(_topic(msgs, "/markers/annotations"), seen):
         assert [e.id for e in upd.entities] == [b["id"] for b in s["boxes"]]

@@ -217,10 +217,13 @@ def test_instances_are_stable_and_boxes_enclose_them(sensors):
         json.loads((out / "instances.json").read_text())
 
 
-def test_boxes_carry_pose_size_and_velocity(sensors):
+def test_boxes_carry_pose_size_and_velocity(sensors, tmp_path):
     """Box centres and velocities against the actor prims' transforms as USD composes them
-    (the box centre moved by the prim's motion over ±10 ms)."""
+    (the box centre moved by the prim's motion over ±10 ms); the file read back as typed
+    boxes (views.boxes.read_boxes) writes the same bytes again."""
     from pxr import Usd, UsdGeom
+
+    from lsd3d_usd.views.boxes import read_boxes, write_boxes
     _, out, _ = sensors
     stage = Usd.Stage.Open(str(out / "rig.usda"))
     tcps = stage.GetTimeCodesPerSecond()
@@ -231,23 +234,26 @@ def test_boxes_carry_pose_size_and_velocity(sensors):
 
     moving = 0
     for k in range(FRAMES):
-        doc = json.loads((out / "boxes" / f"{k:04d}.json").read_text())
-        assert doc["boxes"]
-        for b in doc["boxes"]:
-            assert len(b["size"]) == 3 and all(s > 0.1 for s in b["size"])
-            assert len(b["rotation_xyzw"]) == 4
-            prim = stage.GetPrimAtPath(b["prim"])
-            M0 = world(prim, doc["time"])
-            c = np.append(b["center"], 1.0)
+        path = out / "boxes" / f"{k:04d}.json"
+        frame, time, boxes = read_boxes(path)
+        assert frame == k and boxes
+        again = write_boxes(tmp_path / f"{k:04d}.json", frame, time, boxes)
+        assert again.read_bytes() == path.read_bytes()
+        for b in boxes:
+            assert len(b.size) == 3 and all(s > 0.1 for s in b.size)
+            assert len(b.rotation_xyzw) == 4 and b.instance_id > 0
+            prim = stage.GetPrimAtPath(b.prim)
+            M0 = world(prim, time)
+            c = np.append(b.center, 1.0)
             yaw = np.arctan2(M0[1, 0], M0[0, 0])
-            assert abs(np.angle(np.exp(1j * (yaw - b["yaw"])))) < 1e-6
+            assert abs(np.angle(np.exp(1j * (yaw - b.yaw)))) < 1e-6
             h = 0.01
-            ahead = world(prim, doc["time"] + h) @ np.linalg.solve(M0, c)
-            behind = world(prim, doc["time"] - h) @ np.linalg.solve(M0, c)
+            ahead = world(prim, time + h) @ np.linalg.solve(M0, c)
+            behind = world(prim, time - h) @ np.linalg.solve(M0, c)
             v = (ahead - behind)[:3] / (2 * h)
-            np.testing.assert_allclose(b["velocity_world"], v, atol=1e-3)
-            R_ego = world(stage.GetPrimAtPath("/World/Cameras/Ego"), doc["time"])[:3, :3]
-            np.testing.assert_allclose(b["velocity_ego"], R_ego.T @ v, atol=1e-3)
+            np.testing.assert_allclose(b.velocity_world, v, atol=1e-3)
+            R_ego = world(stage.GetPrimAtPath("/World/Cameras/Ego"), time)[:3, :3]
+            np.testing.assert_allclose(b.velocity_ego, R_ego.T @ v, atol=1e-3)
             moving += int(np.linalg.norm(v) > 0.5)
     assert moving >= 1
 
