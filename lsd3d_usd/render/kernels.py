@@ -10,7 +10,10 @@ inside. The forward evaluates a surfel on each row of its rectangle in blocks of
 adjacent pixels (one AVX2 vector) and composites them branch-free with masks; per-pixel state
 lives in one array in blocks of constant-offset planes, so LLVM vectorises the lane loop.
 Alpha is latency-bound (each block waits on one chain of divide, exp and compare), hence the
-short exp_neg and the FMA contraction. The backward computes alpha and the per-pixel geometry
+short exp_neg and the FMA contraction. Nothing in the lane loop is integer: numba widens int32
+arithmetic to int64, and int64 lanes (a column index converted to float, the 2^-n of exp_neg)
+took 512-bit adds, shifts and converts per block; the column centres are a state plane and
+2^-n is written as float bits (pow2_neg): 25-35 % off the forward, outputs bitwise the same. The backward computes alpha and the per-pixel geometry
 of a surfel on its rows x an aligned power-of-two column span in one vectorised loop
 (_geom_block), then runs its scalar chain rule over the exact rectangle (a lane-masked
 backward in the forward's layout was measured 1.4x slower, probably because the scalar loop
@@ -43,7 +46,6 @@ _ZERO = np.float32(0.0)
 _TWO = np.float32(2.0)
 _EXP_CLAMP = np.float32(16.0)
 _LOG2E = np.float32(1.4426950408889634)
-_TWO_M24 = np.float32(2.0 ** -24)
 # 2^-f on [0, 1) as p(f) = 1 + P1 f + P2 f^2 + ... + P6 f^6: relative-error weighted
 # least-squares fit (fitted here in float64, then rounded): 1.0e-8 in float64, 2.1e-7 in float32.
 _P1 = np.float32(-6.93147004e-01)
@@ -54,6 +56,19 @@ _P5 = np.float32(-1.27655233e-03)
 _P6 = np.float32(1.09857116e-04)
 _LOWPASS = np.float32(2.0)  # 1/sigma^2, sigma = sqrt(2)/2 px
 _M1 = np.float32(-1.0)
+
+
+@intrinsic
+def pow2_neg(typingctx, n):
+    """2^-n as float32 for an integer 0 <= n <= 126, exactly: the exponent field 127 - n
+    written in 32-bit integer arithmetic and the bits read as a float. (numba widens int32
+    arithmetic to int64, and int64 lanes took a 512-bit shift and convert per 8 pixels.)"""
+    def codegen(context, builder, sig, args):
+        i32 = ir.IntType(32)
+        v = builder.trunc(args[0], i32) if args[0].type.width > 32 else args[0]
+        e = builder.shl(builder.sub(i32(127), v), i32(23))
+        return builder.bitcast(e, ir.FloatType())
+    return types.float32(n), codegen
 
 
 @njit(inline="always")
@@ -69,7 +84,7 @@ def exp_neg(y):
     f = x - f32(n)
     f2 = f * f
     p = (_ONE + _P1 * f) + f2 * ((_P2 + _P3 * f) + f2 * ((_P4 + _P5 * f) + f2 * _P6))
-    return p * (f32(np.int32(1) << (np.int32(24) - n)) * _TWO_M24)
+    return p * pow2_neg(n)
 
 
 @intrinsic
@@ -307,8 +322,8 @@ LANES = 8  # pixels per block: 8 adjacent pixels of one tile row (one AVX2 vecto
 # integer state (last / median contributor, argmax) is held as float32 list positions within
 # the tile (exact below 2^24, checked by the caller): one array, no aliasing between types.
 (_Q_T, _Q_R, _Q_G, _Q_B, _Q_D, _Q_NX, _Q_NY, _Q_NZ, _Q_MED, _Q_LAST, _Q_LMED, _Q_WM, _Q_AM,
- _Q_MA, _Q_MMU, _Q_MS) = [np.uint64(i * LANES) for i in range(16)]
-_NQ = 16
+ _Q_MA, _Q_MMU, _Q_MS, _Q_X) = [np.uint64(i * LANES) for i in range(17)]
+_NQ = 17
 _BLOCK = np.uint64(_NQ * LANES)
 MAX_TILE_PAIRS = 1 << 24  # list positions held exactly in float32
 
@@ -362,6 +377,7 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
                 inside = (y0 + jj < height) & (x0 + ib + c < width)
                 st[o + _Q_T + np.uint64(c)] = _ONE if inside else _ZERO  # outside: finished
                 st[o + _Q_LMED + np.uint64(c)] = _M1
+                st[o + _Q_X + np.uint64(c)] = f32(x0 + ib + c) + _HALF
                 if amax is not None:
                     st[o + _Q_AM + np.uint64(c)] = _M1
         k0 = tile_start[t]
@@ -388,6 +404,8 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
             nx, ny, nz = prm[k, 13], prm[k, 14], prm[k, 15]
             kl = f32(k - k0)
             kl1 = f32(k - k0 + 1)
+            xlo = f32(x0 + li0) + _HALF
+            xhi = f32(x0 + li1) + _HALF
             bb0 = li0 // LANES
             bb1 = li1 // LANES
             nev += (lj1 - lj0 + 1) * (bb1 - bb0 + 1) * LANES
@@ -398,13 +416,13 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
                     ib = bb * LANES
                     o = np.uint64(jj * nbr + bb) * _BLOCK
                     for c in range(LANES):
-                        cc = ib + c
-                        dx = (f32(x0 + cc) + _HALF) - xb
+                        q = o + np.uint64(c)
+                        xc = st[q + _Q_X]
+                        dx = xc - xb
                         rho, z, _, _, _, _ = _splat_at(dx, dy, zc, a1, a2, b1, b2, ex, ey)
                         a = min(alpha_max, op * exp_neg(_HALF * rho))
-                        q = o + np.uint64(c)
                         tp = st[q + _Q_T]
-                        live = ((cc >= li0) & (cc <= li1) & (tp >= t_min) & (z >= near)
+                        live = ((xc >= xlo) & (xc <= xhi) & (tp >= t_min) & (z >= near)
                                 & (a >= alpha_min))
                         ae = a if live else _ZERO
                         ze = z if live else _ZERO
