@@ -47,16 +47,22 @@ class DatasetSpec:
     scenes: list = field(default_factory=list)      # scene names (empty: all)
 
 
-def parse_dataset(table, where: str, base_output: Path) -> DatasetSpec:
+def check_table(table, where: str, keys: dict) -> None:
+    """A spec table holds only ``keys`` ({name: type}; an int where a float is wanted is
+    fine, a bool never is): one error line naming the table and key otherwise."""
     if not isinstance(table, dict):
         raise InputError(f"{where}: expected a table")
     for k, v in table.items():
-        want = KEYS.get(k)
+        want = keys.get(k)
         if want is None:
-            raise InputError(f"{where}: unknown key {k!r}; known keys: {', '.join(sorted(KEYS))}")
+            raise InputError(f"{where}: unknown key {k!r}; known keys: {', '.join(sorted(keys))}")
         ok = isinstance(v, want) or (want is float and isinstance(v, int))
         if isinstance(v, bool) or not ok:
             raise InputError(f"{where}.{k}: expected {want.__name__}, got {v!r}")
+
+
+def parse_dataset(table, where: str, base_output: Path) -> DatasetSpec:
+    check_table(table, where, KEYS)
     if "format" not in table:
         raise InputError(f"{where}: missing key 'format' (nuscenes, kitti or mcap)")
     out = Path(table.get("output", "dataset")).expanduser()

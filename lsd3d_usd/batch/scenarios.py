@@ -21,6 +21,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from lsd3d_usd.batch.dataset import check_table
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.hashing import content_hash, file_hash
 
@@ -39,15 +40,7 @@ class ScenariosSpec:
 
 
 def parse_scenarios(table, where: str, spec_dir: Path, base_output: Path) -> ScenariosSpec:
-    if not isinstance(table, dict):
-        raise InputError(f"{where}: expected a table")
-    for k, v in table.items():
-        want = KEYS.get(k)
-        if want is None:
-            raise InputError(f"{where}: unknown key {k!r}; known keys: {', '.join(sorted(KEYS))}")
-        ok = isinstance(v, want) or (want is float and isinstance(v, int))
-        if isinstance(v, bool) or not ok:
-            raise InputError(f"{where}.{k}: expected {want.__name__}, got {v!r}")
+    check_table(table, where, KEYS)
     if "scenario" not in table:
         raise InputError(f"{where}: missing key 'scenario' (a .xosc file or a folder of them)")
     src = Path(table["scenario"]).expanduser()

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layouts" / "hand_crossing.usda"
+from lsd3d_usd.benchmarks.sample import generate_sample
+
 
 
 def _poses(scene, fractions) -> list[np.ndarray]:
@@ -134,12 +135,7 @@ def main(json_path=None, *, scene=None, corridor=None, quick=False, poses=None, 
     with tempfile.TemporaryDirectory() as tmp:
         target = Path(scene) if scene else Path(tmp) / "scene"
         if scene is None:
-            from lsd3d_usd.config import generate_config
-            from lsd3d_usd.pipeline import RunOptions, generate
-            kw = dict(steps=0, surfels=100_000) if quick else {}
-            log(f"bench frame: generating the README sample ({'quick' if quick else 'defaults'})")
-            generate(generate_config(layout=SAMPLE, prompt="sunny afternoon in Madrid", **kw),
-                     RunOptions(out=target, progress=False, log=lambda *a: None))
+            generate_sample(target, quick, "bench frame", log)
         res = {"scene": str(scene or "README sample"), "poses": poses, "repeats": repeats}
         res.update(frames(target, poses, repeats, lod_px, log=log))
         for mode, budget in (("", lod_px), ("_no_lod", 0.0)):

@@ -16,7 +16,8 @@ import tempfile
 import time
 from pathlib import Path
 
-SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layouts" / "hand_crossing.usda"
+from lsd3d_usd.benchmarks.sample import generate_sample
+
 CONFIGS = {
     "world": dict(rig="none", lidar="none"),
     "front": dict(rig="nuscenes6", lidar="none", cameras=("CAM_FRONT",), width=480),
@@ -88,12 +89,7 @@ def main(json_path=None, *, scene=None, quick=False, steps=None, repeats=None,
     with tempfile.TemporaryDirectory() as tmp:
         target = Path(scene) if scene else Path(tmp) / "scene"
         if scene is None:
-            from lsd3d_usd.config import generate_config
-            from lsd3d_usd.pipeline import RunOptions, generate
-            kw = dict(steps=0, surfels=100_000) if quick else {}
-            log(f"bench sim: generating the README sample ({'quick' if quick else 'defaults'})")
-            generate(generate_config(layout=SAMPLE, prompt="sunny afternoon in Madrid", **kw),
-                     RunOptions(out=target, progress=False, log=lambda *a: None))
+            generate_sample(target, quick, "bench sim", log)
         res = {"scene": str(scene or "README sample"), "steps": steps, "repeats": repeats}
         for name, cfg in CONFIGS.items():
             n = steps if name == "world" else max(5, steps // (10 if name == "full" else 4))
