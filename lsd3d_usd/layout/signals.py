@@ -185,3 +185,15 @@ def _junction_of(ln, by_id, jkey, own: str) -> str:
         if s in jkey:
             return jkey[s]
     return own
+
+
+def stop_lane(cur: int, nxt: int, controlled, junction) -> int | None:
+    """The controlled lane (index) whose signal governs the step from lane ``cur`` into
+    ``nxt`` (-1: no lane), or None: ``cur``'s end when it is a controlled lane (not a junction
+    lane), or ``nxt``'s start when it is a controlled junction lane entered from outside.
+    ``controlled``: the controlled lane indices; ``junction``: per lane, is it a junction lane."""
+    if cur >= 0 and not junction[cur] and cur in controlled:
+        return cur
+    if nxt >= 0 and junction[nxt] and nxt in controlled and (cur < 0 or not junction[cur]):
+        return nxt
+    return None
