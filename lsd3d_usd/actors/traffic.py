@@ -26,6 +26,14 @@ on its lane or plan (`occupied`, set by the pedestrian model) as a wall ``stop_m
 before the first point where its lane's width touches the crosswalk, and `crosswalk_clear`
 tells a pedestrian whether every vehicle heading across a crosswalk can still stop before it.
 
+Traffic lights (``signals``: controlled lane index -> "green" / "yellow" / "red", set from
+outside each step, e.g. by the closed-loop simulator's signal plan; empty: no lights): a
+vehicle whose next stop point (layout.signals.stop_lane) shows yellow or red treats it as a
+wall and asks for no junction reservation, unless it cannot stop before it at the
+comfortable deceleration ``b``; then it goes through (that decision holds until it leaves
+the lane or the light turns green). An external vehicle (the ego) is driven from outside: it only gives up its
+reservation while it waits (slower than ``WAIT_SPEED``) at a yellow or red.
+
 Arrays in, arrays out: `simulate` returns a `TrafficRun` sampled at ``fps``.
 """
 from __future__ import annotations
@@ -36,6 +44,9 @@ import numpy as np
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout.routes import LaneGraph
+from lsd3d_usd.layout.signals import stop_lane
+
+WAIT_SPEED = 0.5     # m/s: an external vehicle slower than this at a yellow or red waits
 
 
 @dataclass(frozen=True)
@@ -98,6 +109,7 @@ class _Vehicle:
     # lane -1 while it is on no lane
     external: bool = False
     pose_override: tuple | None = None
+    go_through: int = -1   # controlled lane whose yellow/red it could not stop for (goes on)
 
 
 def _idm(v, v0, gap, dv, p: IDMParams) -> float:
@@ -115,6 +127,7 @@ class Simulation:
         self.seed = int(seed)
         self.veh: list[_Vehicle] = []
         self.occupied: set[int] = set()     # crosswalks with a pedestrian on (or stepping onto) them
+        self.signals: dict[int, str] = {}    # controlled lane index -> light state (module doc)
 
     # ---- setup
     def _choose(self, lane: int, cyclist: bool = False) -> int | None:
@@ -246,7 +259,7 @@ class Simulation:
         for nxt in me.plan:
             if dist - me.length / 2 > horizon:
                 break
-            if self._must_stop(me, prev, nxt):
+            if self._must_stop(me, prev, nxt, dist - me.length / 2 - self.p.stop_margin):
                 return dist - me.length / 2 - self.p.stop_margin, 0.0
             for o in self.veh:
                 if o.lane == nxt:
@@ -306,20 +319,51 @@ class Simulation:
                     return False
         return True
 
-    def _must_stop(self, me: _Vehicle, cur: int, nxt: int) -> bool:
+    def _must_stop(self, me: _Vehicle, cur: int, nxt: int, gap: float) -> bool:
+        """May ``me`` not pass from ``cur`` into ``nxt`` (``gap``: bumper distance to that
+        point): a junction it holds no reservation for, or a light it waits at."""
+        if self._signal_wait(me, cur, nxt, gap):
+            return True
         return bool(self.g.junction[nxt]) and nxt not in me.holds and not self.g.junction[cur]
+
+    def _signal_wait(self, me: _Vehicle, cur: int, nxt: int, gap: float) -> bool:
+        """Does ``me`` wait at the light between ``cur`` and ``nxt`` (module doc)?"""
+        if not self.signals:
+            return False
+        lane = stop_lane(cur, nxt, self.signals, self.g.junction)
+        if lane is None:
+            return False
+        if self.signals[lane] == "green":
+            if me.go_through == lane:
+                me.go_through = -1          # a decision holds for one yellow/red only
+            return False
+        if me.external:
+            return me.v < WAIT_SPEED
+        if me.go_through == lane:
+            return False
+        if gap < me.v ** 2 / (2.0 * self.p.b):
+            me.go_through = lane        # too close to stop comfortably: it goes through
+            return False
+        return True
 
     def _grant(self) -> None:
         """Junction reservations, nearest-to-the-lane-end first."""
         want = []
         for i, me in enumerate(self.veh):
-            if me.lane < 0 or not me.plan or not self.g.junction[me.plan[0]] or me.plan[0] in me.holds:
+            if me.lane < 0 or not me.plan:
+                continue
+            rem = self.g.length[me.lane] - me.s
+            if self.signals and \
+                    self._signal_wait(me, me.lane, me.plan[0], rem - me.length / 2 - self.p.stop_margin):
+                for c in me.plan:           # waiting at a light: it holds nothing ahead
+                    me.holds.pop(c, None)
+                continue
+            if not self.g.junction[me.plan[0]] or me.plan[0] in me.holds:
                 continue
             if self.g.junction[me.lane]:
                 continue
             head = all(not (o.lane == me.lane and (o.s > me.s or (o.s == me.s and j < i)))
                        for j, o in enumerate(self.veh) if j != i)
-            rem = self.g.length[me.lane] - me.s
             if head and rem - me.length / 2 < max(30.0, me.v ** 2 / (2 * self.p.b) + 10.0):
                 want.append((rem, i))
         for _, i in sorted(want):
@@ -401,6 +445,8 @@ class Simulation:
                 me.v = 0.0
                 return
             me.s -= self.g.length[me.lane]
+            if me.go_through == me.lane:
+                me.go_through = -1
             me.lane = me.plan.pop(0)
             if me.cyclist:
                 me.offset = self.cyclist_offset(me.lane, me.width)
@@ -445,7 +491,7 @@ class Simulation:
         for nxt in v.plan:
             if dist - v.length / 2 > horizon:
                 break
-            if self._must_stop(v, prev, nxt):
+            if self._must_stop(v, prev, nxt, dist - v.length / 2 - self.p.stop_margin):
                 best = min(best, dist - v.length / 2 - self.p.stop_margin)
                 break
             dist += self.g.length[nxt]

@@ -32,6 +32,7 @@ from shapely.geometry import Polygon, box
 
 from lsd3d_usd.configtree import option
 from lsd3d_usd.geometry.polyline import nearest_point
+from lsd3d_usd.layout.signals import derived_lights
 from lsd3d_usd.limits import CHUNKS
 from lsd3d_usd.scene import chunk_prim_name
 
@@ -122,62 +123,22 @@ def _heading(points: np.ndarray, at_end: bool) -> np.ndarray:
     return d / n if n > 0 else np.array([1.0, 0.0])
 
 
-# A derived traffic light is left out when a map traffic light stands this close to its
-# approach's end (a junction's lights, whichever lanes the map says they control).
-MAP_SIGNAL_RADIUS = 50.0
-
-
-def _signals_complete(layout) -> bool:
-    """The map lists its traffic lights completely (OpenDRIVE signals, Lanelet2 traffic-light
-    rules: the importer says so in ``metadata.source.signalsComplete``)."""
-    src = layout.metadata.get("source", {}) if isinstance(layout.metadata, dict) else {}
-    return bool(isinstance(src, dict) and src.get("signalsComplete"))
-
-
 def derive_fixtures(layout, params: ProxyParams) -> list[Fixture]:
     """Traffic lights at junction approaches and street lights along road edges, where the
     map is silent about them.
 
-    A traffic light stands on the right of the rightmost lane of each group of
-    driving lanes (same road, ends within 12 m) that enter a junction, unless a
-    stop sign, a yield sign or a map traffic light controls one of them, or a map traffic
-    light stands within MAP_SIGNAL_RADIUS of the group's end; none at all when the map lists
-    its traffic lights completely (``metadata.source.signalsComplete``). Street lights stand every
-    ``street_light_spacing`` metres along each boundary road edge, on its outer
+    The traffic lights are layout.signals' derived lights (its module doc says which
+    approaches get one; the simulator runs the phases of the same lights). Street lights
+    stand every ``street_light_spacing`` metres along each boundary road edge, on its outer
     (right-hand) side, starting half a spacing from the edge's first point, except within
     half a spacing of a map street lamp.
     """
     out: list[Fixture] = []
     g = params.ground
-    if params.traffic_lights and layout.lanes and not _signals_complete(layout):
-        by_id = {ln.id: ln for ln in layout.lanes}
-        signs = [s.lane_ids for s in layout.stop_signs] + \
-            [t.lane_ids for t in layout.traffic_signs if t.kind == "yield"]
-        stopped = {lid for ids in signs + [t.lane_ids for t in layout.traffic_lights] for lid in ids}
-        near_pts = np.array([t.position[:2] for t in layout.traffic_lights]).reshape(-1, 2)
-        approaches = [ln for ln in layout.lanes
-                      if not ln.is_junction and ln.lane_type == "driving"
-                      and ln.direction == "forward" and ln.id not in stopped
-                      and any(by_id.get(s) is not None and by_id[s].is_junction
-                              for s in ln.successors)]
-        groups: list[list] = []
-        for ln in sorted(approaches, key=lambda l: (l.road_id, l.id)):
-            end = ln.points[-1, :2]
-            for grp in groups:
-                if grp[0].road_id == ln.road_id and np.linalg.norm(grp[0].points[-1, :2] - end) < 12.0:
-                    grp.append(ln)
-                    break
-            else:
-                groups.append([ln])
-        for grp in groups:
-            if len(near_pts) and np.hypot(*(near_pts - grp[0].points[-1, :2]).T).min() < MAP_SIGNAL_RADIUS:
-                continue
-            h = _heading(grp[0].points, True)
-            right = np.array([h[1], -h[0]])
-            ln = max(grp, key=lambda l: float(np.dot(l.points[-1, :2], right)))
-            p = ln.points[-1, :2] + right * (ln.widths[-1] / 2 + g.curb_width + 1.0)
-            yaw = float(np.arctan2(-h[1], -h[0]))       # facing the approaching traffic
-            out.append(Fixture("traffic_light", f"tl_{ln.id}", (float(p[0]), float(p[1])), yaw))
+    if params.traffic_lights:
+        for sg in derived_lights(layout, g.curb_width):
+            x, y, yaw = sg.light
+            out.append(Fixture("traffic_light", sg.id, (x, y), yaw))
     sp = params.street_light_spacing
     lamps = np.array([p.position[:2] for p in layout.poles if p.kind == "street_lamp"]).reshape(-1, 2)
     if sp > 0:

@@ -26,6 +26,7 @@ from lsd3d_usd.layout.routes import Route, parse_route, random_routes
 from lsd3d_usd.sim.control import TrajectoryTracker
 from lsd3d_usd.sim.dynamics import EgoState, VehicleLimits, clip_control, step_bicycle
 from lsd3d_usd.sim.metrics import Agents, ScoreKeeper, StepState
+from lsd3d_usd.sim.signals import SignalPlan
 from lsd3d_usd.sim.world import AgentSpec, World
 from lsd3d_usd.views.options import DEFAULT_LOD_PX
 
@@ -68,6 +69,7 @@ class EnvSettings:
     scenario: str | None = None       # an OpenSCENARIO file: its entities are the world
     ego: str | None = None            # the scenario's entity the ego is (None: the first)
     ego_driver: str = "policy"        # "scenario": the storyboard drives the ego, not the action
+    signals: bool = True              # traffic lights run their phases (False: all dark)
     limits: VehicleLimits = field(default_factory=VehicleLimits)
 
     def check(self) -> "EnvSettings":
@@ -214,6 +216,10 @@ class DriveEnv(gym.Env):
                                 yaw, v0, z=z)
             self._seeded_world(rng)
         self.sensors.start_episode(self.actors, int(rng.integers(2**31)))
+        self.signals = SignalPlan(self.scene.signal_groups if s.signals else [], g,
+                                  int(rng.integers(2**31)))
+        if isinstance(self.world, World):
+            self.world.signals = self.signals if len(self.signals) else None
         pts, _ = self.route.polyline()
         reference = self._reference(seed, options) if s.ep_reference == "planner" else None
         self.scores = ScoreKeeper(pts[:, :2], drivable=self.scene.drivable,
@@ -222,6 +228,8 @@ class DriveEnv(gym.Env):
                                   route_length=self.route.length, reference=reference)
         self.tracker = TrajectoryTracker(lim.wheelbase, s.waypoint_spacing)
         self.stops = self._stop_lines()
+        front = self.world.ego_d + lim.length / 2
+        self.lights = [[d, k, front > d] for d, k in self.signals.route_stops(self.route)]
         self.t = 0.0
         self.k = 0
         self.clipped = 0
@@ -351,7 +359,8 @@ class DriveEnv(gym.Env):
         before = self.progress
         complete = self.world.ego_d + lim.length / 2 >= self.route.length - ROUTE_END_MARGIN
         ran_stop = self._stop_signs()
-        self.last = self.scores.update(self._step_state(complete, ran_stop))
+        ran_red = self._red_lights()
+        self.last = self.scores.update(self._step_state(complete, ran_stop, ran_red))
         self.progress = max(self.progress, float(self.last["progress_m"]))
         self._pose_actors()
         terminated, reason = False, None
@@ -469,7 +478,36 @@ class DriveEnv(gym.Env):
         return min((d - front for d, ok in self.stops if ok is False and d + 0.5 >= front),
                    default=math.inf)
 
-    def _step_state(self, complete: bool = False, ran_stop: bool = False) -> StepState:
+    def _red_lights(self) -> bool:
+        """True on the step the ego's front passes a signal's stop point while it is red
+        (CARLA's red-light infraction; passing at yellow is allowed)."""
+        front = self.world.ego_d + self.limits.length / 2
+        ran = False
+        for light in self.lights:
+            d, k, passed = light
+            if not passed and front > d:
+                light[2] = True
+                ran = ran or self.signals.state(k, self.t) == "red"
+        return ran
+
+    def next_signal(self) -> tuple[str, float]:
+        """(state of the next signal on the route ahead ("none": none), metres from the ego's
+        front to the next stop point that is red or yellow (inf: none))."""
+        front = self.world.ego_d + self.limits.length / 2
+        state, dist = "none", math.inf
+        for d, k, passed in self.lights:
+            if passed:
+                continue
+            st = self.signals.state(k, self.t)
+            if state == "none":
+                state = st
+            if st != "green":
+                dist = d - front
+                break
+        return state, dist
+
+    def _step_state(self, complete: bool = False, ran_stop: bool = False,
+                    ran_red: bool = False) -> StepState:
         e, lim = self.ego, self.limits
         c = e.box_centre(lim)
         g = self.scene.graph
@@ -479,7 +517,8 @@ class DriveEnv(gym.Env):
         in_junction = lp is not None and lp.distance <= g.width[lp.lane] / 2 and bool(g.junction[lp.lane])
         return StepState(self.t, c, e.yaw, e.v, lim.length, lim.width, agents=self._all_agents(),
                          progress=self.route.length if complete else self.world.ego_d, wrong_way=bool(wrong), in_junction=in_junction,
-                         lon_acc=e.a, lat_acc=e.v * e.yaw_rate, stop_sign=ran_stop)
+                         lon_acc=e.a, lat_acc=e.v * e.yaw_rate, stop_sign=ran_stop,
+                         red_light=ran_red)
 
     def _pose_actors(self) -> None:
         e, lim = self.ego, self.limits
@@ -530,11 +569,13 @@ class DriveEnv(gym.Env):
         """Privileged data and the scores: never part of the observation."""
         boxes = [b.to_json() for b in self._all_agents().boxes()]     # sim.metrics.AgentBox
         gap, v_lead = self.world.ego_leader()
+        signal, red_m = self.next_signal()
         return {"t": round(self.t, 9), "step": self.k, "scores": scores, "boxes": boxes,
                 "route": list(self.route.ids), "route_length_m": self.route.length,
                 "progress_m": self.progress, "clipped_actions": self.clipped,
                 "stop_distance_m": float(self.world.ego_stop_distance()),
                 "stop_sign_m": float(self.stop_sign_distance()),
+                "red_light_m": float(red_m), "signal": signal,
                 "leader_gap_m": float(gap), "leader_speed": float(v_lead),
                 "occupied_crosswalks": sorted(self.world.occupied_crosswalks()),
                 "command": COMMANDS[self._command()],

@@ -5,7 +5,10 @@
   vehicle ahead on its lane and route, any agent whose box lies in its path within the
   horizon, a crossing agent whose constant-velocity path cuts the route ahead within 3 s,
   a junction it holds no reservation for and an occupied crosswalk (both from the traffic
-  model's rules, ``info["stop_distance_m"]``), and the end of the route.
+  model's rules, ``info["stop_distance_m"]``), a stop sign's line, a yellow or red light's
+  stop point (``info["red_light_m"]``) unless it cannot stop before it (at COMFORT_BRAKE for
+  a yellow, at its braking limit for a red: then it goes through, once), and the end of the
+  route.
 - ``constant``: keeps its start speed (the route's first lane's limit when it starts still)
   along its start heading: no steering, no braking.
 - ``scenario``: no driver: the scenario's storyboard drives the ego with its own actions
@@ -60,6 +63,7 @@ class Planner:
         self.horizon = horizon
         self.speed_factor = speed_factor
         self.gains = TrackerGains()
+        self.through = None       # route distance of a light it decided to go through
 
     def _obstacle_gap(self, info) -> tuple[float, float]:
         """(bumper gap, speed along the route) of the nearest obstacle in the ego's path."""
@@ -77,6 +81,9 @@ class Planner:
         sign = info.get("stop_sign_m", math.inf)     # come to rest at a stop sign's line
         if math.isfinite(sign) and sign + 0.5 < best[0]:
             best = (sign + 0.5, 0.0)
+        red = info.get("red_light_m", math.inf)
+        if math.isfinite(red) and red < best[0] and self._stops_at_light(red, info):
+            best = (red, 0.0)
         end = route.length - d_ego - front + p_end_overrun
         if end < best[0]:
             best = (end, 0.0)
@@ -119,6 +126,20 @@ class Planner:
                 if g < best[0]:
                     best = (g, 0.0)
         return best
+
+    def _stops_at_light(self, red: float, info) -> bool:
+        """Stop for the yellow or red light ``red`` m ahead: unless the deceleration that
+        takes exceeds COMFORT_BRAKE (yellow) or the IDM's braking limit (red); a light it
+        goes through is not looked at again until the ego is past it or it turns green."""
+        env = self.env
+        at = env.world.ego_d + env.limits.length / 2 + red        # its route distance
+        if self.through is not None and abs(self.through - at) < 1.0:
+            return False
+        limit = self.p.b_max if info.get("signal") == "red" else COMFORT_BRAKE
+        if env.ego.v ** 2 / (2.0 * max(red, 0.01)) > limit:
+            self.through = at
+            return False
+        return True
 
     def _target_speed(self, d: float) -> float:
         g = self.env.route.graph
@@ -164,6 +185,10 @@ class Planner:
 
     def __call__(self, obs, info):
         env = self.env
+        if env.k == 0:
+            self.through = None
+        if info.get("signal") == "green" and not math.isfinite(info.get("red_light_m", math.inf)):
+            self.through = None
         a = self.acceleration(info)
         if env.k == 0:
             self.a_prev = 0.0

@@ -152,6 +152,24 @@ class SimScene:
                 if a.role == "parked":
                     self.parked.append((a, M))
         self.templates = self._templates()
+        self._signal_groups = None
+
+    @property
+    def signal_groups(self) -> list:
+        """layout.signals' groups of the scene: the map's lights, and the derived ones when
+        the scene's proxy placed them (its ``traffic_lights`` parameter, default on)."""
+        if self._signal_groups is None:
+            from lsd3d_usd.layout.signals import CURB_WIDTH, signal_groups
+            prm = {}
+            for layer in self.stage.GetLayerStack():
+                prov = S.read_provenance(layer)
+                if prov.get("step") == "proxy":
+                    prm = dict(prov.get("params") or {})
+                    break
+            curb = dict(prm.get("ground") or {}).get("curb_width", CURB_WIDTH)
+            self._signal_groups = signal_groups(self.layout, bool(prm.get("traffic_lights", True)),
+                                                float(curb))
+        return self._signal_groups
 
     def close(self) -> None:
         if self._tmp is not None:

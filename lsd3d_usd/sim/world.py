@@ -55,6 +55,7 @@ class World:
         self.gone: dict[int, float] = {}          # slot -> time it left
         self.t = 0.0
         self.rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5A5]))
+        self.signals = None             # a sim.signals.SignalPlan: the traffic stops at red
         self.place_ego(ego)
 
     # ---- the ego on the lane graph
@@ -82,7 +83,9 @@ class World:
     def step(self, dt: float) -> None:
         """Advance the others by ``dt`` (in the traffic model's sub-steps)."""
         sub = max(1, int(math.ceil(dt / self.params.idm.dt_max - 1e-9)))
-        for _ in range(sub):
+        for k in range(sub):
+            if self.signals is not None:
+                self.sim.signals = self.signals.lane_states(self.t + k * dt / sub)
             self.street.step(dt / sub)
         self.t += dt
         self._leave_and_return()
