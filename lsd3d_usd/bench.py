@@ -243,7 +243,7 @@ class FrameBench:
                                           "3)", flag="--poses", lo=1, hi=100)
     repeats: int | None = option(None, help="timed frames per pose and mode (default 3)",
                                  flag="--repeats", lo=1, hi=100)
-    lod_px: float = option(6.0, help="level-of-detail budget in pixels", flag="--lod-px",
+    lod_px: float = option(4.0, help="level-of-detail budget in pixels", flag="--lod-px",
                            lo=0.5, hi=256.0)
 
 

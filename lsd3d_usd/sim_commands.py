@@ -199,7 +199,7 @@ def _env_arguments(r) -> None:
     r.add_argument("--width", type=int, default=480, help="camera width in pixels (default 480)")
     r.add_argument("--lod-px", type=float, default=DEFAULT_LOD_PX, metavar="PX",
                    help="cameras' level of detail: a merged node stands for its surfels when it "
-                        "covers at most PX pixels (default 6; docs/render.md)")
+                        "covers at most PX pixels (default 4; docs/render.md)")
     r.add_argument("--no-lod", action="store_true",
                    help="cameras draw every surfel (full detail, slower)")
     r.add_argument("--outputs", default="rgb",

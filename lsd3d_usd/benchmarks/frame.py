@@ -45,7 +45,7 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:
     return 10.0 * np.log10(1.0 / max(mse, 1e-12))
 
 
-def frames(scene_path, poses: int = 5, repeats: int = 3, lod_px: float = 6.0,
+def frames(scene_path, poses: int = 5, repeats: int = 3, lod_px: float = 4.0,
            fractions=None, log=print) -> dict:
     """Frame times (lod / no_lod), drawn surfels and PSNR of level of detail on one scene."""
     from lsd3d_usd.sensors.camera import rig_camera
@@ -128,7 +128,7 @@ def full_steps(scene_path, lod_px: float, steps: int, repeats: int) -> float:
 
 
 def main(json_path=None, *, scene=None, corridor=None, quick=False, poses=None, repeats=None,
-         steps=None, lod_px: float = 6.0, log=print) -> dict:
+         steps=None, lod_px: float = 4.0, log=print) -> dict:
     poses = poses or (3 if quick else 5)
     repeats = repeats or (1 if quick else 3)
     steps = steps or (3 if quick else 10)

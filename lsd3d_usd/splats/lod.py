@@ -31,6 +31,9 @@ import numpy as np
 
 from lsd3d_usd.splats.field import KERNEL_SIGMAS, SurfelField, matrix_to_quat, quat_to_matrix
 
+# a node that is not flat (an edge, a corner, foliage) looks larger to the cut by this much per
+# unit thickness (_thickness): one surfel cannot stand for a 3D shape as it can for a patch
+THICK_WEIGHT = 4.0
 MAX_LEVELS = 20                # 2^20 cells of the finest size span any field we build
 NODE_SPREAD = 1.4             # node disks widened past their moments: adjacent nodes overlap as
                               # their leaves did (1.4 measured best of 1, 1.4, 1.7)
@@ -54,6 +57,8 @@ class LodTree:
     last: np.ndarray
     roots: np.ndarray
     levels: int
+    size: np.ndarray = None     # (M,) the radius the cut's footprint test uses: the sphere's,
+                                # grown for nodes that are not flat (_thickness)
 
     @property
     def leaves(self) -> SurfelField:
@@ -78,7 +83,8 @@ class LodTree:
         Kf = np.asarray(K, np.float64)
         planes = _frustum_planes(Kf, int(width), int(height))
         focal = float(max(Kf[0, 0], Kf[1, 1]))
-        return _cut(self.centre, self.radius, self.first, self.last, self.roots, self.n_leaves,
+        return _cut(self.centre, self.radius, self.size, self.first, self.last, self.roots,
+                    self.n_leaves,
                     np.ascontiguousarray(V[:3, :3]), np.ascontiguousarray(V[:3, 3]), planes,
                     float(near), float(far), focal, float(budget_px))
 
@@ -150,7 +156,8 @@ def _frustum_planes(K: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 @nb.njit(cache=True, nogil=True)
-def _cut(centre, radius, first, last, roots, n_leaves, R, t, planes, near, far, focal, budget):
+def _cut(centre, radius, size, first, last, roots, n_leaves, R, t, planes, near, far, focal,
+         budget):
     # depth-first from the roots; a node expanded whose children are leaves and whose
     # sphere lies inside the frustum emits its leaves as one run (the common case near the
     # camera), without a test per leaf
@@ -187,7 +194,7 @@ def _cut(centre, radius, first, last, roots, n_leaves, R, t, planes, near, far, 
         run = 1
         if a < b:
             d = math.sqrt(x * x + y * y + z * z) - rad
-            if d <= near or 2.0 * rad * focal > budget * d:
+            if d <= near or 2.0 * size[i] * focal > budget * d:
                 if inside and b <= n_leaves:
                     i = a
                     run = b - a
@@ -242,7 +249,7 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
     rad = leaf_radius(field)
     if n == 0:
         return LodTree(field, 0, pos, rad, np.zeros(0, np.int64), np.zeros(0, np.int64),
-                       np.zeros(0, np.int64), 0)
+                       np.zeros(0, np.int64), 0, rad)
     lo = pos.min(axis=0)
     span = float(np.max(pos.max(axis=0) - lo))
     if cell is None:
@@ -269,7 +276,7 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
     votes = np.zeros((n, int(c.max(initial=0)) + 1))
     votes[np.arange(n), c] = W
 
-    parts, centres, radii = [], [pos], [rad]
+    parts, centres, radii, sizes = [], [pos], [rad], [rad]
     first_parts, last_parts = [np.zeros(n, np.int64)], [np.zeros(n, np.int64)]
     child_code, prev_offset, offset = code, 0, n
     roots = np.arange(n, dtype=np.int64)
@@ -284,6 +291,7 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
         if leaves.semantic_ids is not None:
             sem = (np.argmax(votes, axis=1) - 1).astype(np.int32)
         fit = _fit_nodes(C, mu, normal_w, sh_w / W[:, None], log_t, leaves.sh.shape[1])
+        sizes.append(r * (1.0 + THICK_WEIGHT * _thickness(C)))
         parts.append(SurfelField(*fit, sem, leaves.semantic_classes))
         centres.append(mu)
         radii.append(r)
@@ -297,7 +305,15 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
             break
     all_nodes = SurfelField.concat([leaves] + parts)
     return LodTree(all_nodes, n, np.concatenate(centres), np.concatenate(radii),
-                   np.concatenate(first_parts), np.concatenate(last_parts), roots, levels)
+                   np.concatenate(first_parts), np.concatenate(last_parts), roots, levels,
+                   np.concatenate(sizes))
+
+
+def _thickness(C) -> np.ndarray:
+    """How far a node's surfels are from one plane: sqrt(smallest / middle eigenvalue) of
+    their covariance, 0 for a flat patch, 1 for a blob (a roof meeting a wall, a tree)."""
+    lam = np.maximum(np.linalg.eigvalsh(C), 0.0)
+    return np.sqrt(lam[:, 0] / np.maximum(lam[:, 1], 1e-30))
 
 
 @nb.njit(cache=True, nogil=True)

@@ -25,7 +25,7 @@ RIG_WIDTH = 480  # rig frames: five cameras x frames add up; `render --camera` u
 DEFAULT_STREAM_RADIUS = 300.0
 # splats.lod's budget for rig renders, datasets and the simulator (>= 40 dB against full detail
 # on the README sample's rig frames; docs/render.md)
-DEFAULT_LOD_PX = 6.0
+DEFAULT_LOD_PX = 4.0
 TONEMAPS = ("aces", "reinhard", "clamp")
 
 
