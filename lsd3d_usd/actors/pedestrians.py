@@ -327,6 +327,24 @@ class Pedestrians:
                     q.s, q.xy, q.yaw = s_new, xy_q, yaw_q
                     self._boxes[0][j], self._boxes[1][j] = [float(xy_q[0]), float(xy_q[1])], float(yaw_q)
                     break
+            else:
+                # hemmed in on its track (a queue behind it): off the track, away from the
+                # crossing walker, where the walkable area allows
+                away = np.asarray(q.xy, float) - np.asarray(xy, float)
+                n = float(np.hypot(*away))
+                if n > 1e-9:
+                    self._step_to(j, q, np.asarray(q.xy, float) + away / n * q.v_des * dt, others)
+
+    def _step_to(self, j: int, q: Walker, xy, others) -> bool:
+        """Move walker j to ``xy`` (same heading) if the walkable area and every box allow."""
+        area = getattr(self.w, "area", None)
+        inside = area is None or bool(shapely.contains_xy(area, xy[0], xy[1])) or \
+            any(bool(shapely.contains_xy(c, xy[0], xy[1])) for c in self.polygons)
+        if inside and self._free(j, xy, q.yaw, others):
+            q.xy = xy
+            self._boxes[0][j] = [float(xy[0]), float(xy[1])]
+            return True
+        return False
 
     def _sidestep(self, i: int, p: Walker, dt: float, others) -> None:
         """Two people facing each other (on a crosswalk, at its end) would otherwise wait for
