@@ -122,3 +122,25 @@ def test_proxy_arrays_concatenates_chunks_and_classes_in_order(tmp_path):
     S.save_stage(empty, tmp_path / "empty.usda")
     with pytest.raises(InputError, match="empty.usda: the proxy has no geometry"):
         proxy_arrays(tmp_path / "empty.usda")
+
+
+def test_reader_level_of_detail_cuts_static_surfels_and_draws_animated_ones_in_full():
+    from lsd3d_usd.render.camera import Camera, look_at
+    stage = S.new_stage()
+    write_surfels(stage, "/World/Surfels", _field(400, 1.0))
+    write_surfels(stage, "/World/Behind", _field(300, -30.0, seed=1))
+    cam = Camera.from_fov(64, 48, 60.0, look_at([-10.0, 0.0, 1.0], [1.0, 0.0, 1.0]), near=0.1,
+                          far=100.0)
+    full = SceneReader(stage, actors=False).surfels_seen(cam)
+    r = SceneReader(stage, actors=False, lod_px=4.0)
+    cut = r.surfels_seen(cam)
+    assert full.n == 700 and 0 < cut.n <= 400          # the wall at x = -30 is behind it
+    assert r.surfels_seen(cam).n == cut.n and r._tree[1] is not None   # one tree, kept
+    assert r.surfels(None).n == 700                    # the reader's field: the same surfels
+    xf = UsdGeom.Xform.Define(stage, "/World/Anim")
+    op = xf.AddTranslateOp()
+    op.Set(Gf.Vec3d(0, 0, 0), 0.0)
+    op.Set(Gf.Vec3d(0, 10, 0), 10.0)
+    write_surfels(stage, "/World/Anim/Surfels", _field(5, 2.0))
+    r = SceneReader(stage, actors=False, lod_px=4.0)
+    assert r.surfels_seen(cam, 0.0).n == 705           # animated: no tree per frame

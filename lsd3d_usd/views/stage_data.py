@@ -399,7 +399,9 @@ class SceneReader:
         ``lod_px`` > 0 the level-of-detail cut of every loaded chunk (splats.lod: nodes whose
         bounding sphere covers at most lod_px pixels stand for their children, nothing
         outside the frustum), else all of them (`surfels`)."""
-        if self.lod_px <= 0:
+        if self.lod_px <= 0 or (self.stream is None and not self._static):
+            # animated surfels are a new field at every time: a tree per frame would cost
+            # more than it saves, so they are drawn in full
             return self.surfels(time, near=camera.center[None, :])
         if self.stream is not None:
             self.stream.update(camera.center[None, :])
