@@ -110,7 +110,8 @@ def gather_cuts(trees: list[LodTree], cuts: list) -> SurfelField:
     total = int(sum(int(np.sum(c)) for _, c in cuts))
     pos, quat = np.empty((total, 3), np.float32), np.empty((total, 4), np.float32)
     scl, opa = np.empty((total, 2), np.float32), np.empty(total, np.float32)
-    sh = np.zeros((total, k, 3), np.float32)
+    same_k = all(f.sh.shape[1] == k for f in fields)
+    sh = (np.empty if same_k else np.zeros)((total, k, 3), np.float32)
     sem = np.full(total, -1, np.int32) if has_sem else None
     base = 0
     for f, (start, count) in zip(fields, cuts):
@@ -118,30 +119,35 @@ def gather_cuts(trees: list[LodTree], cuts: list) -> SurfelField:
         np.cumsum(count, out=at[1:])
         at += base
         kf = f.sh.shape[1]
-        _gather(start, at, f.positions, pos)
-        _gather(start, at, f.orientations, quat)
-        _gather(start, at, f.scales, scl)
-        _gather(start, at, f.opacities[:, None], opa[:, None])
-        if kf == k:
-            _gather(start, at, f.sh.reshape(f.n, 3 * k), sh.reshape(total, 3 * k))
-        else:   # a lower degree: its bands into the first of each surfel's SH rows
-            part = np.zeros((int(at[-1] - base), kf * 3), np.float32)
-            _gather(start, at - base, f.sh.reshape(f.n, 3 * kf), part)
-            sh[base:at[-1], :kf] = part.reshape(-1, kf, 3)
-        if has_sem and f.semantic_ids is not None:
-            _gather(start, at, f.semantic_ids[:, None], sem[:, None])
+        ids = f.semantic_ids if has_sem and f.semantic_ids is not None else None
+        # one pass over the runs for every array (they are read and written together);
+        # a lower SH degree fills the first of each surfel's SH rows
+        _gather_rows(start, at, f.positions, f.orientations, f.scales, f.opacities,
+                     f.sh.reshape(f.n, 3 * kf), pos, quat, scl, opa, sh.reshape(total, 3 * k),
+                     ids is not None, ids if ids is not None else np.zeros(1, np.int32), sem
+                     if sem is not None else np.zeros(1, np.int32))
         base = int(at[-1])
     return SurfelField(pos, quat, scl, opa, sh, sem, classes if has_sem else ())
 
 
 @nb.njit(cache=True, nogil=True)
-def _gather(start, at, src, dst):
-    k = src.shape[1]
+def _gather_rows(start, at, P, Q, S, O, H, pos, quat, scl, opa, sh, with_ids, ids, sem):
+    kh = H.shape[1]
     for r in range(start.shape[0]):
         s = start[r]
         for j in range(at[r + 1] - at[r]):
-            for c in range(k):
-                dst[at[r] + j, c] = src[s + j, c]
+            i, o = s + j, at[r] + j
+            for c in range(3):
+                pos[o, c] = P[i, c]
+            for c in range(4):
+                quat[o, c] = Q[i, c]
+            scl[o, 0] = S[i, 0]
+            scl[o, 1] = S[i, 1]
+            opa[o] = O[i]
+            for c in range(kh):
+                sh[o, c] = H[i, c]
+            if with_ids:
+                sem[o] = ids[i]
 
 
 def _frustum_planes(K: np.ndarray, width: int, height: int) -> np.ndarray:
