@@ -230,7 +230,9 @@ class FrameBench:
                                          "frame_960x540_s, full_step_s (nuscenes6 480x270 + "
                                          "hdl32), corridor_over_sample, each also _no_lod; "
                                          "lod_psnr_db (lowest over the rig's frames), "
-                                         "lod_psnr_db_overview, drawn_surfels)",
+                                         "lod_psnr_db_overview, lod_psnr_db_lane_views, "
+                                         "lod_psnr_db_overview_cameras (the scene's own), "
+                                         "drawn_surfels)",
                               flag="--json", metavar="OUT.json")
     scene: str | None = option(None, help="scene (default: the README sample generated with "
                                           "generate's defaults, a few minutes)",
