@@ -155,10 +155,10 @@ def test_far_field_at_the_default_budget_looks_like_full_detail():
     sub = tree.cut_field(cam.viewmat, cam.K, cam.width, cam.height, cam.near, cam.far, 8.0)
     lod = render_surfels(sub, cam).rgb.numpy()
     psnr = 10 * np.log10(1.0 / np.mean((np.clip(lod, 0, 1) - np.clip(full, 0, 1)) ** 2))
-    # measured 38.6 dB with 38 % of the surfels drawn (the README sample's rig frames: >= 41 dB,
-    # bench frame); merged nodes soften the far edge of the plane against the black sky
-    assert sub.n < 0.45 * n
-    assert psnr >= 37.0, psnr
+    # measured 44.9 dB with 55 % of the surfels drawn (12 px: 38.2 dB, 35 %); merged nodes
+    # soften the far edge of the plane against the black sky
+    assert sub.n < 0.6 * n
+    assert psnr >= 40.0, psnr
     near = tree.cut_field(cam.viewmat, cam.K, cam.width, cam.height, cam.near, cam.far, 4.0)
     assert sub.n < near.n < n
 

@@ -144,3 +144,20 @@ def test_reader_level_of_detail_cuts_static_surfels_and_draws_animated_ones_in_f
     write_surfels(stage, "/World/Anim/Surfels", _field(5, 2.0))
     r = SceneReader(stage, actors=False, lod_px=4.0)
     assert r.surfels_seen(cam, 0.0).n == 705           # animated: no tree per frame
+
+
+def test_streaming_reader_cuts_chunks_read_before_level_of_detail_was_asked_for():
+    from lsd3d_usd.render.camera import Camera, look_at
+    from lsd3d_usd.views.stage_data import ChunkStreamer
+    stage = S.new_stage()
+    write_surfels(stage, f"{S.SURFELS_PATH}/Chunk_0_0", _field(400, 1.0))
+    stage.GetPrimAtPath(S.WORLD).CreateAttribute("lsd3d:scene:chunkSize",
+                                                 Sdf.ValueTypeNames.Double).Set(100.0)
+    r = SceneReader(stage, actors=False)
+    r.stream = ChunkStreamer(stage, 300.0)
+    cam = Camera.from_fov(64, 48, 60.0, look_at([-10.0, 0.0, 1.0], [1.0, 0.0, 1.0]), near=0.1,
+                          far=100.0)
+    assert r.surfels_seen(cam).n == 400                # full detail: every loaded surfel
+    r.lod_px = 4.0                                     # asked for later: the chunk gets a tree
+    cut = r.surfels_seen(cam)
+    assert cut is not None and 0 < cut.n <= 400 and len(r.stream.trees()) == 1

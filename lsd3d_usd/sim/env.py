@@ -128,8 +128,10 @@ class DriveEnv(gym.Env):
         self.render_mode = render_mode
         self.metadata = dict(self.metadata, render_fps=self.settings.hz)
         self._own_scene = not isinstance(scene, SimScene)
-        self.scene = SimScene(scene, self.settings.stream_radius,
-                                                             lod_px=self.settings.lod_px) if self._own_scene else scene
+        self.scene = (SimScene(scene, self.settings.stream_radius, lod_px=self.settings.lod_px)
+                      if self._own_scene else scene)
+        # a shared scene's reader draws at this env's level of detail (camera frames only)
+        self.scene.reader.lod_px = float(self.settings.lod_px)
         self.sensors = SensorRig(self.scene, self.settings)
         self.dt = 1.0 / self.settings.hz
         self.limits = self.settings.limits

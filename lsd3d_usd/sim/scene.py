@@ -30,6 +30,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout.routes import LaneGraph
 from lsd3d_usd.layout.usdio import layout_from_stage
 from lsd3d_usd.views.stage_data import SceneReader
+from lsd3d_usd.views.options import DEFAULT_LOD_PX
 
 TRUNK_RADIUS = 0.3          # m: a tree is an obstacle at its trunk, not its crown
 POLE_RADIUS = 0.15          # m
@@ -122,7 +123,7 @@ class SimScene:
     """A scene folder opened for driving (see the module doc)."""
 
     def __init__(self, scene, stream_radius: float = 300.0, use_env: bool = True,
-                 lod_px: float = 0.0):
+                 lod_px: float = DEFAULT_LOD_PX):
         sp = Path(scene)
         root = (sp / S.ROOT_FILE if sp.is_dir() else sp).absolute()
         if not root.is_file():

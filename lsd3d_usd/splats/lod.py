@@ -210,7 +210,7 @@ def _cut(centre, radius, size, first, last, roots, n_leaves, R, t, planes, near,
                         grown = np.empty(max(need, 2 * stack.shape[0]), np.int64)
                         grown[:top] = stack[:top]
                         stack = grown
-                    for c in range(a, b):
+                    for c in range(b - 1, a - 1, -1):   # popped ascending: runs join
                         stack[top] = c
                         top += 1
                     continue
@@ -297,6 +297,9 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
         if leaves.semantic_ids is not None:
             sem = (np.argmax(votes, axis=1) - 1).astype(np.int32)
         fit = _fit_nodes(C, mu, normal_w, sh_w / W[:, None], log_t, leaves.sh.shape[1])
+        # the sphere also holds the node's own widened disk (culling keeps its tails), and
+        # the level above bounds these spheres
+        r = np.maximum(r, KERNEL_SIGMAS * fit[2].max(axis=1).astype(np.float64))
         sizes.append(r * (1.0 + THICK_WEIGHT * _thickness(C)))
         parts.append(SurfelField(*fit, sem, leaves.semantic_classes))
         centres.append(mu)

@@ -316,11 +316,13 @@ class ChunkStreamer:
             if key not in self._fields:
                 prims = [self.stage.GetPrimAtPath(p) for p in self.chunks[key]]
                 prims = [p for p in prims if p and p.IsLoaded()]
-                f = scene_surfels(self.stage, time, [p for p in prims if is_particle_field(p)])
-                if f is not None and self.lod:
-                    self._trees[key] = build_lod(f)
-                    f = self._trees[key].leaves     # the same surfels, in the tree's order
-                self._fields[key] = f
+                self._fields[key] = scene_surfels(self.stage, time,
+                                                  [p for p in prims if is_particle_field(p)])
+            f = self._fields[key]
+            if self.lod and f is not None and key not in self._trees:
+                # also for a chunk read before level of detail was asked for
+                self._trees[key] = build_lod(f)
+                self._fields[key] = self._trees[key].leaves   # the same surfels, reordered
         return keys
 
     def trees(self, time=None) -> list[LodTree]:
@@ -404,6 +406,7 @@ class SceneReader:
             # more than it saves, so they are drawn in full
             return self.surfels(time, near=camera.center[None, :])
         if self.stream is not None:
+            self.stream.lod = True              # lod_px may be set after the reader was made
             self.stream.update(camera.center[None, :])
             trees = self.stream.trees(time)
         else:
