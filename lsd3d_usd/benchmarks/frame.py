@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import json
 import statistics
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-from lsd3d_usd.benchmarks.sample import generate_sample
+from lsd3d_usd.benchmarks.sample import scene_or_sample
 
 
 
@@ -145,10 +144,7 @@ def main(json_path=None, *, scene=None, corridor=None, quick=False, poses=None, 
     poses = poses or (3 if quick else 5)
     repeats = repeats or (1 if quick else 3)
     steps = steps or (3 if quick else 10)
-    with tempfile.TemporaryDirectory() as tmp:
-        target = Path(scene) if scene else Path(tmp) / "scene"
-        if scene is None:
-            generate_sample(target, quick, "bench frame", log)
+    with scene_or_sample(scene, quick, "bench frame", log) as target:
         res = {"scene": str(scene or "README sample"), "poses": poses, "repeats": repeats}
         res.update(frames(target, poses, repeats, lod_px, log=log))
         for mode, budget in (("", lod_px), ("_no_lod", 0.0)):

@@ -2,6 +2,8 @@
 "sunny afternoon in Madrid"), generated into a folder when no scene is given."""
 from __future__ import annotations
 
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
 
 SAMPLE = Path(__file__).resolve().parents[2] / "samples" / "layouts" / "hand_crossing.usda"
@@ -16,3 +18,14 @@ def generate_sample(target: Path, quick: bool, what: str, log=print) -> None:
     log(f"{what}: generating the README sample ({'quick' if quick else 'defaults'})")
     generate(generate_config(layout=SAMPLE, prompt="sunny afternoon in Madrid", **kw),
              RunOptions(out=target, progress=False, log=lambda *a: None))
+
+
+@contextmanager
+def scene_or_sample(scene, quick: bool, what: str, log=print):
+    """``scene`` as a Path, or (None) the README sample generated into a temporary folder
+    that lives as long as the block."""
+    with tempfile.TemporaryDirectory() as tmp:
+        target = Path(scene) if scene else Path(tmp) / "scene"
+        if scene is None:
+            generate_sample(target, quick, what, log)
+        yield target

@@ -12,11 +12,10 @@ from __future__ import annotations
 import json
 import resource
 import statistics
-import tempfile
 import time
 from pathlib import Path
 
-from lsd3d_usd.benchmarks.sample import generate_sample
+from lsd3d_usd.benchmarks.sample import scene_or_sample
 
 CONFIGS = {
     "world": dict(rig="none", lidar="none"),
@@ -86,10 +85,7 @@ def main(json_path=None, *, scene=None, quick=False, steps=None, repeats=None,
          memory_seconds=None, remote=False, log=print) -> dict:
     steps = steps or (20 if quick else 100)
     repeats = repeats or (1 if quick else 3)
-    with tempfile.TemporaryDirectory() as tmp:
-        target = Path(scene) if scene else Path(tmp) / "scene"
-        if scene is None:
-            generate_sample(target, quick, "bench sim", log)
+    with scene_or_sample(scene, quick, "bench sim", log) as target:
         res = {"scene": str(scene or "README sample"), "steps": steps, "repeats": repeats}
         for name, cfg in CONFIGS.items():
             n = steps if name == "world" else max(5, steps // (10 if name == "full" else 4))
