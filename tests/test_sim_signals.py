@@ -240,3 +240,26 @@ def test_traffic_too_close_to_stop_at_yellow_goes_through(layout):
     for _ in range(300):
         far.step(0.05)
     assert v.lane == g.index["e_in"] and v.v < 0.05
+
+
+def test_the_birds_eye_frame_shows_each_stop_bar_in_its_state(opened):
+    env = DriveEnv(opened, rig="none", lidar="none", seconds=40.0, vehicles=0, pedestrians=0,
+                   cyclists=0, render_mode="rgb_array")
+    env.reset(seed=0, options={"route": EAST, "start": 40.0})    # 10 m before the stop point
+    marks = env.signals.stop_marks
+    east = [m_ for m_ in marks if env.signals.ids[m_[3]] == "tl_e_in"]
+    assert len(east) == 1 and east[0][:2] == pytest.approx((10.0, 1.75))
+    assert east[0][2] == pytest.approx(math.pi)
+
+    def bar_pixels(colour):
+        img = env.render().astype(int)
+        return int(np.sum(np.abs(img - np.array(colour)).sum(axis=2) < 40))
+    red, green = (230, 20, 20), (30, 200, 60)
+    _force(env, 15.0)                           # the east approach red
+    assert env.signals.state(east[0][3], env.t) == "red"
+    n_red, n_green = bar_pixels(red), bar_pixels(green)
+    _force(env, 0.0)                            # the east approach green
+    assert env.signals.state(east[0][3], env.t) == "green"
+    assert bar_pixels(red) < n_red and bar_pixels(green) > n_green
+    assert n_red > 0
+    env.close()

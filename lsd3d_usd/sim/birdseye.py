@@ -17,6 +17,8 @@ PX_PER_M = 4.0
 VIEW_M = 80.0                  # the frame's side in metres
 MAX_MAP_PX = 8192              # the static map's longer side at most (large scenes: coarser)
 COLOURS = {"vehicle": (40, 110, 220), "cyclist": (240, 160, 20), "pedestrian": (230, 40, 160)}
+SIGNAL_COLOURS = {"green": (30, 200, 60), "yellow": (250, 200, 0), "red": (230, 20, 20)}
+STOP_BAR_M = (3.0, 1.2)        # a signal's stop bar across its lane: width, depth (m)
 
 
 class BirdsEye:
@@ -46,8 +48,10 @@ class BirdsEye:
     def _px(self, p) -> tuple[float, float]:
         return ((float(p[0]) - self.x0) * self.ppm, self.h - (float(p[1]) - self.y0) * self.ppm)
 
-    def frame(self, ego, limits, agents, route) -> np.ndarray:
-        """(size, size, 3) uint8: the map around the ego (north up), route, agents, ego."""
+    def frame(self, ego, limits, agents, route, signals=()) -> np.ndarray:
+        """(size, size, 3) uint8: the map around the ego (north up), route, agents, ego;
+        ``signals``: (x, y, heading, state) of each controlled lane's stop point, drawn as a
+        bar across the lane in the state's colour."""
         cx, cy = self._px(ego.box_centre(limits))
         half = VIEW_M * self.ppm / 2
         crop = self.map.crop((int(cx - half), int(cy - half), int(cx + half), int(cy + half)))
@@ -60,6 +64,12 @@ class BirdsEye:
             return (x - off[0], y - off[1])
         pts, _ = route.polyline()
         d.line([px(p) for p in pts[:, :2]], fill=(40, 190, 90), width=2)
+        if len(signals):
+            xy = np.array([[x, y] for x, y, _, _ in signals], np.float64)
+            bars = box_corners(xy, np.array([h for _, _, h, _ in signals], np.float64),
+                               np.full(len(xy), STOP_BAR_M[1]), np.full(len(xy), STOP_BAR_M[0]))
+            for k, (*_, state) in enumerate(signals):
+                d.polygon([px(p) for p in bars[k]], fill=SIGNAL_COLOURS.get(state, (90, 90, 90)))
         corners = box_corners(agents.xy, agents.yaw, agents.length, agents.width)
         for k, kind in enumerate(agents.kind):
             d.polygon([px(p) for p in corners[k]], fill=COLOURS.get(kind, (90, 90, 90)))

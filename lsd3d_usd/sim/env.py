@@ -589,7 +589,8 @@ class DriveEnv(gym.Env):
         from lsd3d_usd.sim.birdseye import BirdsEye
         if self._bev is None:
             self._bev = BirdsEye(self.scene)
-        return self._bev.frame(self.ego, self.limits, self._all_agents(), self.route)
+        marks = [(x, y, h, self.signals.state(k, self.t)) for x, y, h, k in self.signals.stop_marks]
+        return self._bev.frame(self.ego, self.limits, self._all_agents(), self.route, marks)
 
     def episode_summary(self) -> dict:
         return self.scores.summary()

@@ -73,6 +73,17 @@ class SignalPlan:
                 if i is not None:
                     self.lane_group.setdefault(i, k)
         self.junction = graph.junction
+        # (x, y, heading, group) where each controlled lane stops: stop_lane's rule, the end
+        # of a lane outside a junction, the start of a junction lane
+        self.stop_marks = []
+        for i, k in self.lane_group.items():
+            p = graph.geoms[i].points
+            if len(p) < 2:
+                continue
+            a, b = (p[-2], p[-1]) if not graph.junction[i] else (p[0], p[1])
+            at = b if not graph.junction[i] else a
+            self.stop_marks.append((float(at[0]), float(at[1]),
+                                    math.atan2(float(b[1] - a[1]), float(b[0] - a[0])), k))
 
     def __len__(self) -> int:
         return len(self.groups)
