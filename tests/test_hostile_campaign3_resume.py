@@ -374,3 +374,16 @@ def test_fuzz_lidar_keys(made, tmp_path_factory, key):
 def test_fuzz_counts():
     """The number of hostile cases the fuzz tests try (reported in docs/limits.md)."""
     assert N_EXAMPLES * (len(TARGETS) + len(LIDAR_KEYS)) == 630
+
+
+def test_resume_into_a_new_or_empty_folder_starts_the_dataset(made, tmp_path):
+    """`dataset --resume` (and a batch's dataset, which always resumes) into a folder that
+    does not exist yet or is empty makes the dataset; a second --resume goes on."""
+    from lsd3d_usd.cli import main
+    scene, lidar, _ = _copy(made, tmp_path, "done")
+    for ds in (tmp_path / "new", tmp_path / "empty"):
+        if ds.name == "empty":
+            ds.mkdir()
+        assert main(_argv(scene, ds, "nuscenes", lidar, "--resume")) == 0
+        assert (ds / ".lsd3d" / "dataset.json").is_file()
+        assert main(_argv(scene, ds, "nuscenes", lidar, "--resume")) == 0

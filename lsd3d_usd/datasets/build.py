@@ -323,7 +323,9 @@ def start_dataset(root: Path, opt: DatasetOptions, plans, inputs: bool = True) -
     the dataset before its scenes exist (its task hashes cover them)."""
     state = root / STATE
     sig = dataset_record(opt, plans, inputs)
-    if opt.resume:
+    # --resume into a new or empty folder starts the dataset (a batch always resumes);
+    # check_output refused a non-empty folder without a record
+    if opt.resume and os.path.lexists(state / "dataset.json"):
         check_resume(state, sig, root)
         # temp files of a killed writer (scene.atomic_write_bytes) are no part of the dataset
         o = root.resolve()
