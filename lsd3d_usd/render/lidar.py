@@ -23,8 +23,9 @@ no pixel). No return where the transmittance stays at or above 0.5 within
 nearer than the surfels' return.
 
 The kernel bins surfels into tiles of rays (8 columns × 4 rings) by conservative angular
-bounds from each tile's origin, sorts each tile's list by the nearest distance a surfel can be
-met at, and stops a ray once that bound passes its return: the result is the same as
+bounds from each tile's origin, orders each tile's list by the nearest distance a surfel can be
+met at (in buckets 3 % wide, each lowered to its floor), and stops a tile once that bound
+passes every ray's return: the result is the same as
 compositing every surfel (``cast_reference``, float64, every surfel per ray, for small
 scenes), at a fraction of the work. float64 throughout.
 """
@@ -67,9 +68,28 @@ class LidarSurfels:
     a: np.ndarray
     rad: np.ndarray
     packed: np.ndarray
+    # binning buffers kept between sweeps (fresh pages cost ~15 % of the binning); a list
+    # whose pop and append are atomic, so concurrent sweeps each get their own
+    _spare: list = field(default_factory=list, repr=False, compare=False)
 
     def __len__(self) -> int:
         return len(self.c)
+
+    def take_buffers(self, n: int):
+        """(per (n,), slot tiles, slot keys (n * PAIR_SLOTS,)) for one binning: the ones the
+        last sweep gave back, or new ones; give them back with give_buffers."""
+        try:
+            b = self._spare.pop()
+        except IndexError:
+            b = None
+        if b is None or len(b[0]) != n:
+            b = (np.empty(n, np.int64), np.empty(n * PAIR_SLOTS, np.int64),
+                 np.empty(n * PAIR_SLOTS, np.float64))
+        return b
+
+    def give_buffers(self, b) -> None:
+        if not self._spare:
+            self._spare.append(b)
 
     def subset(self, idx) -> LidarSurfels:
         return LidarSurfels(*(np.ascontiguousarray(getattr(self, f)[idx]) for f in
@@ -141,7 +161,8 @@ def rotate_columns(rot, d):
 @njit(cache=True, parallel=True)
 def _tile_bounds(dirs, tc, tr):
     """Per tile (ring group, column group): the world azimuth of its middle ray, the largest
-    azimuth difference of its rays from it, and the elevation range of its rays."""
+    azimuth difference of its rays from it, and the range of the sines of its rays'
+    elevations (the sine rises with the elevation: compared as they are, no asin)."""
     R, C = dirs.shape[0], dirs.shape[1]
     nr, nc = (R + tr - 1) // tr, (C + tc - 1) // tc
     az_mid = np.zeros((nr, nc))
@@ -159,7 +180,7 @@ def _tile_bounds(dirs, tc, tr):
             for i in range(i0, i1):
                 for j in range(j0, j1):
                     d = dirs[i, j]
-                    el = math.asin(max(-1.0, min(1.0, d[2])))
+                    el = max(-1.0, min(1.0, d[2]))      # the sine of the elevation
                     lo, hi = min(lo, el), max(hi, el)
                     daz = math.atan2(d[1], d[0]) - mid
                     daz = (daz + math.pi) % (2 * math.pi) - math.pi
@@ -181,22 +202,31 @@ def _wrap(a):
 @njit(cache=True, inline="always")
 def _cone(c, rad, k, o, dm):
     """The directions from o in which surfel k (its bounding sphere grown by dm, the spread
-    of the origins it stands for) can be seen: (nearest distance, lowest and highest
-    elevation, azimuth of the centre, azimuthal half-width, whether every azimuth is)."""
+    of the origins it stands for) can be seen: (nearest distance, sines of the lowest and
+    highest elevation, azimuth of the centre, azimuthal half-width, whether every azimuth
+    is). The elevations' sines come from the sphere's angular radius h (sin h = r / dist) by
+    the angle-sum formulas: square roots, not asin, sin and cos per surfel."""
     wx, wy, wz = c[k, 0] - o[0], c[k, 1] - o[1], c[k, 2] - o[2]
-    dist = math.sqrt(wx * wx + wy * wy + wz * wz)
+    hyp2 = wx * wx + wy * wy
+    dist = math.sqrt(hyp2 + wz * wz)
     r = rad[k] + dm
     if dist <= r:
         return 0.0, -10.0, 10.0, 0.0, math.pi, True
-    h = math.asin(min(1.0, r / dist))
-    el = math.asin(max(-1.0, min(1.0, wz / dist)))
-    ce = math.cos(min(abs(el) + h, math.pi / 2))
-    sh = math.sin(h)
+    sh = r / dist
+    ch = math.sqrt(max(0.0, 1.0 - sh * sh))
+    se, ce_ = wz / dist, math.sqrt(hyp2) / dist             # sine and cosine of the elevation
+    lo, hi = se * ch - ce_ * sh, se * ch + ce_ * sh         # sin(el - h), sin(el + h)
+    if ce_ * ch - se * sh < 0.0:        # el + h beyond the zenith
+        hi = 1.0
+    if ce_ * ch + se * sh < 0.0:        # el - h beyond the nadir
+        lo = -1.0
+    lo, hi = lo - 1e-12, hi + 1e-12     # rounding never narrows the bound
+    ce = ce_ * ch - abs(se) * sh        # cos(|el| + h)
     if ce <= 1e-9 or sh >= ce:
-        return dist - r, el - h, el + h, 0.0, math.pi, True     # over a pole: any azimuth
+        return dist - r, lo, hi, 0.0, math.pi, True     # over a pole: any azimuth
     # a cap of angular radius h at elevation el spans asin(sin h / cos el) in azimuth;
     # cos(|el| + h) <= cos el keeps the bound conservative
-    return dist - r, el - h, el + h, math.atan2(wy, wx), math.asin(sh / ce), False
+    return dist - r, lo, hi, math.atan2(wy, wx), math.asin(sh / ce), False
 
 
 @njit(cache=True)
@@ -255,6 +285,41 @@ def _candidate_groups(az, w, mid, half_max, full_turn):
     return max(lo, 0), min(hi, nc - 1)
 
 
+@njit(cache=True, inline="always")
+def _bin_group(g, near, e0, e1, az, w, anyaz, mid, half, el_lo, el_hi, az_mid, az_half,
+               rings_sorted, lim, n, p, tile_of, key):
+    """_bin's pairs of one surfel (its cone from a sector's origin) in column group g:
+    written at p while n < lim; (p, n) after them."""
+    nr, nc = az_mid.shape
+    if not anyaz and abs(_wrap(az - mid[g])) > half[g] + w:
+        return p, n         # the whole column group is beside the surfel
+    h0 = 0
+    if rings_sorted:        # the first ring group reaching up to e0
+        a_, b_ = 0, nr
+        while a_ < b_:
+            m_ = (a_ + b_) >> 1
+            if el_hi[m_, g] < e0:
+                a_ = m_ + 1
+            else:
+                b_ = m_
+        h0 = a_
+    for hh in range(h0, nr):
+        if el_lo[hh, g] > e1:
+            if rings_sorted:
+                break
+            continue
+        if el_hi[hh, g] < e0:
+            continue
+        if not anyaz and abs(_wrap(az - az_mid[hh, g])) > az_half[hh, g] + w:
+            continue
+        if n < lim:
+            tile_of[p] = hh * nc + g
+            key[p] = near
+            p += 1
+        n += 1
+    return p, n
+
+
 @njit(cache=True, parallel=True)
 def _bin(c, rad, oref, dref, sec_org, sec_d, sec_groups, az_mid, az_half, el_lo, el_hi,
          rings_sorted, mid, half, half_max, full_turn, max_range, mode, cap, per, offsets,
@@ -287,41 +352,31 @@ def _bin(c, rad, oref, dref, sec_org, sec_d, sec_groups, az_mid, az_half, el_lo,
                     g0, g1 = 0, nc - 1
                 else:
                     g0, g1 = _candidate_groups(az0, w0, mid, half_max, full_turn)
-                sec = -1
-                near, e0, e1, az, w, anyaz = 0.0, 0.0, 0.0, 0.0, 0.0, True
-                for gg in range(g0, g1 + 1):
-                    g = gg % nc
-                    if g // sec_groups != sec:
-                        sec = g // sec_groups
-                        near, e0, e1, az, w, anyaz = _cone(c, rad, k, sec_org[sec], sec_d[sec])
+                # the sectors the candidate groups fall in, each with its own (tighter)
+                # cone: only its groups that cone can reach are visited (the sweep-wide cone
+                # spreads by the whole sweep's travel, a metre on a moving ego)
+                g = g0 % nc
+                left = g1 - g0 + 1
+                while left > 0:
+                    sec = g // sec_groups
+                    qb = min((sec + 1) * sec_groups, nc)
+                    a, b = g, min(qb, g + left) - 1          # this sector's part of g0..g1
+                    left -= b - a + 1
+                    g = qb % nc
+                    near, e0, e1, az, w, anyaz = _cone(c, rad, k, sec_org[sec], sec_d[sec])
                     if near > max_range:
                         continue
-                    if not anyaz and abs(_wrap(az - mid[g])) > half[g] + w:
-                        continue        # the whole column group is beside the surfel
-                    h0 = 0
-                    if rings_sorted:        # the first ring group reaching up to e0
-                        a_, b_ = 0, nr
-                        while a_ < b_:
-                            m_ = (a_ + b_) // 2
-                            if el_hi[m_, g] < e0:
-                                a_ = m_ + 1
-                            else:
-                                b_ = m_
-                        h0 = a_
-                    for hh in range(h0, nr):
-                        if el_lo[hh, g] > e1:
-                            if rings_sorted:
-                                break
-                            continue
-                        if el_hi[hh, g] < e0:
-                            continue
-                        if not anyaz and abs(_wrap(az - az_mid[hh, g])) > az_half[hh, g] + w:
-                            continue
-                        if n < lim:
-                            tile_of[p] = hh * nc + g
-                            key[p] = near
-                            p += 1
-                        n += 1
+                    lo, hi = a, b
+                    if not anyaz:
+                        lo, hi = _candidate_groups(az, w, mid, half_max, full_turn)
+                    if hi - lo + 1 >= nc:
+                        lo, hi = a, b
+                    # the cone's groups lo..hi (modulo nc: disjoint when fewer than nc) in a..b
+                    for shift in (-nc, 0, nc):
+                        for gg in range(max(a, lo + shift), min(b, hi + shift) + 1):
+                            p, n = _bin_group(gg, near, e0, e1, az, w, anyaz, mid, half,
+                                              el_lo, el_hi, az_mid, az_half, rings_sorted,
+                                              lim, n, p, tile_of, key)
         per[k] = n
 
 
@@ -377,33 +432,43 @@ def _spread(q, n):
     return (q * SPREAD_PRIME) % n
 
 
+KEY_OCTAVES = (-1, 10)   # the keys _bucket_tiles orders: 0.5 m to 1 km (outside: the ends)
+KEY_SPLITS = 5           # bits of mantissa a bucket keeps: 32 buckets an octave (3 % apart)
+
+
 @njit(cache=True, parallel=True)
-def _sort_tiles(offsets, idx, key):
-    """Each tile's pairs ordered by key, ties in surfel order. A pair's key (a distance >= 0,
-    whose float64 bits order as integers) is rounded down to clear the low bits that then
-    hold its place in the tile, and the one integer array is sorted: several times faster
-    than an argsort with its gathers, and the rounded keys stay conservative bounds (the
-    trace stops at the first key beyond its returns, so the keys it reads must not fall)."""
+def _bucket_tiles(offsets, idx, key):
+    """Each tile's pairs grouped by key into buckets 1/32 of an octave wide (a counting sort,
+    ties in surfel order), each key lowered to its bucket's floor. The trace needs no finer
+    order: it stops at the first key beyond every ray's return, and a floor is still a
+    lower bound of where the surfel can be met (its hits are composited by t in any order).
+    The bucket is the key's float64 exponent and top mantissa bits (keys are >= 0)."""
     bits = key.view(np.int64)
+    shift = 52 - KEY_SPLITS
+    base = np.int64(1023 + KEY_OCTAVES[0]) << KEY_SPLITS       # the bucket of 2**KEY_OCTAVES[0]
+    nb = (KEY_OCTAVES[1] - KEY_OCTAVES[0]) << KEY_SPLITS
     n = offsets.shape[0] - 1
     for q in prange(n):
         t = _spread(q, n)
         a, b = offsets[t], offsets[t + 1]
         m = b - a
-        if m > 1:
-            s = 1
-            while (1 << s) < m:
-                s += 1
-            low = (np.int64(1) << s) - 1
-            packed = np.empty(m, np.int64)
-            for i in range(m):
-                packed[i] = (bits[a + i] & ~low) | i
-            packed.sort()
-            ids = idx[a:b].copy()
-            for i in range(m):
-                p = packed[i]
-                idx[a + i] = ids[p & low]
-                bits[a + i] = p & ~low
+        if m < 2:
+            continue
+        cnt = np.zeros(nb + 2, np.int64)
+        bk = np.empty(m, np.int64)
+        for i in range(m):
+            v = min(max((bits[a + i] >> shift) - base + 1, 0), nb)     # 0: below 0.5 m
+            bk[i] = v
+            cnt[v + 1] += 1
+        for v in range(nb + 1):
+            cnt[v + 1] += cnt[v]
+        ids = idx[a:b].copy()
+        for i in range(m):
+            v = bk[i]
+            p = a + cnt[v]
+            cnt[v] += 1
+            idx[p] = ids[i]
+            bits[p] = 0 if v == 0 else (v - 1 + base) << shift
 
 
 # ----------------------------------------------------------------------------- tracing
@@ -671,9 +736,8 @@ def cast_surfels(surfels, origins, dirs, *, min_range: float, max_range: float,
     # one pass writes up to PAIR_SLOTS pairs per surfel (most have one or two); the few with
     # more are binned again, alone, into a buffer of their exact size
     N = len(c)
-    per = np.zeros(N, np.int64)
-    slot_tile = np.empty(N * PAIR_SLOTS, np.int64)
-    slot_key = np.empty(N * PAIR_SLOTS, np.float64)
+    bufs = surfels.take_buffers(N)
+    per, slot_tile, slot_key = bufs       # _bin sets every per[k]
     _bin(*args, 2, PAIR_SLOTS, per, per, slot_tile, slot_key)
     over = np.flatnonzero(per > PAIR_SLOTS)
     over_start = np.zeros(len(over) + 1, np.int64)
@@ -686,7 +750,8 @@ def cast_surfels(surfels, origins, dirs, *, min_range: float, max_range: float,
              over_tile, over_key)
     offsets, idx, key = _by_tile(per, PAIR_SLOTS, slot_tile, slot_key, over_start, over_tile,
                                  over_key, az_mid.size)
-    _sort_tiles(offsets, idx, key)
+    surfels.give_buffers(bufs)
+    _bucket_tiles(offsets, idx, key)
     t1 = time.perf_counter()
     (_trace_tiles if TRACE_TILES else _trace)(dirs, origins, surfels.packed, offsets, idx, key, tc, tr, float(min_range),
            float(max_range), out_t, out_k)
