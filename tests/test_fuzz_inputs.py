@@ -199,6 +199,8 @@ def _xodr(length="100", geom_length=None, shape="<line/>", width="3.5") -> bytes
 @example(_xodr(length="50", geom_length="1e9", shape='<poly3 a="0" b="0" c="0" d="0"/>'))
 @example(_xodr(width="1e7"))
 @example(_xodr().replace(b"</OpenDRIVE>", b"\xff\xfe</OpenDRIVE>"))   # not UTF-8
+# a spiral of curvature 1e5: a road area of 111 k points, over the layout reader's own limit
+@example(_xodr(length="32.927", shape='<spiral curvStart="99999" curvEnd="-0.0316"/>'))
 def test_fuzz_opendrive_import(doc):
     check_opendrive(doc)
 
@@ -482,6 +484,9 @@ def check_polygons(case):
 @given(ground_case())
 @example(([], [np.array([[20, 0], [20 + 1e-13, 0], [20, 1e-13]])], [], [], []))   # sliver ring
 @example(([], [np.array([[1, 2], [1e-13, -1e-13], [3, -2e-13], [3e-13, 1], [3, -4e-13]])], [], [], []))
+# a 5e-6 m² sliver at 2.3e5 m: its ring's area cancelled to nothing in raw coordinates
+@example(([], [], [], [], [np.array([[-6e4, 0.0], [1e-3, -1e-3], [1.00000002e5, 2.29999998e5],
+                                     [1.00000003e5, 2.29999997e5]])]))
 def test_fuzz_polygon_builder(case):
     check_polygons(case)
 

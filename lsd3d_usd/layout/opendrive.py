@@ -103,6 +103,7 @@ def parse_xml(path: str | Path):
 
 from lsd3d_usd.limits import (  # noqa: E402
     COORDINATE,
+    FEATURE_POINTS,
     LANE_WIDTH,
     LATERAL_OFFSET,
     LAYOUT_EXTENT,
@@ -721,6 +722,9 @@ def _road_features(road: _Road, tol: float, lane_meta, section_s=None) -> list:
         span = float(max(np.ptp(c[:, 0]), np.ptp(c[:, 1]), 2 * np.abs(c[:, 2]).max()))
         _within(LAYOUT_EXTENT, span, "size of the road's geometry")
         _within(COORDINATE, float(np.abs(c).max()), "a coordinate at")
+        # every feature must also be readable back (the layout reader's own limit)
+        big = max(feats, key=lambda f: len(f.coords()))
+        _within(FEATURE_POINTS, len(big.coords()), f"points of {big.id}")
     return feats
 
 

@@ -62,7 +62,9 @@ def _clean_ring(ring, tol: float = POINT_TOL, min_area: float = RING_AREA) -> np
         c = c[:-1]
     if len(c) < 3:
         return None
-    x, y = c[:, 0], c[:, 1]
+    # the shoelace about the first vertex: with raw coordinates of 1e5 m its products cancel
+    # to ~1e-5 m², the size of the slivers this test is for
+    x, y = c[:, 0] - c[0, 0], c[:, 1] - c[0, 1]
     if 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))) <= min_area:
         return None
     return c
