@@ -46,6 +46,7 @@ def as_area(geom: BaseGeometry | None) -> BaseGeometry:
 # than RING_AREA are slivers (a curb "ring" of 1e-7 m made remove_repeated_points fail).
 POINT_TOL = 1e-7
 RING_AREA = 1e-9
+TINY_COORD = 1e-30    # coordinates nearer zero than this are zero (no map has them)
 SNAP_GRID = 1e-6      # last resort: snap to this grid (GEOS keeps the result valid)
 
 
@@ -183,7 +184,11 @@ def area_from_points(points) -> BaseGeometry:
     xy = np.asarray(points, dtype=np.float64)
     if xy.ndim != 2 or xy.shape[1] < 2 or len(xy) < 3 or not np.isfinite(xy[:, :2]).all():
         return EMPTY
-    return clean_area(Polygon(xy[:, :2]))
+    xy = xy[:, :2]
+    tiny = np.abs(xy) < TINY_COORD
+    if tiny.any():      # subnormal coordinates raise GEOS's floating-point flags (numpy warns)
+        xy = np.where(tiny, 0.0, xy)
+    return clean_area(Polygon(xy))
 
 
 MITER_LIMIT = MITRE_LIMIT     # a mitre reaches at most this many half widths from its vertex
