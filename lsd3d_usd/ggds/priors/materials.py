@@ -118,6 +118,13 @@ FACADE_PALETTE = torch.tensor([
 ])
 
 
+# Layouts put walls on round coordinates. The cells that pick a wall's building (its tone and
+# window pitch) are counted from this shifted origin so that no cell boundary falls on such a
+# wall: on one, the float noise of the G-buffer's world positions flipped the building per pixel
+# and between views, and GGDS averaged the disagreeing targets into blotches (docs/ggds.md).
+WALL_CELL_SHIFT_M = 0.618
+
+
 def facade(p, nrm, s: MaterialSettings) -> Material:
     """Walls with a window grid on storeys of floor_height; roofs on up-facing faces."""
     n = p.shape[0]
@@ -128,9 +135,10 @@ def facade(p, nrm, s: MaterialSettings) -> Material:
     u = (p[:, 0] * t[:, 0].double() + p[:, 1] * t[:, 1].double())
     off = (p[:, 0] * nrm[:, 0].double() + p[:, 1] * nrm[:, 1].double())       # wall plane offset
     # one "building" per 16 m of frontage (of one wall plane): its own wall tone and window pitch
-    bid = noise.hash_float(noise.cell(u, 16.0), noise.cell(off, 2.0), (nrm[:, :2] * 4).round().long().sum(-1),
+    plane = noise.cell(off + WALL_CELL_SHIFT_M, 2.0)
+    bid = noise.hash_float(noise.cell(u, 16.0), plane, (nrm[:, :2] * 4).round().long().sum(-1),
                            seed=s.seed + 40)
-    tone = noise.hash_float(noise.cell(u, 16.0), noise.cell(off, 2.0), seed=s.seed + 41)
+    tone = noise.hash_float(noise.cell(u, 16.0), plane, seed=s.seed + 41)
     wall = FACADE_PALETTE[(tone * len(FACADE_PALETTE)).long().clamp_max(len(FACADE_PALETTE) - 1)]
     wall = wall * (0.85 + 0.3 * bid)[:, None]
     wall = wall * (1.0 + 0.12 * (noise.fbm(p / 0.15, octaves=2, seed=s.seed + 42) - 0.5))[:, None]
@@ -148,7 +156,8 @@ def facade(p, nrm, s: MaterialSettings) -> Material:
     du = (fu - 0.5).abs()
     win = ((du < half_w) & (fv > v0) & (fv < v1)).float()
     frame = ((du < half_w + 0.03) & (fv > v0 - 0.03) & (fv < v1 + 0.02)).float() - win
-    cid = noise.hash_float(col, storey.long(), noise.cell(p[:, :2], 40.0).sum(-1), seed=s.seed + 43)
+    cid = noise.hash_float(col, storey.long(), noise.cell(p[:, :2] + WALL_CELL_SHIFT_M, 40.0).sum(-1),
+                           seed=s.seed + 43)
     glass = torch.tensor([0.05, 0.06, 0.07]) * (0.6 + 0.8 * cid)[:, None]
     curtain = (cid > 0.8).float()[:, None] * torch.tensor([0.25, 0.22, 0.18])
     albedo = _lerp(wall, glass + curtain, win)
