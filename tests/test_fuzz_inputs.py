@@ -484,8 +484,10 @@ def check_polygons(case):
 @given(ground_case())
 @example(([], [np.array([[20, 0], [20 + 1e-13, 0], [20, 1e-13]])], [], [], []))   # sliver ring
 @example(([], [np.array([[1, 2], [1e-13, -1e-13], [3, -2e-13], [3e-13, 1], [3, -4e-13]])], [], [], []))
-# a subnormal coordinate: GEOS's mitred buffer raised a divide-by-zero flag (a RuntimeWarning)
+# a coordinate of 1e-38 or 1e-20 m: GEOS's mitred buffer raised a divide-by-zero flag (a
+# RuntimeWarning)
 @example(([], [], [np.array([[0.0, 0.0], [0.0, 1.0], [1.17549435e-38, -1.0], [-1.0, 0.0]])], [], []))
+@example(([], [], [np.array([[0.0, 0.0], [0.0, 1.0], [1e-20, -1.0], [-1.0, 0.0]])], [], []))
 # a 5e-6 m² sliver at 2.3e5 m: its ring's area cancelled to nothing in raw coordinates
 @example(([], [], [], [], [np.array([[-6e4, 0.0], [1e-3, -1e-3], [1.00000002e5, 2.29999998e5],
                                      [1.00000003e5, 2.29999997e5]])]))

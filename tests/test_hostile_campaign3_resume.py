@@ -387,3 +387,20 @@ def test_resume_into_a_new_or_empty_folder_starts_the_dataset(made, tmp_path):
         assert main(_argv(scene, ds, "nuscenes", lidar, "--resume")) == 0
         assert (ds / ".lsd3d" / "dataset.json").is_file()
         assert main(_argv(scene, ds, "nuscenes", lidar, "--resume")) == 0
+
+
+def test_a_start_killed_before_its_record_resumes(made, tmp_path, cli_error):
+    """A folder holding only an empty .lsd3d tree (killed between making it and writing
+    dataset.json) resumes as a new dataset; a link inside that tree is still refused."""
+    from lsd3d_usd.cli import main
+    scene, lidar, _ = _copy(made, tmp_path, "done")
+    ds = tmp_path / "killed"
+    (ds / ".lsd3d" / "logs").mkdir(parents=True)
+    assert main(_argv(scene, ds, "nuscenes", lidar, "--resume")) == 0
+    assert (ds / ".lsd3d" / "dataset.json").is_file()
+    bad = tmp_path / "linked"
+    (bad / ".lsd3d").mkdir(parents=True)
+    (tmp_path / "elsewhere").mkdir()
+    (bad / ".lsd3d" / "logs").symlink_to(tmp_path / "elsewhere", target_is_directory=True)
+    cli_error(_argv(scene, bad, "nuscenes", lidar, "--resume"), "no lsd3d-usd dataset")
+    assert not any((tmp_path / "elsewhere").iterdir())

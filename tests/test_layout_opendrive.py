@@ -217,3 +217,22 @@ def test_entity_bomb_does_not_hang(tmp_path):
     with pytest.raises(InputError, match="malformed XML|no road"):
         od.read_opendrive(f)
     assert time.perf_counter() - t < 5
+
+
+def test_an_object_the_layout_reader_would_refuse_is_refused_at_import(tmp_path, cli_error):
+    """An outline of 100 500 corners imported, then refused by our own reader (its
+    feature_points limit): the import now names the object and writes nothing."""
+    ang = np.linspace(0, 2 * np.pi, 100_500, endpoint=False)
+    corners = "".join(f'<cornerLocal u="{5 * np.cos(a):.6f}" v="{5 * np.sin(a):.6f}" z="0" '
+                      'height="1"/>' for a in ang)
+    road = ('<road id="7" length="100" junction="-1"><planView><geometry s="0" x="0" y="0" '
+            'hdg="0" length="100"><line/></geometry></planView><lanes><laneSection s="0"><center>'
+            '<lane id="0" type="none"/></center><right><lane id="-1" type="driving"><width '
+            'sOffset="0" a="3.5" b="0" c="0" d="0"/></lane></right></laneSection></lanes>'
+            '<objects><object id="o1" type="building" s="50" t="-20" zOffset="0" hdg="0" '
+            f'height="5"><outline>{corners}</outline></object></objects></road>')
+    src = tmp_path / "m.xodr"
+    src.write_text(f'<?xml version="1.0"?><OpenDRIVE><header/>{road}</OpenDRIVE>')
+    cli_error(["layout", "import", src, "-o", tmp_path / "L.usda"], "obj_7_o1", "100500",
+              "100000")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.xodr"]

@@ -155,8 +155,8 @@ def test_far_field_at_the_default_budget_looks_like_full_detail():
     sub = tree.cut_field(cam.viewmat, cam.K, cam.width, cam.height, cam.near, cam.far, 8.0)
     lod = render_surfels(sub, cam).rgb.numpy()
     psnr = 10 * np.log10(1.0 / np.mean((np.clip(lod, 0, 1) - np.clip(full, 0, 1)) ** 2))
-    # measured 47.4 dB with 63 % of the surfels drawn (before nodes grew with their colour
-    # spread: 44.9 dB, 55 %); merged nodes soften the far edge of the plane against the sky
+    # measured 47.4 dB with 63 % of the surfels drawn; merged nodes
+    # soften the far edge of the plane against the sky
     assert sub.n < 0.7 * n
     assert psnr >= 40.0, psnr
     near = tree.cut_field(cam.viewmat, cam.K, cam.width, cam.height, cam.near, cam.far, 4.0)

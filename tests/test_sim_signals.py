@@ -243,23 +243,29 @@ def test_traffic_too_close_to_stop_at_yellow_goes_through(layout):
 
 
 def test_the_birds_eye_frame_shows_each_stop_bar_in_its_state(opened):
+    from lsd3d_usd.sim.birdseye import SIGNAL_COLOURS, VIEW_M
     env = DriveEnv(opened, rig="none", lidar="none", seconds=40.0, vehicles=0, pedestrians=0,
                    cyclists=0, render_mode="rgb_array")
     env.reset(seed=0, options={"route": EAST, "start": 40.0})    # 10 m before the stop point
     marks = env.signals.stop_marks
+    # the lights' groups, each at the end of the approach lane it governs (stop_lane's rule)
+    assert sorted(env.signals.ids[k] for *_, k in marks) == ["tl_e_in", "tl_n_in", "tl_s_in"]
     east = [m_ for m_ in marks if env.signals.ids[m_[3]] == "tl_e_in"]
     assert len(east) == 1 and east[0][:2] == pytest.approx((10.0, 1.75))
     assert east[0][2] == pytest.approx(math.pi)
 
-    def bar_pixels(colour):
-        img = env.render().astype(int)
-        return int(np.sum(np.abs(img - np.array(colour)).sum(axis=2) < 40))
-    red, green = (230, 20, 20), (30, 200, 60)
+    def colour_at_east_bar():
+        img = env.render()
+        bev = env._bev
+        cx, cy = bev._px(env.ego.box_centre(env.limits))
+        x, y = bev._px(east[0][:2])
+        scale = bev.size / (VIEW_M * bev.ppm)
+        i, j = int((y - cy) * scale + bev.size / 2), int((x - cx) * scale + bev.size / 2)
+        return tuple(int(c) for c in img[i, j])
     _force(env, 15.0)                           # the east approach red
     assert env.signals.state(east[0][3], env.t) == "red"
-    n_red, n_green = bar_pixels(red), bar_pixels(green)
+    assert colour_at_east_bar() == SIGNAL_COLOURS["red"]
     _force(env, 0.0)                            # the east approach green
     assert env.signals.state(east[0][3], env.t) == "green"
-    assert bar_pixels(red) < n_red and bar_pixels(green) > n_green
-    assert n_red > 0
+    assert colour_at_east_bar() == SIGNAL_COLOURS["green"]
     env.close()

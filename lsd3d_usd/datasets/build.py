@@ -44,6 +44,20 @@ def scene_root(scene) -> Path:
     return p.resolve()
 
 
+def _only_empty_state(o: Path) -> bool:
+    """Nothing in ``o`` but, at most, a state folder without files (a start killed before it
+    recorded the dataset): as good as empty."""
+    entries = list(o.iterdir())
+    if not entries:
+        return True
+    st = o / STATE
+    if entries != [st] or st.is_symlink() or not st.is_dir():
+        return False
+    # a link anywhere (to a folder too: os.walk lists it without entering it) is not ours
+    return all(not files and not any(Path(d, n).is_symlink() for n in dirs)
+               for d, dirs, files in os.walk(st))
+
+
 def check_output(out: Path, scenes: list[Path], opt: DatasetOptions) -> None:
     if opt.resume and opt.overwrite:
         raise InputError("--resume and --overwrite exclude each other")
@@ -57,7 +71,7 @@ def check_output(out: Path, scenes: list[Path], opt: DatasetOptions) -> None:
                              "elsewhere")
     if o.exists() and not o.is_dir():
         raise InputError(f"-o {out}: exists and is not a folder")
-    if o.is_dir() and any(o.iterdir()):
+    if o.is_dir() and not _only_empty_state(o):
         ours = (o / STATE / "dataset.json").is_file()
         if opt.resume:
             if not ours:
@@ -340,8 +354,9 @@ def start_dataset(root: Path, opt: DatasetOptions, plans, inputs: bool = True) -
         for dirpath, _, _ in sorted(os.walk(o), key=lambda w: -len(w[0])):
             if Path(dirpath) != o and not any(Path(dirpath).iterdir()):
                 Path(dirpath).rmdir()          # emptied above (a folder of ours)
-    (state / "logs").mkdir(parents=True, exist_ok=True)
+    state.mkdir(parents=True, exist_ok=True)
     S.atomic_write_text(state / "dataset.json", json.dumps(sig, indent=1))
+    (state / "logs").mkdir(exist_ok=True)
 
 
 class Checkpoints:

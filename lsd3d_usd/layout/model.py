@@ -34,7 +34,7 @@ import numpy as np
 
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.geometry.polyline import signed_area
-from lsd3d_usd.limits import COORDINATE, LAYOUT_EXTENT
+from lsd3d_usd.limits import COORDINATE, FEATURE_POINTS, LAYOUT_EXTENT, LAYOUT_POINTS
 
 DEFAULT_LANE_WIDTH = 3.5          # m, used when a lane has no widths
 DEFAULT_SPEED_LIMIT = 13.89       # m/s (50 km/h)
@@ -673,3 +673,9 @@ def check_size(layout: Layout, where: str) -> None:
     far = max([abs(x0), abs(y0), abs(x1), abs(y1)]
               + [float(np.abs(f.coords()[:, 2]).max()) for f in layout.features()])
     COORDINATE.check(far, where, what="a coordinate at")
+    # what an importer writes, the layout reader must read back: its point limits hold here
+    counts = [(len(f.coords()), f) for f in layout.features()]
+    if counts:
+        n, big = max(counts, key=lambda c: c[0])
+        FEATURE_POINTS.check(n, where, what=f"points of {big.FEATURE_TYPE} {big.id}")
+        LAYOUT_POINTS.check(sum(c for c, _ in counts), where, what="points of all features")

@@ -46,7 +46,7 @@ def as_area(geom: BaseGeometry | None) -> BaseGeometry:
 # than RING_AREA are slivers (a curb "ring" of 1e-7 m made remove_repeated_points fail).
 POINT_TOL = 1e-7
 RING_AREA = 1e-9
-TINY_COORD = 1e-30    # coordinates nearer zero than this are zero (no map has them)
+TINY_COORD = 1e-12    # coordinates nearer zero than this (a picometre) are zero
 SNAP_GRID = 1e-6      # last resort: snap to this grid (GEOS keeps the result valid)
 
 
@@ -186,7 +186,8 @@ def area_from_points(points) -> BaseGeometry:
         return EMPTY
     xy = xy[:, :2]
     tiny = np.abs(xy) < TINY_COORD
-    if tiny.any():      # subnormal coordinates raise GEOS's floating-point flags (numpy warns)
+    if tiny.any():      # 1e-29 .. 1e-16 m made GEOS's mitred buffers raise a floating-point
+        # divide-by-zero flag, which numpy prints as a RuntimeWarning
         xy = np.where(tiny, 0.0, xy)
     return clean_area(Polygon(xy))
 

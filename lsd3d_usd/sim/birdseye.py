@@ -17,7 +17,7 @@ PX_PER_M = 4.0
 VIEW_M = 80.0                  # the frame's side in metres
 MAX_MAP_PX = 8192              # the static map's longer side at most (large scenes: coarser)
 COLOURS = {"vehicle": (40, 110, 220), "cyclist": (240, 160, 20), "pedestrian": (230, 40, 160)}
-SIGNAL_COLOURS = {"green": (30, 200, 60), "yellow": (250, 200, 0), "red": (230, 20, 20)}
+SIGNAL_COLOURS = {"green": (30, 200, 60), "yellow": (250, 200, 0), "red": (160, 0, 60)}   # not the ego's red
 STOP_BAR_M = (3.0, 1.2)        # a signal's stop bar across its lane: width, depth (m)
 
 
@@ -69,7 +69,8 @@ class BirdsEye:
             bars = box_corners(xy, np.array([h for _, _, h, _ in signals], np.float64),
                                np.full(len(xy), STOP_BAR_M[1]), np.full(len(xy), STOP_BAR_M[0]))
             for k, (*_, state) in enumerate(signals):
-                d.polygon([px(p) for p in bars[k]], fill=SIGNAL_COLOURS.get(state, (90, 90, 90)))
+                d.polygon([px(p) for p in bars[k]], fill=SIGNAL_COLOURS.get(state, (90, 90, 90)),
+                          outline=(20, 20, 20))
         corners = box_corners(agents.xy, agents.yaw, agents.length, agents.width)
         for k, kind in enumerate(agents.kind):
             d.polygon([px(p) for p in corners[k]], fill=COLOURS.get(kind, (90, 90, 90)))

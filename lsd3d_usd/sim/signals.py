@@ -47,6 +47,19 @@ def split_phases(headings: list[float]) -> list[int]:
     return [0 if abs(math.sin(h - h0)) < math.sin(math.pi / 4) else 1 for h in headings]
 
 
+def _mark(points, at_end: bool, group: int):
+    """(x, y, heading, group) at a lane's end (or start), heading along its last (first)
+    segment of non-zero length; None for a lane without one."""
+    p = np.asarray(points, np.float64)[:, :2]
+    seg = np.diff(p, axis=0)
+    ok = np.flatnonzero(np.hypot(seg[:, 0], seg[:, 1]) > 1e-9)
+    if not len(ok):
+        return None
+    d = seg[ok[-1] if at_end else ok[0]]
+    x, y = p[-1] if at_end else p[0]
+    return float(x), float(y), math.atan2(float(d[1]), float(d[0])), int(group)
+
+
 class SignalPlan:
     """The phases of ``groups`` (layout.signals.SignalGroup) on ``graph``'s lanes, offsets
     drawn from ``seed``."""
@@ -73,17 +86,21 @@ class SignalPlan:
                 if i is not None:
                     self.lane_group.setdefault(i, k)
         self.junction = graph.junction
-        # (x, y, heading, group) where each controlled lane stops: stop_lane's rule, the end
-        # of a lane outside a junction, the start of a junction lane
-        self.stop_marks = []
-        for i, k in self.lane_group.items():
-            p = graph.geoms[i].points
-            if len(p) < 2:
-                continue
-            a, b = (p[-2], p[-1]) if not graph.junction[i] else (p[0], p[1])
-            at = b if not graph.junction[i] else a
-            self.stop_marks.append((float(at[0]), float(at[1]),
-                                    math.atan2(float(b[1] - a[1]), float(b[0] - a[0])), k))
+        # (x, y, heading, group) of every stop point, by the rule that stops the traffic
+        # (stop_lane of each lane -> successor step): at the end of the lane being left, one
+        # per group there
+        marks: dict = {}
+        for cur, nexts in enumerate(graph.succ):
+            for nxt in nexts:
+                lane = stop_lane(cur, nxt, self.lane_group, self.junction)
+                if lane is not None and (cur, self.lane_group[lane]) not in marks:
+                    k = self.lane_group[lane]
+                    marks[(cur, k)] = _mark(graph.geoms[cur].points, True, k)
+        for i, k in self.lane_group.items():     # a junction lane nothing leads into
+            if self.junction[i] and not graph.pred[i] and stop_lane(-1, i, self.lane_group,
+                                                                    self.junction) is not None:
+                marks[(-1 - i, k)] = _mark(graph.geoms[i].points, False, k)
+        self.stop_marks = [m for m in marks.values() if m is not None]
 
     def __len__(self) -> int:
         return len(self.groups)
