@@ -587,16 +587,19 @@ def _trace_tile(h, g, nc, R, C, tr, tc, dirs, origins, P, offsets, idx, key, tmi
             v = (px * vx + py * vy + pz * vz) * isv
             q = u * u + v * v
             qq[r] = q
-            tt[r] = t
-            dd[r] = den
             met += q <= Q_MAX
         if met == 0:
             continue        # most pairs: no ray of the tile comes near the disk
         changed = False
         for r in range(m_):
-            if not qq[r] <= Q_MAX or abs(dd[r]) < 1e-12:
+            if not qq[r] <= Q_MAX:
                 continue
-            t = tt[r]
+            # t again (the same operations: the same bits) for the few rays that come near
+            den = dx[r] * nx + dy[r] * ny + dz[r] * nz
+            if abs(den) < 1e-12:
+                continue
+            wx, wy, wz = cx - ox[r], cy - oy[r], cz - oz[r]
+            t = (wx * nx + wy * ny + wz * nz) / den
             if t < tmin or t > tmax or t >= best[r]:
                 continue
             al = P[k, 14] * math.exp(-0.5 * qq[r])
