@@ -522,7 +522,8 @@ def _trace(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k
 def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k):
     """_trace with a tile's rays taken together: each candidate surfel is met by all the
     tile's rays in one loop the compiler vectorises (most pairs miss: the disk's Gaussian is
-    below alpha_min there), and only the rays it reaches go through the ordered insert. The
+    below alpha_min there: such a pair skips the rest), and only the rays it reaches go
+    through the ordered insert, their t worked out again by the same operations. The
     tile stops once the candidates' nearest distance passes every ray's return: each ray sees
     a superset of the surfels _trace gives it, the extra ones beyond its return."""
     R, C = dirs.shape[0], dirs.shape[1]
@@ -535,7 +536,7 @@ def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t,
         # are made once per column, not per tile
         ox, oy, oz = np.empty(mm), np.empty(mm), np.empty(mm)
         dx, dy, dz = np.empty(mm), np.empty(mm), np.empty(mm)
-        qq, tt, dd = np.empty(mm), np.empty(mm), np.empty(mm)
+        qq = np.empty(mm)
         best = np.empty(mm)
         kk = np.empty(mm, np.int64)
         nh = np.empty(mm, np.int64)
@@ -544,13 +545,13 @@ def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t,
         hk = np.empty((mm, MAX_HITS), np.int64)
         for h in range(nr):
             _trace_tile(h, g, nc, R, C, tr, tc, dirs, origins, P, offsets, idx, key, tmin,
-                        tmax, out_t, out_k, ox, oy, oz, dx, dy, dz, qq, tt, dd, best, kk, nh,
-                        ht, ha, hk)
+                        tmax, out_t, out_k, ox, oy, oz, dx, dy, dz, qq, best, kk, nh, ht, ha,
+                        hk)
 
 
 @njit(cache=True)
 def _trace_tile(h, g, nc, R, C, tr, tc, dirs, origins, P, offsets, idx, key, tmin, tmax,
-                out_t, out_k, ox, oy, oz, dx, dy, dz, qq, tt, dd, best, kk, nh, ht, ha, hk):
+                out_t, out_k, ox, oy, oz, dx, dy, dz, qq, best, kk, nh, ht, ha, hk):
     """_trace_tiles' tile (ring group h, column group g), in the buffers given."""
     Q_MAX = 2.0 * 6.2
     t_ = h * nc + g
