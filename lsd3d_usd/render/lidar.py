@@ -522,95 +522,122 @@ def _trace(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k
 def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k):
     """_trace with a tile's rays taken together: each candidate surfel is met by all the
     tile's rays in one loop the compiler vectorises (most pairs miss: the disk's Gaussian is
-    below alpha_min there), and only the rays it reaches go through the ordered insert. The
+    below alpha_min there: such a pair skips the rest), and only the rays it reaches go
+    through the ordered insert, their t worked out again by the same operations. The
     tile stops once the candidates' nearest distance passes every ray's return: each ray sees
     a superset of the surfels _trace gives it, the extra ones beyond its return."""
     R, C = dirs.shape[0], dirs.shape[1]
     nr, nc = (R + tr - 1) // tr, (C + tc - 1) // tc
+    mm = tr * tc
+    for g in prange(nc):
+        # a column group per iteration, its ring groups in turn: the threads' halves of the
+        # sweep are halves of its azimuths, each with ground and sky (by rows of tiles one
+        # thread got the ground's ring groups, with most of the pairs), and the buffers
+        # are made once per column, not per tile
+        ox, oy, oz = np.empty(mm), np.empty(mm), np.empty(mm)
+        dx, dy, dz = np.empty(mm), np.empty(mm), np.empty(mm)
+        qq = np.empty(mm)
+        best = np.empty(mm)
+        kk = np.empty(mm, np.int64)
+        nh = np.empty(mm, np.int64)
+        ht = np.empty((mm, MAX_HITS))
+        ha = np.empty((mm, MAX_HITS))
+        hk = np.empty((mm, MAX_HITS), np.int64)
+        for h in range(nr):
+            _trace_tile(h, g, nc, R, C, tr, tc, dirs, origins, P, offsets, idx, key, tmin,
+                        tmax, out_t, out_k, ox, oy, oz, dx, dy, dz, qq, best, kk, nh, ht, ha,
+                        hk)
+
+
+@njit(cache=True)
+def _trace_tile(h, g, nc, R, C, tr, tc, dirs, origins, P, offsets, idx, key, tmin, tmax,
+                out_t, out_k, ox, oy, oz, dx, dy, dz, qq, best, kk, nh, ht, ha, hk):
+    """_trace_tiles' tile (ring group h, column group g), in the buffers given."""
     Q_MAX = 2.0 * 6.2
-    for t_ in prange(nr * nc):      # in order: neighbouring tiles share their surfels
-        h, g = t_ // nc, t_ % nc
-        lo, hi = offsets[t_], offsets[t_ + 1]
-        i0, i1 = h * tr, min(R, (h + 1) * tr)
-        j0, j1 = g * tc, min(C, (g + 1) * tc)
-        m_ = (i1 - i0) * (j1 - j0)
-        ox, oy, oz = np.empty(m_), np.empty(m_), np.empty(m_)
-        dx, dy, dz = np.empty(m_), np.empty(m_), np.empty(m_)
-        qq, tt, dd = np.empty(m_), np.empty(m_), np.empty(m_)
-        best = np.full(m_, np.inf)
-        kk = np.full(m_, -1, np.int64)
-        nh = np.zeros(m_, np.int64)
-        ht = np.empty((m_, MAX_HITS))
-        ha = np.empty((m_, MAX_HITS))
-        hk = np.empty((m_, MAX_HITS), np.int64)
-        r = 0
-        for i in range(i0, i1):
-            for j in range(j0, j1):
-                ox[r], oy[r], oz[r] = origins[j, 0], origins[j, 1], origins[j, 2]
-                dx[r], dy[r], dz[r] = dirs[i, j, 0], dirs[i, j, 1], dirs[i, j, 2]
-                r += 1
-        limit = tmax
-        for p in range(lo, hi):
-            if key[p] > limit:
-                break
-            k = idx[p]
-            cx, cy, cz = P[k, 0], P[k, 1], P[k, 2]
-            ux, uy, uz = P[k, 3], P[k, 4], P[k, 5]
-            vx, vy, vz = P[k, 6], P[k, 7], P[k, 8]
-            nx, ny, nz = P[k, 9], P[k, 10], P[k, 11]
-            isu, isv = P[k, 12], P[k, 13]
+    t_ = h * nc + g
+    lo, hi = offsets[t_], offsets[t_ + 1]
+    i0, i1 = h * tr, min(R, (h + 1) * tr)
+    j0, j1 = g * tc, min(C, (g + 1) * tc)
+    m_ = (i1 - i0) * (j1 - j0)
+    best[:m_] = np.inf
+    kk[:m_] = -1
+    nh[:m_] = 0
+    r = 0
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            ox[r], oy[r], oz[r] = origins[j, 0], origins[j, 1], origins[j, 2]
+            dx[r], dy[r], dz[r] = dirs[i, j, 0], dirs[i, j, 1], dirs[i, j, 2]
+            r += 1
+    limit = tmax
+    for p in range(lo, hi):
+        if key[p] > limit:
+            break
+        k = idx[p]
+        cx, cy, cz = P[k, 0], P[k, 1], P[k, 2]
+        ux, uy, uz = P[k, 3], P[k, 4], P[k, 5]
+        vx, vy, vz = P[k, 6], P[k, 7], P[k, 8]
+        nx, ny, nz = P[k, 9], P[k, 10], P[k, 11]
+        isu, isv = P[k, 12], P[k, 13]
+        met = 0
+        for r in range(m_):
+            den = dx[r] * nx + dy[r] * ny + dz[r] * nz
+            wx, wy, wz = cx - ox[r], cy - oy[r], cz - oz[r]
+            t = (wx * nx + wy * ny + wz * nz) / den
+            px, py, pz = t * dx[r] - wx, t * dy[r] - wy, t * dz[r] - wz
+            u = (px * ux + py * uy + pz * uz) * isu
+            v = (px * vx + py * vy + pz * vz) * isv
+            q = u * u + v * v
+            qq[r] = q
+            met += q <= Q_MAX
+        if met == 0:
+            continue        # most pairs: no ray of the tile comes near the disk
+        changed = False
+        for r in range(m_):
+            if not qq[r] <= Q_MAX:
+                continue
+            # t again (the same operations: the same bits) for the few rays that come near
+            den = dx[r] * nx + dy[r] * ny + dz[r] * nz
+            if abs(den) < 1e-12:
+                continue
+            wx, wy, wz = cx - ox[r], cy - oy[r], cz - oz[r]
+            t = (wx * nx + wy * ny + wz * nz) / den
+            if t < tmin or t > tmax or t >= best[r]:
+                continue
+            al = P[k, 14] * math.exp(-0.5 * qq[r])
+            al = min(al, ALPHA_MAX)
+            if al < ALPHA_MIN:
+                continue
+            n = nh[r]
+            if n == MAX_HITS:
+                if t >= ht[r, n - 1]:
+                    continue
+                n -= 1
+            q = n
+            while q > 0 and ht[r, q - 1] > t:
+                ht[r, q], ha[r, q], hk[r, q] = ht[r, q - 1], ha[r, q - 1], hk[r, q - 1]
+                q -= 1
+            ht[r, q], ha[r, q], hk[r, q] = t, al, k
+            n += 1
+            T = 1.0
+            for m in range(n):
+                T *= 1.0 - ha[r, m]
+                if T < 0.5:
+                    best[r] = ht[r, m]
+                    kk[r] = hk[r, m]
+                    n = m + 1
+                    changed = True
+                    break
+            nh[r] = n
+        if changed:
+            limit = 0.0
             for r in range(m_):
-                den = dx[r] * nx + dy[r] * ny + dz[r] * nz
-                wx, wy, wz = cx - ox[r], cy - oy[r], cz - oz[r]
-                t = (wx * nx + wy * ny + wz * nz) / den
-                px, py, pz = t * dx[r] - wx, t * dy[r] - wy, t * dz[r] - wz
-                u = (px * ux + py * uy + pz * uz) * isu
-                v = (px * vx + py * vy + pz * vz) * isv
-                qq[r] = u * u + v * v
-                tt[r] = t
-                dd[r] = den
-            changed = False
-            for r in range(m_):
-                if not qq[r] <= Q_MAX or abs(dd[r]) < 1e-12:
-                    continue
-                t = tt[r]
-                if t < tmin or t > tmax or t >= best[r]:
-                    continue
-                al = P[k, 14] * math.exp(-0.5 * qq[r])
-                al = min(al, ALPHA_MAX)
-                if al < ALPHA_MIN:
-                    continue
-                n = nh[r]
-                if n == MAX_HITS:
-                    if t >= ht[r, n - 1]:
-                        continue
-                    n -= 1
-                q = n
-                while q > 0 and ht[r, q - 1] > t:
-                    ht[r, q], ha[r, q], hk[r, q] = ht[r, q - 1], ha[r, q - 1], hk[r, q - 1]
-                    q -= 1
-                ht[r, q], ha[r, q], hk[r, q] = t, al, k
-                n += 1
-                T = 1.0
-                for m in range(n):
-                    T *= 1.0 - ha[r, m]
-                    if T < 0.5:
-                        best[r] = ht[r, m]
-                        kk[r] = hk[r, m]
-                        n = m + 1
-                        changed = True
-                        break
-                nh[r] = n
-            if changed:
-                limit = 0.0
-                for r in range(m_):
-                    limit = max(limit, min(best[r], tmax))
-        r = 0
-        for i in range(i0, i1):
-            for j in range(j0, j1):
-                out_t[i, j] = best[r]
-                out_k[i, j] = kk[r]
-                r += 1
+                limit = max(limit, min(best[r], tmax))
+    r = 0
+    for i in range(i0, i1):
+        for j in range(j0, j1):
+            out_t[i, j] = best[r]
+            out_k[i, j] = kk[r]
+            r += 1
 
 
 @njit(cache=True, parallel=True)
