@@ -232,7 +232,8 @@ class FrameBench:
                                          "lod_psnr_db (lowest over the rig's frames), "
                                          "lod_psnr_db_overview, lod_psnr_db_lane_views, "
                                          "lod_psnr_db_overview_cameras (the scene's own), "
-                                         "drawn_surfels)",
+                                         "drawn_surfels, hidden_fraction: the drawn "
+                                         "surfels the frame never shows)",
                               flag="--json", metavar="OUT.json")
     scene: str | None = option(None, help="scene (default: the README sample generated with "
                                           "generate's defaults, a few minutes)",

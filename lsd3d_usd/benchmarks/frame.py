@@ -45,6 +45,34 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:
     return 10.0 * np.log10(1.0 / max(mse, 1e-12))
 
 
+HIDDEN_MARGIN_M = 0.5
+
+
+def hidden_fraction(surfels, camera) -> float:
+    """Share of ``surfels`` whose centre projects onto a pixel the frame covers (alpha >=
+    0.99) more than HIDDEN_MARGIN_M nearer than the centre: the overdraw a frame pays for
+    (projected, binned, sorted, never seen). Surfels off the image count as not hidden."""
+    from lsd3d_usd.views.frame import render_surfels
+    if surfels is None or not surfels.n:
+        return 0.0
+    out = render_surfels(surfels, camera)
+    depth, alpha = out.depth_median.numpy(), out.alpha.numpy()
+    V = np.asarray(camera.viewmat, np.float64)
+    K = np.asarray(camera.K, np.float64)
+    p = surfels.positions.astype(np.float64) @ V[:3, :3].T + V[:3, 3]
+    z = p[:, 2]
+    front = z > camera.near
+    u = np.full(len(z), -1.0)
+    v = np.full(len(z), -1.0)
+    u[front] = K[0, 0] * p[front, 0] / z[front] + K[0, 2]
+    v[front] = K[1, 1] * p[front, 1] / z[front] + K[1, 2]
+    on = front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    i, j = v[on].astype(np.int64), u[on].astype(np.int64)
+    d = depth[i, j]
+    hidden = (alpha[i, j] >= 0.99) & (d > 0) & (z[on] > d + HIDDEN_MARGIN_M)
+    return float(hidden.sum()) / surfels.n
+
+
 def frames(scene_path, poses: int = 5, repeats: int = 3, lod_px: float = 4.0,
            fractions=None, log=print) -> dict:
     """Frame times (lod / no_lod), drawn surfels and PSNR of level of detail on one scene."""
@@ -63,6 +91,7 @@ def frames(scene_path, poses: int = 5, repeats: int = 3, lod_px: float = 4.0,
     env = reader.env(None)
     times = {(w, m): [] for w in (480, 960) for m in ("lod", "no_lod")}
     drawn = {m: [] for m in ("lod", "no_lod")}
+    hidden = []
     psnr_rig, psnr_over = [], []
     scene_cams = {}
 
@@ -83,6 +112,9 @@ def frames(scene_path, poses: int = 5, repeats: int = 3, lod_px: float = 4.0,
                     times[(w, mode)].append(dt)
                     if w == 480:
                         drawn[mode].append(n)
+        cam = rig_camera(front, M, 480)
+        reader.lod_px = lod_px
+        hidden.append(hidden_fraction(reader.surfels_seen(cam), cam))
         for c in list(rig.cameras) + [OVERVIEW]:
             cam = rig_camera(c, M, 480)
             _, a, _ = frame(cam, lod_px)
@@ -109,6 +141,7 @@ def frames(scene_path, poses: int = 5, repeats: int = 3, lod_px: float = 4.0,
         res[key] = round(statistics.median(v), 4)
     res["drawn_surfels"] = int(statistics.median(drawn["lod"]))
     res["drawn_surfels_no_lod"] = int(statistics.median(drawn["no_lod"]))
+    res["hidden_fraction"] = round(statistics.median(hidden), 4)
     res["lod_psnr_db"] = round(min(psnr_rig), 2)
     res["lod_psnr_db_median"] = round(statistics.median(psnr_rig), 2)
     res["lod_psnr_db_overview"] = round(min(psnr_over), 2)
