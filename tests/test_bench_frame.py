@@ -34,10 +34,8 @@ def test_hidden_fraction_counts_the_surfels_behind_an_opaque_wall():
     cam = Camera.from_fov(160, 90, 60.0, look_at([0.0, 0.0, 0.0], [0.0, 1.0, 0.0]),
                           near=0.1, far=100.0)
     far = pos[:, 1] == 20.0
-    V = np.asarray(cam.viewmat)
-    p = pos @ V[:3, :3].T + V[:3, 3]
-    u = cam.K[0, 0] * p[:, 0] / p[:, 2] + cam.K[0, 2]
-    v = cam.K[1, 1] * p[:, 1] / p[:, 2] + cam.K[1, 2]
+    uv, _ = cam.project(pos)
+    u, v = uv[:, 0], uv[:, 1]
     # far surfels whose centre lands where the near wall (which covers the whole view) is
     on = far & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
     assert on.sum() > 100

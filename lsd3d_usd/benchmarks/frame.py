@@ -57,16 +57,9 @@ def hidden_fraction(surfels, camera) -> float:
         return 0.0
     out = render_surfels(surfels, camera)
     depth, alpha = out.depth_median.numpy(), out.alpha.numpy()
-    V = np.asarray(camera.viewmat, np.float64)
-    K = np.asarray(camera.K, np.float64)
-    p = surfels.positions.astype(np.float64) @ V[:3, :3].T + V[:3, 3]
-    z = p[:, 2]
-    front = z > camera.near
-    u = np.full(len(z), -1.0)
-    v = np.full(len(z), -1.0)
-    u[front] = K[0, 0] * p[front, 0] / z[front] + K[0, 2]
-    v[front] = K[1, 1] * p[front, 1] / z[front] + K[1, 2]
-    on = front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
+    uv, z = camera.project(surfels.positions)
+    u, v = uv[:, 0], uv[:, 1]
+    on = (z > camera.near) & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
     i, j = v[on].astype(np.int64), u[on].astype(np.int64)
     d = depth[i, j]
     hidden = (alpha[i, j] >= 0.99) & (d > 0) & (z[on] > d + HIDDEN_MARGIN_M)

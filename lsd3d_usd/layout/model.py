@@ -670,12 +670,12 @@ def check_size(layout: Layout, where: str) -> None:
     if not LAYOUT_EXTENT.ok(size):
         raise InputError(f"{where}: the features span {x1 - x0:.6g} m x {y1 - y0:.6g} m, more than "
                          f"the limit of {LAYOUT_EXTENT.value:.0f} m on a side")
+    feats = [(f, f.coords()) for f in layout.features()]
     far = max([abs(x0), abs(y0), abs(x1), abs(y1)]
-              + [float(np.abs(f.coords()[:, 2]).max()) for f in layout.features()])
+              + [float(np.abs(c[:, 2]).max()) for _, c in feats])
     COORDINATE.check(far, where, what="a coordinate at")
     # what an importer writes, the layout reader must read back: its point limits hold here
-    counts = [(len(f.coords()), f) for f in layout.features()]
-    if counts:
-        n, big = max(counts, key=lambda c: c[0])
-        FEATURE_POINTS.check(n, where, what=f"points of {big.FEATURE_TYPE} {big.id}")
-        LAYOUT_POINTS.check(sum(c for c, _ in counts), where, what="points of all features")
+    if feats:
+        big, c = max(feats, key=lambda fc: len(fc[1]))
+        FEATURE_POINTS.check(len(c), where, what=f"points of {big.FEATURE_TYPE} {big.id}")
+        LAYOUT_POINTS.check(sum(len(c) for _, c in feats), where, what="points of all features")
