@@ -205,9 +205,12 @@ def check_settings(s: RasterSettings) -> None:
 
 # ------------------------------------------------------------------------------ the check
 def check_inputs(means, quats, scales, opacities, sh, viewmat, K, width, height,
-                 settings: RasterSettings, background=None, semantic_ids=None):
+                 settings: RasterSettings, background=None, semantic_ids=None,
+                 values_checked: bool = False):
     """Validate everything `rasterize` was given. Returns (RasterInputs, background tensor or
-    None, semantic ids as an int64 tensor or None)."""
+    None, semantic ids as an int64 tensor or None). ``values_checked``: the five surfel arrays'
+    values were validated when they were read (a SurfelField.checked); shapes, devices,
+    camera and settings are checked still, the per-value scans of the surfels skipped."""
     check_settings(settings)
     means = _as_tensor(means, "means")
     quats = _as_tensor(quats, "quats")
@@ -224,7 +227,9 @@ def check_inputs(means, quats, scales, opacities, sh, viewmat, K, width, height,
     if len(devices) > 1:
         raise InputError("rasterize: means, quats, scales, opacities and sh must be on one device, "
                          f"got {', '.join(sorted(str(d) for d in devices))}")
-    if means.device.type == "cpu" and all(x.dtype == torch.float32 for x, *_ in checks):
+    if values_checked:
+        pass            # validated when read (SurfelField.checked): no scan per frame
+    elif means.device.type == "cpu" and all(x.dtype == torch.float32 for x, *_ in checks):
         # the usual case: one parallel scan of all five arrays
         flats = tuple(np.ascontiguousarray(x.detach().reshape(-1).numpy()) for x, *_ in checks)
         lo = np.array([_bounds(c[1])[0] for c in checks], np.float32)
@@ -247,7 +252,8 @@ def check_inputs(means, quats, scales, opacities, sh, viewmat, K, width, height,
     width, height = int(width), int(height)
     if width <= 0 or height <= 0:
         raise InputError(f"rasterize: bad image size {width}x{height}")
-    _check_quats(quats)
+    if not values_checked:
+        _check_quats(quats)
     try:
         full_deg = sh_degree_of(sh.shape[1])
     except ValueError as e:

@@ -22,7 +22,7 @@ from lsd3d_usd.render.raster_types import Backend, RasterResult, RasterSettings
 
 def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
               settings: RasterSettings | None = None, background=None, semantic_ids=None,
-              backend: str | Backend = "numba") -> RasterResult:
+              backend: str | Backend = "numba", values_checked: bool = False) -> RasterResult:
     """Render 2D Gaussian surfels (gsplat-style arrays in, a RasterResult out).
 
     means (N,3), quats (N,4) xyzw, scales (N,2) linear std-devs along the local x/y axes,
@@ -36,13 +36,16 @@ def rasterize(means, quats, scales, opacities, sh, viewmat, K, width, height, *,
 
     Gradients flow from rgb, alpha, depth_acc/depth_expected, depth_median, normal and
     distortion to means, quats, scales, opacities, sh (and background). Bad input is one
-    InputError line naming the array and the index.
+    InputError line naming the array and the index. values_checked: True only for the arrays
+    of a SurfelField whose values the scene reader validated (SurfelField.checked, as
+    views.frame.render_surfels passes it): the per-value scans of the surfels are skipped.
     """
     t_start = time.perf_counter()
     settings = RasterSettings() if settings is None else settings
     impl = get_backend(backend)
     inputs, background, sem = check_inputs(means, quats, scales, opacities, sh, viewmat, K, width,
-                                           height, settings, background, semantic_ids)
+                                           height, settings, background, semantic_ids,
+                                           values_checked)
     t_backend = time.perf_counter()
     out = impl.forward(inputs, settings)
     stats = out.stats

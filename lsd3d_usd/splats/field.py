@@ -144,6 +144,11 @@ class SurfelField:
     sh: np.ndarray                           # (N,K,3) float32
     semantic_ids: np.ndarray | None = None   # (N,) int32, -1 = unlabelled
     semantic_classes: tuple[str, ...] = field(default_factory=tuple)
+    # True only where the scene reader validated every value the rasteriser scans
+    # (views.stage_data.check_renderable), so a frame need not scan them again. Not an
+    # argument: a new field or a replace() starts unchecked; rows, subset, concat and
+    # lod.gather_cuts, which copy values as they are, keep it where all their inputs had it
+    checked: bool = field(default=False, init=False, repr=False, compare=False)
 
     def __post_init__(self):
         self.positions = np.asarray(self.positions, dtype=np.float32).reshape(-1, 3)
@@ -198,13 +203,17 @@ class SurfelField:
     def rows(self, a: int, b: int) -> "SurfelField":
         """Rows a..b as views of this field's arrays (no copy)."""
         sem = None if self.semantic_ids is None else self.semantic_ids[a:b]
-        return SurfelField(self.positions[a:b], self.orientations[a:b], self.scales[a:b],
-                           self.opacities[a:b], self.sh[a:b], sem, self.semantic_classes)
+        out = SurfelField(self.positions[a:b], self.orientations[a:b], self.scales[a:b],
+                          self.opacities[a:b], self.sh[a:b], sem, self.semantic_classes)
+        out.checked = self.checked
+        return out
 
     def subset(self, index) -> "SurfelField":
         sem = None if self.semantic_ids is None else self.semantic_ids[index]
-        return SurfelField(self.positions[index], self.orientations[index], self.scales[index],
-                           self.opacities[index], self.sh[index], sem, self.semantic_classes)
+        out = SurfelField(self.positions[index], self.orientations[index], self.scales[index],
+                          self.opacities[index], self.sh[index], sem, self.semantic_classes)
+        out.checked = self.checked
+        return out
 
     @staticmethod
     def concat(fields: list["SurfelField"], drop_mismatched_semantics: bool = False) -> "SurfelField":
@@ -216,6 +225,7 @@ class SurfelField:
             return SurfelField.empty()
         if len(fields) == 1:        # nothing to join: the field itself (a frame's common case)
             return fields[0]
+        checked = all(f.checked for f in fields)    # before with_sh_degree's zero padding
         deg = max(f.sh_degree for f in fields)
         fields = [f.with_sh_degree(deg) if f.sh_degree != deg else f for f in fields]
         classes = next((f.semantic_classes for f in fields if f.semantic_classes), ())
@@ -227,11 +237,13 @@ class SurfelField:
         has_sem = any(f.semantic_ids is not None for f in fields)
         sem = (np.concatenate([f.semantic_ids if f.semantic_ids is not None
                                else np.full(f.n, -1, np.int32) for f in fields]) if has_sem else None)
-        return SurfelField(np.concatenate([f.positions for f in fields]),
-                           np.concatenate([f.orientations for f in fields]),
-                           np.concatenate([f.scales for f in fields]),
-                           np.concatenate([f.opacities for f in fields]),
-                           np.concatenate([f.sh for f in fields]), sem, classes)
+        out = SurfelField(np.concatenate([f.positions for f in fields]),
+                          np.concatenate([f.orientations for f in fields]),
+                          np.concatenate([f.scales for f in fields]),
+                          np.concatenate([f.opacities for f in fields]),
+                          np.concatenate([f.sh for f in fields]), sem, classes)
+        out.checked = checked
+        return out
 
     # ------------------------------------------------------------ validation
     def problems(self, quat_tol: float = 1e-3) -> list[str]:

@@ -133,11 +133,15 @@ def gather_cuts(trees: list[LodTree], cuts: list) -> SurfelField:
                      ids is not None, ids if ids is not None else np.zeros(1, np.int32), sem
                      if sem is not None else np.zeros(1, np.int32))
         base = int(at[-1])
-    return SurfelField(pos, quat, scl, opa, sh, sem, classes if has_sem else ())
+    out = SurfelField(pos, quat, scl, opa, sh, sem, classes if has_sem else ())
+    out.checked = all(f.checked for f in fields)     # rows copied as they are
+    return out
 
 
 @nb.njit(cache=True, nogil=True)
 def _gather_rows(start, at, P, Q, S, O, H, pos, quat, scl, opa, sh, with_ids, ids, sem):
+    # serial: bound by memory (a README sim frame: 0.52 M rows, 47 MB, ~9 ms); a parallel loop
+    # over the runs gained 4 % and a slice copy per run (runs of ~12 rows) lost 20-60 %
     kh = H.shape[1]
     for r in range(start.shape[0]):
         s = start[r]

@@ -69,7 +69,8 @@ def render_surfels(field, camera: Camera, *, background=None, normal_space: str 
     """Rasterise a SurfelField for ``camera`` (no autograd): a render.RasterResult.
     background: None or (H, W, 3) / (3,) numpy radiance behind the surfels. ``semantic``:
     result.semantic holds the largest-weight surfel's class id per pixel; ``codes`` (N,) int:
-    the same with these per-surfel labels instead."""
+    the same with these per-surfel labels instead. A field the scene reader validated
+    (field.checked) is not scanned value by value again."""
 
     def t(a):
         return torch.from_numpy(np.ascontiguousarray(a))
@@ -84,7 +85,7 @@ def render_surfels(field, camera: Camera, *, background=None, normal_space: str 
                          semantic_ids=(t(np.asarray(codes, np.int64)) if codes is not None
                                        else t(field.semantic_ids)
                                        if semantic and field.semantic_ids is not None else None),
-                         backend=backend)
+                         backend=backend, values_checked=field.checked)
 
 
 def surfel_codes(field, class_of_row=None, instance_of_row=None) -> np.ndarray:

@@ -35,6 +35,7 @@ from lsd3d_usd.actors.relight import (
 )
 from lsd3d_usd.actors.usdio import ActorSet
 from lsd3d_usd.env.lookup import env_lookup, env_lookup_pinhole
+from lsd3d_usd.render.checks import SH_MAX, first_bad
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
     ACTORS_PATH,
@@ -82,34 +83,55 @@ def _layer_of(prim, name: str, t) -> str:
     return prim.GetStage().GetRootLayer().realPath
 
 
-def check_renderable(prim, f: SurfelField, t) -> None:
-    """Refuse (one line naming the layer file, prim, attribute and particle) surfels that
-    the rasteriser cannot draw or that validate reports as errors: non-finite positions,
-    scales or orientations, zero quaternions, negative scales, opacity outside [0, 1]."""
+def renderable_problem(f: SurfelField):
+    """(attribute, first bad particle, how many, what) of the first kind of value in ``f``
+    that the rasteriser cannot draw or that validate reports as an error, or None: non-finite
+    positions, scales or orientations, zero quaternions, negative scales, opacity outside
+    [0, 1], SH coefficients non-finite or beyond render.checks.SH_MAX. Every value rasterize
+    scans is covered, so a field that passes is marked checked and not scanned per frame."""
     with np.errstate(all="ignore"):
         q = np.asarray(f.orientations, np.float64)
         tests = (
-            ("positions", ~np.isfinite(f.positions).all(1), "a non-finite position"),
-            ("orientations", ~np.isfinite(q).all(1), "a non-finite quaternion"),
-            ("orientations", (q * q).sum(1) < 1e-20, "a zero quaternion"),
-            ("scales", ~np.isfinite(f.scales).all(1) | (f.scales < 0).any(1),
+            ("positions", lambda: ~np.isfinite(f.positions).all(1), "a non-finite position"),
+            ("orientations", lambda: ~np.isfinite(q).all(1), "a non-finite quaternion"),
+            ("orientations", lambda: (q * q).sum(1) < 1e-20, "a zero quaternion"),
+            ("scales", lambda: ~np.isfinite(f.scales).all(1) | (f.scales < 0).any(1),
              "a non-finite or negative scale"),
-            ("opacities", ~((f.opacities >= -OPACITY_TOL) & (f.opacities <= 1 + OPACITY_TOL)),
+            ("opacities", lambda: ~((f.opacities >= -OPACITY_TOL) & (f.opacities <= 1 + OPACITY_TOL)),
              "an opacity outside [0, 1] (linear, not logit)"),
+            ("sh", lambda: _bad_sh_rows(f), f"an SH coefficient non-finite or beyond ±{SH_MAX:g}"),
         )
-    for name, bad, what in tests:
-        hit = np.flatnonzero(bad)
-        if hit.size:
-            raise InputError(f"{_layer_of(prim, name, t)}: {prim.GetPath()}.{name}: {what} at "
-                             f"particle {int(hit[0])} ({hit.size} bad of {f.n}); `lsd3d-usd "
-                             "validate` lists the problems")
+        for name, bad, what in tests:
+            hit = np.flatnonzero(bad())
+            if hit.size:
+                return name, int(hit[0]), int(hit.size), what
+    return None
+
+
+def _bad_sh_rows(f: SurfelField) -> np.ndarray:
+    # the rasteriser's own scan (numba, no (N, K, 3) temporaries) finds whether any is bad
+    flat = np.ascontiguousarray(f.sh, np.float32).reshape(-1)
+    if not flat.size or first_bad(flat, np.float32(-SH_MAX), np.float32(SH_MAX)) < 0:
+        return np.zeros(f.n, bool)
+    return ~(np.abs(f.sh.reshape(f.n, -1)) <= SH_MAX).all(1)
+
+
+def check_renderable(prim, f: SurfelField, t) -> None:
+    """Refuse (one line naming the layer file, prim, attribute and particle) surfels that
+    the rasteriser cannot draw or that validate reports as errors (renderable_problem)."""
+    p = renderable_problem(f)
+    if p is not None:
+        name, i, count, what = p
+        raise InputError(f"{_layer_of(prim, name, t)}: {prim.GetPath()}.{name}: {what} at "
+                         f"particle {i} ({count} bad of {f.n}); `lsd3d-usd validate` lists "
+                         "the problems")
 
 
 def scene_surfels(stage, time=None, prims=None, check: bool = True):
     """The scene's visible surfels in world space as one SurfelField (semantics dropped when
     the prims' class tables differ), or None when there are none. ``check``: refuse surfels
-    the rasteriser cannot draw (check_renderable); the viewer, which lists a scene's problems
-    and still shows what it can, reads them unchecked."""
+    the rasteriser cannot draw (check_renderable; the field is then marked checked); the
+    viewer, which lists a scene's problems and still shows what it can, reads them unchecked."""
 
     t = usd_time(time)
     fields = []
@@ -120,8 +142,28 @@ def scene_surfels(stage, time=None, prims=None, check: bool = True):
         if f.n:
             if check:
                 check_renderable(prim, f, t)
-            fields.append(transform_surfels(f, _world(prim, t)))
+            w = transform_surfels(f, _world(prim, t))
+            if check:
+                if w is not f:
+                    check_renderable(prim, w, t)    # a transform can overflow float32
+                w.checked = True
+            fields.append(w)
     return SurfelField.concat(fields, drop_mismatched_semantics=True) if fields else None
+
+
+def lod_tree(field: SurfelField, where: str) -> LodTree:
+    """build_lod of ``field``; of a checked field, its merged nodes checked too (once per
+    load: a frame then draws the cut without scanning it). ``where`` names it in errors."""
+    tree = build_lod(field)
+    if field.checked:
+        nodes = tree.nodes.rows(tree.n_leaves, tree.nodes.n)
+        p = renderable_problem(nodes)
+        if p is not None:
+            name, i, _, what = p
+            raise InputError(f"{where}: level-of-detail node {i} of surfels valid on their own "
+                             f"has {what} ({name}); their values are too large to merge")
+        tree.nodes.checked = True
+    return tree
 
 
 def _might_vary(prim) -> bool:
@@ -321,7 +363,7 @@ class ChunkStreamer:
             f = self._fields[key]
             if self.lod and f is not None and key not in self._trees:
                 # also for a chunk read before level of detail was asked for
-                self._trees[key] = build_lod(f)
+                self._trees[key] = lod_tree(f, f"chunk {key}")
                 self._fields[key] = self._trees[key].leaves   # the same surfels, reordered
         return keys
 
@@ -414,7 +456,7 @@ class SceneReader:
             if field is None:
                 return None
             if self._tree is None or self._tree[0] is not field:
-                tree = build_lod(field)
+                tree = lod_tree(field, "scene surfels")
                 field = tree.leaves             # the same surfels in the tree's order
                 if self._static:
                     self._field = field         # kept once, not beside a copy
