@@ -118,7 +118,8 @@ def gather_cuts(trees: list[LodTree], cuts: list) -> SurfelField:
     scl, opa = np.empty((total, 2), np.float32), np.empty(total, np.float32)
     same_k = all(f.sh.shape[1] == k for f in fields)
     sh = (np.empty if same_k else np.zeros)((total, k, 3), np.float32)
-    sem = np.full(total, -1, np.int32) if has_sem else None
+    every_id = all(f.semantic_ids is not None for f in fields)
+    sem = None if not has_sem else np.empty(total, np.int32) if every_id else np.full(total, -1, np.int32)
     base = 0
     for f, (start, count) in zip(fields, cuts):
         at = np.zeros(len(count) + 1, np.int64)

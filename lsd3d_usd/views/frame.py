@@ -150,14 +150,15 @@ def composite(surfels, actors, camera: Camera, env=None, sh_degree=None,
     # whole-image passes only where every pixel needs one; actor pixels by their mask
     bg = env_background(env, camera)     # a fresh array: the actors are drawn into it
     under = np.zeros((H, W, 3), np.float32) if bg is None else np.asarray(bg, np.float32)
-    a_mask = np.zeros((H, W), bool)
     a_depth = np.full((H, W), np.inf, np.float32)
-    a_face = np.full((H, W), -1, np.int64)
     if len(actors.faces):
         zbuf, a_face = render_depth(actors.vertices, actors.faces, camera)
         a_mask = a_face >= 0
         a_depth[a_mask] = zbuf[a_mask]
         under[a_mask] = actors.colors[a_face[a_mask]]
+    else:
+        a_mask = np.zeros((H, W), bool)
+        a_face = np.full((H, W), -1, np.int64)
     front = a_mask & (a_depth < s_depth)
     rgb = (1.0 - s_a)[..., None] * under
     rgb += s_rgb
