@@ -16,6 +16,7 @@ from lsd3d_usd.actors.usdio import PlacedActor
 from lsd3d_usd.render.camera import Camera, pixel_directions
 from lsd3d_usd.render.gbuffer import render_gbuffer
 from lsd3d_usd.views import frame
+from lsd3d_usd.views import stage_data
 from lsd3d_usd.views.stage_data import ActorFrame, EnvMap, SceneReader
 
 
@@ -218,6 +219,17 @@ def test_actors_placed_and_lit_match_the_plain_reference(sun_z):
         np.testing.assert_array_equal(got.face_actor, ref.face_actor)
         assert got.colors.dtype == np.float32
         np.testing.assert_allclose(got.colors, ref.colors, rtol=2e-7, atol=1e-9)
+    # a full cache of sun answers is emptied with still actors among the shown ones: every
+    # one is cast again, the frame unchanged (it raised KeyError for the still ones)
+    want = reader.actors_at(2.0)
+    reader._sun_seen, reader._last = {}, {}
+    reader.actors_at(1.0)                          # t = 2: cars 0-3 still, the walker moved
+    reader._last.clear()
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(stage_data, "SUN_SEEN_MAX", len(reader._sun_seen) + 1)
+        got = reader.actors_at(2.0)
+    np.testing.assert_array_equal(got.colors, want.colors)
+    assert len(reader._sun_seen) == sum(shown)
     # no actor shown: the empty frame
     reader.actors.shown = [False] * len(actors)
     reader._last.clear()

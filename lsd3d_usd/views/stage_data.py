@@ -69,6 +69,7 @@ def scene_surfel_prims(stage) -> list:
     return [p for p in surfel_prims(stage) if not str(p.GetPath()).startswith(skip)]
 
 
+SUN_SEEN_MAX = 4096  # actor poses whose sun visibility SceneReader keeps
 OPACITY_TOL = 1e-3   # as validation's OpacityRange: linear opacity in [0, 1]
 
 
@@ -520,12 +521,15 @@ class SceneReader:
         # waiting queue); the others' shadow rays in one pass
         keys = [(q, np.asarray(M, np.float64).tobytes()) for q, _, M in shown]
         todo = [i for i, k in enumerate(keys) if k not in self._sun_seen]
+        if todo and len(self._sun_seen) + len(todo) > SUN_SEEN_MAX:
+            # full (a long episode): forget all, cast for every shown actor again (the still
+            # ones' answers went too; keeping only the new ones raised KeyError below)
+            self._sun_seen.clear()
+            todo = list(range(len(keys)))
         if todo:
             seen = self._occluder.visibility_many(
                 np.stack([actor_sample_points(shown[i][2], shown[i][1].dims) for i in todo]),
                 light.sun_dir)
-            if len(self._sun_seen) + len(todo) > 4096:
-                self._sun_seen.clear()
             self._sun_seen.update((keys[i], float(v)) for i, v in zip(todo, seen))
         vis = [self._sun_seen[k] for k in keys]
         vs, fs, cs, fv, surf, fa, sa = [], [], [], [], [], [], []
