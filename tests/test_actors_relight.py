@@ -262,6 +262,30 @@ def test_env_background_matches_lookup_of_pixel_directions(pole):
     assert frame.env_background(None, _camera()) is None
 
 
+def test_env_background_is_looked_up_again_only_when_the_rotation_or_intrinsics_change(monkeypatch):
+    rng = np.random.default_rng(7)
+    env = EnvMap(rng.random((32, 64, 3)).astype(np.float32), np.eye(3))
+    calls = []
+    real = stage_data.env_lookup_pinhole
+    monkeypatch.setattr(stage_data, "env_lookup_pinhole", lambda *a: calls.append(1) or real(*a))
+    cam = _camera()
+    first = frame.env_background(env, cam)
+    first[:] = -1.0                                  # callers draw into it: a fresh array each
+    moved = _camera()
+    moved.pose[:3, 3] += (5.0, -2.0, 0.3)            # the sky does not move with the camera
+    again = frame.env_background(env, moved)
+    assert len(calls) == 1
+    np.testing.assert_array_equal(again, real(env.image, moved.width, moved.height, moved.fx,
+                                              moved.fy, moved.cx, moved.cy, moved.pose[:3, :3],
+                                              env.world_from_dome))
+    for other in (_camera(yaw=0.4 + 1e-9), _camera(w=65)):
+        got = frame.env_background(env, other)
+        np.testing.assert_allclose(got, env.lookup(pixel_directions(other)), rtol=1e-6, atol=1e-7)
+    env.image = env.image * 0.5                      # another texture: looked up again
+    np.testing.assert_allclose(frame.env_background(env, cam), 0.5 * again, rtol=1e-6)
+    assert len(calls) == 4
+
+
 def _ref_composite(surfels, actors, camera, env):
     """Frame.composite's rule written with whole-image np.where and the full G-buffer."""
     H, W = camera.height, camera.width

@@ -206,10 +206,22 @@ class EnvMap:
 
     def pixels(self, camera) -> np.ndarray:
         """(H, W, 3) float32 radiance along each pixel's ray of a render.camera.Camera: what
-        lookup(pixel_directions(camera)) gives (within float32 rounding), in one pass."""
-        return env_lookup_pinhole(np.asarray(self.image, np.float32), camera.width, camera.height,
-                                  camera.fx, camera.fy, camera.cx, camera.cy, camera.pose[:3, :3],
-                                  self.world_from_dome, self.pole_axis == "Y")
+        lookup(pixel_directions(camera)) gives (within float32 rounding), in one pass. A new
+        array each call (callers draw into it); the last one kept, and copied when the next
+        camera has the same rotation and intrinsics (a car driving straight or standing still:
+        the sky does not move with the camera's position)."""
+        R = np.ascontiguousarray(camera.pose[:3, :3], np.float64)
+        key = (int(camera.width), int(camera.height), float(camera.fx), float(camera.fy),
+               float(camera.cx), float(camera.cy), R.tobytes(),
+               np.asarray(self.world_from_dome, np.float64).tobytes(), self.pole_axis)
+        hit = getattr(self, "_last_pixels", None)
+        if hit is not None and hit[0] == key and hit[2] is self.image:
+            return hit[1].copy()
+        out = env_lookup_pinhole(np.asarray(self.image, np.float32), camera.width, camera.height,
+                                 camera.fx, camera.fy, camera.cx, camera.cy, R,
+                                 self.world_from_dome, self.pole_axis == "Y")
+        self._last_pixels = (key, out.copy(), self.image)
+        return out
 
 
 class TextureCache:
