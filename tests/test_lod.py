@@ -168,7 +168,7 @@ def _ancestors(tree, i):
         out.append(i)
 
 
-def test_far_field_at_the_default_budget_looks_like_full_detail():
+def test_far_field_at_the_default_budget_merges_close_to_full_detail():
     # a textured ground plane seen from eye height out to 300 m: the far part merges
     rng = np.random.default_rng(4)
     n = 60000

@@ -102,5 +102,23 @@ def test_checked_is_kept_only_by_copies_of_checked_rows():
     cam = _camera()
     cut = tree.cut(cam.viewmat, cam.K, cam.width, cam.height, cam.near, cam.far, 4.0)
     assert not gather_cuts([tree], [cut]).checked
-    tree.nodes.checked = True
+    tree.nodes.mark_checked()
     assert gather_cuts([tree], [cut]).checked
+
+
+def test_a_checked_field_cannot_be_edited_behind_its_mark():
+    # the mark vouches for values: an in-place edit of a checked field (or of a view of one)
+    # raises, and reassigning a value array makes the field unchecked, so the next frame
+    # scans it and refuses the bad value
+    ok = scene_surfels(_stage(_field()))
+    view = ok.rows(0, 5)
+    for arr in (ok.positions, ok.orientations, ok.scales, ok.opacities, ok.sh, view.sh):
+        with pytest.raises(ValueError, match="read-only"):
+            arr[0] = np.nan
+    cam = _camera()
+    bad_sh = ok.sh.copy()
+    bad_sh[3, 0, 0] = np.nan
+    ok.sh = bad_sh
+    assert not ok.checked
+    with pytest.raises(InputError, match="non-finite"):
+        render_surfels(ok, cam)

@@ -135,6 +135,10 @@ def flatten_3d_gaussians(quats: np.ndarray, scales3: np.ndarray) -> tuple[np.nda
     return matrix_to_quat(axes).astype(np.float32), s[:, :2].astype(np.float32)
 
 
+# the arrays whose values a SurfelField's `checked` mark vouches for
+_VALUE_ARRAYS = ("positions", "orientations", "scales", "opacities", "sh", "semantic_ids")
+
+
 @dataclass
 class SurfelField:
     positions: np.ndarray                    # (N,3) float32
@@ -144,11 +148,32 @@ class SurfelField:
     sh: np.ndarray                           # (N,K,3) float32
     semantic_ids: np.ndarray | None = None   # (N,) int32, -1 = unlabelled
     semantic_classes: tuple[str, ...] = field(default_factory=tuple)
-    # True only where the scene reader validated every value the rasteriser scans
-    # (views.stage_data.check_renderable), so a frame need not scan them again. Not an
-    # argument: a new field or a replace() starts unchecked; rows, subset, concat and
-    # lod.gather_cuts, which copy values as they are, keep it where all their inputs had it
-    checked: bool = field(default=False, init=False, repr=False, compare=False)
+    # set by mark_checked() only (the `checked` property): a new field, a replace() or a
+    # reassigned value array starts unchecked
+    _checked: bool = field(default=False, init=False, repr=False, compare=False)
+
+    def __setattr__(self, name, value):
+        if name in _VALUE_ARRAYS:
+            object.__setattr__(self, "_checked", False)
+        object.__setattr__(self, name, value)
+
+    @property
+    def checked(self) -> bool:
+        """True only where the scene reader validated every value the rasteriser scans
+        (views.stage_data.check_renderable), so a frame need not scan them again. The value
+        arrays of a checked field are read-only: an in-place edit raises, and reassigning one
+        makes the field unchecked. rows, subset, concat and lod.gather_cuts keep the mark
+        where all their inputs had it."""
+        return self._checked
+
+    def mark_checked(self) -> "SurfelField":
+        """Mark the field validated and make its value arrays read-only (see `checked`)."""
+        for name in _VALUE_ARRAYS:
+            a = getattr(self, name)
+            if a is not None:
+                a.setflags(write=False)
+        object.__setattr__(self, "_checked", True)
+        return self
 
     def __post_init__(self):
         self.positions = np.asarray(self.positions, dtype=np.float32).reshape(-1, 3)
@@ -205,15 +230,13 @@ class SurfelField:
         sem = None if self.semantic_ids is None else self.semantic_ids[a:b]
         out = SurfelField(self.positions[a:b], self.orientations[a:b], self.scales[a:b],
                           self.opacities[a:b], self.sh[a:b], sem, self.semantic_classes)
-        out.checked = self.checked
-        return out
+        return out.mark_checked() if self.checked else out
 
     def subset(self, index) -> "SurfelField":
         sem = None if self.semantic_ids is None else self.semantic_ids[index]
         out = SurfelField(self.positions[index], self.orientations[index], self.scales[index],
                           self.opacities[index], self.sh[index], sem, self.semantic_classes)
-        out.checked = self.checked
-        return out
+        return out.mark_checked() if self.checked else out
 
     @staticmethod
     def concat(fields: list["SurfelField"], drop_mismatched_semantics: bool = False) -> "SurfelField":
@@ -242,8 +265,7 @@ class SurfelField:
                           np.concatenate([f.scales for f in fields]),
                           np.concatenate([f.opacities for f in fields]),
                           np.concatenate([f.sh for f in fields]), sem, classes)
-        out.checked = checked
-        return out
+        return out.mark_checked() if checked else out
 
     # ------------------------------------------------------------ validation
     def problems(self, quat_tol: float = 1e-3) -> list[str]:

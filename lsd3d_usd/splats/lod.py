@@ -147,8 +147,7 @@ def gather_cuts(trees: list[LodTree], cuts: list) -> SurfelField:
                      if sem is not None else np.zeros(1, np.int32))
         base = int(at[-1])
     out = SurfelField(pos, quat, scl, opa, sh, sem, classes if has_sem else ())
-    out.checked = all(f.checked for f in fields)     # rows copied as they are
-    return out
+    return out.mark_checked() if all(f.checked for f in fields) else out   # rows copied as they are
 
 
 @nb.njit(cache=True, nogil=True)
@@ -263,6 +262,8 @@ def _tilt(quats, i, R, x, y, z, dist, floor):
     qx, qy, qz, qw = (np.float64(quats[i, 0]), np.float64(quats[i, 1]),
                       np.float64(quats[i, 2]), np.float64(quats[i, 3]))
     q2 = qx * qx + qy * qy + qz * qz + qw * qw
+    if not q2 > 0.0:
+        return 1.0              # no orientation: the sphere's full footprint
     nx = 2.0 * (qx * qz + qw * qy) / q2
     ny = 2.0 * (qy * qz - qw * qx) / q2
     nz = 1.0 - 2.0 * (qx * qx + qy * qy) / q2
@@ -323,7 +324,7 @@ def build_lod(field: SurfelField, cell: float | None = None) -> LodTree:
     # the SH moments and, after them, the second moments of the base colour: a node's
     # colour spread is its children's, from the same sums
     sh_w = np.concatenate([leaves.sh.astype(np.float64).reshape(n, -1), dc * dc], axis=1) * W[:, None]
-    log_t = np.log1p(-np.minimum(leaves.opacities.astype(np.float64), _OPACITY_CAP))
+    log_t = np.log1p(-np.clip(leaves.opacities.astype(np.float64), 0.0, _OPACITY_CAP))
     c = (np.zeros(n, np.int64) if leaves.semantic_ids is None
          else leaves.semantic_ids.astype(np.int64) + 1)      # -1 (unlabelled) -> column 0
     votes = np.zeros((n, int(c.max(initial=0)) + 1))
@@ -399,7 +400,8 @@ def _leaf_moments(quats, scales, opac):
         ay = (2 * (x * y - z * w), 1 - 2 * (x * x + z * z), 2 * (y * z + x * w))
         az = (2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y))
         su, sv = np.float64(scales[i, 0]), np.float64(scales[i, 1])
-        W[i] = np.float64(opac[i]) * abs(su * sv) + 1e-30
+        # opacities a hair below 0 pass the reader's tolerance: no negative weights
+        W[i] = max(np.float64(opac[i]), 0.0) * abs(su * sv) + 1e-30
         for a in range(3):
             N[i, a] = az[a] * W[i]
             for b in range(3):

@@ -7,6 +7,7 @@ SurfelField + Camera -> rasterize call (also used alone by eval, which measures 
 """
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,7 +74,12 @@ def render_surfels(field, camera: Camera, *, background=None, normal_space: str 
     (field.checked) is not scanned value by value again."""
 
     def t(a):
-        return torch.from_numpy(np.ascontiguousarray(a))
+        a = np.ascontiguousarray(a)
+        if a.flags.writeable:
+            return torch.from_numpy(a)
+        with warnings.catch_warnings():     # a checked field's arrays are read-only; the
+            warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
+            return torch.from_numpy(a)      # rasteriser only reads its inputs
 
     with torch.no_grad():
         return rasterize(t(field.positions), t(field.orientations), t(field.scales),
@@ -85,7 +91,7 @@ def render_surfels(field, camera: Camera, *, background=None, normal_space: str 
                          semantic_ids=(t(np.asarray(codes, np.int64)) if codes is not None
                                        else t(field.semantic_ids)
                                        if semantic and field.semantic_ids is not None else None),
-                         backend=backend, values_checked=field.checked)
+                         backend=backend, values_checked=getattr(field, "checked", False))
 
 
 def surfel_codes(field, class_of_row=None, instance_of_row=None) -> np.ndarray:

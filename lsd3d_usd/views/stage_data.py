@@ -147,7 +147,7 @@ def scene_surfels(stage, time=None, prims=None, check: bool = True):
             if check:
                 if w is not f:
                     check_renderable(prim, w, t)    # a transform can overflow float32
-                w.checked = True
+                w.mark_checked()
             fields.append(w)
     return SurfelField.concat(fields, drop_mismatched_semantics=True) if fields else None
 
@@ -163,7 +163,7 @@ def lod_tree(field: SurfelField, where: str) -> LodTree:
             name, i, _, what = p
             raise InputError(f"{where}: level-of-detail node {i} of surfels valid on their own "
                              f"has {what} ({name}); their values are too large to merge")
-        tree.nodes.checked = True
+        tree.nodes.mark_checked()
     return tree
 
 
