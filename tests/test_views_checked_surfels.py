@@ -122,3 +122,14 @@ def test_a_checked_field_cannot_be_edited_behind_its_mark():
     assert not ok.checked
     with pytest.raises(InputError, match="non-finite"):
         render_surfels(ok, cam)
+
+
+def test_a_world_transform_that_overflows_is_refused_naming_it():
+    # stored values that pass, placed by an ancestor's scale of 1e38 beyond float32: one
+    # InputError naming the prim and the transform, nothing marked checked
+    from pxr import UsdGeom
+    stage = _stage(_field())
+    UsdGeom.Xform.Define(stage, S.SURFELS_PATH).AddScaleOp().Set((1e38, 1e38, 1e38))
+    with pytest.raises(InputError, match=r"Chunk_0_0\.positions: a non-finite position .*"
+                                         r"after the prim's world transform"):
+        scene_surfels(stage)

@@ -117,15 +117,19 @@ def _bad_sh_rows(f: SurfelField) -> np.ndarray:
     return ~(np.abs(f.sh.reshape(f.n, -1)) <= SH_MAX).all(1)
 
 
-def check_renderable(prim, f: SurfelField, t) -> None:
+def check_renderable(prim, f: SurfelField, t, transformed: bool = False) -> None:
     """Refuse (one line naming the layer file, prim, attribute and particle) surfels that
-    the rasteriser cannot draw or that validate reports as errors (renderable_problem)."""
+    the rasteriser cannot draw or that validate reports as errors (renderable_problem).
+    ``transformed``: ``f`` is the prim's surfels in world space, whose stored values passed:
+    the error then names the world transform, which validate (local values) does not see."""
     p = renderable_problem(f)
     if p is not None:
         name, i, count, what = p
+        hint = ("after the prim's world transform (its own or an ancestor's xformOps take it "
+                "beyond float32)" if transformed else
+                "`lsd3d-usd validate` lists the problems")
         raise InputError(f"{_layer_of(prim, name, t)}: {prim.GetPath()}.{name}: {what} at "
-                         f"particle {i} ({count} bad of {f.n}); `lsd3d-usd validate` lists "
-                         "the problems")
+                         f"particle {i} ({count} bad of {f.n}); {hint}")
 
 
 def scene_surfels(stage, time=None, prims=None, check: bool = True):
@@ -146,7 +150,7 @@ def scene_surfels(stage, time=None, prims=None, check: bool = True):
             w = transform_surfels(f, _world(prim, t))
             if check:
                 if w is not f:
-                    check_renderable(prim, w, t)    # a transform can overflow float32
+                    check_renderable(prim, w, t, transformed=True)  # float32 overflow
                 w.mark_checked()
             fields.append(w)
     return SurfelField.concat(fields, drop_mismatched_semantics=True) if fields else None
