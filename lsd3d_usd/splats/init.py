@@ -277,6 +277,6 @@ def transform_surfels(field, M: np.ndarray):
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
     y = np.cross(n, x)
     q = matrix_to_quat(np.stack([x, y, n], axis=2))
-    with np.errstate(over="ignore"):    # beyond float32 becomes inf: the reader refuses it
+    with np.errstate(over="ignore"):    # beyond float32 becomes inf, refused where it is read
         return replace(field, positions=pos.astype(np.float32), orientations=q.astype(np.float32),
                        scales=np.stack([sx, sy], 1).astype(np.float32))
