@@ -129,6 +129,20 @@ def test_missing_points_or_feature_type(tmp_path):
         usdio.read_layout(f)
 
 
+def test_a_non_finite_point_is_one_error_naming_the_prim(tmp_path):
+    # found by the long USD-layout fuzz: an inf corner reached the footprint's orientation
+    # (numpy's "invalid value" warning) before any check
+    import re
+    f = tmp_path / "bad.usda"
+    text = HAND % ""
+    i = text.index("house")
+    j = text.index("point3f[] points = [", i)
+    f.write_text(text[:j] + re.sub(r"\[\(([^,]+),", "[(inf,", text[j:], count=1))
+    with pytest.raises(InputError, match=r"house: attribute points: a non-finite coordinate at "
+                                         r"point 0 \(1 of "):
+        usdio.read_layout(f)
+
+
 def test_samples_read():
     files = sorted(SAMPLES.glob("*.usd*"))
     assert len(files) >= 3

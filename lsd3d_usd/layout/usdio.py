@@ -457,6 +457,10 @@ def _read_prim(prim: Usd.Prim, ftype: str, where: str, units: _Units = _Units())
     fid = _get(prim, "id", T.String, where, default=None)
     pts32 = _float_points(prim, where)
     pts = units.points(_prefer64(prim, "points64", pts32, where, T.Point3dArray))
+    bad = np.flatnonzero(~np.isfinite(pts).all(axis=1))
+    if bad.size:    # before any geometry is computed from them (a footprint's orientation)
+        raise InputError(f"{where}: {path}: attribute points: a non-finite coordinate at point "
+                         f"{int(bad[0])} ({bad.size} of {len(pts)})")
 
     if ftype == "Tree":
         n = len(pts)
