@@ -284,6 +284,16 @@ def test_env_background_is_looked_up_again_only_when_the_rotation_or_intrinsics_
     env.image = env.image * 0.5                      # another texture: looked up again
     np.testing.assert_allclose(frame.env_background(env, cam), 0.5 * again, rtol=1e-6)
     assert len(calls) == 4
+    # a rig's cameras take turns every step: each camera's background is kept
+    rig = [_camera(yaw=0.1 * (k + 1)) for k in range(3)]
+    for _ in range(3):
+        for c in rig:
+            frame.env_background(env, c)
+    assert len(calls) == 4 + 3
+    for k in range(stage_data.ENV_PIXELS_KEPT):      # beyond the kept number: the oldest goes
+        frame.env_background(env, _camera(yaw=1.0 + 0.1 * k))
+    frame.env_background(env, rig[0])
+    assert len(calls) == 4 + 3 + stage_data.ENV_PIXELS_KEPT + 1
 
 
 def _ref_composite(surfels, actors, camera, env):

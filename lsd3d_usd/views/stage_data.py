@@ -22,6 +22,7 @@ cameras are placed where their animation starts.
 from __future__ import annotations
 
 import os
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,6 +71,7 @@ def scene_surfel_prims(stage) -> list:
 
 
 SUN_SEEN_MAX = 4096  # actor poses whose sun visibility SceneReader keeps
+ENV_PIXELS_KEPT = 8  # env backgrounds an EnvMap keeps: every camera of a rig
 OPACITY_TOL = 1e-3   # as validation's OpacityRange: linear opacity in [0, 1]
 
 
@@ -84,12 +86,13 @@ def _layer_of(prim, name: str, t) -> str:
     return prim.GetStage().GetRootLayer().realPath
 
 
-def renderable_problem(f: SurfelField):
+def renderable_problem(f: SurfelField, names=None):
     """(attribute, first bad particle, how many, what) of the first kind of value in ``f``
     that the rasteriser cannot draw or that validate reports as an error, or None: non-finite
     positions, scales or orientations, zero quaternions, negative scales, opacity outside
     [0, 1], SH coefficients non-finite or beyond render.checks.SH_MAX. Every value rasterize
-    scans is covered, so a field that passes is marked checked and not scanned per frame."""
+    scans is covered, so a field that passes is marked checked and not scanned per frame.
+    ``names``: only these attributes (None: all)."""
     with np.errstate(all="ignore"):
         q = np.asarray(f.orientations, np.float64)
         tests = (
@@ -103,6 +106,8 @@ def renderable_problem(f: SurfelField):
             ("sh", lambda: _bad_sh_rows(f), f"an SH coefficient non-finite or beyond ±{SH_MAX:g}"),
         )
         for name, bad, what in tests:
+            if names is not None and name not in names:
+                continue
             hit = np.flatnonzero(bad())
             if hit.size:
                 return name, int(hit[0]), int(hit.size), what
@@ -122,7 +127,8 @@ def check_renderable(prim, f: SurfelField, t, transformed: bool = False) -> None
     the rasteriser cannot draw or that validate reports as errors (renderable_problem).
     ``transformed``: ``f`` is the prim's surfels in world space, whose stored values passed:
     the error then names the world transform, which validate (local values) does not see."""
-    p = renderable_problem(f)
+    # a transform moves positions, turns orientations and stretches scales: only those change
+    p = renderable_problem(f, ("positions", "orientations", "scales") if transformed else None)
     if p is not None:
         name, i, count, what = p
         hint = ("after the prim's world transform (its own or an ancestor's xformOps take it "
@@ -211,20 +217,25 @@ class EnvMap:
     def pixels(self, camera) -> np.ndarray:
         """(H, W, 3) float32 radiance along each pixel's ray of a render.camera.Camera: what
         lookup(pixel_directions(camera)) gives (within float32 rounding), in one pass. A new
-        array each call (callers draw into it); the last one kept, and copied when the next
-        camera has the same rotation and intrinsics (a car driving straight or standing still:
-        the sky does not move with the camera's position)."""
+        array each call (callers draw into it); the last ENV_PIXELS_KEPT lookups are kept, by
+        camera rotation and intrinsics, and copied when a camera repeats one (a rig on a car
+        driving straight or standing still: the sky does not move with the camera's position)."""
         R = np.ascontiguousarray(camera.pose[:3, :3], np.float64)
         key = (int(camera.width), int(camera.height), float(camera.fx), float(camera.fy),
                float(camera.cx), float(camera.cy), R.tobytes(),
                np.asarray(self.world_from_dome, np.float64).tobytes(), self.pole_axis)
-        hit = getattr(self, "_last_pixels", None)
-        if hit is not None and hit[0] == key and hit[2] is self.image:
-            return hit[1].copy()
+        kept = self.__dict__.setdefault("_kept_pixels", OrderedDict())
+        hit = kept.get(key)
+        if hit is not None and hit[1] is self.image:
+            kept.move_to_end(key)
+            return hit[0].copy()
         out = env_lookup_pinhole(np.asarray(self.image, np.float32), camera.width, camera.height,
                                  camera.fx, camera.fy, camera.cx, camera.cy, R,
                                  self.world_from_dome, self.pole_axis == "Y")
-        self._last_pixels = (key, out.copy(), self.image)
+        kept[key] = (out.copy(), self.image)
+        kept.move_to_end(key)
+        while len(kept) > ENV_PIXELS_KEPT:
+            kept.popitem(last=False)
         return out
 
 
