@@ -224,3 +224,34 @@ def test_presets_are_valid_and_as_documented():
     assert h.elevations_deg[0] == pytest.approx(-30.67) and h.elevations_deg[-1] == pytest.approx(10.67)
     for m in PRESETS.values():
         assert m.check() is m
+
+
+def test_surfels_above_every_beam_are_never_paired_and_order_does_not_matter():
+    """A canopy above the top beam (waymo_top looks at most 2.4 deg up) is rejected before
+    any tile is tested: binning it adds no pairs. The surfels' order (the bin's parallel
+    blocks are scattered over the threads) changes neither the returns nor the pairs."""
+    model = PRESETS["waymo_top"]
+    d = model.directions()[:, 600:664]
+    o = np.zeros((d.shape[1], 3))
+    ground = _random_surfels(6000, seed=4)
+    rng = np.random.default_rng(5)
+    n = 6000
+    canopy = L.surfel_frames(np.column_stack([rng.uniform(2, 25, n), rng.uniform(-25, 25, n),
+                                              rng.uniform(8.0, 12.0, n)]),
+                             np.tile([0, 0, 0, 1.0], (n, 1)), np.full((n, 2), 0.05),
+                             np.full(n, 0.9))
+    assert np.all(np.arcsin(canopy.c[:, 2] / np.linalg.norm(canopy.c, axis=1))
+                  > np.radians(2.4) + canopy.rad / np.linalg.norm(canopy.c, axis=1))
+    both = L.LidarSurfels(*(np.concatenate([getattr(ground, f), getattr(canopy, f)])
+                            for f in ("c", "tu", "tv", "n", "s", "a", "rad", "packed")))
+    t0, k0, s0 = L.cast_surfels(ground, o, d, min_range=0.5, max_range=40.0)
+    t1, k1, s1 = L.cast_surfels(both, o, d, min_range=0.5, max_range=40.0)
+    assert s1["pairs"] == s0["pairs"] > 0
+    np.testing.assert_array_equal(t1, t0)
+    perm = rng.permutation(len(both))
+    shuffled = both.subset(perm)
+    t2, k2, s2 = L.cast_surfels(shuffled, o, d, min_range=0.5, max_range=40.0)
+    assert s2["pairs"] == s1["pairs"]
+    np.testing.assert_array_equal(t2, t1)
+    hit = k2 >= 0
+    np.testing.assert_array_equal(perm[k2[hit]], k1[hit])
