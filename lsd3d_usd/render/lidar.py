@@ -530,8 +530,9 @@ def _trace(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k
 @njit(cache=True, parallel=True)
 def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k):
     """_trace with a tile's rays taken together: each candidate surfel is met by all the
-    tile's rays in one loop the compiler vectorises (most pairs miss: the disk's Gaussian is
-    below alpha_min there: such a pair skips the rest), and only the rays it reaches go
+    tile's rays in one tight loop (scalar: Python's error model checks each division; with
+    numpy's it vectorises and is no faster, docs/sensors.md) (most pairs miss: the disk's
+    Gaussian is below alpha_min there: such a pair skips the rest), and only the rays it reaches go
     through the ordered insert, their t worked out again by the same operations. The
     tile stops once the candidates' nearest distance passes every ray's return: each ray sees
     a superset of the surfels _trace gives it, the extra ones beyond its return."""
