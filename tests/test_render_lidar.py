@@ -227,31 +227,64 @@ def test_presets_are_valid_and_as_documented():
 
 
 def test_surfels_above_every_beam_are_never_paired_and_order_does_not_matter():
-    """A canopy above the top beam (waymo_top looks at most 2.4 deg up) is rejected before
-    any tile is tested: binning it adds no pairs. The surfels' order (the bin's parallel
-    blocks are scattered over the threads) changes neither the returns nor the pairs."""
+    """A canopy in front of the sensor but above its top beam (waymo_top looks at most 2.4°
+    up) adds no pairs and changes no return; surfels straddling the top beam, seen from a
+    moving and turning origin, return exactly what the float64 reference gives. The
+    surfels' order (the bin's parallel blocks are scattered over the threads) changes
+    neither the returns nor the pairs."""
     model = PRESETS["waymo_top"]
-    d = model.directions()[:, 600:664]
+    C = model.columns
+    d = model.directions()[:, C // 2 - 32:C // 2 + 32]        # facing +x (azimuth ~0)
+    assert np.all(np.abs(np.degrees(np.arctan2(d[0, :, 1], d[0, :, 0]))) < 5.0)
     o = np.zeros((d.shape[1], 3))
-    ground = _random_surfels(6000, seed=4)
     rng = np.random.default_rng(5)
     n = 6000
-    canopy = L.surfel_frames(np.column_stack([rng.uniform(2, 25, n), rng.uniform(-25, 25, n),
-                                              rng.uniform(8.0, 12.0, n)]),
-                             np.tile([0, 0, 0, 1.0], (n, 1)), np.full((n, 2), 0.05),
+    canopy_c = np.column_stack([rng.uniform(5, 25, n), rng.uniform(-2, 2, n),
+                                rng.uniform(8.0, 12.0, n)])
+    canopy = L.surfel_frames(canopy_c, np.tile([0, 0, 0, 1.0], (n, 1)), np.full((n, 2), 0.05),
                              np.full(n, 0.9))
-    assert np.all(np.arcsin(canopy.c[:, 2] / np.linalg.norm(canopy.c, axis=1))
-                  > np.radians(2.4) + canopy.rad / np.linalg.norm(canopy.c, axis=1))
+    dist = np.linalg.norm(canopy.c, axis=1)
+    assert np.all(np.arcsin(canopy.c[:, 2] / dist) - np.arcsin(canopy.rad / dist)
+                  > np.radians(2.4))                           # wholly above the top beam
+    ground = _random_surfels(6000, seed=4)
     both = L.LidarSurfels(*(np.concatenate([getattr(ground, f), getattr(canopy, f)])
                             for f in ("c", "tu", "tv", "n", "s", "a", "rad", "packed")))
     t0, k0, s0 = L.cast_surfels(ground, o, d, min_range=0.5, max_range=40.0)
     t1, k1, s1 = L.cast_surfels(both, o, d, min_range=0.5, max_range=40.0)
     assert s1["pairs"] == s0["pairs"] > 0
     np.testing.assert_array_equal(t1, t0)
+    # disks whose spheres straddle the top beam's elevation, from a moving, turning origin
+    m = 1500
+    r = rng.uniform(3.0, 20.0, m)
+    el = np.radians(2.4) + rng.uniform(-1.0, 1.0, m) * np.arcsin(0.3 / r)
+    az = rng.uniform(-0.1, 0.1, m)
+    edge = L.surfel_frames(np.column_stack([r * np.cos(el) * np.cos(az), r * np.cos(el) * np.sin(az),
+                                            r * np.sin(el)]),
+                           np.tile([0.0, 0.7071068, 0.0, 0.7071068], (m, 1)),
+                           np.full((m, 2), 0.1), np.full(m, 0.8))
+    top = d[-16:]                                              # the highest 16 beams
+    yaw = np.linspace(0.0, 0.05, d.shape[1])
+    turned = top.copy()
+    turned[..., 0] = top[..., 0] * np.cos(yaw) - top[..., 1] * np.sin(yaw)
+    turned[..., 1] = top[..., 0] * np.sin(yaw) + top[..., 1] * np.cos(yaw)
+    moving = np.column_stack([np.linspace(0.0, 0.8, d.shape[1]), np.linspace(0.0, 0.3, d.shape[1]),
+                              np.zeros(d.shape[1])])
+    te, ke, se = L.cast_surfels(edge, moving, turned, min_range=0.5, max_range=40.0)
+    tr, kr = L.cast_reference(edge, moving, turned, min_range=0.5, max_range=40.0)
+    _assert_same(te, ke, tr, kr, tol=1e-9)
+    assert se["pairs"] > 0 and np.isfinite(te[-1]).any()      # the top beam meets some
     perm = rng.permutation(len(both))
-    shuffled = both.subset(perm)
-    t2, k2, s2 = L.cast_surfels(shuffled, o, d, min_range=0.5, max_range=40.0)
+    t2, k2, s2 = L.cast_surfels(both.subset(perm), o, d, min_range=0.5, max_range=40.0)
     assert s2["pairs"] == s1["pairs"]
     np.testing.assert_array_equal(t2, t1)
     hit = k2 >= 0
     np.testing.assert_array_equal(perm[k2[hit]], k1[hit])
+
+
+def test_no_rays_no_work():
+    """A sweep with no rings or no columns returns empty arrays, not an error."""
+    surf = _random_surfels(100)
+    for shape in ((0, 8, 3), (4, 0, 3)):
+        t, k, stats = L.cast_surfels(surf, np.zeros((shape[1], 3)), np.zeros(shape),
+                                     min_range=0.5, max_range=30.0)
+        assert t.shape == shape[:2] and k.shape == shape[:2] and stats["pairs"] == 0
