@@ -354,8 +354,8 @@ def _bin(c, rad, oref, dref, sec_org, sec_d, sec_groups, az_mid, az_half, el_lo,
             reach = max_range + rad[k] + dref
             if rad[k] > 0.0 and wx * wx + wy * wy + wz * wz <= reach * reach:
                 near0, lo0, hi0, az0, w0, every = _cone(c, rad, k, oref, dref)
-                # above or below every beam (a building's upper floors, a tree's crown): a
-                # quarter of the README sample's surfels, rejected before the sectors' cones
+                # above or below every beam (a building's upper floors, a tree's crown):
+                # rejected before the sectors' cones
                 if near0 <= max_range and hi0 >= el_min and lo0 <= el_max:
                     if every:
                         g0, g1 = 0, nc - 1
