@@ -288,3 +288,30 @@ def test_no_rays_no_work():
         t, k, stats = L.cast_surfels(surf, np.zeros((shape[1], 3)), np.zeros(shape),
                                      min_range=0.5, max_range=30.0)
         assert t.shape == shape[:2] and k.shape == shape[:2] and stats["pairs"] == 0
+
+
+def test_opacity_bound_of_each_surfel_keeps_every_return():
+    """The trace skips a ray once u² + v² passes the surfel's own q_max (its alpha below
+    ALPHA_MIN there); opacities at the edges of the alpha clamp (1, just under and over
+    ALPHA_MAX, just over ALPHA_MIN) return exactly what the float64 reference does, and a
+    surfel that can never reach ALPHA_MIN has no q_max."""
+    rng = np.random.default_rng(8)
+    n = 8000
+    means = rng.uniform(-12.0, 12.0, (n, 3))
+    means[:, 2] = rng.uniform(-2.0, 4.0, n)
+    quat = rng.normal(size=(n, 4))
+    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    levels = np.array([1.0, 0.995, 0.99, 0.985, 0.5, 2.0 / 255.0, 1.0001 / 255.0])
+    a = levels[rng.integers(0, len(levels), n)]
+    surf = L.surfel_frames(means, quat, rng.uniform(0.02, 0.5, (n, 2)), a)
+    np.testing.assert_allclose(surf.packed[:, 15], 2.0 * np.log(a * 255.0) * (1 + 1e-9) + 1e-9,
+                               rtol=1e-12)
+    model = PRESETS["waymo_top"]
+    d = model.directions()[:, 1000:1024]
+    o = np.zeros((d.shape[1], 3))
+    t, k, _ = L.cast_surfels(surf, o, d, min_range=0.5, max_range=30.0)
+    tr, kr = L.cast_reference(surf, o, d, min_range=0.5, max_range=30.0)
+    _assert_same(t, k, tr, kr, tol=1e-9)
+    never = L.surfel_frames(np.zeros((2, 3)), np.tile([0, 0, 0, 1.0], (2, 1)), np.ones((2, 2)),
+                            np.array([0.5 / 255.0, 0.0]))
+    assert np.all(never.packed[:, 15] == -1.0)

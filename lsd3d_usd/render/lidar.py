@@ -49,6 +49,7 @@ TRACE_TILES = True
 SECTOR_GROUPS = 8        # column groups binned from one origin
 SPREAD_PRIME = 1000003   # _spread's multiplier: a prime, so coprime with any tile count it is not
 BIN_BLOCK = 1024         # surfels per block of _bin's parallel loop
+Q_MARGIN = 1e-9          # relative (and absolute) slack of a surfel's q_max
 PAIR_SLOTS = 4           # (tile, distance) pairs a surfel's first binning pass can hold
 
 
@@ -59,7 +60,8 @@ class LidarSurfels:
     normals n (N,3 each), scales s (N,2), opacities a (N,), the radius rad (N,) beyond which a
     disk's alpha is below ALPHA_MIN (0 for a surfel never met: one that never reaches it, or
     a degenerate one: a scale below MIN_SCALE, a value not finite), and ``packed``
-    (N,15: centre, t_u, t_v, n, 1/s_u, 1/s_v, opacity — one surfel's parameters in one row
+    (N,16: centre, t_u, t_v, n, 1/s_u, 1/s_v, opacity, and q_max, the u² + v² beyond which
+    its alpha is below ALPHA_MIN (Q_MARGIN wider; -1 for a surfel never met) — one surfel's parameters in one row
     the tracer reads together). Made once per loaded scene and reused by every sweep."""
     c: np.ndarray
     tu: np.ndarray
@@ -117,7 +119,11 @@ def surfel_frames(means, quats, scales, opacities) -> LidarSurfels:
           & np.all(np.isfinite(raw_s), axis=1) & (np.min(raw_s, axis=1) > MIN_SCALE)
           & np.isfinite(a))
     rad = np.where(ok, rad, 0.0)
-    packed = np.concatenate([c, tu, tv, n, 1.0 / s, a[:, None]], axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q_max = 2.0 * np.log(a / ALPHA_MIN)
+    # a little wider than exact, so that rounding never drops a ray the exact test keeps
+    q_max = np.where(ok & (q_max > 0), q_max * (1.0 + Q_MARGIN) + Q_MARGIN, -1.0)
+    packed = np.concatenate([c, tu, tv, n, 1.0 / s, a[:, None], q_max[:, None]], axis=1)
     return LidarSurfels(c, np.ascontiguousarray(tu), np.ascontiguousarray(tv),
                         np.ascontiguousarray(n), s, a, rad, np.ascontiguousarray(packed))
 
@@ -588,6 +594,9 @@ def _trace_tile(h, g, nc, R, C, tr, tc, dirs, origins, P, offsets, idx, key, tmi
         vx, vy, vz = P[k, 6], P[k, 7], P[k, 8]
         nx, ny, nz = P[k, 9], P[k, 10], P[k, 11]
         isu, isv = P[k, 12], P[k, 13]
+        # beyond q_max the surfel's alpha is below ALPHA_MIN whatever t is: only the rays
+        # within both bounds are worth the exact test (Q_MAX: the same for every opacity)
+        qk = min(P[k, 15], Q_MAX)
         met = 0
         for r in range(m_):
             den = dx[r] * nx + dy[r] * ny + dz[r] * nz
@@ -598,12 +607,12 @@ def _trace_tile(h, g, nc, R, C, tr, tc, dirs, origins, P, offsets, idx, key, tmi
             v = (px * vx + py * vy + pz * vz) * isv
             q = u * u + v * v
             qq[r] = q
-            met += q <= Q_MAX
+            met += q <= qk
         if met == 0:
             continue        # most pairs: no ray of the tile comes near the disk
         changed = False
         for r in range(m_):
-            if not qq[r] <= Q_MAX:
+            if not qq[r] <= qk:
                 continue
             # t again (the same operations: the same bits) for the few rays that come near
             den = dx[r] * nx + dy[r] * ny + dz[r] * nz
