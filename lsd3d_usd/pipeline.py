@@ -40,6 +40,7 @@ from lsd3d_usd.layout.model import DRIVABLE_TYPES
 from lsd3d_usd.layout.usdio import read_layout, write_layout
 from lsd3d_usd.memtune import peak_rss_mb, release_free_memory
 from lsd3d_usd.proxy.usdio import build_proxy_layer, layout_hash
+from lsd3d_usd.render import precompile
 from lsd3d_usd.splats import chunkio
 from lsd3d_usd.splats.chunkio import read_chunk_map
 from lsd3d_usd.splats.initial import write_initial_surfels
@@ -388,7 +389,16 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
         _check_dependents(sc, p, run)
     timings = {}
     run.log(f"scene: {sc.root}")
+    # on a fresh install, GGDS's backward kernels compile on the other core meanwhile
+    background = precompile.start() if cfg.ggds.steps > 0 else None
+    try:
+        return _generate_steps(cfg, run, p, sc, timings, t0)
+    finally:
+        precompile.finish(background)
 
+
+def _generate_steps(cfg, run, p, sc, timings, t0) -> dict:
+    """generate's steps, layout to GGDS, on the planned scene."""
     def timed(key, fn, *a):
         t = time.perf_counter()
         out = fn(*a)

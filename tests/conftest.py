@@ -4,6 +4,9 @@ import sys
 from pathlib import Path
 
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads (see lsd3d_usd/__init__)
+# the test workers compile the kernels themselves: a background compile per cold `generate`
+# would only add processes (tests/test_precompile.py checks it)
+os.environ.setdefault("LSD3D_PRECOMPILE", "0")
 
 # A shell without job control starts background jobs with SIGINT ignored, and children inherit
 # that: the tests that stop a child with SIGINT (Ctrl-C) would wait forever. Caught signals

@@ -1,0 +1,81 @@
+"""render.precompile: the background compile of the rasteriser's backward kernels that a
+first `generate` starts — when it starts, that it stops, and (slow) that what it compiles is
+what GGDS then loads from numba's cache."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import pytest
+
+from lsd3d_usd.render import precompile
+
+from conftest import LAYOUT
+
+
+def test_start_only_when_switched_on_and_the_kernels_are_not_cached(monkeypatch):
+    started = []
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: started.append((a, k)) or "proc")
+    monkeypatch.setenv(precompile.ENV_SWITCH, "0")
+    monkeypatch.setattr(precompile, "backward_cold", lambda: True)
+    assert precompile.start() is None
+    monkeypatch.setenv(precompile.ENV_SWITCH, "1")
+    monkeypatch.setattr(precompile, "backward_cold", lambda: False)
+    assert precompile.start() is None and not started
+    monkeypatch.setattr(precompile, "backward_cold", lambda: True)
+    assert precompile.start() == "proc"
+    (args,), kw = started[0]
+    assert args == [sys.executable, "-m", "lsd3d_usd.render.precompile"]
+    assert kw["env"][precompile.ENV_SWITCH] == "0"        # the child never starts another
+    assert kw["env"]["NUMBA_NUM_THREADS"] == "1"           # one core: the other is the main's
+
+
+def test_cache_state_unknown_is_not_cold():
+    class NoCache:
+        pass
+    assert precompile._cached(NoCache()) is None
+    assert isinstance(precompile.backward_cold(), bool)
+
+
+def test_finish_stops_a_compile_still_running():
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    t = time.perf_counter()
+    precompile.finish(proc, timeout=0.1)
+    assert proc.returncode is not None and time.perf_counter() - t < 10
+    precompile.finish(None)
+
+
+@pytest.mark.slow
+def test_background_compile_fills_the_cache_the_main_process_reads(tmp_path):
+    """In a fresh numba cache the backward kernels are cold; after the background process
+    they are cached, and a process rendering forward and backward compiles neither."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    cold = [sys.executable, "-c", "from lsd3d_usd.render import precompile as p; "
+            "print(p.backward_cold())"]
+    assert subprocess.run(cold, env=env, capture_output=True, text=True).stdout.split()[-1] == "True"
+    subprocess.run([sys.executable, "-m", "lsd3d_usd.render.precompile"], env=env, check=True,
+                   timeout=600)
+    assert subprocess.run(cold, env=env, capture_output=True, text=True).stdout.split()[-1] == "False"
+    # a small generate in that cache (GGDS's own calls, not the background's) then compiles
+    # neither backward kernel: their signatures are the ones the background compiled
+    probe = ("import pathlib\n"
+             "from numba.core import event\n"
+             "names = []\n"
+             "class L(event.Listener):\n"
+             "    def on_start(self, ev): names.append(ev.data['dispatcher'].py_func.__name__)\n"
+             "    def on_end(self, ev): pass\n"
+             "event.register('numba:compile', L())\n"
+             "from lsd3d_usd.config import generate_config\n"
+             "from lsd3d_usd.pipeline import RunOptions, generate\n"
+             f"generate(generate_config(layout=pathlib.Path({str(LAYOUT)!r}), steps=2, "
+             "surfels=3000, env_resolution=(128, 64), resolution=(64, 48), views=4, "
+             "perceptual=False, actors=False, seed=5), "
+             f"RunOptions(out=pathlib.Path({str(tmp_path / 'scene')!r}), progress=False, "
+             "log=lambda *a: None))\n"
+             "print(sorted(set(names)))\n")
+    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True,
+                         check=True, timeout=900).stdout
+    assert "accumulate_view" in out             # the listener saw what GGDS compiled itself
+    assert "project_backward" not in out and "'backward'" not in out, out
