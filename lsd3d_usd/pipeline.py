@@ -395,6 +395,9 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
         return _generate_steps(cfg, run, p, sc, timings, t0)
     finally:
         precompile.finish(background)
+        if background is not None:
+            run.log(f"kernels: the rasteriser's compiled alongside in a second process "
+                    f"(waited {precompile.waited_s():.1f} s for them)")
 
 
 def _generate_steps(cfg, run, p, sc, timings, t0) -> dict:

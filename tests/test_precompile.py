@@ -39,6 +39,35 @@ def test_cache_state_unknown_is_not_cold():
     assert isinstance(precompile.backward_cold(), bool)
 
 
+def _fake(monkeypatch, script):
+    """A stand-in second process running ``script``, registered as this process's."""
+    proc = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE)
+    monkeypatch.setattr(precompile, "_running", proc)
+    monkeypatch.setattr(precompile, "_reported", set())
+    return proc
+
+
+def test_wait_until_returns_when_the_stage_is_reported_or_the_process_ends(monkeypatch):
+    proc = _fake(monkeypatch, "import time\ntime.sleep(0.3)\nprint('forward', flush=True)\n"
+                              "time.sleep(0.3)")
+    t = time.perf_counter()
+    precompile.wait_until("forward", timeout=30)
+    assert "forward" in precompile._reported and time.perf_counter() - t >= 0.25
+    precompile.wait_until("backward", timeout=30)        # it ends without reporting it
+    assert precompile._running is None and "backward" not in precompile._reported
+    precompile.wait_until("backward", timeout=30)        # nothing to wait for: at once
+    proc.wait()
+
+
+def test_wait_until_gives_up_after_its_timeout(monkeypatch):
+    proc = _fake(monkeypatch, "import time\ntime.sleep(30)")
+    t = time.perf_counter()
+    precompile.wait_until("forward", timeout=0.2)
+    assert time.perf_counter() - t < 5 and "forward" not in precompile._reported
+    precompile.finish(proc, timeout=0.1)
+    assert proc.returncode is not None and precompile._running is None
+
+
 def test_finish_stops_a_compile_still_running():
     proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
     t = time.perf_counter()

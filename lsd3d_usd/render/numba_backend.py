@@ -24,6 +24,7 @@ import torch
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.render import kernels
 from lsd3d_usd.render import kernels_prep as kprep
+from lsd3d_usd.render import precompile
 from lsd3d_usd.render import projection as proj
 from lsd3d_usd.render.raster_types import BackendOutput, RasterInputs, RasterSettings, RasterStats
 
@@ -88,6 +89,7 @@ class _Raster(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, g_rgb, g_alpha, g_d, g_n, g_med, g_dist):
+        precompile.wait_until("backward")
         f, v, s, stats = ctx.state
         t0 = time.perf_counter()
 
@@ -119,6 +121,7 @@ class NumbaBackend:
         if inputs.device.type != "cpu":
             raise InputError(f"rasterize: backend 'numba' runs on the CPU, the surfels are on "
                              f"{inputs.device}; use backend='torch' there")
+        precompile.wait_until("forward")    # a first generate's second process: its kernels
         s = settings
         t0 = time.perf_counter()
         f32 = torch.float32

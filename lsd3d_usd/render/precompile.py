@@ -1,16 +1,18 @@
-"""Compile the rasteriser's backward kernels in a second process while a first `generate`
-does everything before them.
+"""Compile the rasteriser's kernels in a second process while a first `generate` does
+everything before them.
 
 numba compiles a kernel the first time it is called and caches it on disk; compiling is
 serial, so on a fresh install `generate` spends most of its first minute compiling one
-kernel after another on one core. The backward kernels (`kernels_prep.project_backward`,
-`kernels.backward`: ~19 of ~51 s) are first called by GGDS's first step, after the proxy,
-the surfels, the G-buffers and the colour start. `start` launches a process that renders a
-tiny field forward and backward, with the settings GGDS renders with, and exits: numba
-writes what it compiled to the same on-disk cache (its writes are atomic), so when GGDS
-reaches its first step the main process loads the kernels instead of compiling them. The
-second process also compiles the forward kernels it needs on the way; where both
-processes compile one, the main process is no slower than alone.
+kernel after another on one core. The rasteriser's kernels (the forward's
+`project_visible`, `bin_sorted`, `forward`, the backward's `project_backward`, `backward`:
+~38 of ~51 s) are first called after the proxy, the surfels and the conditioning's own
+kernels. `start` launches a process that renders a tiny field forward, says so on its
+stdout, then backward, says so, and exits; numba writes what it compiled to the same
+on-disk cache (its writes are atomic). The main process, meanwhile compiling the other
+kernels on the other core, waits at its first rasterisation for the second process's
+forward (`wait_until`, called by the numba backend) and at its first backward for its
+backward, then loads the kernels from the cache instead of compiling them again. If the
+second process fails or ends early, the main process compiles as it would alone.
 
 Nothing happens when the backward kernels are already cached (every run after the first),
 when numba's cache cannot be located, or with ``LSD3D_PRECOMPILE=0``.
@@ -18,10 +20,18 @@ when numba's cache cannot be located, or with ``LSD3D_PRECOMPILE=0``.
 from __future__ import annotations
 
 import os
+import select
 import subprocess
 import sys
+import time
 
 ENV_SWITCH = "LSD3D_PRECOMPILE"
+STAGES = ("forward", "backward")     # what the second process reports, in order
+WAIT_S = 300.0                       # the longest the main process waits for one stage
+
+_running: subprocess.Popen | None = None     # this process's second process, if any
+_reported: set = set()                       # the stages it has reported
+_waited = [0.0]                              # seconds this process has waited for it
 
 
 def _cached(dispatcher) -> bool | None:
@@ -44,21 +54,60 @@ def backward_cold() -> bool:
 def start() -> subprocess.Popen | None:
     """Launch the background compile if it is useful (see the module doc); the process, or
     None. Its output is discarded: the main process reports compiling as before."""
-    if os.environ.get(ENV_SWITCH, "1") == "0" or not backward_cold():
-        return None
+    if os.name == "nt" or os.environ.get(ENV_SWITCH, "1") == "0" or not backward_cold():
+        return None             # (select cannot wait on a pipe on Windows)
+    global _running
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", **{ENV_SWITCH: "0"})
     try:
-        return subprocess.Popen([sys.executable, "-m", "lsd3d_usd.render.precompile"],
-                                stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL,
+        proc = subprocess.Popen([sys.executable, "-m", "lsd3d_usd.render.precompile"],
+                                stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                 stderr=subprocess.DEVNULL, env=env, close_fds=True)
     except OSError:
         return None
+    _running = proc
+    _reported.clear()
+    _waited[0] = 0.0
+    return proc
+
+
+def wait_until(stage: str, timeout: float = WAIT_S) -> None:
+    """Block until this process's second process has compiled ``stage`` ("forward",
+    "backward"), ended, or ``timeout`` passed; at once when there is none."""
+    global _running
+    proc = _running
+    if proc is None or stage in _reported:
+        return
+    t0 = time.monotonic()
+    end = t0 + timeout
+    fd = proc.stdout.fileno()
+    try:
+        while stage not in _reported:
+            left = end - time.monotonic()
+            if left <= 0 or not select.select([fd], [], [], left)[0]:
+                return              # too slow: compile here rather than wait longer
+            line = proc.stdout.readline()
+            if not line:            # ended (or failed): nothing more will come
+                _running = None
+                return
+            word = line.decode(errors="replace").strip()
+            if word in STAGES:
+                _reported.add(word)
+    finally:
+        _waited[0] += time.monotonic() - t0
+
+
+def waited_s() -> float:
+    """Seconds this process has waited for its second process's kernels."""
+    return _waited[0]
 
 
 def finish(proc: subprocess.Popen | None, timeout: float = 1.0) -> None:
     """Stop the background compile if it still runs (the main process needs it no more)."""
+    global _running
     if proc is None:
         return
+    if proc is _running:
+        _running = None
     try:
         proc.wait(timeout=timeout)
     except subprocess.TimeoutExpired:
@@ -84,9 +133,13 @@ def compile_backward() -> None:
               rng.normal(size=(n, 16, 3)) * 0.1]
     K = torch.tensor([[40.0, 0.0, 16.0], [0.0, 40.0, 16.0], [0.0, 0.0, 1.0]])
     ts = [torch.tensor(a, dtype=torch.float32, requires_grad=True) for a in arrays]
+    # values_checked: the per-value scans are the main process's to compile (it runs them
+    # on the scene's surfels first); this process goes straight to the kernels it waits for
     out = rasterize(*ts, torch.eye(4), K, 32, 32, settings=RasterSettings(),
-                    background=torch.full((3,), 0.5))
+                    background=torch.full((3,), 0.5), values_checked=True)
+    print("forward", flush=True)
     (out.rgb.sum() + out.depth_median.sum() + out.normal.sum() + out.alpha.sum()).backward()
+    print("backward", flush=True)
 
 
 if __name__ == "__main__":
