@@ -77,6 +77,7 @@ def _init_worker(threads: int, driver: int | None = None) -> None:
     not take that for its parent)."""
     for var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
         os.environ[var] = str(threads)
+    os.environ["LSD3D_PRECOMPILE"] = "0"    # no compile process per task: the pool has the cores
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     atexit.register(_quiet_exit)
     threading.Thread(target=_exit_with_driver, args=(driver or os.getppid(),), daemon=True,

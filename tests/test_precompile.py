@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
 from lsd3d_usd.render import precompile
@@ -16,6 +17,7 @@ from conftest import LAYOUT
 
 
 def test_start_only_when_switched_on_and_the_kernels_are_not_cached(monkeypatch):
+    monkeypatch.setattr(precompile, "_running", None)      # start() sets it: restored after
     started = []
     monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: started.append((a, k)) or "proc")
     monkeypatch.setenv(precompile.ENV_SWITCH, "0")
@@ -28,15 +30,45 @@ def test_start_only_when_switched_on_and_the_kernels_are_not_cached(monkeypatch)
     assert precompile.start() == "proc"
     (args,), kw = started[0]
     assert args == [sys.executable, "-m", "lsd3d_usd.render.precompile"]
+    assert precompile.start(distortion=True) == "proc"
+    assert started[1][0][0][-1] == "--distortion"           # the run's other signatures
     assert kw["env"][precompile.ENV_SWITCH] == "0"        # the child never starts another
     assert kw["env"]["NUMBA_NUM_THREADS"] == "1"           # one core: the other is the main's
 
 
-def test_cache_state_unknown_is_not_cold():
+def test_cache_state_read_from_numba_index(tmp_path):
     class NoCache:
         pass
-    assert precompile._cached(NoCache()) is None
-    assert isinstance(precompile.backward_cold(), bool)
+
+    def dispatcher(path):
+        d = type("D", (), {})()
+        d._cache = type("C", (), {})()
+        d._cache._cache_file = type("F", (), {"_index_path": str(path)})()
+        return d
+    assert precompile._cached(NoCache()) is None            # unknown: never counted as cold
+    assert precompile._cached(dispatcher(tmp_path / "f.nbi")) is False
+    (tmp_path / "f.nbi").write_bytes(b"x")
+    assert precompile._cached(dispatcher(tmp_path / "f.nbi")) is True
+
+
+def test_the_numba_backend_waits_for_forward_then_backward(monkeypatch):
+    import torch
+
+    from lsd3d_usd.render.rasterize import rasterize
+    calls = []
+    monkeypatch.setattr(precompile, "wait_until", lambda stage, **k: calls.append(stage))
+    rng = np.random.default_rng(0)
+    n = 50
+    means = rng.uniform(-1, 1, (n, 3)) + [0, 0, 4]
+    q = rng.normal(size=(n, 4))
+    ts = [torch.tensor(a, dtype=torch.float32, requires_grad=True) for a in
+          (means, q / np.linalg.norm(q, axis=1, keepdims=True), rng.uniform(0.05, 0.2, (n, 2)),
+           rng.uniform(0.2, 0.9, n), rng.normal(size=(n, 1, 3)))]
+    K = torch.tensor([[40.0, 0, 16], [0, 40.0, 16], [0, 0, 1]])
+    out = rasterize(*ts, torch.eye(4), K, 32, 32)
+    assert calls == ["forward"]
+    out.rgb.sum().backward()
+    assert calls == ["forward", "backward"]
 
 
 def _fake(monkeypatch, script):
@@ -55,17 +87,21 @@ def test_wait_until_returns_when_the_stage_is_reported_or_the_process_ends(monke
     assert "forward" in precompile._reported and time.perf_counter() - t >= 0.25
     precompile.wait_until("backward", timeout=30)        # it ends without reporting it
     assert precompile._running is None and "backward" not in precompile._reported
+    assert proc.stdout.closed
     precompile.wait_until("backward", timeout=30)        # nothing to wait for: at once
     proc.wait()
 
 
-def test_wait_until_gives_up_after_its_timeout(monkeypatch):
+def test_a_wait_that_times_out_gives_the_process_up(monkeypatch):
+    """Once: the next render does not wait again (GGDS renders hundreds of times)."""
     proc = _fake(monkeypatch, "import time\ntime.sleep(30)")
     t = time.perf_counter()
     precompile.wait_until("forward", timeout=0.2)
     assert time.perf_counter() - t < 5 and "forward" not in precompile._reported
-    precompile.finish(proc, timeout=0.1)
-    assert proc.returncode is not None and precompile._running is None
+    assert proc.returncode is not None and precompile._running is None    # stopped
+    t = time.perf_counter()
+    precompile.wait_until("forward", timeout=30)
+    assert time.perf_counter() - t < 0.1
 
 
 def test_finish_stops_a_compile_still_running():

@@ -15,19 +15,22 @@ backward, then loads the kernels from the cache instead of compiling them again.
 second process fails or ends early, the main process compiles as it would alone.
 
 Nothing happens when the backward kernels are already cached (every run after the first),
-when numba's cache cannot be located, or with ``LSD3D_PRECOMPILE=0``.
+when numba's cache cannot be located, on Windows (no select on pipes), in a pool worker
+(`execution` sets the switch there: the pool already shares the cores), or with
+``LSD3D_PRECOMPILE=0``. A wait that times out gives the second process up (it is stopped):
+the main process then compiles what it still needs, as it would alone.
 """
 from __future__ import annotations
 
 import os
-import select
+import selectors
 import subprocess
 import sys
 import time
 
 ENV_SWITCH = "LSD3D_PRECOMPILE"
 STAGES = ("forward", "backward")     # what the second process reports, in order
-WAIT_S = 300.0                       # the longest the main process waits for one stage
+WAIT_S = 90.0      # the longest the main process waits (~2x compiling those kernels itself)
 
 _running: subprocess.Popen | None = None     # this process's second process, if any
 _reported: set = set()                       # the stages it has reported
@@ -51,15 +54,18 @@ def backward_cold() -> bool:
     return all(g is not None for g in got) and not all(got)
 
 
-def start() -> subprocess.Popen | None:
+def start(distortion: bool = False) -> subprocess.Popen | None:
     """Launch the background compile if it is useful (see the module doc); the process, or
-    None. Its output is discarded: the main process reports compiling as before."""
-    if os.name == "nt" or os.environ.get(ENV_SWITCH, "1") == "0" or not backward_cold():
-        return None             # (select cannot wait on a pipe on Windows)
+    None. ``distortion``: the run renders the depth-distortion output (other kernel
+    signatures). The process's stdout is the pipe `wait_until` reads; its stderr is
+    discarded (the main process reports compiling as before)."""
     global _running
+    if os.name == "nt" or os.environ.get(ENV_SWITCH, "1") == "0" or not backward_cold():
+        return None
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", **{ENV_SWITCH: "0"})
+    argv = [sys.executable, "-m", "lsd3d_usd.render.precompile"]
     try:
-        proc = subprocess.Popen([sys.executable, "-m", "lsd3d_usd.render.precompile"],
+        proc = subprocess.Popen(argv + (["--distortion"] if distortion else []),
                                 stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
                                 stderr=subprocess.DEVNULL, env=env, close_fds=True)
     except OSError:
@@ -72,26 +78,31 @@ def start() -> subprocess.Popen | None:
 
 def wait_until(stage: str, timeout: float = WAIT_S) -> None:
     """Block until this process's second process has compiled ``stage`` ("forward",
-    "backward"), ended, or ``timeout`` passed; at once when there is none."""
+    "backward"), ended, or ``timeout`` passed (then it is given up and stopped); at once
+    when there is none."""
     global _running
     proc = _running
     if proc is None or stage in _reported:
         return
     t0 = time.monotonic()
     end = t0 + timeout
-    fd = proc.stdout.fileno()
     try:
-        while stage not in _reported:
-            left = end - time.monotonic()
-            if left <= 0 or not select.select([fd], [], [], left)[0]:
-                return              # too slow: compile here rather than wait longer
-            line = proc.stdout.readline()
-            if not line:            # ended (or failed): nothing more will come
-                _running = None
-                return
-            word = line.decode(errors="replace").strip()
-            if word in STAGES:
-                _reported.add(word)
+        with selectors.DefaultSelector() as sel:
+            sel.register(proc.stdout, selectors.EVENT_READ)
+            while stage not in _reported:
+                left = end - time.monotonic()
+                if left <= 0 or not sel.select(left):
+                    finish(proc, timeout=0.0)     # too slow: compile here from now on
+                    return
+                line = proc.stdout.readline()
+                if not line:        # ended (or failed): nothing more will come
+                    finish(proc, timeout=0.0)
+                    return
+                word = line.decode(errors="replace").strip()
+                if word in STAGES:
+                    _reported.add(word)
+    except (OSError, ValueError):
+        finish(proc, timeout=0.0)
     finally:
         _waited[0] += time.monotonic() - t0
 
@@ -113,11 +124,14 @@ def finish(proc: subprocess.Popen | None, timeout: float = 1.0) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait()
+    if proc.stdout is not None:
+        proc.stdout.close()
 
 
-def compile_backward() -> None:
-    """Render a tiny field forward and backward (the signatures GGDS's steps use: float32
-    tensors, SH; without the depth-distortion output, whose loss weight is 0 by default)."""
+def compile_kernels(distortion: bool = False) -> None:
+    """Render a tiny field forward, say so on stdout, then backward, say so: the signatures
+    GGDS's steps use (float32 tensors, SH; the depth-distortion output when
+    ``distortion``)."""
     import numpy as np
     import torch
 
@@ -135,12 +149,15 @@ def compile_backward() -> None:
     ts = [torch.tensor(a, dtype=torch.float32, requires_grad=True) for a in arrays]
     # values_checked: the per-value scans are the main process's to compile (it runs them
     # on the scene's surfels first); this process goes straight to the kernels it waits for
-    out = rasterize(*ts, torch.eye(4), K, 32, 32, settings=RasterSettings(),
+    out = rasterize(*ts, torch.eye(4), K, 32, 32, settings=RasterSettings(distortion=distortion),
                     background=torch.full((3,), 0.5), values_checked=True)
     print("forward", flush=True)
-    (out.rgb.sum() + out.depth_median.sum() + out.normal.sum() + out.alpha.sum()).backward()
+    loss = out.rgb.sum() + out.depth_median.sum() + out.normal.sum() + out.alpha.sum()
+    if distortion:
+        loss = loss + out.distortion.sum()
+    loss.backward()
     print("backward", flush=True)
 
 
 if __name__ == "__main__":
-    compile_backward()
+    compile_kernels(distortion="--distortion" in sys.argv[1:])
