@@ -389,7 +389,7 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
         _check_dependents(sc, p, run)
     timings = {}
     run.log(f"scene: {sc.root}")
-    # on a fresh install, GGDS's backward kernels compile on the other core meanwhile
+    # on a fresh install, the rasteriser's kernels compile on the other core meanwhile
     background = (precompile.start(distortion=(cfg.ggds.weights.get("distortion") or 0) > 0)
                   if cfg.ggds.steps > 0 else None)
     try:

@@ -111,16 +111,17 @@ def surfel_frames(means, quats, scales, opacities) -> LidarSurfels:
     raw_s = np.asarray(scales, np.float64).reshape(len(c), -1)[:, :2] if len(c) else np.zeros((0, 2))
     s = np.ascontiguousarray(np.maximum(raw_s, 1e-8))
     a = np.ascontiguousarray(opacities, np.float64).reshape(-1)
+    # u² + v² where the disk's alpha, min(a, ALPHA_MAX) · exp(-(u² + v²) / 2), falls to
+    # ALPHA_MIN: its radius bounds the binning (clamped a), its unclamped value the trace
     with np.errstate(divide="ignore", invalid="ignore"):
-        q2 = 2.0 * np.log(np.minimum(a, ALPHA_MAX) / ALPHA_MIN)
+        q_max = 2.0 * np.log(a / ALPHA_MIN)
+    q2 = np.minimum(q_max, 2.0 * math.log(ALPHA_MAX / ALPHA_MIN))
     rad = np.where(q2 > 0, np.sqrt(np.maximum(q2, 0.0)) * s.max(axis=1), 0.0)
     # degenerate surfels are never met: a scale of 0 (a point), anything not finite
     ok = (np.all(np.isfinite(c), axis=1) & np.all(np.isfinite(q), axis=1)
           & np.all(np.isfinite(raw_s), axis=1) & (np.min(raw_s, axis=1) > MIN_SCALE)
           & np.isfinite(a))
     rad = np.where(ok, rad, 0.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q_max = 2.0 * np.log(a / ALPHA_MIN)
     # a little wider than exact, so that rounding never drops a ray the exact test keeps
     q_max = np.where(ok & (q_max > 0), q_max * (1.0 + Q_MARGIN) + Q_MARGIN, -1.0)
     packed = np.concatenate([c, tu, tv, n, 1.0 / s, a[:, None], q_max[:, None]], axis=1)

@@ -34,7 +34,7 @@ WAIT_S = 90.0      # the longest the main process waits (~2x compiling those ker
 
 _running: subprocess.Popen | None = None     # this process's second process, if any
 _reported: set = set()                       # the stages it has reported
-_waited = [0.0]                              # seconds this process has waited for it
+_waited = 0.0                                # seconds this process has waited for it
 
 
 def _cached(dispatcher) -> bool | None:
@@ -59,7 +59,7 @@ def start(distortion: bool = False) -> subprocess.Popen | None:
     None. ``distortion``: the run renders the depth-distortion output (other kernel
     signatures). The process's stdout is the pipe `wait_until` reads; its stderr is
     discarded (the main process reports compiling as before)."""
-    global _running
+    global _running, _waited
     if os.name == "nt" or os.environ.get(ENV_SWITCH, "1") == "0" or not backward_cold():
         return None
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", **{ENV_SWITCH: "0"})
@@ -70,9 +70,8 @@ def start(distortion: bool = False) -> subprocess.Popen | None:
                                 stderr=subprocess.DEVNULL, env=env, close_fds=True)
     except OSError:
         return None
-    _running = proc
+    _running, _waited = proc, 0.0
     _reported.clear()
-    _waited[0] = 0.0
     return proc
 
 
@@ -80,7 +79,7 @@ def wait_until(stage: str, timeout: float = WAIT_S) -> None:
     """Block until this process's second process has compiled ``stage`` ("forward",
     "backward"), ended, or ``timeout`` passed (then it is given up and stopped); at once
     when there is none."""
-    global _running
+    global _waited
     proc = _running
     if proc is None or stage in _reported:
         return
@@ -104,12 +103,12 @@ def wait_until(stage: str, timeout: float = WAIT_S) -> None:
     except (OSError, ValueError):
         finish(proc, timeout=0.0)
     finally:
-        _waited[0] += time.monotonic() - t0
+        _waited += time.monotonic() - t0
 
 
 def waited_s() -> float:
     """Seconds this process has waited for its second process's kernels."""
-    return _waited[0]
+    return _waited
 
 
 def finish(proc: subprocess.Popen | None, timeout: float = 1.0) -> None:
