@@ -282,6 +282,39 @@ def test_large_canvas_quad_path_matches_cpu_renderer(browser, generated, generat
     assert errors == []
 
 
+def test_sh_degree_two_matches_cpu_renderer(browser, tmp_path):
+    """A degree-2 field whose band 2 changes the picture: the page shades it like the CPU
+    renderer, and its degree-1 truncation (the panel's SH degree 1, `render --sh-degree 1`)
+    is a different picture."""
+    root = tmp_path / "sh2"
+    make_scene(root, chunks=[(0, 0)], n=1500, run=False, sh_degree=2, high=0.25,
+               cameras={"Oblique": ((5, 5, 30), (60, 60, 0))})
+    cam = "/World/Cameras/Oblique"
+    cpu2 = cpu_render(root, cam, tmp_path / "cpu_sh2")
+    cli("render", root, "--camera", cam, "--resolution", f"{W}x{H}", "--sh-degree", 1, "-o", tmp_path / "cpu_sh1")
+    cpu1 = read_png(tmp_path / "cpu_sh1" / "Oblique.png")
+    v = Viewer(root, tmp_path / "view.log")
+    try:
+        errors = []
+        page = open_page(browser, v.url + f"?camera={cam}&scale=1", errors)
+        assert page.locator("#sh-degree").input_value() == "2"
+        web2 = shot(page, tmp_path / "web_sh2.png")
+        page.locator("#sh-degree").select_option("1")
+        idle(page)
+        web1 = shot(page, tmp_path / "web_sh1.png")
+        page.close()
+        assert errors == []
+    finally:
+        v.stop()
+    q2, q1 = psnr(web2, cpu2), psnr(web1, cpu1)
+    print(f"PSNR vs CPU renderer, SH degree 2: {q2:.2f} dB, degree 1: {q1:.2f} dB; "
+          f"degree 2 vs its degree-1 truncation: CPU {psnr(cpu2, cpu1):.2f} dB, page {psnr(web2, web1):.2f} dB")
+    assert (cpu2 > 0).mean() > 0.5                          # the surfels fill the view
+    assert q2 >= 28.0 and q1 >= 28.0
+    assert psnr(cpu2, cpu1) < q2 - 10 and psnr(web2, cpu1) < q2 - 10   # band 2 matters
+    assert psnr(web2, web1) < q2 - 10
+
+
 def test_time_slider_moves_an_actor(browser, generated, generated_viewer):
     errors = []
     page = open_page(browser, generated_viewer.url + "?camera=/World/Cameras/Actor&scale=1", errors)

@@ -21,8 +21,9 @@ from lsd3d_usd.viewer.service import ViewerService
 RUN = "ggds_20261201-000000"
 
 
-def ground_field(chunks, n=300, seed=0, colour=(0.2, 0.3, 0.4), chunk=100.0):
-    """Flat ground surfels (normal +Z) spread over the given chunks, SH degree 1."""
+def ground_field(chunks, n=300, seed=0, colour=(0.2, 0.3, 0.4), chunk=100.0, sh_degree=1, high=0.05):
+    """Flat ground surfels (normal +Z) spread over the given chunks, SH degree 1 (or
+    sh_degree, the bands above 1 drawn with standard deviation `high`)."""
     from lsd3d_usd.semantics import CLASSES
     from lsd3d_usd.splats.field import SurfelField, rgb_to_sh_dc
 
@@ -31,18 +32,21 @@ def ground_field(chunks, n=300, seed=0, colour=(0.2, 0.3, 0.4), chunk=100.0):
                                 rng.uniform(j * chunk + 2, (j + 1) * chunk - 2, n), np.zeros(n)]
                           for i, j in chunks])
     m = len(pos)
-    sh = np.zeros((m, 4, 3), np.float32)
+    sh = np.zeros((m, (sh_degree + 1) ** 2, 3), np.float32)
     sh[:, 0] = rgb_to_sh_dc(np.tile(np.asarray(colour, np.float32), (m, 1)) + rng.uniform(-0.05, 0.05, (m, 3)))
-    sh[:, 1:] = rng.normal(0, 0.05, (m, 3, 3))
+    sh[:, 1:4] = rng.normal(0, 0.05, (m, 3, 3))[:, :sh.shape[1] - 1]
+    if sh_degree >= 2:   # from a stream of their own: degree-1 fields stay as they were
+        sh[:, 4:] = np.random.default_rng(seed + 1000).normal(0, high, (m, sh.shape[1] - 4, 3))
     return SurfelField(pos.astype(np.float32), np.tile(np.float32([0, 0, 0, 1]), (m, 1)),
                        rng.uniform(0.8, 2.0, (m, 2)).astype(np.float32), np.full(m, 0.9, np.float32), sh,
                        rng.integers(0, len(CLASSES), m), CLASSES)
 
 
-def make_scene(root, chunks=((0, 0), (1, 0)), n=300, run=True, cameras=None, colour=(0.2, 0.3, 0.4)):
-    """A scene folder written through the library: a surfels layer, optionally a GGDS-run layer
-    (overs of the optimised attributes, as `generate` writes them: here the surfels raised by
-    0.5 m and recoloured), and cameras {name: (eye, target)} in the root layer."""
+def make_scene(root, chunks=((0, 0), (1, 0)), n=300, run=True, cameras=None, colour=(0.2, 0.3, 0.4),
+               sh_degree=1, high=0.05):
+    """A scene folder written through the library: a surfels layer (ground_field), optionally
+    a GGDS-run layer (overs of the optimised attributes, as `generate` writes them: here the
+    surfels raised by 0.5 m and recoloured), and cameras {name: (eye, target)} in the root layer."""
     from dataclasses import replace
 
     from pxr import Usd
@@ -51,7 +55,7 @@ def make_scene(root, chunks=((0, 0), (1, 0)), n=300, run=True, cameras=None, col
     from lsd3d_usd.splats.usdio import write_surfels
 
     sc = S.Scene.create(root, chunk_size=100.0)
-    f = ground_field(chunks, n, colour=colour)
+    f = ground_field(chunks, n, colour=colour, sh_degree=sh_degree, high=high)
     st = S.new_stage()
     write_surfels(st, S.SURFELS_PATH, f)
     sc.write_layer("surfels", st, S.provenance("splats"))
@@ -145,6 +149,36 @@ def test_cache_is_reused_and_follows_content(served):
     assert changed.id != first.id and not changed.cached
     # the scene itself is untouched by viewing: same stack, nothing muted
     assert [(i.name, i.muted) for i in S.Scene.open(root).layers()] == [(RUN, False), ("surfels", False)]
+
+
+def test_cache_of_another_packing_version_is_rebuilt(served):
+    root, svc, get = served()
+    first = svc.config()
+    index = root / "viewer_cache" / f"surfels_{first.id}" / "index.json"
+    data = json.loads(index.read_text())
+    assert data["version"] == pack.CHUNK_VERSION
+    data["version"] = pack.CHUNK_VERSION - 1                 # e.g. written by an older viewer
+    index.write_text(json.dumps(data))
+    again = ViewerService(root, validate=False).config()
+    assert not again.cached and again.id == first.id
+    assert json.loads(index.read_text())["version"] == pack.CHUNK_VERSION
+
+
+@pytest.mark.parametrize("degree", [2, 3])
+def test_sh_degree_two_is_served_and_higher_bands_dropped(served, degree):
+    root, svc, get = served(run=False, sh_degree=degree, high=0.3)
+    f = ground_field(((0, 0), (1, 0)), sh_degree=degree, high=0.3)
+    cfg = json.loads(get("/api/config")[2])
+    assert cfg["shDegree"] == 2 and cfg["surfels"] == 600
+    assert cfg["bytesPerSurfel"] == pytest.approx(6 + 48, abs=0.5)
+    for c in cfg["chunks"]:
+        d = pack.decode_chunk(get(c["url"])[2])
+        assert d["sh_degree"] == 2 and d["sh"].shape == (c["n"], 9, 3)
+        # the chunk's surfels, matched by position, keep bands 0-2 within the i8 quantisation
+        near = np.abs(d["positions"][:, None, :2] - f.positions[None, :, :2]).sum(2).argmin(1)
+        band2 = np.abs(f.sh[near, 4:9]).reshape(c["n"], -1).max(1)
+        err = np.abs(d["sh"][:, 4:9] - f.sh[near, 4:9]).reshape(c["n"], -1).max(1)
+        assert np.all(err <= band2 * (0.5 / 127 + 2 ** -10) + 1e-6)
 
 
 def test_paths_outside_the_scene_are_refused(served, tmp_path):

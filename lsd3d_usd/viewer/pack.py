@@ -4,18 +4,22 @@ docs/viewer.md documents every byte; the browser decodes them in static/js/forma
 `decode_chunk` here is the same decoding in numpy (the tests hold the two together through
 rendered images). All little-endian.
 
-Surfel chunk (``LSDV`` version 1): a 96-byte header, then per surfel 6 + 16 (+ 16 with SH
-degree 1) bytes:
+Surfel chunk (``LSDV`` version 2): a 96-byte header, then per surfel 6 + 16 (+ 16 with SH
+degree 1, + 32 with degree 2) bytes:
 
-    header   magic "LSDV", u16 version, u8 shDegree (0|1), u8 flags (bit 0: semantic ids),
+    header   magic "LSDV", u16 version, u8 shDegree (0|1|2), u8 flags (bit 0: semantic ids),
              u32 n, i32 i, i32 j, u32 0, f64[3] lo, f64[3] hi, 24 bytes 0
     pos      n x u16[3]: lo + q / 65535 * (hi - lo)   (padded to 4 bytes)
     rec      n x u32[4]: quaternion (smallest three: 2-bit index + 3 x 10 bits, 511 = 0), f16 scale u | f16 scale v,
              f16 dc r | f16 dc g, f16 dc b | u8 opacity * 255 | u8 semantic id + 1 (0 = none)
-    sh1      (shDegree 1) n x u32[4]: f16 m | 9 x i8 (c / m * 127, order band-1 coefficient
-             then RGB) | 5 bytes 0
+    sh1      (shDegree >= 1) n x u32[4]: f16 m1 | 9 x i8 (c / m1 * 127, order band-1 coefficient
+             then RGB) | f16 m2 | first 3 band-2 i8 (shDegree 2; else 5 bytes 0)
+    sh2      (shDegree 2) n x u32[4]: the other 12 band-2 i8 (c / m2 * 127, order band-2
+             coefficient then RGB) | 4 bytes 0
 
-Coefficients of bands above 1 are not sent: the viewer shades with SH degree 0/1.
+m1, m2 are the largest |coefficient| of band 1, 2, rounded up to f16. Coefficients of bands
+above 2 are not sent: the viewer shades with SH degree 0, 1 or 2. Version 1 was the same
+layout restricted to degree 0/1 (its 5 spare bytes 0); decode_chunk reads both.
 """
 from __future__ import annotations
 
@@ -24,7 +28,9 @@ import struct
 import numpy as np
 
 CHUNK_MAGIC = b"LSDV"
-CHUNK_VERSION = 1
+CHUNK_VERSION = 2
+CHUNK_VERSIONS_READ = (1, 2)      # version 1: degree 0/1 only, same layout
+MAX_SH_DEGREE = 2                 # bands above are not sent
 CHUNK_HEADER = struct.Struct("<4sHBBIiiI3d3d24x")
 assert CHUNK_HEADER.size == 96
 ENV_MAGIC = b"LSDE"
@@ -86,6 +92,19 @@ def decode_quats(word: np.ndarray) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------ chunks
+def _quantise_band(c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One SH band (N,K,3) as (N,) little-endian f16 m = max |c| rounded up and (N,3K) i8
+    round(127 c / m), coefficient then RGB (all 0 where m = 0)."""
+    n, k = c.shape[0], c.shape[1] * c.shape[2]
+    c = c.reshape(n, k).astype(np.float64)
+    m = np.abs(c).max(1) if n else np.zeros(0)
+    m16 = m.astype(np.float16)
+    m16 = np.where(m16.astype(np.float64) < m, np.nextafter(m16, np.float16(np.inf)), m16)
+    mf = m16.astype(np.float64)
+    q = np.where(mf[:, None] > 0, np.round(c / np.where(mf > 0, mf, 1.0)[:, None] * 127.0), 0)
+    return m16.astype("<f2"), np.clip(q, -127, 127).astype(np.int8)
+
+
 def pack_chunk(key: tuple[int, int], positions, orientations, scales, opacities, sh,
                semantic_ids=None) -> bytes:
     """One chunk's surfels (world space) as an ``LSDV`` buffer (see the module doc)."""
@@ -93,7 +112,7 @@ def pack_chunk(key: tuple[int, int], positions, orientations, scales, opacities,
     n = len(p)
     sh = np.asarray(sh, np.float32)
     sh = sh.reshape(n, sh.shape[1] if sh.ndim == 3 else sh.size // max(3 * n, 1), 3)
-    deg = 1 if sh.shape[1] >= 4 else 0
+    deg = 2 if sh.shape[1] >= 9 else 1 if sh.shape[1] >= 4 else 0   # bands above 2 not sent
     lo = p.min(0) if n else np.zeros(3)
     hi = p.max(0) if n else np.zeros(3)
     span = np.where(hi > lo, hi - lo, 1.0)
@@ -116,28 +135,32 @@ def pack_chunk(key: tuple[int, int], positions, orientations, scales, opacities,
         flags |= 1
     rec[:, 3] = dc[:, 2] | (op.astype(np.uint32) << 16) | (sem << 24)
     body = [pos_bytes, rec.tobytes()]
-    if deg == 1:
-        c = sh[:, 1:4, :].reshape(n, 9).astype(np.float64)
-        m = np.abs(c).max(1)
-        m16 = m.astype(np.float16)
-        m16 = np.where(m16.astype(np.float64) < m, np.nextafter(m16, np.float16(np.inf)), m16)
-        mf = m16.astype(np.float64)
-        q = np.where(mf[:, None] > 0, np.round(c / np.where(mf > 0, mf, 1.0)[:, None] * 127.0), 0)
+    if deg >= 1:
+        m1, q1 = _quantise_band(sh[:, 1:4])
         b = np.zeros((n, 16), np.uint8)
-        b[:, 0:2] = m16.astype("<f2").view(np.uint8).reshape(n, 2)
-        b[:, 2:11] = np.clip(q, -127, 127).astype(np.int8).view(np.uint8)
-        body.append(b.tobytes())
+        b[:, 0:2] = m1.view(np.uint8).reshape(n, 2)
+        b[:, 2:11] = q1.view(np.uint8)
+        body.append(b)
+    if deg >= 2:
+        m2, q2 = _quantise_band(sh[:, 4:9])
+        b[:, 11:13] = m2.view(np.uint8).reshape(n, 2)     # the sh1 block's spare bytes
+        b[:, 13:16] = q2[:, :3].view(np.uint8)
+        b2 = np.zeros((n, 16), np.uint8)
+        b2[:, 0:12] = q2[:, 3:].view(np.uint8)
+        body.append(b2)
     head = CHUNK_HEADER.pack(CHUNK_MAGIC, CHUNK_VERSION, deg, flags, n, int(key[0]), int(key[1]), 0,
                              *lo.tolist(), *hi.tolist())
-    return head + b"".join(body)
+    return head + b"".join(x if isinstance(x, bytes) else x.tobytes() for x in body)
 
 
 def decode_chunk(buf: bytes) -> dict:
     """An ``LSDV`` buffer back to arrays: positions (N,3) f64, orientations (N,4) xyzw, scales
-    (N,2), opacities (N,), sh (N,1|4,3), semantic_ids (N,) (-1 none), key, sh_degree."""
+    (N,2), opacities (N,), sh (N,1|4|9,3), semantic_ids (N,) (-1 none), key, sh_degree."""
     magic, ver, deg, flags, n, i, j, _, *box = CHUNK_HEADER.unpack_from(buf, 0)
-    if magic != CHUNK_MAGIC or ver != CHUNK_VERSION:
+    if magic != CHUNK_MAGIC or ver not in CHUNK_VERSIONS_READ:
         raise ValueError(f"not an LSDV v{CHUNK_VERSION} chunk buffer")
+    if deg > (1 if ver == 1 else 2):
+        raise ValueError(f"LSDV v{ver} chunk buffer with SH degree {deg}")
     lo, hi = np.array(box[:3]), np.array(box[3:])
     off = CHUNK_HEADER.size
     q = np.frombuffer(buf, "<u2", n * 3, off).reshape(n, 3).astype(np.float64)
@@ -156,11 +179,18 @@ def decode_chunk(buf: bytes) -> dict:
     opac = ((rec[:, 3] >> 16) & 255).astype(np.float64) / 255.0
     sem = ((rec[:, 3] >> 24) & 255).astype(np.int64) - 1
     sh = dc[:, None, :]
-    if deg == 1:
+    if deg >= 1:
         b = np.frombuffer(buf, np.uint8, n * 16, off).reshape(n, 16)
+        off += n * 16
         m = b[:, 0:2].copy().view("<f2").astype(np.float64).reshape(n)
         c = b[:, 2:11].copy().view(np.int8).astype(np.float64) / 127.0 * m[:, None]
         sh = np.concatenate([sh, c.reshape(n, 3, 3)], axis=1)
+    if deg >= 2:
+        b2 = np.frombuffer(buf, np.uint8, n * 16, off).reshape(n, 16)
+        m = b[:, 11:13].copy().view("<f2").astype(np.float64).reshape(n)
+        q = np.concatenate([b[:, 13:16], b2[:, 0:12]], axis=1).view(np.int8)
+        c = q.astype(np.float64) / 127.0 * m[:, None]
+        sh = np.concatenate([sh, c.reshape(n, 5, 3)], axis=1)
     return dict(key=(i, j), sh_degree=deg, positions=pos, orientations=quats, scales=scales,
                 opacities=opac, sh=sh, semantic_ids=sem if flags & 1 else None)
 

@@ -227,6 +227,8 @@ class ViewerService:
         index = cfg.folder / "index.json"
         try:
             data = json.loads(index.read_text())
+            if not isinstance(data, dict) or data.get("version") != pack.CHUNK_VERSION:
+                return False                   # another packing version: rebuilt, not misread
             chunks = {}
             for c in data["chunks"]:
                 e = ChunkEntry(int(c["i"]), int(c["j"]), int(c["n"]), c["lo"], c["hi"], int(c["bytes"]))
@@ -250,7 +252,7 @@ class ViewerService:
         for f in self.src.surfel_fields(stage):
             if f.semantic_classes and not classes:
                 classes = list(f.semantic_classes)
-            deg = max(deg, min(f.sh_degree, 1))
+            deg = max(deg, min(f.sh_degree, pack.MAX_SH_DEGREE))   # higher bands not sent
             for key, idx in pack.bin_by_chunk(f.positions, size).items():
                 groups.setdefault(key, []).append((f, idx))
         tmp = cfg.folder.with_name(cfg.folder.name + f".tmp{os.getpid()}")
@@ -436,6 +438,7 @@ def _class_colors(classes) -> list:
 
 
 def _sh_deg(sh: np.ndarray, deg: int) -> np.ndarray:
+    """(N,K,3) coefficients as (N,(deg+1)^2,3): higher bands dropped, missing ones zero."""
     k = (deg + 1) ** 2
     if sh.shape[1] >= k:
         return sh[:, :k]

@@ -1,8 +1,11 @@
 // Decoders of the server's binary buffers (lsd3d_usd/viewer/pack.py, docs/viewer.md).
 // Surfel chunks become the GPU layout of renderer.js: per surfel TPS texels of RGBA32UI,
 //   texel 0: float bits of x, y, z (world), packed quaternion
-//   texel 1: f16 scales, f16 dc r|g, f16 dc b|u8 opacity|u8 semantic, SH-1 word 0
-//   texel 2: SH-1 words 1..3 (only when the scene has SH degree 1)
+//   texel 1: f16 scales, f16 dc r|g, f16 dc b|u8 opacity|u8 semantic, sh1 word 0
+//   texel 2: sh1 words 1..3, 0 (SH degree >= 1; with degree 2, f16 m2 in word 2 bits 24-31
+//            and word 3 bits 0-7, the first 3 band-2 i8 in word 3 bits 8-31)
+//   texel 3: sh2 words 0..3 (SH degree 2: the other 12 band-2 i8, then 0)
+// (TPS = 4; texels of a lower degree stay 0). The sh1/sh2 words are the wire's as they are,
 // so the quantised wire format is expanded only for the positions, which the sorter needs too,
 // with each surfel's reach: the radius around its centre outside which its alpha < 1/255.
 
@@ -23,8 +26,10 @@ const half = (bits) => HALF[bits];
 
 export function decodeChunk(buffer, tps) {
   const view = new DataView(buffer);
-  if (!magic(view, "LSDV") || view.getUint16(4, true) !== 1) throw new Error("not an LSDV v1 chunk");
+  const version = magic(view, "LSDV") ? view.getUint16(4, true) : 0;
+  if (version !== 1 && version !== 2) throw new Error("not an LSDV v2 chunk");
   const deg = view.getUint8(6);
+  if (deg > (version === 1 ? 1 : 2)) throw new Error(`LSDV v${version} chunk with SH degree ${deg}`);
   const n = view.getUint32(8, true);
   const i = view.getInt32(12, true), j = view.getInt32(16, true);
   const lo = [0, 1, 2].map((k) => view.getFloat64(24 + 8 * k, true));
@@ -36,6 +41,8 @@ export function decodeChunk(buffer, tps) {
   const rec = new Uint32Array(buffer, off, n * 4);
   off += n * 16;
   const sh = deg >= 1 ? new Uint32Array(buffer, off, n * 4) : null;
+  off += sh ? n * 16 : 0;
+  const sh2 = deg >= 2 ? new Uint32Array(buffer, off, n * 4) : null;
 
   const spheres = new Float32Array(n * 4);
   const gpu = new Uint32Array(n * tps * 4);
@@ -52,6 +59,9 @@ export function decodeChunk(buffer, tps) {
     gpu[g + 4] = rec[4 * s + 1]; gpu[g + 5] = rec[4 * s + 2]; gpu[g + 6] = rec[4 * s + 3];
     if (sh && tps >= 3) {
       gpu[g + 7] = sh[4 * s]; gpu[g + 8] = sh[4 * s + 1]; gpu[g + 9] = sh[4 * s + 2]; gpu[g + 10] = sh[4 * s + 3];
+    }
+    if (sh2 && tps >= 4) {
+      gpu[g + 12] = sh2[4 * s]; gpu[g + 13] = sh2[4 * s + 1]; gpu[g + 14] = sh2[4 * s + 2]; gpu[g + 15] = sh2[4 * s + 3];
     }
   }
   return { i, j, n, deg, lo, hi, spheres, gpu };

@@ -7,7 +7,9 @@ import { fetchBinary, proxyStreamer, surfelStreamer } from "./chunks.js";
 import { decodeEnv } from "./formats.js";
 
 const $ = (id) => document.getElementById(id);
-const TPS = 3; // texels per surfel in the GPU pool (room for SH degree 1)
+// Texels per surfel in the GPU pool: room for SH degree 2 (formats.js). One constant: the
+// renderer exists before any configuration, and a toggled run may change the degree.
+const TPS = 4;
 const LINE_COLORS = {
   lane: [0, 210, 255], junction: [120, 150, 255], RoadEdge: [255, 150, 40], RoadLine: [235, 235, 235],
   Crosswalk: [255, 230, 0], StopLine: [255, 60, 60], Sidewalk: [170, 170, 170], Building: [220, 90, 220],
@@ -50,7 +52,7 @@ class Viewer {
     // A software renderer (no GPU) draws at half resolution unless asked otherwise: frames of a
     // million surfels take seconds there, and most of that is per pixel near the camera.
     this.software = /swiftshader|llvmpipe|software/i.test(rendererName(gl));
-    this.opts = { exposure: 0, tonemap: "aces", shDegree: 1, colorMode: 0, scale: this.software ? 0.5 : 1,
+    this.opts = { exposure: 0, tonemap: "aces", shDegree: 2, colorMode: 0, scale: this.software ? 0.5 : 1,
                   radius: 250, actors: true, lanes: false, chunks: false, proxy: false };
     this.problems = [];
     this.clientProblems = [];

@@ -1,6 +1,6 @@
 // GLSL ES 3.00 sources. The surfel shaders follow lsd3d_usd/render/reference.py step by step:
 // camera-relative disk axes, culling (centre depth outside [near, far], edge-on, opacity below
-// 1/255), SH degree 0/1 colour max(0, 0.5 + SH(direction camera -> surfel)), explicit ray-plane
+// 1/255), SH degree 0-2 colour max(0, 0.5 + SH(direction camera -> surfel)), explicit ray-plane
 // intersection per pixel, rho = min(u^2 + v^2, 2 |pixel - projected centre|^2), alpha =
 // min(0.99, opacity exp(-rho / 2)), dropped below 1/255 or where the hit lies nearer than near.
 // Pixel coordinates are the CPU renderer's: x right, y down, pixel centres at +0.5.
@@ -27,7 +27,7 @@ ${CAMERA}
 uniform usampler2D u_data;   // TPS texels per surfel, PER_ROW surfels per row
 uniform int u_tps;
 uniform int u_perRow;
-uniform int u_shDegree;      // 0 or 1
+uniform int u_shDegree;      // 0, 1 or 2
 uniform int u_colorMode;     // 0 colour, 1 semantic class
 uniform vec3 u_classColors[16];
 uniform highp usampler2D u_order; // draw position -> global surfel index (back-to-front)
@@ -42,8 +42,14 @@ flat out vec4 v_rgba;        // colour, opacity
 flat out vec2 v_lo;          // screen rectangle (pixels)
 flat out vec2 v_hi;
 
+// Real SH constants (lsd3d_usd/shmath.py; 3DGS order and signs, render/sh.py sh_basis).
 const float C0 = 0.28209479177387814;
 const float C1 = 0.4886025119029199;
+const float C20 = 1.0925484305920792;
+const float C21 = -1.0925484305920792;
+const float C22 = 0.31539156525252005;
+const float C23 = -1.0925484305920792;
+const float C24 = 0.5462742152960396;
 const float ALPHA_MIN = 1.0 / 255.0;
 const float S_MIN = 1e-8;
 const float EDGE_COS = 1e-6;
@@ -148,13 +154,27 @@ void main() {
     vec3 dc = vec3(rg, bx.x);
     rgb = 0.5 + C0 * dc;
     if (u_shDegree >= 1 && u_tps >= 3) {
+      // sh1 block (formats.js): f16 m1 | 9 x i8 band 1 | f16 m2 | 3 x i8 band 2
       uvec4 t2 = texelFetch(u_data, at + ivec2(2, 0), 0);
       float m = unpackHalf2x16(t1.w).x / 127.0;
       vec3 c1 = vec3(s8(t1.w, 16u), s8(t1.w, 24u), s8(t2.x, 0u)) * m;
       vec3 c2 = vec3(s8(t2.x, 8u), s8(t2.x, 16u), s8(t2.x, 24u)) * m;
       vec3 c3 = vec3(s8(t2.y, 0u), s8(t2.y, 8u), s8(t2.y, 16u)) * m;
-      vec3 d = normalize(p - u_eye);
+      vec3 d = normalize(p - u_eye);   // camera -> surfel, world frame
       rgb += -C1 * d.y * c1 + C1 * d.z * c2 - C1 * d.x * c3;
+      if (u_shDegree >= 2 && u_tps >= 4) {
+        // sh2 block: the other 12 band-2 i8, coefficient then RGB
+        uvec4 t3 = texelFetch(u_data, at + ivec2(3, 0), 0);
+        float m2 = unpackHalf2x16((t2.y >> 24u) | ((t2.z & 255u) << 8u)).x / 127.0;
+        vec3 c4 = vec3(s8(t2.z, 8u), s8(t2.z, 16u), s8(t2.z, 24u)) * m2;
+        vec3 c5 = vec3(s8(t3.x, 0u), s8(t3.x, 8u), s8(t3.x, 16u)) * m2;
+        vec3 c6 = vec3(s8(t3.x, 24u), s8(t3.y, 0u), s8(t3.y, 8u)) * m2;
+        vec3 c7 = vec3(s8(t3.y, 16u), s8(t3.y, 24u), s8(t3.z, 0u)) * m2;
+        vec3 c8 = vec3(s8(t3.z, 8u), s8(t3.z, 16u), s8(t3.z, 24u)) * m2;
+        float xx = d.x * d.x, yy = d.y * d.y, zz = d.z * d.z;
+        rgb += C20 * d.x * d.y * c4 + C21 * d.y * d.z * c5 + C22 * (2.0 * zz - xx - yy) * c6
+             + C23 * d.x * d.z * c7 + C24 * (xx - yy) * c8;
+      }
     }
     rgb = max(rgb, 0.0);
   }
