@@ -208,7 +208,7 @@ def _zonal_fit(cos_rows, colour, rng):
         d = np.stack([s * np.cos(az), s * np.sin(az), -cs], 1)
         B = sh_basis(torch.from_numpy(d), 1).numpy()
         c = np.repeat(colour(cs)[:, None], 3, 1)
-        fit.A[i] = B.T @ B
+        fit.A[i] = (B.T @ B)[np.triu_indices(4)]    # packed: the upper triangle
         fit.b[i] = B.T @ (c - 0.5)
         fit.count[i] = len(cs)
     return fit
@@ -266,9 +266,10 @@ def test_view_fit_zonal_prior_against_a_plain_least_squares():
     table = zonal_slopes([(fit, nrm, groups)], 0.01, 0.5, min_members=5)
     got, _ = fit.solve(nrm, 0.01, 0.5, slopes=(groups, table))
     U = zonal_directions(nrm, 1)
-    w = fit.A[:, 0, 0]
-    info = (np.einsum("ns,nst,nt->n", U, fit.A, U)
-            - np.einsum("ns,ns->n", U, fit.A[:, :, 0]) ** 2 / w)
+    A = fit.matrices(np.arange(30))
+    w = A[:, 0, 0]
+    info = (np.einsum("ns,nst,nt->n", U, A, U)
+            - np.einsum("ns,ns->n", U, A[:, :, 0]) ** 2 / w)
     good = (info / (info + 0.01 * w) >= 0.8) & (groups == 0)
     assert 5 <= good.sum() < 27
     zbar = np.median(np.einsum("ns,nsc->nc", U, plain.astype(np.float64))[good], axis=0)
@@ -279,7 +280,7 @@ def test_view_fit_zonal_prior_against_a_plain_least_squares():
         ev, V = np.linalg.eigh(lam)
         L = (V * np.sqrt(np.maximum(ev, 0))).T
         # rows: data (A = MᵀM, b = Mᵀy) and the ridge about U_i·zbar
-        M = np.linalg.cholesky(fit.A[i] + 1e-12 * np.eye(4)).T
+        M = np.linalg.cholesky(A[i] + 1e-12 * np.eye(4)).T
         y = np.linalg.solve(M.T, fit.b[i])
         mean = U[i][:, None] * zbar[None, :]
         ref = np.linalg.lstsq(np.vstack([M, L]), np.vstack([y, L @ mean]), rcond=None)[0]

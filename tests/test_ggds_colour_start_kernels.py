@@ -75,7 +75,8 @@ def test_kernel_matches_float64_reference(degree):
         assert got == want
     assert 0 < want < len(pos)                     # some seen, some not (off-image, occluded)
     np.testing.assert_array_equal(fit.count, count)
-    np.testing.assert_allclose(fit.A, A, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(fit.matrices(np.arange(len(pos))), A, rtol=1e-9, atol=1e-12)
+    assert fit.A.shape == (len(pos), S * (S + 1) // 2)   # stored packed: the upper triangle
     np.testing.assert_allclose(fit.b, b, rtol=1e-9, atol=1e-12)
     assert fit.count[: len(pos) // 10].sum() == 0  # floating above the surface: never seen
 

@@ -48,6 +48,11 @@ class LearningRates:
                                                 "log-linearly to this", lo=0.0)
     sh_rest_factor: float = option(0.05, help="higher-order SH learning rate = sh_dc × this "
                                               "(as 3DGS: 1/20)", lo=0.0)
+    sh_relative: float = option(0.25, help="a colour channel's SH steps scale with sqrt(its "
+                                           "base colour / this), at most 1: fixed-size steps "
+                                           "random-walk dark colours (shadows, façades) into "
+                                           "speckle (0 = every colour alike)", lo=0.0)
+    sh_relative_min: float = option(0.1, help="least factor of sh_relative", lo=0.0, hi=1.0)
     adam_eps_sh: float = option(1e-15, help="Adam epsilon of the SH coefficients", lo=0.0)
 
 
@@ -155,10 +160,12 @@ class GGDSConfig:
                                               "(0 = none)", lo=0.0, hi=10.0, recorded=0.0)
     elevated_train: bool = option(False, help="train on the elevated views (else the colour "
                                              "start alone fits to them)")
-    elevated_fit_weight: float = option(0.1, help="weight of the elevated views' samples in "
+    elevated_fit_weight: float = option(1.0, help="weight of the elevated views' samples in "
                                                   "the colour start against the eye-height "
-                                                  "views' (a surfel both see keeps mostly the "
-                                                  "colour seen from the road)", lo=1e-3, hi=1.0)
+                                                  "views' (below 1 a surfel both see keeps "
+                                                  "more of the colour seen from the road; at SH "
+                                                  "degree 2 both directions fit, so 1)",
+                                        lo=1e-3, hi=1.0)
     elevated_heights: tuple[float, float] = option((4.0, 40.0), help="heights of the "
                                                    "elevated views over a lane, log-uniform "
                                                    "between these (metres)", lo=0.1,
@@ -185,6 +192,11 @@ class GGDSConfig:
                         flag="--omega")
     checkpoint_every: int = option(50, help="steps between checkpoints",
                                    flag="--checkpoint-every", alias="checkpoint_every", lo=1)
+    colour_floor: float = option(0.002, help="least base colour (0.5 + C0 · SH DC) per channel "
+                                             "after each update and the colour start: below 0 "
+                                             "the renderer passes a colour no gradient, so a "
+                                             "channel pushed there stays black (0 = no floor)",
+                                 lo=0.0, hi=0.5)
     world_init: bool = option(True, help="start surfel colours from the prior evaluated in 3D "
                                          "(when the prior can)")
     filter_3d: float = option(0.0, help="3D smoothing filter (anti-aliasing, Mip-Splatting): "

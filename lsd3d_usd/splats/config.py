@@ -20,7 +20,9 @@ class SurfelConfig:
                             lo=0.0, hi=1e5)
     max_count: int = option(MAX_SURFELS, help="upper bound of the default count", lo=1,
                             hi=MAX_SURFELS)
-    sh_degree: int = option(1, help="spherical-harmonics degree of the surfel colours", lo=0,
+    sh_degree: int = option(2, help="spherical-harmonics degree of the surfel colours (2: "
+                                    "the prior's ground brightens towards grazing angles, "
+                                    "which degree 1 extrapolates to black from above)", lo=0,
                             hi=3)
 
 

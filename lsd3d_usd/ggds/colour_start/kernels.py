@@ -66,10 +66,12 @@ def _add_sample(n, positions, scales, normals, viewmat, centre, fx, fy, cx, cy, 
         col = (table[j1, i1, c] - table[j0, i1, c] - table[j1, i0, c] + table[j0, i0, c]) / area
         for s in range(S):
             b[n, s, c] += weight * basis[s] * (col - 0.5)
-    for s in range(S):
+    k = 0
+    for s in range(S):          # the upper triangle, row by row (A is symmetric)
         ws = weight * basis[s]
-        for t in range(S):
-            A[n, s, t] += ws * basis[t]
+        for t in range(s, S):
+            A[n, k] += ws * basis[t]
+            k += 1
     return True
 
 
@@ -77,7 +79,8 @@ def _add_sample(n, positions, scales, normals, viewmat, centre, fx, fy, cx, cy, 
 def accumulate_view(positions, scales, normals, viewmat, centre, fx, fy, cx, cy, near,
                     depth, table, rel_tol, abs_tol, max_radius, min_weight, view_weight,
                     degree, A, b, count):
-    """Add one view's samples to A (N,S,S), b (N,S,3), count (N,) in place (worldfit.ViewFit
+    """Add one view's samples to A (N,S(S+1)/2: each normal matrix's upper triangle row by
+    row), b (N,S,3), count (N,) in place (worldfit.ViewFit
     has the model); returns how many surfels the view saw. positions/scales/normals: (N,3),
     (N,2), (N,3) any float type; viewmat (4,4), centre (3,) float64; depth (H,W) with inf
     where empty; table: summed_area of the target; view_weight scales every sample."""

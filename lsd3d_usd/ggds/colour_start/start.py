@@ -84,6 +84,7 @@ def colour_start(state, views, context, prior, cond, fit_views=()) -> bool:
                      seed=c.seed)
         sh[rest] = sub
     state.params["sh"][:] = torch.from_numpy(sh)
+    state.floor_colour()
     if ctx_fit is not None:   # unseen context rows keep their colours
         csh, cseen = ctx_fit.solve(ctx[2], c.world_init_ridge, c.world_init_ridge_tangent,
                                    slopes=ctx_slopes)

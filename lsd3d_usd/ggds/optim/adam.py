@@ -13,8 +13,12 @@ class SelectiveAdam:
     def __init__(self, params: dict[str, torch.Tensor], lrs: dict[str, float],
                  betas=(0.9, 0.999), eps: float = 1e-15,
                  lr_scales: dict[str, torch.Tensor] | None = None,
-                 eps_by_key: dict[str, float] | None = None):
+                 eps_by_key: dict[str, float] | None = None,
+                 row_scales: dict | None = None):
         self.params, self.lrs = params, dict(lrs)
+        # Optional per-key callables: a block of rows' values -> lr factors broadcast over
+        # them (e.g. a colour's steps shrunk with its brightness).
+        self.row_scales = dict(row_scales or {})
         # eps per key: with eps ~ 0 Adam turns a tiny, noisy gradient into a full-size step.
         self.eps_by_key = dict(eps_by_key or {})
         # Optional per-element lr factors broadcast over a row (e.g. SH DC vs higher orders).
@@ -49,6 +53,8 @@ class SelectiveAdam:
                 update = m.div_(c1.view(shape)).div_(denom).mul_(self.lrs[k])
                 if k in self.lr_scales:
                     update.mul_(self.lr_scales[k])
+                if k in self.row_scales:
+                    update.mul_(self.row_scales[k](p[r]))
                 p.index_put_((r,), p[r].sub_(update))
 
     @torch.no_grad()

@@ -13,7 +13,17 @@ from lsd3d_usd.ggds.optim.antialias import filter_sigma, smooth
 from lsd3d_usd.ggds.optim.grounding import Grounding
 from lsd3d_usd.ggds.optim.strategy import MCMCStrategy
 from lsd3d_usd.ggds.settings import GGDSConfig
+from lsd3d_usd.shmath import C0 as SH_C0
 from lsd3d_usd.splats.field import SurfelField
+
+
+def dark_step_scale(sh: torch.Tensor, ref: float, least: float) -> torch.Tensor:
+    """(R,1,3) factors of the SH steps of rows ``sh`` (R,K,3): sqrt(base colour / ref) per
+    channel, within [least, 1]. Adam's steps have one size whatever the colour, so a dark
+    channel (shadows, façades at 0.08) takes steps that are a large part of its value and
+    random-walks into chroma speckle; sqrt follows how much brighter a step looks there."""
+    c = (0.5 + SH_C0 * sh[:, :1, :]).clamp_min(0)
+    return (c / ref).sqrt_().clamp_(least, 1.0)
 
 
 class RunState:
@@ -35,8 +45,11 @@ class RunState:
         k = self.params["sh"].shape[1]
         sh_scale = torch.full((k, 1), float(config.lr.sh_rest_factor))
         sh_scale[0] = 1.0
+        rel = config.lr.sh_relative
         self.optimizer = SelectiveAdam(self.params, self.lrs(0), lr_scales={"sh": sh_scale},
-                                       eps_by_key={"sh": config.lr.adam_eps_sh})
+                                       eps_by_key={"sh": config.lr.adam_eps_sh},
+                                       row_scales={"sh": (lambda sh: dark_step_scale(
+                                           sh, rel, config.lr.sh_relative_min))} if rel > 0 else {})
         self.strategy = MCMCStrategy.of(config.strategy, config.seed)
         self.face_index = None if face_index is None else np.asarray(face_index, np.int64).copy()
         # Per-surfel σ of the 3D smoothing filter (optim/antialias.py), or None when off.
@@ -93,6 +106,22 @@ class RunState:
         """Put the updated ``rows`` of grounded classes back on their planes."""
         if self.grounding is not None:
             self.grounding.project(self.params, rows)
+
+    @torch.no_grad()
+    def floor_colour(self, rows: torch.Tensor | None = None) -> None:
+        """Hold the base colour (0.5 + C0 · SH DC) of ``rows`` (default all) at least
+        ``cfg.colour_floor`` per channel. The renderer draws a colour below 0 as 0 and passes
+        it no gradient, so a channel that one noisy step pushes there — in shadows, where
+        the targets sit near 0 — stays black for the rest of the run."""
+        floor = self.cfg.colour_floor
+        if floor <= 0:
+            return
+        dc = self.params["sh"].data[:, 0]
+        lo = (floor - 0.5) / SH_C0
+        if rows is None:
+            dc.clamp_(min=lo)
+        elif rows.numel():
+            dc[rows] = dc[rows].clamp(min=lo)
 
     def track_relocation(self) -> None:
         """A relocated surfel sits on its source's disk: it inherits the source's class, seed

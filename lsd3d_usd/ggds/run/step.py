@@ -109,6 +109,7 @@ def take_step(state: RunState, views: TrainingViews, context: FrozenContext | No
     state.optimizer.lrs = lrs
     state.optimizer.step(rows)
     state.ground(rows)
+    state.floor_colour(rows)
     if state.strategy.densify_frac > 0:
         observe_residual(state, x.detach(), x_hat, cam, rows)
     info = state.strategy.step_post_backward(state.params, state.optimizer, k + 1, lrs["means"],
