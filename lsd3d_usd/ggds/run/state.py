@@ -17,15 +17,6 @@ from lsd3d_usd.shmath import C0 as SH_C0
 from lsd3d_usd.splats.field import SurfelField
 
 
-def dark_step_scale(sh: torch.Tensor, ref: float, least: float) -> torch.Tensor:
-    """(R,1,3) factors of the SH steps of rows ``sh`` (R,K,3): sqrt(base colour / ref) per
-    channel, within [least, 1]. Adam's steps have one size whatever the colour, so a dark
-    channel (shadows, façades at 0.08) takes steps that are a large part of its value and
-    random-walks into chroma speckle; sqrt follows how much brighter a step looks there."""
-    c = (0.5 + SH_C0 * sh[:, :1, :]).clamp_min(0)
-    return (c / ref).sqrt_().clamp_(least, 1.0)
-
-
 class RunState:
     """``field``: the initial surfels (read once: the state keeps its own tensors).
     ``cameras``: the training cameras (the 3D smoothing filter's sampling rates)."""
@@ -48,8 +39,8 @@ class RunState:
         rel = config.lr.sh_relative
         self.optimizer = SelectiveAdam(self.params, self.lrs(0), lr_scales={"sh": sh_scale},
                                        eps_by_key={"sh": config.lr.adam_eps_sh},
-                                       row_scales={"sh": (lambda sh: dark_step_scale(
-                                           sh, rel, config.lr.sh_relative_min))} if rel > 0 else {})
+                                       relative={"sh": (rel, config.lr.sh_relative_min)}
+                                       if rel > 0 else {})
         self.strategy = MCMCStrategy.of(config.strategy, config.seed)
         self.face_index = None if face_index is None else np.asarray(face_index, np.int64).copy()
         # Per-surfel σ of the 3D smoothing filter (optim/antialias.py), or None when off.
