@@ -235,12 +235,19 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
 
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    return atomic_write_parts(path, (data,))
+
+
+def atomic_write_parts(path: str | os.PathLike, parts) -> Path:
+    """Write the bytes-like ``parts`` one after another to ``path`` atomically (large
+    contents written piece by piece, never joined in memory)."""
     path = Path(path).absolute()
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = _tmp_sibling(path)
     try:
         with open(tmp, "wb") as f:
-            f.write(data)
+            for part in parts:
+                f.write(part)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)

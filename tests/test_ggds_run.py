@@ -466,3 +466,25 @@ def test_context_cull_renders_the_same_image_as_all_context_surfels():
         assert torch.equal(got.visible_index[got.visible_index < n],
                            want.visible_index[want.visible_index < n])
     assert checked >= 3          # views that dropped some context surfels and kept others
+
+
+def test_checkpoint_tensors_stream_to_a_file_safetensors_reads(tmp_path):
+    """safetensors_parts writes the library's format piece by piece: every dtype a checkpoint
+    holds, empty and 0-d tensors, read back by safetensors itself bit for bit."""
+    from safetensors.torch import load_file, save
+    from lsd3d_usd import scene as S
+    from lsd3d_usd.ggds.run.store import safetensors_parts
+    g = torch.Generator().manual_seed(0)
+    tensors = {"params.sh": torch.randn(7, 9, 3, generator=g),
+               "adam.t": torch.arange(7, dtype=torch.int64),
+               "face_index": torch.arange(5, dtype=torch.int32), "mask": torch.tensor([True, False]),
+               "f64": torch.randn(3, dtype=torch.float64, generator=g), "u8": torch.arange(3, dtype=torch.uint8),
+               "empty": torch.zeros(0, 3), "scalar": torch.tensor(2.5),
+               "strided": torch.randn(4, 6, generator=g)[:, ::2]}
+    path = S.atomic_write_parts(tmp_path / "state.safetensors", safetensors_parts(tensors))
+    back = load_file(path)
+    assert sorted(back) == sorted(tensors)
+    for k, v in tensors.items():
+        assert back[k].dtype == v.dtype and back[k].shape == v.shape and torch.equal(back[k], v)
+    # the same size as the library's own file (same header fields and padding, same data)
+    assert path.stat().st_size == len(save({k: v.contiguous() for k, v in tensors.items()}))

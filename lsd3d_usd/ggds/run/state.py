@@ -131,14 +131,16 @@ class RunState:
 
     # ------------------------------------------------------------ checkpoint
     def checkpoint(self, optimizer: bool = True) -> tuple[dict, dict]:
-        """(tensors, meta): everything a resume needs of the state. Without ``optimizer`` the
-        Adam moments are left out (a resume then restarts them at zero)."""
+        """(tensors, meta): everything a resume needs of the state, as views of the run's own
+        tensors (write them before the next step). Without ``optimizer`` the Adam moments are
+        left out (a resume then restarts them at zero)."""
         tensors = {f"params.{k}": v.detach().contiguous() for k, v in self.params.items()}
         if optimizer:
-            st = self.optimizer.state_dict()
-            tensors.update({f"adam.m.{k}": v.contiguous() for k, v in st["m"].items()})
-            tensors.update({f"adam.v.{k}": v.contiguous() for k, v in st["v"].items()})
-            tensors["adam.t"] = st["t"].contiguous()
+            # the moments themselves, not state_dict()'s clones: written out at once
+            opt = self.optimizer
+            tensors.update({f"adam.m.{k}": v.contiguous() for k, v in opt.m.items()})
+            tensors.update({f"adam.v.{k}": v.contiguous() for k, v in opt.v.items()})
+            tensors["adam.t"] = opt.t.contiguous()
         tensors.update(self.strategy.state_tensors())
         if self.face_index is not None:
             tensors["face_index"] = torch.from_numpy(np.ascontiguousarray(self.face_index))
