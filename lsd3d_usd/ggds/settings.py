@@ -53,7 +53,10 @@ class LearningRates:
                                            "random-walk dark colours (shadows, façades) into "
                                            "speckle (0 = every colour alike)", lo=0.0)
     sh_relative_min: float = option(0.1, help="least factor of sh_relative", lo=0.0, hi=1.0)
-    adam_eps_sh: float = option(1e-15, help="Adam epsilon of the SH coefficients", lo=0.0)
+    adam_eps_sh: float = option(1e-7, help="Adam epsilon of the SH coefficients (a surfel "
+                                           "whose colour gradient is far below it, seen "
+                                           "only through many others, moves less than a "
+                                           "full step)", lo=0.0)
 
 
 @dataclass
