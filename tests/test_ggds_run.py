@@ -479,6 +479,7 @@ def test_checkpoint_tensors_stream_to_a_file_safetensors_reads(tmp_path):
                "adam.t": torch.arange(7, dtype=torch.int64),
                "face_index": torch.arange(5, dtype=torch.int32), "mask": torch.tensor([True, False]),
                "f64": torch.randn(3, dtype=torch.float64, generator=g), "u8": torch.arange(3, dtype=torch.uint8),
+               "f16": torch.randn(4, 3, generator=g).half(),
                "empty": torch.zeros(0, 3), "scalar": torch.tensor(2.5),
                "strided": torch.randn(4, 6, generator=g)[:, ::2]}
     path = S.atomic_write_parts(tmp_path / "state.safetensors", safetensors_parts(tensors))
@@ -488,3 +489,45 @@ def test_checkpoint_tensors_stream_to_a_file_safetensors_reads(tmp_path):
         assert back[k].dtype == v.dtype and back[k].shape == v.shape and torch.equal(back[k], v)
     # the same size as the library's own file (same header fields and padding, same data)
     assert path.stat().st_size == len(save({k: v.contiguous() for k, v in tensors.items()}))
+
+
+def test_colour_floor_holds_the_updated_rows_base_colour():
+    """floor_colour lifts only the given rows' channels below the floor (their other
+    coefficients and every other row untouched); all rows without ``rows``; 0 turns it off;
+    a step leaves no visible row below it."""
+    from lsd3d_usd.shmath import C0
+    run = make_run(steps=5)
+    st = run.state
+    sh = st.params["sh"]
+    with torch.no_grad():
+        sh[:, 0, :] = -10.0                       # base colour 0.5 - 2.8: clamped black
+    before = sh.detach().clone()
+    st.floor_colour(torch.arange(0, 100))
+    base = 0.5 + C0 * sh.detach()[:, 0, :]
+    assert torch.allclose(base[:100], torch.full_like(base[:100], 0.002), atol=1e-6)
+    assert torch.equal(sh.detach()[100:], before[100:]) and torch.equal(sh.detach()[:100, 1:],
+                                                                        before[:100, 1:])
+    st.floor_colour()
+    assert (0.5 + C0 * sh.detach()[:, 0, :]).min() >= 0.002 - 1e-6
+    off = make_run(steps=5, colour_floor=0.0)
+    with torch.no_grad():
+        off.state.params["sh"][:, 0, :] = -10.0
+    off.state.floor_colour()
+    assert (off.state.params["sh"][:, 0, :] == -10.0).all()
+    with torch.no_grad():                         # a step: its visible rows end above the floor
+        sh[:, 0, :] = -10.0
+    rec = run.step()
+    assert rec["visible"] > 0
+    lifted = (0.5 + C0 * sh.detach()[:, 0, :]).min(1).values >= 0.002 - 1e-6
+    assert lifted.sum() >= rec["visible"] and not lifted.all()
+
+
+def test_stored_configuration_predating_the_dark_colour_options_runs_as_it_did():
+    """A run stored before the colour floor and the relative SH steps existed resumes
+    without them (recorded 0), not with today's defaults."""
+    from lsd3d_usd import configtree as ct
+    stored = ct.to_dict(GGDSConfig())
+    del stored["colour_floor"], stored["lr"]["sh_relative"]
+    old = ct.from_dict(GGDSConfig, stored)
+    assert old.colour_floor == 0.0 and old.lr.sh_relative == 0.0
+    assert GGDSConfig().colour_floor > 0 and GGDSConfig().lr.sh_relative > 0

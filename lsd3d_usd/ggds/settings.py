@@ -51,7 +51,8 @@ class LearningRates:
     sh_relative: float = option(0.25, help="a colour channel's SH steps scale with sqrt(its "
                                            "base colour / this), at most 1: fixed-size steps "
                                            "random-walk dark colours (shadows, façades) into "
-                                           "speckle (0 = every colour alike)", lo=0.0)
+                                           "speckle (0 = every colour alike)", lo=0.0,
+                                recorded=0.0)
     sh_relative_min: float = option(0.1, help="least factor of sh_relative", lo=0.0, hi=1.0)
     adam_eps_sh: float = option(1e-7, help="Adam epsilon of the SH coefficients (a surfel "
                                            "whose colour gradient is far below it, seen "
@@ -199,7 +200,7 @@ class GGDSConfig:
                                              "after each update and the colour start: below 0 "
                                              "the renderer passes a colour no gradient, so a "
                                              "channel pushed there stays black (0 = no floor)",
-                                 lo=0.0, hi=0.5)
+                                 lo=0.0, hi=0.5, recorded=0.0)
     world_init: bool = option(True, help="start surfel colours from the prior evaluated in 3D "
                                          "(when the prior can)")
     filter_3d: float = option(0.0, help="3D smoothing filter (anti-aliasing, Mip-Splatting): "
