@@ -531,3 +531,29 @@ def test_stored_configuration_predating_the_dark_colour_options_runs_as_it_did()
     old = ct.from_dict(GGDSConfig, stored)
     assert old.colour_floor == 0.0 and old.lr.sh_relative == 0.0
     assert GGDSConfig().colour_floor > 0 and GGDSConfig().lr.sh_relative > 0
+
+
+def test_colour_start_makes_the_surfels_no_training_view_sees_opaque():
+    """Rows only fit views see (or none) start at opacity >= ggds.untrained_opacity; rows a
+    training view sees keep theirs for the steps to learn; more training views, fewer such
+    rows; 0 turns it off."""
+    import dataclasses
+    from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
+    base = make_run(steps=2)
+    views = base.views.views
+    a, b = views[:2], views[2:]
+    prior = ProceduralPrior()
+    init = torch.sigmoid(base.params["opacities"]).detach().clone()
+
+    def raised(train, fit, **cfg):
+        r = new_run(base.field(), base.conditioning.proxy, train, prior,
+                    dataclasses.replace(base.cfg, **cfg), fit_views=fit)
+        assert r.world_init()
+        op = torch.sigmoid(r.params["opacities"]).detach()
+        up = op > init + 1e-6
+        assert torch.equal(op[~up], init[~up])
+        assert (op[up] >= 0.99 - 1e-5).all()
+        return up
+    few, many = raised(a, b), raised(a + b, [])
+    assert few.any() and many.sum() < few.sum() and not many[~few].any()
+    assert not raised(a, b, untrained_opacity=0.0).any()

@@ -201,6 +201,11 @@ class GGDSConfig:
                                              "the renderer passes a colour no gradient, so a "
                                              "channel pushed there stays black (0 = no floor)",
                                  lo=0.0, hi=0.5, recorded=0.0)
+    untrained_opacity: float = option(0.99, help="colour start: opacity at least this for "
+                                                 "surfels no training view sees (roofs, backs), "
+                                                 "which the steps never reach; at the initial "
+                                                 "0.8 a surface of them is see-through (0 = off)",
+                                      lo=0.0, hi=0.999, recorded=0.0)
     world_init: bool = option(True, help="start surfel colours from the prior evaluated in 3D "
                                          "(when the prior can)")
     filter_3d: float = option(0.0, help="3D smoothing filter (anti-aliasing, Mip-Splatting): "

@@ -25,6 +25,19 @@ from lsd3d_usd.render.sh import sh_degree_of
 TRIM_EVERY_VIEWS = 16
 
 
+def _opaque_untrained(state, rows: np.ndarray, least: float) -> None:
+    """Opacity at least ``least`` for ``rows``: surfels no training view sees (roofs, the
+    backs of things) keep their initial opacity through the steps, and at the initial 0.8
+    a surface of them lets about a quarter of the light through (a roof seen from above
+    shows the insides of its walls)."""
+    if least <= 0 or not rows.any():
+        return
+    lo = float(np.log(least / (1.0 - least)))
+    idx = torch.from_numpy(np.flatnonzero(rows))
+    o = state.params["opacities"].data
+    o[idx] = o[idx].clamp(min=lo)
+
+
 @torch.no_grad()
 def colour_start(state, views, context, prior, cond, fit_views=()) -> bool:
     """Fit the colours of ``state``'s surfels (and of ``context``'s fit rows) in place; the
@@ -46,7 +59,10 @@ def colour_start(state, views, context, prior, cond, fit_views=()) -> bool:
     ctx = context.fit_inputs() if context is not None else None
     ctx_fit = ViewFit(len(ctx[0]), degree) if ctx is not None else None
     n_train = len(views)
+    trained = None
     for i in range(n_train + len(fit_views)):
+        if i == n_train:
+            trained = fit.count > 0       # rows a training view sees: the steps reach them
         if i and i % TRIM_EVERY_VIEWS == 0:
             release_free_memory()
         # a fit view is used once; a training view's G-buffer and target stay cached
@@ -85,6 +101,9 @@ def colour_start(state, views, context, prior, cond, fit_views=()) -> bool:
         sh[rest] = sub
     state.params["sh"][:] = torch.from_numpy(sh)
     state.floor_colour()
+    if trained is None:
+        trained = fit.count > 0
+    _opaque_untrained(state, ~trained, c.untrained_opacity)
     if ctx_fit is not None:   # unseen context rows keep their colours
         csh, cseen = ctx_fit.solve(ctx[2], c.world_init_ridge, c.world_init_ridge_tangent,
                                    slopes=ctx_slopes)
