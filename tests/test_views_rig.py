@@ -300,3 +300,37 @@ def test_rig_output_references_the_scene_not_the_checkout_and_is_quiet(rig_scene
     assert not (tmp_path / "b" / "assets").exists()
     err = capfd.readouterr().err
     assert "Warning" not in err and "Could not open asset" not in err, err
+
+
+def test_mp4_encoded_again_when_ffmpeg_ends_early(tmp_path, monkeypatch):
+    """A list of frames is encoded a second time when ffmpeg ends before its input (a broken
+    pipe; no file written); a generator's failure is raised; a bad frame is never retried."""
+    import imageio_ffmpeg
+    from lsd3d_usd.views.video import read_mp4, write_mp4
+    real = imageio_ffmpeg.write_frames
+    calls = {"n": 0, "fail": 0}
+
+    def flaky(path, *a, **k):
+        calls["n"] += 1
+        if calls["n"] <= calls["fail"]:
+            def dead():
+                yield
+                raise BrokenPipeError(32, "Broken pipe")
+            return dead()
+        return real(path, *a, **k)
+    monkeypatch.setattr(imageio_ffmpeg, "write_frames", flaky)
+    frames = [np.full((8, 10, 3), 40 * i, np.uint8) for i in range(3)]
+    calls.update(n=0, fail=1)
+    out = write_mp4(tmp_path / "a.mp4", frames, 2.0)
+    assert calls["n"] == 2 and read_mp4(out)[0].shape == (3, 8, 10, 3)
+    assert not list(tmp_path.glob(".*tmp*"))                    # nothing half-written left
+    calls.update(n=0, fail=1)
+    with pytest.raises(OSError):
+        write_mp4(tmp_path / "b.mp4", (f for f in frames), 2.0)
+    assert calls["n"] == 1 and not (tmp_path / "b.mp4").exists()
+    calls.update(n=0, fail=2)                                   # twice: the second raises
+    with pytest.raises(OSError):
+        write_mp4(tmp_path / "c.mp4", frames, 2.0)
+    calls.update(n=0, fail=0)
+    with pytest.raises(ValueError, match="uint8"):
+        write_mp4(tmp_path / "d.mp4", [frames[0].astype(np.float32)], 2.0)

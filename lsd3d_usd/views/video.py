@@ -36,12 +36,31 @@ def _pad(frame: np.ndarray, block: int) -> np.ndarray:
 
 
 def write_mp4(path, frames, fps: float, block: int = 2) -> Path:
-    """Write uint8 RGB frames (iterable of (H,W,3), all the same size) as an H.264 MP4."""
+    """Write uint8 RGB frames (iterable of (H,W,3), all the same size) as an H.264 MP4.
 
+    Frames given as a list or tuple are encoded a second time when ffmpeg ends before its
+    input does (a broken pipe, or no file written; full test-suite runs met it now and then,
+    ffmpeg saying nothing); a generator is consumed once and its failure raised."""
     ffmpeg_exe()   # a missing binary is one line before any frame is encoded
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
+    attempts = 2 if isinstance(frames, (list, tuple)) else 1
+    for attempt in range(attempts):
+        try:
+            _encode(tmp, frames, fps, block)
+            os.replace(tmp, path)
+            return path
+        except OSError:            # BrokenPipeError, ffmpeg's IOError, the file not written
+            if attempt + 1 == attempts:
+                raise
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+    return path
+
+
+def _encode(tmp: Path, frames, fps: float, block: int) -> None:
     gen = None
     size = None
     try:
@@ -63,13 +82,9 @@ def write_mp4(path, frames, fps: float, block: int = 2) -> Path:
             raise ValueError("write_mp4: no frames")
         gen.close()
         gen = None
-        os.replace(tmp, path)
     finally:
         if gen is not None:
             gen.close()
-        if tmp.exists():
-            tmp.unlink()
-    return path
 
 
 def read_mp4(path) -> tuple[np.ndarray, float]:
