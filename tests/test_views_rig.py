@@ -303,8 +303,9 @@ def test_rig_output_references_the_scene_not_the_checkout_and_is_quiet(rig_scene
 
 
 def test_mp4_encoded_again_when_ffmpeg_ends_early(tmp_path, monkeypatch):
-    """A list of frames is encoded a second time when ffmpeg ends before its input (a broken
-    pipe; no file written); a generator's failure is raised; a bad frame is never retried."""
+    """Frames that can be read again (a list, a re-iterable) are encoded a second time when
+    ffmpeg ends before its input (a broken pipe; no file written); a generator's failure is
+    raised; a bad frame is never retried."""
     import imageio_ffmpeg
     from lsd3d_usd.views.video import read_mp4, write_mp4
     real = imageio_ffmpeg.write_frames
@@ -328,6 +329,12 @@ def test_mp4_encoded_again_when_ffmpeg_ends_early(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         write_mp4(tmp_path / "b.mp4", (f for f in frames), 2.0)
     assert calls["n"] == 1 and not (tmp_path / "b.mp4").exists()
+    class Again:                                                # re-readable, not a list
+        def __iter__(self):
+            return iter(frames)
+    calls.update(n=0, fail=1)
+    assert read_mp4(write_mp4(tmp_path / "e.mp4", Again(), 2.0))[0].shape == (3, 8, 10, 3)
+    assert calls["n"] == 2
     calls.update(n=0, fail=2)                                   # twice: the second raises
     with pytest.raises(OSError):
         write_mp4(tmp_path / "c.mp4", frames, 2.0)

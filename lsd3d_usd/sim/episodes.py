@@ -132,11 +132,17 @@ class _Recorder:
 
             from lsd3d_usd.views.video import write_mp4
 
-            def decode(frames):
-                for b in frames:
-                    yield np.asarray(Image.open(io.BytesIO(b)).convert("RGB"))
+            class Decoded:
+                """The episode's PNG frames decoded as they are read, as often as read (so
+                write_mp4 can encode them again when ffmpeg ends early)."""
+                def __init__(self, frames):
+                    self.frames = frames
+
+                def __iter__(self):
+                    for b in self.frames:
+                        yield np.asarray(Image.open(io.BytesIO(b)).convert("RGB"))
             for name, frames in self.frames.items():
-                files[f"video:{name}"] = write_mp4(folder / f"{name}.mp4", decode(frames),
+                files[f"video:{name}"] = write_mp4(folder / f"{name}.mp4", Decoded(frames),
                                                    self.env.settings.hz)
         return {k: str(Path(v).name) for k, v in files.items()}
 

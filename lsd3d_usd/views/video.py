@@ -38,14 +38,15 @@ def _pad(frame: np.ndarray, block: int) -> np.ndarray:
 def write_mp4(path, frames, fps: float, block: int = 2) -> Path:
     """Write uint8 RGB frames (iterable of (H,W,3), all the same size) as an H.264 MP4.
 
-    Frames given as a list or tuple are encoded a second time when ffmpeg ends before its
-    input does (a broken pipe, or no file written; full test-suite runs met it now and then,
-    ffmpeg saying nothing); a generator is consumed once and its failure raised."""
+    Frames that can be read again (a list, or any iterable that is not its own iterator) are
+    encoded a second time when ffmpeg ends before its input does (a broken pipe, or no file
+    written; full test-suite runs met it now and then, ffmpeg saying nothing); a generator
+    is consumed once and its failure raised."""
     ffmpeg_exe()   # a missing binary is one line before any frame is encoded
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp{os.getpid()}{path.suffix}")
-    attempts = 2 if isinstance(frames, (list, tuple)) else 1
+    attempts = 1 if iter(frames) is frames else 2      # an iterator is read once
     for attempt in range(attempts):
         try:
             _encode(tmp, frames, fps, block)
