@@ -7,6 +7,9 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch loads (see l
 # the test workers compile the kernels themselves: a background compile per cold `generate`
 # would only add processes (tests/test_precompile.py checks it)
 os.environ.setdefault("LSD3D_PRECOMPILE", "0")
+# as lsd3d_usd.sim does, before any test module imports grpc: a worker that ran the gRPC tests
+# forks ffmpeg and other subprocesses later (grpc/grpc#43055)
+os.environ.setdefault("GRPC_ENABLE_FORK_SUPPORT", "false")
 
 # A shell without job control starts background jobs with SIGINT ignored, and children inherit
 # that: the tests that stop a child with SIGINT (Ctrl-C) would wait forever. Caught signals

@@ -449,3 +449,18 @@ def test_live_view_streams_foxglove_messages(scene):
         ws.close()
         view.close()
         env.close()
+
+
+def test_importing_the_simulator_turns_grpc_fork_handlers_off_unless_told():
+    """grpcio's fork handlers kill subprocesses forked beside live channels (grpc#43055):
+    `import lsd3d_usd.sim` turns them off before grpc loads, and leaves a user's own setting."""
+    import subprocess
+    import sys
+    code = "import lsd3d_usd.sim, os, grpc; print(os.environ['GRPC_ENABLE_FORK_SUPPORT'])"
+    env = {k: v for k, v in os.environ.items() if k != "GRPC_ENABLE_FORK_SUPPORT"}
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0 and out.stdout.split()[-1] == "false", out.stderr[-500:]
+    out = subprocess.run([sys.executable, "-c", code], env={**env, "GRPC_ENABLE_FORK_SUPPORT": "1"},
+                         capture_output=True, text=True, timeout=120)
+    assert out.stdout.split()[-1] == "1"

@@ -6,7 +6,16 @@
 """
 from __future__ import annotations
 
+import os
+
 ENV_ID = "lsd3d_usd/Drive-v0"
+
+# Before grpc loads (sim.service, sim.remote): with a gRPC server or channel alive, grpcio's fork
+# handlers (1.80 on, grpc/grpc#43055) restart its poller in a subprocess forked before exec, on
+# an epoll descriptor Popen has closed, and the child dies: ffmpeg writing an episode's video
+# ended with a broken pipe and "epoll_wait error: Bad file descriptor". Nothing here forks a
+# process that uses gRPC, so the handlers are off unless the environment says otherwise.
+os.environ.setdefault("GRPC_ENABLE_FORK_SUPPORT", "false")
 
 
 def _register() -> None:
