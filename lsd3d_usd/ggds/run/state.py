@@ -13,8 +13,7 @@ from lsd3d_usd.ggds.optim.antialias import filter_sigma, smooth
 from lsd3d_usd.ggds.optim.grounding import Grounding
 from lsd3d_usd.ggds.optim.strategy import MCMCStrategy
 from lsd3d_usd.ggds.settings import GGDSConfig
-from lsd3d_usd.shmath import C0 as SH_C0
-from lsd3d_usd.splats.field import SurfelField
+from lsd3d_usd.splats.field import SurfelField, rgb_to_sh_dc
 
 
 class RunState:
@@ -108,7 +107,7 @@ class RunState:
         if floor <= 0:
             return
         dc = self.params["sh"].data[:, 0]
-        lo = (floor - 0.5) / SH_C0
+        lo = float(rgb_to_sh_dc(floor))
         if rows is None:
             dc.clamp_(min=lo)
         elif rows.numel():

@@ -63,7 +63,7 @@ def safetensors_parts(tensors: dict):
     yield struct.pack("<Q", len(head)) + head
     for a in arrays:
         if a.nbytes:
-            yield memoryview(np.ascontiguousarray(a).reshape(-1).view(np.uint8))
+            yield memoryview(a.reshape(-1).view(np.uint8))   # contiguous: a view
 
 
 def _json_default(v):
