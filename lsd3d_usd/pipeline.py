@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
 from pxr import UsdLux
 
 from lsd3d_usd import configtree as ct
@@ -28,9 +29,11 @@ from lsd3d_usd.actors.compose import add_actors
 from lsd3d_usd.conditioning.light import colour_by_light, env_params, scene_light
 from lsd3d_usd.config import GenerateConfig
 from lsd3d_usd.env import write_env, write_env_layer
+from lsd3d_usd.env.usdlayer import author_far_field
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.ggds.losses.terms import LOSSES
-from lsd3d_usd.ggds.priors.registry import PRIORS, check_prior
+from lsd3d_usd.ggds.priors.base import Prior
+from lsd3d_usd.ggds.priors.registry import PRIORS, check_prior, make_prior
 from lsd3d_usd.ggds.regions.driver import run_regions
 from lsd3d_usd.ggds.regions.plan import phases_from_plan, plan_regions
 from lsd3d_usd.ggds.run.store import read_plan, region_progress, write_plan
@@ -39,7 +42,7 @@ from lsd3d_usd.layout import generator
 from lsd3d_usd.layout.model import DRIVABLE_TYPES
 from lsd3d_usd.layout.usdio import read_layout, write_layout
 from lsd3d_usd.memtune import peak_rss_mb, release_free_memory
-from lsd3d_usd.proxy.usdio import build_proxy_layer, layout_hash
+from lsd3d_usd.proxy.usdio import build_proxy_layer, ground_level, layout_hash
 from lsd3d_usd.render import precompile
 from lsd3d_usd.splats import chunkio
 from lsd3d_usd.splats.chunkio import read_chunk_map
@@ -297,9 +300,26 @@ def _env_step(sc: S.Scene, p: Plan):
         UsdLux.DomeLight_1(env.GetChild("Dome")).GetExposureAttr().Set(float(math.log2(light.exposure)))
         env.CreateAttribute("lsd3d:env:displayExposure", S.Sdf.ValueTypeNames.Float,
                             custom=True).Set(float(light.exposure))
+        height, albedo = _far_field(sc, p, light)
+        author_far_field(stage, height, albedo)
     sc.write_layer("env", stage, S.provenance("env", p.env_params.to_dict(), seed=p.cfg.seed,
                                                exposure=light.exposure, inputsHash=p.env_hash))
     return light
+
+
+def _far_field(sc: S.Scene, p: Plan, light) -> tuple[float, np.ndarray]:
+    """Height and albedo of the ground beyond the scene (env.farfield): at the proxy's ground
+    level, continuing the prior's terrain where the prior says what that is (its
+    ground_albedo), else in the env's ground colour."""
+    height = ground_level(sc.layer_path("proxy"))
+    entry = PRIORS.get(p.cfg.prior.kind)
+    albedo = None
+    if entry.prior_type().ground_albedo is not Prior.ground_albedo:
+        albedo = make_prior(p.cfg.prior, p.cfg.seed).ground_albedo(light.prior_env)
+    if albedo is None:
+        r = p.env_params.resolved()
+        albedo = np.asarray(r.ground_color, np.float64) * (1.0 - 0.35 * float(r.wet_ground))
+    return (0.0 if height is None else height), np.asarray(albedo, np.float64)
 
 
 def _surfel_step(sc: S.Scene, p: Plan, light, run: RunOptions) -> dict:

@@ -463,3 +463,76 @@ def test_drive_mode_follows_a_lane(browser, generated, generated_viewer):
     assert page.evaluate("window.viewer.stats().mode") == "fly"
     page.close()
     assert errors == []
+
+
+# ------------------------------------------------------------------- the far field
+FAR_VIEW = ((-250.0, 0.0, 60.0), (-350.0, 0.0, 40.0))   # outside the scene, looking away, down
+
+
+@pytest.fixture(scope="module")
+def far_scene(small_scene, tmp_path_factory):
+    """A copy of the small generated scene (the viewer caches into its folder) with a camera
+    high above the ground, outside the scene and looking away from it at the horizon: the
+    picture is background only, the sky on top and the ground beyond the scene below."""
+    from pxr import Usd
+
+    from lsd3d_usd.env.usdlayer import read_far_field
+    from lsd3d_usd.render.camera import Camera, look_at, to_usd
+
+    root = tmp_path_factory.mktemp("far") / "scene"
+    shutil.copytree(small_scene, root, ignore=shutil.ignore_patterns("viewer_cache"))
+    stage = Usd.Stage.Open(str(root / S.ROOT_FILE))
+    assert read_far_field(stage) is not None                 # generated scenes have one
+    cam = Camera.from_fov(W, H, 60, look_at(*FAR_VIEW), near=0.1, far=2000)
+    stage.SetEditTarget(stage.GetRootLayer())
+    to_usd(stage, f"{S.CAMERAS_PATH}/Far", cam)
+    stage.GetRootLayer().Save()
+    return root, cam
+
+
+def test_env_info_carries_the_far_field(far_scene):
+    """/api/env sends the far field in the map's units (the dome's gain applied, as in the
+    map pack_env sends), as read_dome gives it to the CPU renderers."""
+    from pxr import Usd
+
+    from lsd3d_usd.env.usdlayer import read_far_field
+    from lsd3d_usd.viewer.service import ViewerService
+    from lsd3d_usd.views.stage_data import read_dome
+
+    root, _ = far_scene
+    stage = Usd.Stage.Open(str(root / S.ROOT_FILE))
+    want, raw = read_dome(stage).far_field, read_far_field(stage)
+    ff = ViewerService(root, validate=False).env_info(None)["map"]["farField"]
+    assert set(ff) == {"height", "radiance", "ground", "fogDensity"}
+    assert ff["height"] == pytest.approx(want.height) and ff["fogDensity"] == pytest.approx(want.fog_density)
+    assert ff["radiance"] == pytest.approx(list(want.radiance), rel=1e-9)
+    assert want.fog_density > 0 and not np.allclose(want.radiance, raw.radiance)   # the gain is in it
+
+
+def test_far_field_background_matches_cpu(browser, far_scene, tmp_path):
+    """The page draws the ground beyond the scene as read_dome(stage).pixels does on the CPU
+    (env.farfield): below the horizon it is not the plain env map."""
+    from pxr import Usd
+
+    from lsd3d_usd.views.images import display_uint8
+    from lsd3d_usd.views.stage_data import read_dome
+
+    root, cam = far_scene
+    env = read_dome(Usd.Stage.Open(str(root / S.ROOT_FILE)))
+    cpu = display_uint8(env.pixels(cam)).astype(np.float64)
+    plain = display_uint8(replace(env, far_field=None).pixels(cam)).astype(np.float64)
+    v = Viewer(root, tmp_path / "view.log")
+    try:
+        errors = []
+        page = open_page(browser, v.url + "?camera=/World/Cameras/Far&actors=0&scale=1", errors)
+        web = shot(page, tmp_path / "web_far.png")
+        page.close()
+        assert errors == []
+    finally:
+        v.stop()
+    low = slice(2 * H // 3, H)                                   # the plane beyond the scene
+    q, q_low, q_plain = psnr(web, cpu), psnr(web[low], cpu[low]), psnr(web[low], plain[low])
+    print(f"far field: PSNR vs CPU background {q:.2f} dB, lower third {q_low:.2f} dB, "
+          f"vs the plain env map there {q_plain:.2f} dB (CPU vs plain {psnr(cpu[low], plain[low]):.2f} dB)")
+    assert q >= 28.0 and q_low >= 28.0
+    assert q_plain < q_low - 10                                   # the page draws the plane

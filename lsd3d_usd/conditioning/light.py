@@ -19,6 +19,7 @@ import torch
 from lsd3d_usd.conditioning.shadow import shadow_map
 from lsd3d_usd.env import EnvParams, build_params
 from lsd3d_usd.env.prompt import unknown_words
+from lsd3d_usd.env.farfield import FarField
 from lsd3d_usd.env.lookup import EnvMap
 from lsd3d_usd.env.sh import eval_sh_irradiance, sh_irradiance
 from lsd3d_usd.env.sky import SkyModel, render_sky
@@ -63,6 +64,8 @@ class PriorEnv:
     sky_lookup:     callable (..., 3) world directions -> (..., 3) radiance for the background
                     (e.g. lsd3d_usd.env.lookup.EnvMap), or None for a plain sky gradient.
     prompt / negative_prompt: text for text-conditioned priors.
+    far_field:      env.farfield.FarField (env units, like sky_lookup): the ground beyond the
+                    scene behind the proxy, or None.
     """
     sun_direction: torch.Tensor = field(
         default_factory=lambda: torch.nn.functional.normalize(torch.tensor([0.35, -0.45, 0.82]), dim=0))
@@ -77,6 +80,7 @@ class PriorEnv:
     exposure: float = 1.0
     prompt: str = ""
     negative_prompt: str = ""
+    far_field: Optional[FarField] = None
 
     def __post_init__(self):
         self.sun_direction = torch.as_tensor(self.sun_direction, dtype=torch.float32)
@@ -109,11 +113,17 @@ class SceneLight:
     envmap: object | None           # lsd3d_usd.env.EnvMap of the scene's EXR (unscaled)
 
     def background(self, camera) -> torch.Tensor:
-        """(H,W,3) display-scaled env radiance behind every pixel of `camera`."""
+        """(H,W,3) display-scaled env radiance behind every pixel of `camera`, with the
+        ground beyond the scene where the light has one (prior_env.far_field)."""
         _, d = pixel_rays(camera)
         if self.envmap is None:
-            return torch.zeros(camera.height, camera.width, 3)
-        return self.envmap(torch.from_numpy(d.astype(np.float32))) * self.exposure
+            bg = torch.zeros(camera.height, camera.width, 3)
+        else:
+            bg = self.envmap(torch.from_numpy(d.astype(np.float32))) * self.exposure
+        ff = self.prior_env.far_field
+        if ff is None:
+            return bg
+        return torch.from_numpy(ff.scaled(self.exposure).apply(bg.numpy(), camera.pose[:3, 3], d))
 
     def irradiance(self, normals: np.ndarray, sun_visibility: np.ndarray | None = None) -> np.ndarray:
         """Display-scaled irradiance/π for normals (N,3): what a white surface reflects."""

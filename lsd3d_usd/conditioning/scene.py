@@ -12,6 +12,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Hashable
 
+import torch
+
 from lsd3d_usd import scene as S
 from lsd3d_usd.conditioning.gbuffer import (
     FaceTable,
@@ -23,7 +25,7 @@ from lsd3d_usd.conditioning.gbuffer import (
 from lsd3d_usd.conditioning.light import PriorEnv, SceneLight, scene_light
 from lsd3d_usd.conditioning.shadow import ShadowMap, shadow_map
 from lsd3d_usd.env.params import EnvParams
-from lsd3d_usd.env.usdlayer import read_env_prim
+from lsd3d_usd.env.usdlayer import read_env_prim, read_far_field
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.proxy.usdio import proxy_arrays
 
@@ -72,7 +74,12 @@ class Conditioning:
                 raise InputError(f"{path}: {purpose} needs the scene's proxy layer (the prior's "
                                  "G-buffer)")
             proxy = proxy_arrays(path)
-        return cls.build(proxy, scene_light(params, texture))
+        light = scene_light(params, texture)
+        far = read_far_field(sc.open_stage(load=False))
+        if far is not None and light.envmap is not None:
+            far = far.over(lambda d: light.envmap(torch.from_numpy(d)).numpy())
+        light.prior_env.far_field = far
+        return cls.build(proxy, light)
 
     def packed(self, camera) -> PackedGBuffer:
         """The compact G-buffer of ``camera`` (what GGDS keeps per training view)."""

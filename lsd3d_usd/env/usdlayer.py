@@ -207,3 +207,57 @@ def read_env_prim(stage) -> dict:
         out["texture"] = f.Get().resolvedPath or f.Get().path
         out["poleAxis"] = UsdLux.DomeLight_1(dome).GetPoleAxisAttr().Get()
     return out
+
+
+FAR_HEIGHT = NS + "farField:height"
+FAR_ALBEDO = NS + "farField:albedo"
+
+
+def author_far_field(stage, height: float, albedo) -> None:
+    """The ground beyond the scene (env.farfield) on /World/Env: its height (m) and albedo
+    (linear RGB), authored where the stage's edit target is (inside a variant's edit context
+    they belong to that environment). Readers light it with the selected environment."""
+    a = np.asarray(albedo, np.float64).reshape(-1)
+    if not math.isfinite(float(height)) or a.shape != (3,) or not np.all(np.isfinite(a)) \
+            or a.min() < 0:
+        raise InputError(f"far field: need a finite height and 3 non-negative albedo values, got "
+                         f"{height}, {albedo}")
+    env = stage.GetPrimAtPath(scene.ENV_PATH)
+    env.CreateAttribute(FAR_HEIGHT, Sdf.ValueTypeNames.Float, custom=True).Set(float(height))
+    env.CreateAttribute(FAR_ALBEDO, Sdf.ValueTypeNames.Color3f, custom=True).Set(
+        Gf.Vec3f(*(float(v) for v in a)))
+
+
+def read_far_field(stage):
+    """The env.farfield.FarField /World/Env describes (radiance in the env map's units, lit by
+    the selected environment's sky SH and sun, fogged by its fog density), or None when it
+    has no far field. A bad value is one InputError naming the attribute."""
+    from lsd3d_usd.env.farfield import FarField, ground_radiance
+
+    env = stage.GetPrimAtPath(scene.ENV_PATH)
+    if not env:
+        return None
+    h, alb = env.GetAttribute(FAR_HEIGHT), env.GetAttribute(FAR_ALBEDO)
+    if not (h and h.HasAuthoredValue() and alb and alb.HasAuthoredValue()):
+        return None
+
+    def value(name, shape):
+        a = env.GetAttribute(NS + name)
+        v = a.Get() if a else None
+        arr = None if v is None else np.asarray([list(x) for x in v] if shape == (9, 3) else v,
+                                                 np.float64)
+        if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
+            raise InputError(f"{env.GetPath()}.{NS}{name}: the far field needs it as {shape} "
+                             f"finite values, got {v!r}")
+        return arr
+
+    height = value("farField:height", ())
+    albedo = value("farField:albedo", (3,))
+    if albedo.min() < 0:
+        raise InputError(f"{env.GetPath()}.{FAR_ALBEDO}: negative albedo {tuple(albedo)}")
+    radiance = ground_radiance(albedo, value("shIrradiance", (9, 3)), value("sunDirection", (3,)),
+                               value("sunIlluminance", (3,)))
+    fog = env.GetAttribute(NS + "fog:density")
+    density = float(fog.Get() or 0.0) if fog else 0.0
+    return FarField(float(height), tuple(float(v) for v in radiance),
+                    density if math.isfinite(density) and density > 0 else 0.0)

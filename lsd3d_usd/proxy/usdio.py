@@ -345,6 +345,38 @@ def read_proxy(path: str | Path, chunks=None) -> dict[tuple[int, int], dict[str,
     return out
 
 
+GROUND_LEVEL_CLASSES = ("road", "sidewalk", "terrain")
+
+
+def ground_level(path: str | Path) -> float | None:
+    """Median height of the proxy's road, sidewalk and terrain vertices, one chunk loaded at a
+    time (a 10 km proxy is never held whole): the height at which the ground beyond the scene
+    continues it (env.farfield). None when the proxy has none of them."""
+    stage = open_stage(path, load=False)
+    root = stage.GetPrimAtPath(PROXY_PATH)
+    if not root or not root.IsValid():
+        raise InputError(f"{path}: no {PROXY_PATH} prim (not a proxy layer)")
+    medians, weights = [], []
+    for child in root.GetFilteredChildren(Usd.PrimIsActive & Usd.PrimIsDefined
+                                          & ~Usd.PrimIsAbstract):
+        stage.Load(child.GetPath())
+        z = [class_mesh_from_prim(prim).vertices[:, 2]
+             for prim in Usd.PrimRange(child) if prim.IsA(UsdGeom.Mesh)
+             and (UsdSemantics.LabelsAPI(prim, "class").GetLabelsAttr().Get() or [""])[0]
+             in GROUND_LEVEL_CLASSES]
+        stage.Unload(child.GetPath())
+        z = np.concatenate(z) if z else np.zeros(0)
+        z = z[np.isfinite(z)]
+        if len(z):
+            medians.append(float(np.median(z)))
+            weights.append(len(z))
+    if not medians:
+        return None
+    order = np.argsort(medians)     # the vertex-weighted median of the chunks' medians
+    cum = np.cumsum(np.asarray(weights, np.float64)[order])
+    return float(np.asarray(medians)[order][np.searchsorted(cum, cum[-1] / 2.0)])
+
+
 def class_mesh_from_prim(prim) -> ClassMesh:
     mesh = UsdGeom.Mesh(prim)
     where = str(prim.GetPath())

@@ -23,6 +23,7 @@ from pxr import Sdf, Usd, UsdGeom, UsdLux
 from lsd3d_usd import scene as S
 from lsd3d_usd.actors.relight import lighting_from_stage
 from lsd3d_usd.actors.usdio import ActorSet
+from lsd3d_usd.env.farfield import FarField
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.layout.usdio import layout_from_stage
 from lsd3d_usd.proxy.usdio import read_proxy
@@ -46,11 +47,14 @@ class LayerEntry:
 
 @dataclass
 class EnvData:
-    """A DomeLight's latlong map with its gain applied (scene-linear RGB, float32)."""
+    """A DomeLight's latlong map with its gain applied (scene-linear RGB, float32), and the
+    far field drawn with it (env.farfield: what read_dome's EnvMap.pixels draws)."""
     image: np.ndarray              # (h, w, 3)
     world_from_dome: np.ndarray    # (3, 3)
     pole_axis: str                 # "Z" or "Y"
     source: str                    # the light's prim path
+    far_field: FarField | None = None   # the ground beyond the scene, in the image's units
+                                        # (the dome's gain applied), or None
 
 
 @dataclass
@@ -241,7 +245,8 @@ class SceneSource:
         env = read_dome(stage)
         if env is None:
             return None
-        return EnvData(env.image, np.asarray(env.world_from_dome, np.float64), env.pole_axis, env.source)
+        return EnvData(env.image, np.asarray(env.world_from_dome, np.float64), env.pole_axis, env.source,
+                       env.far_field)
 
     def lighting(self, stage) -> Lighting:
         light = lighting_from_stage(stage)

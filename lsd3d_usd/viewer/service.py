@@ -375,6 +375,15 @@ class ViewerService:
             info["map"] = {"url": "/api/envmap/" + _quote(key or "_"), "width": w, "height": h,
                            "worldFromDome": env.world_from_dome.tolist(), "poleAxis": env.pole_axis,
                            "source": env.source}
+            if env.far_field is not None:
+                # the ground beyond the scene (env/farfield.py), its radiance in the map's units:
+                # pack_env sends the map's values unscaled (half floats), the gain already in both
+                ff = env.far_field
+                info["map"]["farField"] = {
+                    "height": float(ff.height),
+                    "radiance": [float(v) for v in ff.radiance],
+                    "ground": [float(v) for v in ff.ground],
+                    "fogDensity": float(ff.fog_density)}
         self._env[key] = (info, data)
         return info
 

@@ -35,7 +35,10 @@ from lsd3d_usd.actors.relight import (
     proxy_occluder,
 )
 from lsd3d_usd.actors.usdio import ActorSet
+from lsd3d_usd.env.farfield import FarField
 from lsd3d_usd.env.lookup import env_lookup, env_lookup_pinhole
+from lsd3d_usd.env.usdlayer import read_far_field
+from lsd3d_usd.render.camera import pixel_directions
 from lsd3d_usd.render.checks import SH_MAX, first_bad
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
@@ -202,6 +205,7 @@ class EnvMap:
     world_from_dome: np.ndarray  # (3,3) rotation of the DomeLight
     pole_axis: str = "Z"         # "Z" (our convention) or "Y" (OpenEXR latlong, Y up)
     source: str = ""
+    far_field: FarField | None = None   # the ground beyond the scene, in the image's units
 
     def lookup(self, dirs: np.ndarray) -> np.ndarray:
         """Radiance (…,3) for world directions (…,3): into the dome's frame (and from a Y pole
@@ -221,7 +225,9 @@ class EnvMap:
         camera rotation and intrinsics, and copied when a camera repeats one (a rig on a car
         driving straight or standing still: the sky does not move with the camera's position)."""
         R = np.ascontiguousarray(camera.pose[:3, :3], np.float64)
-        key = (int(camera.width), int(camera.height), float(camera.fx), float(camera.fy),
+        # with a ground beyond the scene the camera's height matters too (not where it is)
+        key = (float(camera.pose[2, 3]) if self.far_field is not None else None,
+               int(camera.width), int(camera.height), float(camera.fx), float(camera.fy),
                float(camera.cx), float(camera.cy), R.tobytes(),
                np.asarray(self.world_from_dome, np.float64).tobytes(), self.pole_axis)
         kept = self.__dict__.setdefault("_kept_pixels", OrderedDict())
@@ -232,6 +238,8 @@ class EnvMap:
         out = env_lookup_pinhole(np.asarray(self.image, np.float32), camera.width, camera.height,
                                  camera.fx, camera.fy, camera.cx, camera.cy, R,
                                  self.world_from_dome, self.pole_axis == "Y")
+        if self.far_field is not None:
+            out = self.far_field.apply(out, camera.pose[:3, 3], pixel_directions(camera))
         kept[key] = (out.copy(), self.image)
         kept.move_to_end(key)
         while len(kept) > ENV_PIXELS_KEPT:
@@ -290,7 +298,11 @@ def read_dome(stage, time=None, textures: TextureCache | None = None) -> EnvMap 
         pole = light.GetPoleAxisAttr().Get() if hasattr(light, "GetPoleAxisAttr") else None
         up = UsdGeom.GetStageUpAxis(stage)
         pole_axis = "Y" if (pole == "Y" or (pole in (None, "scene") and up == "Y")) else "Z"
-        return EnvMap((rgb * (gain * col)).astype(np.float32), U @ Vt, pole_axis, str(prim.GetPath()))
+        env = EnvMap((rgb * (gain * col)).astype(np.float32), U @ Vt, pole_axis, str(prim.GetPath()))
+        far = read_far_field(stage)
+        if far is not None:     # in the map's units, over the map as this dome turns it
+            env.far_field = far.scaled(gain * col).over(env.lookup)
+        return env
     return None
 
 

@@ -48,6 +48,12 @@ class Prior:
         3D (GGDS then starts surfel colours from it). None: image space only."""
         return None
 
+    def ground_albedo(self, env: PriorEnv):
+        """Optional: the mean linear-RGB albedo (3,) of the prior's open ground (terrain), for
+        the ground beyond the scene (env.farfield) to continue it. None: the env's ground
+        colour stands in."""
+        return None
+
     def target(self, x: torch.Tensor, gbuffer: GBuffer, env: PriorEnv, t: float,
                n_steps: int = 5, seed: int | None = None) -> torch.Tensor:
         """Target image x_hat (H, W, 3) for rendered image x (H, W, 3) at noise level t.

@@ -112,6 +112,31 @@ class ProceduralPrior(Prior):
         valid = valid.reshape(H, W)
         return albedo, spec, rough, mirror, valid
 
+    @torch.no_grad()
+    def ground_albedo(self, env: PriorEnv):
+        """Mean albedo of the terrain material (weather applied) over a 512 m square sampled
+        every 2 m: what the ground beyond the scene continues."""
+        g = torch.arange(-256.0, 256.0, 2.0, dtype=torch.float64)
+        x, y = torch.meshgrid(g, g, indexing="ij")
+        p = torch.stack([x.reshape(-1), y.reshape(-1), torch.full((x.numel(),), self.ground_z,
+                                                                 dtype=torch.float64)], -1)
+        n = torch.zeros(len(p), 3)
+        n[:, 2] = 1.0
+        s = self.settings(env)
+        cid = mat.CLASS_ID["terrain"]
+        m, _ = mat.apply_weather(cid, mat.MATERIALS[cid](p, n, s), p, n, s)
+        return m.albedo.clamp(0, 1).mean(0).double().numpy()
+
+    def background(self, dirs: torch.Tensor, origin, env: PriorEnv) -> torch.Tensor:
+        """What is seen behind the proxy along ``dirs`` (N, 3) from ``origin``: the sky, and
+        the ground beyond the scene where the env has one (env units, before exposure)."""
+        sky = self.sky(dirs, env)
+        if env.far_field is None or len(dirs) == 0:
+            return sky
+        out = env.far_field.apply(sky.cpu().numpy(), torch.as_tensor(origin).cpu().numpy(),
+                                  dirs.cpu().numpy())
+        return torch.from_numpy(out).to(sky.device)
+
     def sky(self, dirs: torch.Tensor, env: PriorEnv) -> torch.Tensor:
         """Background radiance (..., 3) in world directions (env units, before exposure)."""
         if env.sky_lookup is not None:
@@ -178,7 +203,7 @@ class ProceduralPrior(Prior):
             dist = (gb.world_pos.to(torch.float64) - gb.camera_position.to(torch.float64)).norm(dim=-1).float()
             T = torch.exp(-env.fog_density * torch.nan_to_num(dist, nan=0.0, posinf=1e9))[..., None]
             col = col * T + env.fog_color.to(dev) * (1 - T)
-        col[~valid] = self.sky(V[~valid], env)
+        col[~valid] = self.background(V[~valid], gb.camera_position, env)
         return (col * env.exposure).clamp(0, 1).float()
 
     def render_view(self, gb: GBuffer, env: PriorEnv) -> torch.Tensor:

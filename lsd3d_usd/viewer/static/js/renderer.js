@@ -315,6 +315,15 @@ export class Renderer {
       gl.uniform1i(eu.u_env, 0);
       gl.uniformMatrix3fv(eu.u_domeFromWorld, false, this.envMeta.worldFromDome.flat());
       gl.uniform1i(eu.u_poleY, this.envMeta.poleAxis === "Y" ? 1 : 0);
+      // the ground beyond the scene (env/farfield.py), seen from the camera centre (u_eye)
+      const ff = this.envMeta.farField;
+      gl.uniform1i(eu.u_farField, ff ? 1 : 0);
+      if (ff) {
+        gl.uniform1f(eu.u_farHeight, ff.height);
+        gl.uniform3fv(eu.u_farRadiance, ff.radiance);
+        gl.uniform3fv(eu.u_farGround, ff.ground);
+        gl.uniform1f(eu.u_farFog, ff.fogDensity);
+      }
     }
     gl.bindVertexArray(this.emptyVao);
     gl.drawArrays(gl.TRIANGLES, 0, 3);

@@ -244,7 +244,11 @@ void main() {
 `;
 
 // Full-screen env background: the CPU renderer's lookup (env/mapping.py direction_to_uv,
-// bilinear, longitude wrapping, latitude clamped), per pixel-centre direction.
+// bilinear, longitude wrapping, latitude clamped), per pixel-centre direction, then the far
+// field over it (env/farfield.py FarField.apply): a ray from above the plane z = height going
+// down (d_z < -1e-6, world direction, before the dome rotation) meets it after
+// t = (eye_z - height) / -d_z and sees max(env(d) + (radiance - ground) * T, 0),
+// T = exp(-fog * t): the map's ground half re-coloured to the plane's.
 export const FULLSCREEN_VS = `#version 300 es
 const vec2 P[3] = vec2[3](vec2(-1.0, -1.0), vec2(3.0, -1.0), vec2(-1.0, 3.0));
 void main() { gl_Position = vec4(P[gl_VertexID], 0.0, 1.0); }
@@ -257,18 +261,30 @@ uniform sampler2D u_env;
 uniform mat3 u_domeFromWorld;
 uniform int u_poleY;
 uniform int u_hasEnv;
+uniform int u_farField;         // 1: draw the ground beyond the scene
+uniform float u_farHeight;      // world z of the plane (m)
+uniform vec3 u_farRadiance;     // in the env map's units
+uniform vec3 u_farGround;       // the map's own radiance straight down, same units
+uniform float u_farFog;         // fog density (1/m)
 out vec4 o_color;
 const float PI = 3.141592653589793;
 void main() {
   if (u_hasEnv == 0) { o_color = vec4(0.0, 0.0, 0.0, 1.0); return; }
   vec2 pix = vec2(gl_FragCoord.x, u_size.y - gl_FragCoord.y);
   vec3 dc = vec3((pix.x - u_K.z) / u_K.x, (pix.y - u_K.w) / u_K.y, 1.0);
-  vec3 d = u_domeFromWorld * normalize(transpose(u_rot) * dc);
+  vec3 w = normalize(transpose(u_rot) * dc);   // world direction
+  vec3 d = u_domeFromWorld * w;
   if (u_poleY == 1) d = vec3(d.x, -d.z, d.y);
   float lon = atan(d.x, -d.y);
   float u = fract(0.5 - lon / (2.0 * PI));
   float v = 0.5 - asin(clamp(d.z / length(d), -1.0, 1.0)) / PI;
-  o_color = vec4(texture(u_env, vec2(u, v)).rgb, 1.0);
+  vec3 c = texture(u_env, vec2(u, v)).rgb;
+  float oz = u_eye.z - u_farHeight;
+  if (u_farField == 1 && oz > 0.0 && w.z < -1e-6) {
+    float T = exp(-max(u_farFog, 0.0) * (oz / -w.z));
+    c = max(c + (u_farRadiance - u_farGround) * T, vec3(0.0));
+  }
+  o_color = vec4(c, 1.0);
 }
 `;
 

@@ -1,0 +1,187 @@
+"""The ground beyond the scene (env.farfield): the plane against a float64 ray-by-ray
+reference, its edge cases, the env layer's attributes, and every consumer drawing it alike."""
+import math
+
+import numpy as np
+import pytest
+import torch
+from pxr import Usd
+
+from lsd3d_usd import scene as S
+from lsd3d_usd.conditioning.gbuffer import GBuffer
+from lsd3d_usd.conditioning.light import PriorEnv
+from lsd3d_usd.conditioning.scene import Conditioning
+from lsd3d_usd.env.farfield import FarField, ground_radiance
+from lsd3d_usd.env.sh import eval_sh_irradiance
+from lsd3d_usd.env.usdlayer import FAR_ALBEDO, author_far_field, read_far_field
+from lsd3d_usd.errors import InputError
+from lsd3d_usd.ggds.priors.procedural import ProceduralPrior
+from lsd3d_usd.proxy.usdio import ground_level
+from lsd3d_usd.render.camera import Camera, look_at
+from lsd3d_usd.views.stage_data import read_dome
+
+
+def reference(bg, origin, dirs, ff):
+    """Ray by ray in float64: where the ray meets z = height ahead of an origin above it."""
+    out = np.array(bg, np.float64)
+    for i, d in enumerate(np.asarray(dirs, np.float64)):
+        if origin[2] > ff.height and d[2] < -1e-6:
+            t = (origin[2] - ff.height) / -d[2]
+            T = math.exp(-ff.fog_density * t)
+            out[i] = np.maximum(out[i] + (np.asarray(ff.radiance) - np.asarray(ff.ground)) * T, 0)
+    return out
+
+
+def test_plane_matches_the_reference_ray_by_ray():
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(4000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d[:50, 2] = -1e-9       # grazing the horizon: the env map alone
+    bg = rng.uniform(0, 5, size=(4000, 3)).astype(np.float32)
+    for origin, fog in (((3.0, -2.0, 30.0), 2e-3), ((0.0, 0.0, 1.6), 1e-4), ((0, 0, 200.0), 0.0)):
+        ff = FarField(0.5, (1.0, 2.0, 0.5), fog, (3.0, 0.5, 1.0))       # some channels < 0
+        got = ff.apply(bg, np.array(origin), d)
+        assert got.dtype == np.float32
+        np.testing.assert_allclose(got, reference(bg, origin, d, ff), rtol=1e-5, atol=1e-5)
+        up = d[:, 2] >= 0
+        np.testing.assert_array_equal(got[up], bg[up])          # the sky is untouched
+        np.testing.assert_array_equal(got[:50], bg[:50])
+    np.testing.assert_array_equal(ff.apply(bg, (0, 0, 0.5), d), bg)   # on the plane
+    np.testing.assert_array_equal(ff.apply(bg, (0, 0, -4.0), d), bg)  # under it
+
+
+def test_plane_recolours_the_ground_half_and_fades_into_it_at_the_horizon():
+    lookup = lambda d: np.where(np.asarray(d)[:, 2:3] < 0, 2.0, 9.0) * np.ones((1, 3))
+    ff = FarField(0.0, (1.0, 1.0, 1.0), 1e-4).over(lookup)
+    assert ff.ground == (2.0, 2.0, 2.0)                         # the map straight down
+    dz = np.array([1.0, 1e-1, 1e-3, 1e-5])
+    d = np.stack([np.sqrt(1 - dz ** 2), np.zeros(4), -dz], -1)
+    bg = np.array([[2.0] * 3, [2.0] * 3, [5.0] * 3, [7.0] * 3], np.float32)  # hazier near the horizon
+    got = ff.apply(bg, (0, 0, 30.0), d)[:, 0]
+    assert got[0] == pytest.approx(1.0 + (1 - math.exp(-1e-4 * 30)), rel=1e-5)  # the plane below
+    assert got[1] == pytest.approx(2.0 - math.exp(-1e-4 * 300), rel=1e-5)
+    assert got[2] == pytest.approx(5.0 - math.exp(-1e-4 * 3e4), rel=1e-5)       # the map's haze kept
+    assert got[3] == pytest.approx(7.0, rel=1e-6)               # at the horizon: the map itself
+    scaled = ff.scaled((2.0, 1.0, 0.5))
+    assert scaled.radiance == (2.0, 1.0, 0.5) and scaled.ground == (4.0, 2.0, 1.0)
+
+
+def test_ground_radiance_is_a_lambertian_level_surface():
+    rng = np.random.default_rng(1)
+    sh = rng.uniform(0.1, 2.0, size=(9, 3))
+    sun = np.array([0.3, -0.2, 0.8])
+    lux = np.array([5.0, 4.5, 4.0])
+    E = eval_sh_irradiance(sh, np.array([[0.0, 0, 1]]))[0] + lux * 0.8 / np.linalg.norm(sun)
+    alb = np.array([0.1, 0.2, 0.05])
+    np.testing.assert_allclose(ground_radiance(alb, sh, sun, lux), alb * E / math.pi, rtol=1e-12)
+    # the sun under the horizon lights nothing
+    np.testing.assert_allclose(ground_radiance(alb, sh, -sun, lux),
+                               alb * eval_sh_irradiance(sh, np.array([[0.0, 0, 1]]))[0] / math.pi)
+
+
+def test_procedural_prior_draws_it_behind_the_proxy():
+    """A G-buffer with no proxy at all: every pixel is background, so the plane shows."""
+    H, W = 6, 8
+    cam_pos = torch.tensor([0.0, 0.0, 20.0])
+    dirs = torch.nn.functional.normalize(torch.randn(H, W, 3, generator=torch.Generator().manual_seed(2)), dim=-1)
+    gb = GBuffer(depth=torch.full((H, W), float("inf")), normal=torch.zeros(H, W, 3),
+                 semantic=torch.full((H, W), -1, dtype=torch.long), world_pos=torch.full((H, W, 3), float("nan")),
+                 view_dirs=dirs, camera_position=cam_pos)
+    ff = FarField(2.0, (0.5, 0.6, 0.2), 0.0)
+    env = PriorEnv(exposure=0.5, far_field=ff)
+    prior = ProceduralPrior()
+    got = prior.render(gb, env)
+    sky = prior.sky(dirs.reshape(-1, 3), env).reshape(H, W, 3)
+    down = dirs[..., 2] < 0
+    want = (sky[down] + torch.tensor([0.5, 0.6, 0.2])) * 0.5       # no map: its ground is 0
+    np.testing.assert_allclose(got[down].numpy(), want.clamp(0, 1).numpy(), atol=1e-6)
+    np.testing.assert_allclose(got[~down].numpy(), (sky[~down] * 0.5).clamp(0, 1).numpy(), atol=1e-6)
+
+
+def test_procedural_ground_albedo_is_its_terrain():
+    prior = ProceduralPrior()
+    green = prior.ground_albedo(PriorEnv())
+    assert green.shape == (3,) and green[1] > green[0] > green[2] > 0      # grass
+    snow = prior.ground_albedo(PriorEnv(snow_cover=1.0, vegetation="snow"))
+    assert snow.min() > 2 * green.max()
+    autumn = prior.ground_albedo(PriorEnv(vegetation="autumn"))
+    assert autumn[0] > autumn[1] > autumn[2] and autumn[0] > green[0]
+
+
+def test_env_layer_round_trip_and_bad_values(tmp_path):
+    stage = S.new_stage()
+    stage.DefinePrim(S.ENV_PATH, "Xform")
+    assert read_far_field(stage) is None                         # no far field: none drawn
+    author_far_field(stage, 1.25, (0.1, 0.2, 0.05))
+    with pytest.raises(InputError, match="shIrradiance"):        # nothing to light it with
+        read_far_field(stage)
+    env = stage.GetPrimAtPath(S.ENV_PATH)
+    from pxr import Gf, Sdf, Vt
+    env.CreateAttribute("lsd3d:env:shIrradiance", Sdf.ValueTypeNames.Float3Array).Set(
+        Vt.Vec3fArray([Gf.Vec3f(1, 1, 1)] + [Gf.Vec3f(0, 0, 0)] * 8))
+    env.CreateAttribute("lsd3d:env:sunDirection", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(0, 0, 1))
+    env.CreateAttribute("lsd3d:env:sunIlluminance", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(2, 2, 2))
+    env.CreateAttribute("lsd3d:env:fog:density", Sdf.ValueTypeNames.Float).Set(1e-3)
+    ff = read_far_field(stage)
+    assert ff.height == 1.25 and ff.fog_density == pytest.approx(1e-3)
+    np.testing.assert_allclose(ff.radiance, ground_radiance((0.1, 0.2, 0.05), [[1, 1, 1]] + [[0] * 3] * 8,
+                                                            (0, 0, 1), (2, 2, 2)), rtol=1e-6)
+    env.GetAttribute(FAR_ALBEDO).Set(Gf.Vec3f(-1, 0, 0))
+    with pytest.raises(InputError, match="farField:albedo"):
+        read_far_field(stage)
+    with pytest.raises(InputError, match="far field"):
+        author_far_field(stage, float("nan"), (0.1, 0.1, 0.1))
+
+
+def test_generated_scene_draws_the_same_ground_everywhere(small_scene):
+    """The scene records its far field at its ground level, and the prior's conditioning and
+    the rig/eval renderer (views) draw the same background for a camera high above it."""
+    sc = S.Scene.open(small_scene)
+    stage = sc.open_stage(load=False)
+    ff = read_far_field(stage)
+    assert ff is not None
+    assert ff.height == pytest.approx(ground_level(sc.layer_path("proxy")))
+    assert abs(ff.height) < 0.5                                 # the sample is level at z 0
+    cam = Camera.from_fov(96, 54, 60.0, pose=look_at((-250.0, -250.0, 120.0), (0, 0, 0)))
+    cond = Conditioning.of_scene(sc, proxy=(np.zeros((3, 3)), np.array([[0, 1, 2]]), np.zeros(1, np.int32)))
+    a = cond.background(cam).numpy()
+    b = read_dome(Usd.Stage.Open(str(sc.root / "scene.usda"))).pixels(cam)
+    np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-4)
+    # the lower half of that view is the plane, not the env map's ground half
+    from lsd3d_usd.render.camera import pixel_rays
+    _, d = pixel_rays(cam)
+    env_only = cond.light.envmap(torch.from_numpy(d.astype(np.float32))).numpy() * cond.light.exposure
+    low = d[..., 2] < -0.2      # steeply down: mostly the plane's own colour (the map's haze is kept)
+    plane = np.asarray(ff.radiance) * cond.light.exposure
+    assert np.abs(a[low] - plane).mean() < 0.25 * np.abs(env_only[low] - plane).mean()
+    up = d[..., 2] > 0
+    np.testing.assert_allclose(a[up], env_only[up], rtol=1e-5, atol=1e-7)       # the sky as it was
+
+
+def _patch(x0, z, cls, n=4):
+    """An up-facing n×n grid patch at height z (z may vary per vertex)."""
+    from lsd3d_usd.proxy.mesh import MeshPart
+    g = np.linspace(0, 10, n)
+    x, y = np.meshgrid(g + x0, g)
+    V = np.stack([x.ravel(), y.ravel(), np.broadcast_to(z, x.shape).ravel()], -1).astype(np.float64)
+    F = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, i * n + j + 1, (i + 1) * n + j, (i + 1) * n + j + 1
+            F += [(a, b, d), (a, d, c)]
+    return MeshPart(V, np.array(F, np.int32), cls, f"{cls}_{x0}")
+
+
+def test_ground_level_is_the_median_of_the_ground_classes(tmp_path):
+    from lsd3d_usd.proxy.usdio import write_proxy
+    rng = np.random.default_rng(3)
+    z_road = rng.uniform(2.0, 3.0, (4, 4))
+    parts = {(0, 0): [_patch(0, z_road, "road"), _patch(0, 40.0, "building", 2)],
+             (1, 0): [_patch(100, 2.5, "terrain"), _patch(100, -30.0, "vegetation")]}
+    path = write_proxy(parts, tmp_path / "proxy.usdc")
+    got = ground_level(path)
+    assert 2.0 <= got <= 3.0            # roofs and tree tops do not pull it up
+    # two chunks of 16 ground vertices: the median of the two chunks' medians, weighted
+    assert got == pytest.approx(min(np.median(z_road), 2.5))
+    path2 = write_proxy({(0, 0): [_patch(0, 40.0, "building", 2)]}, tmp_path / "p2" / "proxy.usdc")
+    assert ground_level(path2) is None
