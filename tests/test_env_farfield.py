@@ -185,3 +185,24 @@ def test_ground_level_is_the_median_of_the_ground_classes(tmp_path):
     assert got == pytest.approx(min(np.median(z_road), 2.5))
     path2 = write_proxy({(0, 0): [_patch(0, 40.0, "building", 2)]}, tmp_path / "p2" / "proxy.usdc")
     assert ground_level(path2) is None
+
+
+def test_pinhole_lookup_draws_the_plane_in_the_same_pass():
+    """The views' one-pass lookup (numba) against FarField.apply over the plain lookup."""
+    from lsd3d_usd.env.lookup import env_lookup, env_lookup_pinhole
+    from lsd3d_usd.render.camera import pixel_directions
+    rng = np.random.default_rng(4)
+    image = rng.uniform(0, 3, (32, 64, 3)).astype(np.float32)
+    ff = FarField(1.0, (0.5, 2.5, 1.0), 3e-3, (1.5, 0.5, 1.0))
+    for eye, target in (((0, 0, 31.0), (80, 20, 0)), ((5, 5, 2.6), (60, 0, 1.0)), ((0, 0, 0.5), (9, 0, 0))):
+        cam = Camera.from_fov(48, 27, 80.0, pose=look_at(eye, target))
+        d = pixel_directions(cam)
+        plain = env_lookup(torch.from_numpy(image), torch.from_numpy(d.astype(np.float32))).numpy()
+        want = ff.apply(plain, np.asarray(eye, np.float64), d)
+        got = env_lookup_pinhole(image, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
+                                 cam.pose[:3, :3], np.eye(3), False, ff, eye[2])
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
+        if eye[2] > ff.height + 1:
+            assert np.abs(got - plain).max() > 0.1               # the plane is there
+        else:
+            np.testing.assert_allclose(got, plain, rtol=1e-5, atol=1e-6)   # seen from under it

@@ -67,13 +67,15 @@ def env_lookup(image: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
 
 def env_lookup_pinhole(image: np.ndarray, width: int, height: int, fx: float, fy: float,
                        cx: float, cy: float, rotation: np.ndarray, world_from_dome: np.ndarray,
-                       pole_y: bool = False) -> np.ndarray:
+                       pole_y: bool = False, far_field=None, camera_z: float = 0.0) -> np.ndarray:
     """(height, width, C) radiance of latlong ``image`` (H, W, C) along the rays through the
     pixel centres of a pinhole camera whose world rotation ``rotation`` has the right, down
     and forward directions as columns, in one pass and without (height, width, 3) temporaries:
     the directions of render.camera.pixel_directions, taken into the dome frame
     (world_from_dome^T d; ``pole_y``: then from a Y pole axis to Z), rounded to float32 and
-    sampled as env_lookup samples them."""
+    sampled as env_lookup samples them. ``far_field`` (env.farfield.FarField, in the image's
+    units; C == 3): its plane seen from height ``camera_z`` over it, as FarField.apply draws
+    it, in the same pass."""
     img = np.ascontiguousarray(image)
     if img.ndim != 3 or img.shape[0] < 2 or img.dtype not in (np.float32, np.float64):
         raise ValueError(f"env_lookup_pinhole: image must be float (H, W, C) with H >= 2, got "
@@ -81,11 +83,17 @@ def env_lookup_pinhole(image: np.ndarray, width: int, height: int, fx: float, fy
     H = img.shape[0]
     h, w = int(height), int(width)
     out = np.empty((h * w, img.shape[2]), img.dtype)
+    shift, oz, fog = np.zeros(img.shape[2]), 0.0, 0.0
+    if far_field is not None:
+        if img.shape[2] != 3:
+            raise ValueError(f"env_lookup_pinhole: a far field needs an RGB image, got {img.shape}")
+        shift = np.asarray(far_field.radiance, np.float64) - np.asarray(far_field.ground, np.float64)
+        oz, fog = float(camera_z) - float(far_field.height), max(float(far_field.fog_density), 0.0)
     _lookup_pinhole(img, float(fx), float(fy), float(cx), float(cy),
                     np.ascontiguousarray(rotation, np.float64),
                     np.ascontiguousarray(world_from_dome, np.float64),
                     bool(pole_y), img[0].mean(0, dtype=np.float64), img[H - 1].mean(0, dtype=np.float64),
-                    h, w, out)
+                    h, w, out, oz, shift, fog)
     return out.reshape(h, w, img.shape[2])
 
 
@@ -97,8 +105,8 @@ def _lookup(image, dirs, top, bottom, out):
 
 
 @njit(parallel=True, cache=True)
-def _lookup_pinhole(image, fx, fy, cx, cy, R, D, pole_y, top, bottom, h, w, out):
-    """env_lookup_pinhole, pixel by pixel into out (h w, C)."""
+def _lookup_pinhole(image, fx, fy, cx, cy, R, D, pole_y, top, bottom, h, w, out, oz, shift, fog):
+    """env_lookup_pinhole, pixel by pixel into out (h w, C); the far field where oz > 0."""
     for r in prange(h):
         b = (r + 0.5 - cy) / fy
         for col in range(w):
@@ -115,8 +123,13 @@ def _lookup_pinhole(image, fx, fy, cx, cy, R, D, pole_y, top, bottom, h, w, out)
             dz = x * D[0, 2] + y * D[1, 2] + z * D[2, 2]
             if pole_y:
                 dy, dz = -dz, dy
+            n = r * w + col
             _sample(image, float(np.float32(dx)), float(np.float32(dy)), float(np.float32(dz)),
-                    top, bottom, out, r * w + col)
+                    top, bottom, out, n)
+            if oz > 0.0 and z < -1e-6:     # env.farfield.FarField.apply
+                T = math.exp(-fog * (oz / -z))
+                for c in range(out.shape[1]):
+                    out[n, c] = max(out[n, c] + shift[c] * T, 0.0)
 
 
 @njit(cache=True, inline="always")

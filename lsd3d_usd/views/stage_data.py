@@ -38,7 +38,6 @@ from lsd3d_usd.actors.usdio import ActorSet
 from lsd3d_usd.env.farfield import FarField
 from lsd3d_usd.env.lookup import env_lookup, env_lookup_pinhole
 from lsd3d_usd.env.usdlayer import read_far_field
-from lsd3d_usd.render.camera import pixel_directions
 from lsd3d_usd.render.checks import SH_MAX, first_bad
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
@@ -220,7 +219,8 @@ class EnvMap:
 
     def pixels(self, camera) -> np.ndarray:
         """(H, W, 3) float32 radiance along each pixel's ray of a render.camera.Camera: what
-        lookup(pixel_directions(camera)) gives (within float32 rounding), in one pass. A new
+        lookup(pixel_directions(camera)) gives (within float32 rounding), with the ground beyond
+        the scene (``far_field``) over it, in one pass. A new
         array each call (callers draw into it); the last ENV_PIXELS_KEPT lookups are kept, by
         camera rotation and intrinsics, and copied when a camera repeats one (a rig on a car
         driving straight or standing still: the sky does not move with the camera's position)."""
@@ -237,9 +237,8 @@ class EnvMap:
             return hit[0].copy()
         out = env_lookup_pinhole(np.asarray(self.image, np.float32), camera.width, camera.height,
                                  camera.fx, camera.fy, camera.cx, camera.cy, R,
-                                 self.world_from_dome, self.pole_axis == "Y")
-        if self.far_field is not None:
-            out = self.far_field.apply(out, camera.pose[:3, 3], pixel_directions(camera))
+                                 self.world_from_dome, self.pole_axis == "Y", self.far_field,
+                                 float(camera.pose[2, 3]))
         kept[key] = (out.copy(), self.image)
         kept.move_to_end(key)
         while len(kept) > ENV_PIXELS_KEPT:
