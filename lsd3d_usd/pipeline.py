@@ -50,6 +50,7 @@ from lsd3d_usd.splats.initial import write_initial_surfels
 from lsd3d_usd.views.scene_cameras import write_scene_cameras
 
 SURFELS_VERSION = "surfels-v7"   # v7: Points preview in the chunk files (splats.preview); v6: density weights on faces split to 2 m² (splats.initial); v5: drivable lanes only
+FAR_FIELD_VERSION = "far-field-v1"   # the env layer records the ground beyond the scene (env.farfield)
 
 
 @dataclass
@@ -140,6 +141,16 @@ def _surfels_hash(layout_hash: str, env_hash: str, cfg: GenerateConfig) -> str:
                  ct.to_dict(cfg.surfels), ct.to_dict(cfg.splats))
 
 
+def _env_layer_hash(params_hash: str, layout_hash: str, cfg: GenerateConfig) -> str:
+    """The env layer's inputs: the environment, and what its far field is made of (the
+    proxy's ground level: the layout and proxy settings; the terrain colour of a prior that
+    says what it is, with its seed)."""
+    entry = PRIORS.get(cfg.prior.kind)
+    colour = ((cfg.prior.name, cfg.seed) if entry.prior_type().ground_albedo
+              is not Prior.ground_albedo else "env ground colour")
+    return content_hash(FAR_FIELD_VERSION, params_hash, layout_hash, cfg.proxy.as_dict(), colour)
+
+
 def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
     """Read and check everything; decide resume; nothing written."""
     sc = S.Scene.open(run.out) if (Path(run.out) / S.ROOT_FILE).is_file() else None
@@ -155,7 +166,8 @@ def plan(cfg: GenerateConfig, run: RunOptions) -> Plan:
     w, h = cfg.env.resolution
     ehash = params.content_hash(w, h)
     shash = _surfels_hash(lhash, ehash, cfg)
-    return Plan(cfg, layout, source, lhash, params, ehash, shash, resume_run, stop_at, term_state)
+    return Plan(cfg, layout, source, lhash, params, _env_layer_hash(ehash, lhash, cfg), shash,
+                resume_run, stop_at, term_state)
 
 
 def _resume_config(sc: S.Scene, cfg: GenerateConfig, run: RunOptions):
@@ -314,11 +326,10 @@ def _far_field(sc: S.Scene, p: Plan, light) -> tuple[float, np.ndarray]:
     height = ground_level(sc.layer_path("proxy"))
     entry = PRIORS.get(p.cfg.prior.kind)
     albedo = None
-    if entry.prior_type().ground_albedo is not Prior.ground_albedo:
+    if entry.prior_type().ground_albedo is not Prior.ground_albedo:     # as _env_layer_hash
         albedo = make_prior(p.cfg.prior, p.cfg.seed).ground_albedo(light.prior_env)
     if albedo is None:
-        r = p.env_params.resolved()
-        albedo = np.asarray(r.ground_color, np.float64) * (1.0 - 0.35 * float(r.wet_ground))
+        albedo = p.env_params.resolved().ground_albedo
     return (0.0 if height is None else height), np.asarray(albedo, np.float64)
 
 

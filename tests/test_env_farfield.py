@@ -120,7 +120,9 @@ def test_env_layer_round_trip_and_bad_values(tmp_path):
     env.CreateAttribute("lsd3d:env:shIrradiance", Sdf.ValueTypeNames.Float3Array).Set(
         Vt.Vec3fArray([Gf.Vec3f(1, 1, 1)] + [Gf.Vec3f(0, 0, 0)] * 8))
     env.CreateAttribute("lsd3d:env:sunDirection", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(0, 0, 1))
-    env.CreateAttribute("lsd3d:env:sunIlluminance", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(2, 2, 2))
+    env.CreateAttribute("lsd3d:env:sunIlluminance", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(5, 5, 5))
+    from pxr import UsdLux     # the part of the sun the map does not hold lights it
+    UsdLux.DistantLight.Define(stage, env.GetPath().AppendChild("Sun")).CreateIntensityAttr(2.0)
     env.CreateAttribute("lsd3d:env:fog:density", Sdf.ValueTypeNames.Float).Set(1e-3)
     ff = read_far_field(stage)
     assert ff.height == 1.25 and ff.fog_density == pytest.approx(1e-3)
@@ -131,6 +133,38 @@ def test_env_layer_round_trip_and_bad_values(tmp_path):
         read_far_field(stage)
     with pytest.raises(InputError, match="far field"):
         author_far_field(stage, float("nan"), (0.1, 0.1, 0.1))
+
+
+@pytest.mark.parametrize("name, type_name, value, needle", [
+    ("farField:height", "String", "high", "farField:height"),
+    ("farField:albedo", "Token", "green", "farField:albedo"),
+    ("shIrradiance", "Float", 1.0, "shIrradiance"),
+    ("sunDirection", "String", "up", "sunDirection"),
+    ("fog:density", "Float", float("inf"), "fog:density"),
+    ("fog:density", "Float", -1.0, "fog:density"),
+])
+def test_a_bad_far_field_attribute_is_one_error_naming_it(name, type_name, value, needle):
+    from pxr import Gf, Sdf, Vt
+    stage = S.new_stage()
+    env = stage.DefinePrim(S.ENV_PATH, "Xform")
+    author_far_field(stage, 0.0, (0.1, 0.2, 0.05))
+    env.CreateAttribute("lsd3d:env:shIrradiance", Sdf.ValueTypeNames.Float3Array).Set(
+        Vt.Vec3fArray([Gf.Vec3f(1, 1, 1)] * 9))
+    env.CreateAttribute("lsd3d:env:sunDirection", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(0, 0, 1))
+    assert read_far_field(stage) is not None
+    env.RemoveProperty("lsd3d:env:" + name)
+    env.CreateAttribute("lsd3d:env:" + name, getattr(Sdf.ValueTypeNames, type_name)).Set(value)
+    with pytest.raises(InputError, match=needle.replace(":", ".")):
+        read_far_field(stage)
+
+
+def test_half_a_far_field_is_an_error():
+    stage = S.new_stage()
+    env = stage.DefinePrim(S.ENV_PATH, "Xform")
+    author_far_field(stage, 0.0, (0.1, 0.2, 0.05))
+    env.RemoveProperty(FAR_ALBEDO)
+    with pytest.raises(InputError, match="farField:albedo.*both"):
+        read_far_field(stage)
 
 
 def test_generated_scene_draws_the_same_ground_everywhere(small_scene):
@@ -144,6 +178,13 @@ def test_generated_scene_draws_the_same_ground_everywhere(small_scene):
     assert abs(ff.height) < 0.5                                 # the sample is level at z 0
     cam = Camera.from_fov(96, 54, 60.0, pose=look_at((-250.0, -250.0, 120.0), (0, 0, 0)))
     cond = Conditioning.of_scene(sc, proxy=(np.zeros((3, 3)), np.array([[0, 1, 2]]), np.zeros(1, np.int32)))
+    # the plane has the prior's terrain colour, lit as the prior lights open ground (the map's
+    # SH holds part of the sun at this scene's 128x64 map: counted once, not twice)
+    env_prim = stage.GetPrimAtPath(S.ENV_PATH)
+    albedo = np.asarray(env_prim.GetAttribute(FAR_ALBEDO).Get(), np.float64)
+    np.testing.assert_allclose(albedo, ProceduralPrior(seed=5).ground_albedo(cond.env), rtol=1e-5)
+    lit = albedo * cond.light.irradiance(np.array([[0.0, 0.0, 1.0]]))[0]
+    np.testing.assert_allclose(np.asarray(ff.radiance) * cond.light.exposure, lit, rtol=0.04)
     a = cond.background(cam).numpy()
     b = read_dome(Usd.Stage.Open(str(sc.root / "scene.usda"))).pixels(cam)
     np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-4)
@@ -201,8 +242,25 @@ def test_pinhole_lookup_draws_the_plane_in_the_same_pass():
         want = ff.apply(plain, np.asarray(eye, np.float64), d)
         got = env_lookup_pinhole(image, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
                                  cam.pose[:3, :3], np.eye(3), False, ff, eye[2])
+        with pytest.raises(ValueError, match="height"):       # never the plane seen from z 0
+            env_lookup_pinhole(image, cam.width, cam.height, cam.fx, cam.fy, cam.cx, cam.cy,
+                               cam.pose[:3, :3], np.eye(3), False, ff)
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-5)
         if eye[2] > ff.height + 1:
             assert np.abs(got - plain).max() > 0.1               # the plane is there
         else:
             np.testing.assert_allclose(got, plain, rtol=1e-5, atol=1e-6)   # seen from under it
+
+
+def test_the_env_layer_is_remade_when_what_its_far_field_rests_on_changes():
+    """generate reuses the env layer by its inputs' hash: the far field's (the layout and proxy
+    settings for its height, the prior's terrain and seed for its colour) are among them."""
+    from lsd3d_usd.config import generate_config
+    from lsd3d_usd.pipeline import _env_layer_hash
+    base = generate_config(seed=1)
+    h = _env_layer_hash("env", "layout", base)
+    assert h == _env_layer_hash("env", "layout", generate_config(seed=1))
+    assert h != _env_layer_hash("env2", "layout", base)
+    assert h != _env_layer_hash("env", "layout2", base)
+    assert h != _env_layer_hash("env", "layout", generate_config(seed=2))      # the terrain's seed
+    assert h != _env_layer_hash("env", "layout", generate_config(seed=1, proxy={"traffic_lights": False}))

@@ -22,10 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
-from pxr import Usd, UsdGeom, UsdLux
+from pxr import Usd, UsdGeom
 
 from lsd3d_usd.actors.assets import mesh_data_from_prim
 from lsd3d_usd.env.sh import C0, eval_sh_irradiance
+from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import ENV_PATH, PROXY_PATH
 
 LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -81,13 +82,11 @@ def lighting_from_stage(stage) -> Lighting:
     s = np.asarray(info["sunDirection"], np.float64)
     s = s / max(np.linalg.norm(s), 1e-12)
     total = np.asarray(info.get("sunIlluminance", (0, 0, 0)), np.float64)
-    resid = np.zeros(3)
-    sun = env.GetChild("Sun")
-    if sun:
-        if UsdGeom.Imageable(sun).ComputeVisibility() != UsdGeom.Tokens.invisible:
-            lx = UsdLux.LightAPI(sun)
-            resid = float(lx.GetIntensityAttr().Get() or 0.0) * \
-                np.asarray(lx.GetColorAttr().Get() or (1, 1, 1), np.float64)
+    from lsd3d_usd.env.usdlayer import residual_sun     # local import, as read_env_prim above
+    try:
+        resid = residual_sun(env)
+    except InputError:
+        return default_lighting()
     return Lighting(sh, s, np.maximum(total - resid, 0.0), resid)
 
 

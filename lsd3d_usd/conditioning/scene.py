@@ -66,7 +66,8 @@ class Conditioning:
         """The scene's conditioning: its env layer's light and ``proxy`` (default: every proxy
         chunk). ``prompt`` goes to text-conditioned priors; ``purpose`` names the consumer in
         errors."""
-        params, texture = scene_env(sc, purpose)
+        stage = sc.open_stage(load=False)
+        params, texture = scene_env(sc, purpose, stage)
         params.extras["prompt"] = prompt
         if proxy is None:
             path = sc.layer_path("proxy")
@@ -75,7 +76,7 @@ class Conditioning:
                                  "G-buffer)")
             proxy = proxy_arrays(path)
         light = scene_light(params, texture)
-        far = read_far_field(sc.open_stage(load=False))
+        far = read_far_field(stage)
         if far is not None and light.envmap is not None:
             far = far.over(lambda d: light.envmap(torch.from_numpy(d)).numpy())
         light.prior_env.far_field = far
@@ -108,9 +109,9 @@ class Conditioning:
         return None if self.backdrop is None else self.backdrop(camera)
 
 
-def scene_env(sc: S.Scene, purpose: str = "GGDS") -> tuple[EnvParams, Path]:
+def scene_env(sc: S.Scene, purpose: str = "GGDS", stage=None) -> tuple[EnvParams, Path]:
     """(environment parameters of the scene's env layer, its EXR); one InputError line naming
-    what is missing."""
+    what is missing. ``stage``: the scene's stage if the caller has it open."""
     env_layer = next((li for li in sc.layers() if li.name == "env"), None)
     if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
         raise InputError(f"{sc.layer_path('env')}: {purpose} needs the scene's env layer with "
@@ -119,7 +120,7 @@ def scene_env(sc: S.Scene, purpose: str = "GGDS") -> tuple[EnvParams, Path]:
         params = EnvParams.from_dict(dict(env_layer.provenance["params"]))
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"{env_layer.path}: unreadable env parameters ({e})") from None
-    texture = read_env_prim(sc.open_stage(load=False)).get("texture")
+    texture = read_env_prim(stage or sc.open_stage(load=False)).get("texture")
     if not texture or not Path(texture).is_file():
         raise InputError(f"{env_layer.path}: the env map texture {texture!r} is missing")
     return params, Path(texture)

@@ -67,7 +67,7 @@ def env_lookup(image: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
 
 def env_lookup_pinhole(image: np.ndarray, width: int, height: int, fx: float, fy: float,
                        cx: float, cy: float, rotation: np.ndarray, world_from_dome: np.ndarray,
-                       pole_y: bool = False, far_field=None, camera_z: float = 0.0) -> np.ndarray:
+                       pole_y: bool = False, far_field=None, camera_z: float | None = None) -> np.ndarray:
     """(height, width, C) radiance of latlong ``image`` (H, W, C) along the rays through the
     pixel centres of a pinhole camera whose world rotation ``rotation`` has the right, down
     and forward directions as columns, in one pass and without (height, width, 3) temporaries:
@@ -85,8 +85,9 @@ def env_lookup_pinhole(image: np.ndarray, width: int, height: int, fx: float, fy
     out = np.empty((h * w, img.shape[2]), img.dtype)
     shift, oz, fog = np.zeros(img.shape[2]), 0.0, 0.0
     if far_field is not None:
-        if img.shape[2] != 3:
-            raise ValueError(f"env_lookup_pinhole: a far field needs an RGB image, got {img.shape}")
+        if img.shape[2] != 3 or camera_z is None:
+            raise ValueError(f"env_lookup_pinhole: a far field needs an RGB image and the "
+                             f"camera's height, got {img.shape} and {camera_z}")
         shift = np.asarray(far_field.radiance, np.float64) - np.asarray(far_field.ground, np.float64)
         oz, fog = float(camera_z) - float(far_field.height), max(float(far_field.fog_density), 0.0)
     _lookup_pinhole(img, float(fx), float(fy), float(cx), float(cy),

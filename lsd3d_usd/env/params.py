@@ -166,6 +166,12 @@ class EnvParams:
             snow_cover=snow, vegetation=veg, ground_color=tuple(float(c) for c in ground))
 
     @property
+    def ground_albedo(self) -> tuple:
+        """Linear-RGB albedo of the distant ground (of resolved parameters): the ground
+        colour, darker when wet (water fills the pores)."""
+        return tuple(float(c) * (1.0 - 0.35 * float(self.wet_ground)) for c in self.ground_color)
+
+    @property
     def overcast_gain(self) -> float:
         return WEATHER_DEFAULTS[self.weather]["overcast_gain"]
 

@@ -263,7 +263,7 @@ class SkyModel:
         self.sun_direct_lux = self.sun_rgb_lux * sun_vis                    # normal incidence
         E = self.sky_horizontal_illuminance + self.sun_direct_lux / 1000.0 * max(
             0.0, float(self.sun_dir[2]))
-        albedo = np.array(self.params.ground_color) * (1.0 - 0.35 * float(self.params.wet_ground))
+        albedo = np.array(self.params.ground_albedo)
         self.ground_rgb = (albedo * E / math.pi).astype(np.float32)
         # fog colour: the sky just above the horizon, averaged over azimuth
         phi = np.linspace(0, 2 * math.pi, 64, endpoint=False)

@@ -228,36 +228,70 @@ def author_far_field(stage, height: float, albedo) -> None:
         Gf.Vec3f(*(float(v) for v in a)))
 
 
+def residual_sun(env) -> np.ndarray:
+    """(3,) illuminance (klx) of the sun that the map does not hold: /World/Env/Sun's intensity
+    × colour (``env``: the /World/Env prim), 0 without a visible Sun light. The map's SH
+    irradiance plus this is the whole light of the sky and sun."""
+    sun = env.GetChild("Sun")
+    if not sun or UsdGeom.Imageable(sun).ComputeVisibility() == UsdGeom.Tokens.invisible:
+        return np.zeros(3)
+    lx = UsdLux.LightAPI(sun)
+    try:
+        out = float(lx.GetIntensityAttr().Get() or 0.0) * np.asarray(
+            lx.GetColorAttr().Get() or (1, 1, 1), np.float64).reshape(3)
+    except (TypeError, ValueError):
+        raise InputError(f"{sun.GetPath()}: the sun's intensity and colour must be a float and "
+                         "3 floats") from None
+    if not np.all(np.isfinite(out)) or out.min() < 0:
+        raise InputError(f"{sun.GetPath()}: the sun's intensity × colour must be finite and "
+                         f"non-negative, got {tuple(out)}")
+    return out
+
+
+def _env_value(env, name: str, shape: tuple, what: str) -> np.ndarray:
+    a = env.GetAttribute(NS + name)
+    v = a.Get() if a else None
+    try:
+        arr = np.asarray([list(x) for x in v] if len(shape) == 2 else v, np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
+        raise InputError(f"{env.GetPath()}.{NS}{name}: {what} needs it as {shape or 'one'} "
+                         f"finite value(s), got {v!r}")
+    return arr
+
+
 def read_far_field(stage):
-    """The env.farfield.FarField /World/Env describes (radiance in the env map's units, lit by
-    the selected environment's sky SH and sun, fogged by its fog density), or None when it
-    has no far field. A bad value is one InputError naming the attribute."""
+    """The env.farfield.FarField /World/Env describes (radiance in the env map's units: a
+    level Lambertian ground of its albedo under the map's SH irradiance and the sun the map
+    does not hold, as the actors are lit; fogged by the env's fog density), or None when it
+    has none. A bad or half-authored one is one InputError naming the attribute."""
     from lsd3d_usd.env.farfield import FarField, ground_radiance
 
     env = stage.GetPrimAtPath(scene.ENV_PATH)
     if not env:
         return None
-    h, alb = env.GetAttribute(FAR_HEIGHT), env.GetAttribute(FAR_ALBEDO)
-    if not (h and h.HasAuthoredValue() and alb and alb.HasAuthoredValue()):
+    authored = [a.HasAuthoredValue() if a else False
+                for a in (env.GetAttribute(FAR_HEIGHT), env.GetAttribute(FAR_ALBEDO))]
+    if not any(authored):
         return None
-
-    def value(name, shape):
-        a = env.GetAttribute(NS + name)
-        v = a.Get() if a else None
-        arr = None if v is None else np.asarray([list(x) for x in v] if shape == (9, 3) else v,
-                                                 np.float64)
-        if arr is None or arr.shape != shape or not np.all(np.isfinite(arr)):
-            raise InputError(f"{env.GetPath()}.{NS}{name}: the far field needs it as {shape} "
-                             f"finite values, got {v!r}")
-        return arr
-
-    height = value("farField:height", ())
-    albedo = value("farField:albedo", (3,))
+    if not all(authored):
+        missing = FAR_ALBEDO if authored[0] else FAR_HEIGHT
+        raise InputError(f"{env.GetPath()}.{missing}: the far field needs both its height and "
+                         "its albedo")
+    what = "the far field"
+    height = float(_env_value(env, "farField:height", (), what))
+    albedo = _env_value(env, "farField:albedo", (3,), what)
     if albedo.min() < 0:
         raise InputError(f"{env.GetPath()}.{FAR_ALBEDO}: negative albedo {tuple(albedo)}")
-    radiance = ground_radiance(albedo, value("shIrradiance", (9, 3)), value("sunDirection", (3,)),
-                               value("sunIlluminance", (3,)))
-    fog = env.GetAttribute(NS + "fog:density")
-    density = float(fog.Get() or 0.0) if fog else 0.0
-    return FarField(float(height), tuple(float(v) for v in radiance),
-                    density if math.isfinite(density) and density > 0 else 0.0)
+    density = 0.0
+    if env.GetAttribute(NS + "fog:density"):
+        density = float(_env_value(env, "fog:density", (), what))
+        if density < 0:
+            raise InputError(f"{env.GetPath()}.{NS}fog:density: negative fog density {density}")
+    radiance = ground_radiance(albedo, _env_value(env, "shIrradiance", (9, 3), what),
+                               _env_value(env, "sunDirection", (3,), what), residual_sun(env))
+    if not np.all(np.isfinite(radiance)):
+        raise InputError(f"{env.GetPath()}: the far field's light is not finite (shIrradiance, "
+                         "the Sun light)")
+    return FarField(height, tuple(float(v) for v in radiance), density)

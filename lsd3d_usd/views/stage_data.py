@@ -43,6 +43,7 @@ from lsd3d_usd.errors import InputError
 from lsd3d_usd.scene import (
     ACTORS_PATH,
     CAMERAS_PATH,
+    ENV_PATH,
     PROXY_PATH,
     SURFELS_PATH,
     WORLD,
@@ -226,7 +227,7 @@ class EnvMap:
         driving straight or standing still: the sky does not move with the camera's position)."""
         R = np.ascontiguousarray(camera.pose[:3, :3], np.float64)
         # with a ground beyond the scene the camera's height matters too (not where it is)
-        key = (float(camera.pose[2, 3]) if self.far_field is not None else None,
+        key = ((self.far_field, float(camera.pose[2, 3])) if self.far_field is not None else None,
                int(camera.width), int(camera.height), float(camera.fx), float(camera.fy),
                float(camera.cx), float(camera.cy), R.tobytes(),
                np.asarray(self.world_from_dome, np.float64).tobytes(), self.pole_axis)
@@ -298,7 +299,8 @@ def read_dome(stage, time=None, textures: TextureCache | None = None) -> EnvMap 
         up = UsdGeom.GetStageUpAxis(stage)
         pole_axis = "Y" if (pole == "Y" or (pole in (None, "scene") and up == "Y")) else "Z"
         env = EnvMap((rgb * (gain * col)).astype(np.float32), U @ Vt, pole_axis, str(prim.GetPath()))
-        far = read_far_field(stage)
+        # /World/Env's far field belongs to its own dome, not to another tool's
+        far = read_far_field(stage) if prim.GetParent().GetPath() == ENV_PATH else None
         if far is not None:     # in the map's units, over the map as this dome turns it
             env.far_field = far.scaled(gain * col).over(env.lookup)
         return env
