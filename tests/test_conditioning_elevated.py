@@ -80,7 +80,7 @@ def test_with_elevated_train_they_join_the_training_views_held_out_views_stay_at
     from lsd3d_usd.ggds.regions.plan import Region
     from lsd3d_usd.ggds.regions.region_views import region_views
     from lsd3d_usd.ggds.settings import GGDSConfig
-    g = GGDSConfig(resolution=(48, 32), views=32, elevated_train=True)
+    g = GGDSConfig(resolution=(48, 32), views=32, elevated_train=True, elevated_frac=0.125)
     whole = Region(((0, 0),), "")
     views, held = region_views(layout, g, 0, whole)
     kinds = [v.kind for v in views]
@@ -94,7 +94,8 @@ def test_without_elevated_train_the_colour_start_fits_to_the_same_views(layout):
     from lsd3d_usd.ggds.regions.plan import Region
     from lsd3d_usd.ggds.regions.region_views import region_fit_views, region_views
     from lsd3d_usd.ggds.settings import GGDSConfig
-    g = GGDSConfig(resolution=(48, 32), views=32, world_init_views=0.5, elevated_train=True)
+    g = GGDSConfig(resolution=(48, 32), views=32, world_init_views=0.5, elevated_train=True,
+                   elevated_frac=0.125)
     whole = Region(((0, 0),), "")
     trained, _ = region_views(layout, g, 0, whole)
     fit_only = replace(g, elevated_train=False)

@@ -238,7 +238,7 @@ def test_fit_views_stand_beyond_the_training_margin_within_the_fit_margin():
     from lsd3d_usd.layout.usdio import read_layout
     from dataclasses import replace
     layout = read_layout(LAYOUT)
-    g = GGDSConfig(resolution=(48, 32))
+    g = GGDSConfig(resolution=(48, 32), elevated_frac=0.125)     # the counts below
     g = replace(g, world_init_views=0.0, elevated_train=True,    # (fit-only elevated: below)
                 regions=replace(g.regions, views_per_chunk=40, fit_view_frac=1.0))
     region = Region(((0, 0),), "chunk_0_0")

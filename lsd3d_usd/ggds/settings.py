@@ -153,7 +153,7 @@ class GGDSConfig:
                                                   "1.2-3 m high) or 'displaced' (a lane view "
                                                   "moved 0.5-8 m as eval's novel views are)",
                               choices=("lane_offset", "displaced"))
-    elevated_frac: float = option(0.125, help="elevated views (above the road, looking "
+    elevated_frac: float = option(0.25, help="elevated views (above the road, looking "
                                               "down: conditioning.elevated_sampling) as a fraction "
                                               "of --views: the colour start fits to them "
                                               "(GGDS trains on them too with "
@@ -164,17 +164,17 @@ class GGDSConfig:
                                               "(0 = none)", lo=0.0, hi=10.0, recorded=0.0)
     elevated_train: bool = option(False, help="train on the elevated views (else the colour "
                                              "start alone fits to them)")
-    elevated_fit_weight: float = option(1.0, help="weight of the elevated views' samples in "
+    elevated_fit_weight: float = option(0.5, help="weight of the elevated views' samples in "
                                                   "the colour start against the eye-height "
                                                   "views' (below 1 a surfel both see keeps "
-                                                  "more of the colour seen from the road; at SH "
-                                                  "degree 2 both directions fit, so 1)",
+                                                  "more of the colour seen from the road; "
+                                                  "docs/ggds.md, views from above)",
                                         lo=1e-3, hi=1.0)
     elevated_heights: tuple[float, float] = option((4.0, 40.0), help="heights of the "
                                                    "elevated views over a lane, log-uniform "
                                                    "between these (metres)", lo=0.1,
                                                    hi=10_000.0, metavar="LOxHI")
-    elevated_overview_frac: float = option(0.25, help="share of the elevated views of a "
+    elevated_overview_frac: float = option(0.5, help="share of the elevated views of a "
                                                       "whole-scene run that frame the layout "
                                                       "from above, as its Overview cameras "
                                                       "do", lo=0.0, hi=1.0)
