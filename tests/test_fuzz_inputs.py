@@ -491,6 +491,14 @@ def check_polygons(case):
 # a 5e-6 m² sliver at 2.3e5 m: its ring's area cancelled to nothing in raw coordinates
 @example(([], [], [], [], [np.array([[-6e4, 0.0], [1e-3, -1e-3], [1.00000002e5, 2.29999998e5],
                                      [1.00000003e5, 2.29999997e5]])]))
+# a lane zigzagging over 4e-6 m with one width of 1 m: a valid sliver ribbon whose two
+# vertices 1e-21 m apart gave NaN in GEOS's mitred curb buffer (a RuntimeWarning)
+@example(([(np.array([[3.999999999999997e-06, 1.0000000000000006e-06, 0.0],
+                      [1e-19, -9.999999999999993e-20, 0.0],
+                      [3.999999999999997e-06, 1.0000000000000006e-06, 0.0],
+                      [3.000000000000002e-19, -3e-19, 0.0],
+                      [4.000000000000002e-06, 1e-06, 0.0]]),
+            np.array([0.0, 1.0, 0.0, 0.0, 0.0]), "driving")], [], [], [], []))
 def test_fuzz_polygon_builder(case):
     check_polygons(case)
 

@@ -46,6 +46,17 @@ def _union(geoms) -> Polygon:
     return as_area(shapely.union_all(np.array(geoms, dtype=object)))
 
 
+def _grown(area, distance: float, **style) -> BaseGeometry:
+    """``area``.buffer(distance, **style); an area whose GEOS buffer meets an invalid or
+    zero division (a valid sliver ribbon 4e-6 m thick with two vertices 1e-21 m apart: NaN
+    coordinates and a RuntimeWarning) is grown again from its copy on a 1 nm grid."""
+    with np.errstate(invalid="raise", divide="raise"):
+        try:
+            return area.buffer(distance, **style)
+        except FloatingPointError:
+            return shapely.set_precision(area, 1e-9).buffer(distance, **style)
+
+
 def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
                  lanes: list[tuple[np.ndarray, np.ndarray, str]],
                  road_areas: list[np.ndarray] = (), sidewalks: list[np.ndarray] = (),
@@ -70,7 +81,7 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
     road_parts += [_poly(p) for p in road_areas]
     R = shapely.intersection(_union(road_parts), big)
     # the curb rings every road boundary (junction mouths are inside the union, so none there)
-    C = as_area(shapely.difference(R.buffer(style.curb_width, quad_segs=2, join_style="mitre"), R))
+    C = as_area(shapely.difference(_grown(R, style.curb_width, quad_segs=2, join_style="mitre"), R))
     if extent is not None:
         # a road cut at the layout's edge continues beyond it: no curb across its end
         inner = box(*extent).buffer(-1.5 * style.curb_width, join_style="mitre")
@@ -78,7 +89,7 @@ def ground_areas(chunk_box: tuple[float, float, float, float], margin: float,
     blocked = _union([R, C])
     walk = [_poly(p) for p in sidewalks] + walk_parts
     if not sidewalks and style.derive_sidewalks and not R.is_empty:
-        derived = R.buffer(style.curb_width + style.sidewalk_width, quad_segs=4)
+        derived = _grown(R, style.curb_width + style.sidewalk_width, quad_segs=4)
         if extent is not None:   # a road cut at the extent continues: no walk around its end
             derived = shapely.intersection(derived, box(*extent))
         walk.append(derived)
