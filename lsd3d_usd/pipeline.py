@@ -141,13 +141,17 @@ def _surfels_hash(layout_hash: str, env_hash: str, cfg: GenerateConfig) -> str:
                  ct.to_dict(cfg.surfels), ct.to_dict(cfg.splats))
 
 
+def _prior_knows_ground(cfg: GenerateConfig) -> bool:
+    """Whether the configured prior says what its open ground looks like (Prior.ground_albedo),
+    known without loading it."""
+    return PRIORS.get(cfg.prior.kind).prior_type().ground_albedo is not Prior.ground_albedo
+
+
 def _env_layer_hash(params_hash: str, layout_hash: str, cfg: GenerateConfig) -> str:
     """The env layer's inputs: the environment, and what its far field is made of (the
     proxy's ground level: the layout and proxy settings; the terrain colour of a prior that
     says what it is, with its seed)."""
-    entry = PRIORS.get(cfg.prior.kind)
-    colour = ((cfg.prior.name, cfg.seed) if entry.prior_type().ground_albedo
-              is not Prior.ground_albedo else "env ground colour")
+    colour = (cfg.prior.name, cfg.seed) if _prior_knows_ground(cfg) else "env ground colour"
     return content_hash(FAR_FIELD_VERSION, params_hash, layout_hash, cfg.proxy.as_dict(), colour)
 
 
@@ -324,9 +328,8 @@ def _far_field(sc: S.Scene, p: Plan, light) -> tuple[float, np.ndarray]:
     level, continuing the prior's terrain where the prior says what that is (its
     ground_albedo), else in the env's ground colour."""
     height = ground_level(sc.layer_path("proxy"))
-    entry = PRIORS.get(p.cfg.prior.kind)
     albedo = None
-    if entry.prior_type().ground_albedo is not Prior.ground_albedo:     # as _env_layer_hash
+    if _prior_knows_ground(p.cfg):
         albedo = make_prior(p.cfg.prior, p.cfg.seed).ground_albedo(light.prior_env)
     if albedo is None:
         albedo = p.env_params.resolved().ground_albedo

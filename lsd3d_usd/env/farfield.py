@@ -27,7 +27,7 @@ import numpy as np
 from lsd3d_usd.env.sh import eval_sh_irradiance
 
 # Rays this close to horizontal meet the plane beyond any fog's reach: the env map alone.
-_MIN_DOWN = 1e-6
+MIN_DOWN = 1e-6     # the same bound in env.lookup's kernel and the viewer's env shader
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,7 @@ class FarField:
         if oz <= 0.0:               # at or below the plane: it is never seen from underneath
             return bg
         dz = np.asarray(dirs, np.float32)[..., 2]
-        down = dz < -_MIN_DOWN
+        down = dz < -MIN_DOWN
         if not down.any():
             return bg
         t = oz / -dz[down].astype(np.float64)

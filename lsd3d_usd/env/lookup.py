@@ -17,6 +17,7 @@ import torch
 from numba import njit, prange
 
 from lsd3d_usd.env.exr import read_env
+from lsd3d_usd.env.farfield import MIN_DOWN
 
 
 def directions_to_pixel(directions: torch.Tensor, width: int, height: int):
@@ -127,7 +128,7 @@ def _lookup_pinhole(image, fx, fy, cx, cy, R, D, pole_y, top, bottom, h, w, out,
             n = r * w + col
             _sample(image, float(np.float32(dx)), float(np.float32(dy)), float(np.float32(dz)),
                     top, bottom, out, n)
-            if oz > 0.0 and z < -1e-6:     # env.farfield.FarField.apply
+            if oz > 0.0 and z < -MIN_DOWN:     # env.farfield.FarField.apply
                 T = math.exp(-fog * (oz / -z))
                 for c in range(out.shape[1]):
                     out[n, c] = max(out[n, c] + shift[c] * T, 0.0)

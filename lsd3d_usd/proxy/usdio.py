@@ -360,7 +360,8 @@ def ground_level(path: str | Path) -> float | None:
     for child in root.GetFilteredChildren(Usd.PrimIsActive & Usd.PrimIsDefined
                                           & ~Usd.PrimIsAbstract):
         stage.Load(child.GetPath())
-        z = [class_mesh_from_prim(prim).vertices[:, 2]
+        z = [np.asarray(UsdGeom.Mesh(prim).GetPointsAttr().Get() or [],
+                        np.float64).reshape(-1, 3)[:, 2]
              for prim in Usd.PrimRange(child) if prim.IsA(UsdGeom.Mesh)
              and (UsdSemantics.LabelsAPI(prim, "class").GetLabelsAttr().Get() or [""])[0]
              in GROUND_LEVEL_CLASSES]

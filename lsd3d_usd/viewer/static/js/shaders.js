@@ -246,7 +246,7 @@ void main() {
 // Full-screen env background: the CPU renderer's lookup (env/mapping.py direction_to_uv,
 // bilinear, longitude wrapping, latitude clamped), per pixel-centre direction, then the far
 // field over it (env/farfield.py FarField.apply): a ray from above the plane z = height going
-// down (d_z < -1e-6, world direction, before the dome rotation) meets it after
+// down (d_z < -1e-6, env.farfield.MIN_DOWN; world direction, before the dome rotation) meets it after
 // t = (eye_z - height) / -d_z and sees max(env(d) + (radiance - ground) * T, 0),
 // T = exp(-fog * t): the map's ground half re-coloured to the plane's.
 export const FULLSCREEN_VS = `#version 300 es
