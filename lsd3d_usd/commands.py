@@ -135,9 +135,6 @@ GROUP_TITLES = {"env": "environment (docs/env.md)", "surfels": "initial surfels"
 
 
 def generate_command(args) -> int:
-    # local import: not loaded for --help
-    from lsd3d_usd.pipeline import RunOptions, generate
-
     got = ct.command_config(args, C.GenerateConfig, display=C.FLAG_NAMES,
                             needs={"output": "generate: -o/--output SCENE is required"})
     if got is None:
@@ -149,6 +146,19 @@ def generate_command(args) -> int:
         raise InputError("--address is for --executor ray")
     if args.json:   # checked now, not after the whole run
         check_output_path(args.json, "--json", what="summary file")
+    # local imports: not loaded for --help. On a fresh install the rasteriser's kernels start
+    # compiling on the other core before this process imports the pipeline (render.precompile)
+    from lsd3d_usd.render import precompile
+    early = None if args.resume else precompile.start_for_ggds(cfg.ggds.steps, cfg.ggds.weights)
+    try:
+        return _generate(args, cfg, explicit)
+    finally:
+        precompile.finish(early, timeout=0.0)     # at once if the command failed before GGDS
+
+
+def _generate(args, cfg, explicit) -> int:
+    from lsd3d_usd.pipeline import RunOptions, generate
+
     run = RunOptions(out=Path(args.output), resume=args.resume, force=args.force,
                      retire_runs=args.retire_runs, keep_checkpoint=args.keep_checkpoint,
                      workers=args.workers, executor=args.executor, address=args.address,

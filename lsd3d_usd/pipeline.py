@@ -424,8 +424,7 @@ def generate(cfg: GenerateConfig, run: RunOptions) -> dict:
     timings = {}
     run.log(f"scene: {sc.root}")
     # on a fresh install, the rasteriser's kernels compile on the other core meanwhile
-    background = (precompile.start(distortion=(cfg.ggds.weights.get("distortion") or 0) > 0)
-                  if cfg.ggds.steps > 0 else None)
+    background = precompile.start_for_ggds(cfg.ggds.steps, cfg.ggds.weights)
     try:
         return _generate_steps(cfg, run, p, sc, timings, t0)
     finally:

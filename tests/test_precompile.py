@@ -16,10 +16,18 @@ from lsd3d_usd.render import precompile
 from conftest import LAYOUT
 
 
+class _Proc:
+    """A stand-in second process (ended: poll() gives its exit code)."""
+
+    def poll(self):
+        return 0
+
+
 def test_start_only_when_switched_on_and_the_kernels_are_not_cached(monkeypatch):
     monkeypatch.setattr(precompile, "_running", None)      # start() sets it: restored after
     started = []
-    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: started.append((a, k)) or "proc")
+    proc = _Proc()
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: started.append((a, k)) or proc)
     monkeypatch.setenv(precompile.ENV_SWITCH, "0")
     monkeypatch.setattr(precompile, "backward_cold", lambda: True)
     assert precompile.start() is None
@@ -27,13 +35,54 @@ def test_start_only_when_switched_on_and_the_kernels_are_not_cached(monkeypatch)
     monkeypatch.setattr(precompile, "backward_cold", lambda: False)
     assert precompile.start() is None and not started
     monkeypatch.setattr(precompile, "backward_cold", lambda: True)
-    assert precompile.start() == "proc"
+    assert precompile.start() is proc
     (args,), kw = started[0]
     assert args == [sys.executable, "-m", "lsd3d_usd.render.precompile"]
-    assert precompile.start(distortion=True) == "proc"
+    assert precompile.start(distortion=True) is proc     # not finished: the same one
+    assert len(started) == 1
+    precompile._running = None                               # finished (finish() does this)
+    assert precompile.start(distortion=True) is proc
     assert started[1][0][0][-1] == "--distortion"           # the run's other signatures
     assert kw["env"][precompile.ENV_SWITCH] == "0"        # the child never starts another
     assert kw["env"]["NUMBA_NUM_THREADS"] == "1"           # one core: the other is the main's
+
+
+def test_a_running_compile_is_not_started_twice(monkeypatch):
+    """generate_command starts the compile before it imports the pipeline; pipeline.generate's
+    own start then finds it running and takes it, with what it has reported so far."""
+    class Running:
+        def poll(self):
+            return None
+
+    running = Running()
+    monkeypatch.setattr(precompile, "_running", running)
+    monkeypatch.setattr(precompile, "_reported", {"forward"})
+    monkeypatch.setattr(precompile, "backward_cold", lambda: True)
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: pytest.fail("started again"))
+    assert precompile.start_for_ggds(250, {"distortion": 0.0}) is running
+    assert precompile._reported == {"forward"}
+    assert precompile.start_for_ggds(0, {}) is None       # no GGDS steps: nothing to compile
+
+
+def test_generate_starts_the_compile_before_importing_the_pipeline(monkeypatch, tmp_path):
+    """The command line's generate launches the second process first and stops it when the
+    command fails before pipeline.generate takes it over."""
+    from lsd3d_usd import commands
+    from lsd3d_usd.cli import build_parser
+    calls = []
+    monkeypatch.setattr(precompile, "start_for_ggds",
+                        lambda steps, weights: calls.append(("start", steps)) or "early")
+    monkeypatch.setattr(precompile, "finish", lambda proc, timeout=1.0: calls.append(("finish", proc)))
+
+    def fail(*a):
+        calls.append(("generate",))
+        raise RuntimeError("stop here")
+    monkeypatch.setattr(commands, "_generate", fail)
+    args = build_parser().parse_args(["generate", "--layout", str(LAYOUT), "-o",
+                                      str(tmp_path / "s"), "--steps", "7"])
+    with pytest.raises(RuntimeError, match="stop here"):
+        commands.generate_command(args)
+    assert calls == [("start", 7), ("generate",), ("finish", "early")]
 
 
 def test_cache_state_read_from_numba_index(tmp_path):

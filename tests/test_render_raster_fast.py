@@ -202,3 +202,22 @@ def test_validation_of_strided_and_float64_inputs():
     lo = np.array([-np.inf, 0.0], np.float32)
     hi = np.full(2, np.inf, np.float32)
     assert first_bad_array((np.zeros(3, np.float32), np.full(2, -1.0, np.float32)), lo, hi) == 1
+
+
+@pytest.mark.parametrize("deg", [1, 2, 3])
+def test_sh_direction_gradient_against_float64_autograd(deg):
+    """project_backward's SH colour derivative along the view direction (sh_grad_dot) is the
+    gradient of render.sh.sh_basis's polynomials, taken by torch in float64 — including at the
+    poles and on the axes, where an angle-based derivative would break down."""
+    from lsd3d_usd.render.sh import sh_basis
+    rng = np.random.default_rng(deg)
+    dirs = rng.normal(size=(64, 3))
+    dirs = np.concatenate([dirs, np.eye(3), -np.eye(3), [[0.0, 0.0, 0.0]]])
+    nk = (deg + 1) ** 2
+    for d in dirs:
+        w = np.zeros(16)
+        w[1:nk] = rng.normal(size=nk - 1)
+        x = torch.tensor(d, dtype=torch.float64, requires_grad=True)
+        (sh_basis(x[None], deg)[0] @ torch.tensor(w[:nk])).backward()
+        got = kprep.sh_grad_dot(d[0], d[1], d[2], deg, w)
+        assert np.allclose(got, x.grad.numpy(), rtol=1e-12, atol=1e-12)

@@ -12,6 +12,7 @@ import torch
 from numba import njit, prange
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.jitopts import prange_only
 from lsd3d_usd.conditioning.shadow import ShadowMap
 from lsd3d_usd.render.camera import Camera
 from lsd3d_usd.render.gbuffer import face_normals, render_depth
@@ -154,7 +155,7 @@ class PackedGBuffer:
             sun_visibility=None if self.sun is None else self.sun.float(), key=key, fine=fine)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _unpack_pixels(face, normals, classes, cam, R, normal, semantic, dirs):
     """Per pixel: its face's normal and class (the table's last row where empty) and the unit
     world direction of its ray."""
@@ -205,7 +206,7 @@ def pack_view_gbuffer(camera: Camera, vertices: np.ndarray, faces: np.ndarray,
                          sun=torch.from_numpy(sun) if shadow is not None else None)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _pack_pixels(zbuf, fid, cam, pose, sv, light, sdepth, shadowed, depth, face, pos, sun):
     """Per pixel: depth and face as float32 / int32; the world position of the pixel ray at
     its depth (float64 inside, 0 where empty); whether the sun's shadow map sees it (texel

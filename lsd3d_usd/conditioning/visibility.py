@@ -20,6 +20,8 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from lsd3d_usd.jitopts import prange_only
+
 
 @dataclass
 class CameraSet:
@@ -60,7 +62,7 @@ def project(points: np.ndarray, cams: CameraSet, margin: float = 0.0):
     return z, ok
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _project(p, R, t, fx, fy, cx, cy, width, height, near, far, margin, z, ok):
     # one pass per point over the cameras (numpy's einsum and masks: ~8x slower)
     for n in prange(p.shape[0]):
@@ -92,22 +94,25 @@ def spheres_in_view(centres: np.ndarray, radii: np.ndarray, camera,
     return ok
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _spheres_in_view(c, r, V, fx, fy, cx, cy, width, height, near, far, m, ok):
     # the four side planes of the grown image pass through the camera centre; their
-    # inward normals in camera coordinates, normalised
-    nl = np.array([fx, 0.0, cx + m]) / math.hypot(fx, cx + m)            # u >= -m
-    nr = np.array([-fx, 0.0, width + m - cx]) / math.hypot(fx, width + m - cx)
-    nt = np.array([0.0, fy, cy + m]) / math.hypot(fy, cy + m)            # v >= -m
-    nb = np.array([0.0, -fy, height + m - cy]) / math.hypot(fy, height + m - cy)
+    # inward normals in camera coordinates, normalised: (x, 0, z) for left and right,
+    # (0, y, z) for top and bottom
+    hl, hr = math.hypot(fx, cx + m), math.hypot(fx, width + m - cx)
+    ht, hb = math.hypot(fy, cy + m), math.hypot(fy, height + m - cy)
+    lx, lz = fx / hl, (cx + m) / hl                     # u >= -m
+    rx, rz = -fx / hr, (width + m - cx) / hr
+    ty, tz = fy / ht, (cy + m) / ht                     # v >= -m
+    by, bz = -fy / hb, (height + m - cy) / hb
     for i in prange(c.shape[0]):
         x = V[0, 0] * c[i, 0] + V[0, 1] * c[i, 1] + V[0, 2] * c[i, 2] + V[0, 3]
         y = V[1, 0] * c[i, 0] + V[1, 1] * c[i, 1] + V[1, 2] * c[i, 2] + V[1, 3]
         z = V[2, 0] * c[i, 0] + V[2, 1] * c[i, 1] + V[2, 2] * c[i, 2] + V[2, 3]
         ri = r[i]
         ok[i] = (z >= near - ri and z <= far + ri
-                 and nl[0] * x + nl[2] * z >= -ri and nr[0] * x + nr[2] * z >= -ri
-                 and nt[1] * y + nt[2] * z >= -ri and nb[1] * y + nb[2] * z >= -ri)
+                 and lx * x + lz * z >= -ri and rx * x + rz * z >= -ri
+                 and ty * y + tz * z >= -ri and by * y + bz * z >= -ri)
 
 
 def footprint(points: np.ndarray, cameras, *, margin: float = 0.0,

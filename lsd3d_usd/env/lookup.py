@@ -18,6 +18,7 @@ from numba import njit, prange
 
 from lsd3d_usd.env.exr import read_env
 from lsd3d_usd.env.farfield import MIN_DOWN
+from lsd3d_usd.jitopts import prange_only
 
 
 def directions_to_pixel(directions: torch.Tensor, width: int, height: int):
@@ -99,14 +100,14 @@ def env_lookup_pinhole(image: np.ndarray, width: int, height: int, fx: float, fy
     return out.reshape(h, w, img.shape[2])
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _lookup(image, dirs, top, bottom, out):
     """env_lookup's sampling, point by point (same formulas, float64)."""
     for n in prange(dirs.shape[0]):
         _sample(image, float(dirs[n, 0]), float(dirs[n, 1]), float(dirs[n, 2]), top, bottom, out, n)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _lookup_pinhole(image, fx, fy, cx, cy, R, D, pole_y, top, bottom, h, w, out, oz, shift, fog):
     """env_lookup_pinhole, pixel by pixel into out (h w, C); the far field where oz > 0."""
     for r in prange(h):

@@ -23,6 +23,7 @@ import torch
 from numba import njit, prange
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.jitopts import prange_only
 from lsd3d_usd.render.kernels import LANES
 from lsd3d_usd.render.raster_types import RasterInputs, RasterSettings
 from lsd3d_usd.render.sh import sh_degree_of
@@ -55,7 +56,7 @@ def first_bad(flat, lo, hi):
 _SCAN = 65536
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def first_bad_array(arrs, lo, hi):
     """Index into arrs (a tuple of 1-D float32 arrays) of the first one holding a value that is
     non-finite or outside [lo[i], hi[i]], -1 if none: one parallel scan over blocks of all of

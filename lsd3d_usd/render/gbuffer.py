@@ -22,6 +22,7 @@ import numpy as np
 from numba import njit, prange
 
 from lsd3d_usd.errors import InputError
+from lsd3d_usd.jitopts import prange_only
 from lsd3d_usd.render.camera import Camera
 
 BAND_ROWS = 8
@@ -45,7 +46,7 @@ def _edge(ax, ay, bx, by, px, py):
     return (bx - ax) * (py - ay) - (by - ay) * (px - ax)
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _setup(vc, faces, fx, fy, cx, cy, near, W, H, tri, bbox):
     """tri[f, s] = (u0, v0, iz0, u1, v1, iz1, u2, v2, iz2) for sub-triangle s in {0, 1};
     bbox[f, s] = (x0, x1, y0, y1) inclusive pixel ranges, x0 > x1 when empty."""
@@ -128,7 +129,7 @@ def _bin(bbox, n_bands, band_rows):
     return offs, items
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _raster(tri, bbox, offs, items, far, W, H, band_rows, zbuf, fid):
     n_bands = offs.shape[0] - 1
     for b in prange(n_bands):

@@ -39,6 +39,8 @@ from numba import njit, prange, types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from lsd3d_usd.jitopts import prange_only
+
 f32 = np.float32
 _HALF = np.float32(0.5)
 _ONE = np.float32(1.0)
@@ -174,7 +176,7 @@ def _radix_by_depth(a, depth_bits):
         a[q] = src[q]
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
     """Tile lists of all surfels in depth order, without a global sort: (tile, surfel) pairs
     are counted and scattered in parallel chunks of surfels (so each tile's list is in index
@@ -194,7 +196,9 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
     step = (m + nch - 1) // nch
     # tile of a pixel column / row by table (rects lie inside the image): an integer
     # division by the runtime tile size per rectangle corner cost as much as the counting
-    tof = np.arange(max(ntx, nty) * tile, dtype=np.int32) // np.int32(tile)
+    tof = np.empty(max(ntx, nty) * tile, np.int32)
+    for x in range(tof.shape[0]):
+        tof[x] = x // tile
     cnt = np.zeros((nch, ntiles), np.int64)
     surf_off = np.zeros(m + 1, np.int64)
     for ch in prange(nch):
@@ -246,7 +250,7 @@ def bin_sorted(rects, depth_bits, prm, tile, ntx, nty):
     return counts, out, pair_prm, pair_rect, surf_off
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def surfel_pairs(tile_start, tile_splats, pair_rect, surf_off, tile, ntx):
     """Per visible surfel the positions of its pairs, ascending (surfel j owns
     [surf_off[j], surf_off[j+1])): the slot of a pair is its tile's row-major place in the
@@ -328,7 +332,7 @@ _BLOCK = np.uint64(_NQ * LANES)
 MAX_TILE_PAIRS = 1 << 24  # list positions held exactly in float32
 
 
-@njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
+@njit(parallel=prange_only(), cache=True, error_model="numpy", fastmath={"contract"})
 def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
             near, alpha_min, alpha_max, t_min, dist, amax):
     """Front-to-back compositing; prm and rects are per pair (bin_sorted's pair_prm,
@@ -493,7 +497,7 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
     return rgb, tfin, dacc, nacc, dmed, last, med, evals
 
 
-@njit(parallel=True, cache=True, error_model="numpy", fastmath={"contract"})
+@njit(parallel=prange_only(), cache=True, error_model="numpy", fastmath={"contract"})
 def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
              near, alpha_min, alpha_max, tfin, last, med,
              g_rgb, g_t, g_d, g_n, g_med, dist, g_dist):
@@ -505,44 +509,50 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
     moments, dD_u/dw_k = A (u_k - mu)^2 + S (goes into q = dL/dw_k like every other output)
     and dD_u/du_k = 2 w_k A (u_k - mu), times du/dz = -1/z^2 into gz."""
     npairs = tile_splats.shape[0]
-    out = np.zeros((npairs, 16), f32)
+    out = np.empty((npairs, 16), f32)     # zeroed per tile below, in parallel
     npx = tile * tile
     for it in prange(ntx * nty):
         t = tile_order[it]
         k0 = tile_start[t]
         k1 = tile_start[t + 1]
+        out[k0:k1] = 0
         if k1 == k0:
             continue
         ty = t // ntx
         tx = t - ty * ntx
         x0 = tx * tile
         y0 = ty * tile
-        pxs = np.empty(npx, f32)
-        pys = np.empty(npx, f32)
-        T = np.zeros(npx, f32)
-        sg = np.zeros(npx, f32)
-        tg = np.zeros(npx, f32)  # T_final * dL/dT_final
-        lst = np.zeros(npx, np.int32)
-        lmed = np.full(npx, -1, np.int32)
-        gr = np.zeros(npx, f32)
-        gg = np.zeros(npx, f32)
-        gb = np.zeros(npx, f32)
-        gd = np.zeros(npx, f32)
-        gnx = np.zeros(npx, f32)
-        gny = np.zeros(npx, f32)
-        gnz = np.zeros(npx, f32)
-        gm = np.zeros(npx, f32)
-        m_a = np.zeros(npx, f32)
-        m_mu = np.zeros(npx, f32)
-        m_s = np.zeros(npx, f32)
-        g_u = np.zeros(npx, f32)
-        abuf = np.empty(npx, f32)
-        zbuf = np.empty(npx, f32)
+        # the tile's scratch planes as views of one zeroed block (one allocation, not 26)
+        scr = np.zeros(23 * npx, f32)
+        pxs = scr[0:npx]
+        pys = scr[npx:2 * npx]
+        T = scr[2 * npx:3 * npx]
+        sg = scr[3 * npx:4 * npx]
+        tg = scr[4 * npx:5 * npx]  # T_final * dL/dT_final
+        gr = scr[5 * npx:6 * npx]
+        gg = scr[6 * npx:7 * npx]
+        gb = scr[7 * npx:8 * npx]
+        gd = scr[8 * npx:9 * npx]
+        gnx = scr[9 * npx:10 * npx]
+        gny = scr[10 * npx:11 * npx]
+        gnz = scr[11 * npx:12 * npx]
+        gm = scr[12 * npx:13 * npx]
+        m_a = scr[13 * npx:14 * npx]
+        m_mu = scr[14 * npx:15 * npx]
+        m_s = scr[15 * npx:16 * npx]
+        g_u = scr[16 * npx:17 * npx]
+        abuf = scr[17 * npx:18 * npx]
+        zbuf = scr[18 * npx:19 * npx]
         pxr = pxs[:tile]  # x of the pixel centres of one tile row
-        gbuf = np.empty(npx, f32)
-        ubuf = np.empty(npx, f32)
-        vbuf = np.empty(npx, f32)
-        wbuf = np.empty(npx, f32)
+        gbuf = scr[19 * npx:20 * npx]
+        ubuf = scr[20 * npx:21 * npx]
+        vbuf = scr[21 * npx:22 * npx]
+        wbuf = scr[22 * npx:23 * npx]
+        ints = np.zeros(2 * npx, np.int32)
+        lst = ints[0:npx]
+        lmed = ints[npx:2 * npx]
+        for p in range(npx):
+            lmed[p] = -1
         sbuf = np.empty(npx, np.bool_)
         kmax = k0
         for p in range(npx):

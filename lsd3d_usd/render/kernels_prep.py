@@ -4,7 +4,7 @@ Same math as projection.py (which the float64 reference uses; see its docstring)
 per-surfel scalar float64 code in parallel loops: in torch the ~60 small array operations per
 surfel cost seconds at 1 M surfels, here tens of milliseconds. The backward is the chain rule
 of the forward written out step by step (comments name the step it reverses); the SH basis
-derivatives use the complex step (the basis is polynomial, so this is exact).
+derivatives are the basis polynomials' own (sh_grad_dot).
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from lsd3d_usd.jitopts import prange_only
 from lsd3d_usd.render.projection import EDGE_COS, LOWPASS_INV_SIGMA2, S_MIN
 from lsd3d_usd.render.sh import C0, C1, C2, C3
 
@@ -44,6 +45,35 @@ def sh_basis_into(x, y, z, deg, out):
             out[13] = _C3[4] * x * (4 * zz - xx - yy)
             out[14] = _C3[5] * z * (xx - yy)
             out[15] = _C3[6] * x * (xx - 3 * yy)
+
+
+@njit(inline="always")
+def sh_grad_dot(x, y, z, deg, w):
+    """sum_k w[k] * grad Y_k at (x, y, z), k >= 1, for the basis of sh_basis_into taken as
+    polynomials in x, y, z (the caller projects out the radial part): the SH colour's
+    derivative along the view direction, in real arithmetic."""
+    gx = -C1 * w[3]
+    gy = -C1 * w[1]
+    gz = C1 * w[2]
+    if deg >= 2:
+        c = _C2
+        gx += c[0] * y * w[4] - 2 * c[2] * x * w[6] + c[3] * z * w[7] + 2 * c[4] * x * w[8]
+        gy += c[0] * x * w[4] + c[1] * z * w[5] - 2 * c[2] * y * w[6] - 2 * c[4] * y * w[8]
+        gz += c[1] * y * w[5] + 4 * c[2] * z * w[6] + c[3] * x * w[7]
+        if deg >= 3:
+            c = _C3
+            xx, yy, zz = x * x, y * y, z * z
+            xy, xz, yz = x * y, x * z, y * z
+            gx += (6 * c[0] * xy * w[9] + c[1] * yz * w[10] - 2 * c[2] * xy * w[11]
+                   - 6 * c[3] * xz * w[12] + c[4] * (4 * zz - 3 * xx - yy) * w[13]
+                   + 2 * c[5] * xz * w[14] + 3 * c[6] * (xx - yy) * w[15])
+            gy += (3 * c[0] * (xx - yy) * w[9] + c[1] * xz * w[10]
+                   + c[2] * (4 * zz - xx - 3 * yy) * w[11] - 6 * c[3] * yz * w[12]
+                   - 2 * c[4] * xy * w[13] - 2 * c[5] * yz * w[14] - 6 * c[6] * xy * w[15])
+            gz += (c[1] * xy * w[10] + 8 * c[2] * yz * w[11]
+                   + c[3] * (6 * zz - 3 * xx - 3 * yy) * w[12] + 8 * c[4] * xz * w[13]
+                   + c[5] * (xx - yy) * w[14])
+    return gx, gy, gz
 
 
 @njit(inline="always")
@@ -241,7 +271,7 @@ def _project_one(i, means, quats, scales, opac, sh, deg, Rv, C, K, width, height
     return True
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def _project_into(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
                   alpha_min, bound_sigma, prm, vis, rect, zcs, bnd, want_bnd):
     n = means.shape[0]
@@ -277,7 +307,7 @@ def project(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, 
     return prm, vis, rect, zcs, bnd
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def project_visible(means, quats, scales, opac, sh, deg, Rv, C, K, width, height, near, far,
                     alpha_min, bound_sigma):
     """The visible surfels only: (index (M,) int64 ascending, prm (M,16) float32, rect (M,4)
@@ -305,7 +335,7 @@ def project_visible(means, quats, scales, opac, sh, deg, Rv, C, K, width, height
     return idx, prm_c, rect_c, z_c
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def project_backward(idx, rows, surf_off, surf_pairs, means, quats, scales, opac, sh, deg, Rv,
                      C, K):
     """Gradients w.r.t. means (N,3), quats (N,4), scales (N,2), opacities (N,), sh (N,K,3) of
@@ -313,33 +343,40 @@ def project_backward(idx, rows, surf_off, surf_pairs, means, quats, scales, opac
     parameters: visible surfel j owns rows surf_pairs[surf_off[j]:surf_off[j+1]] (summed here
     in that order, ascending pair position, in float32)."""
     n = means.shape[0]
-    g_means = np.zeros((n, 3), np.float32)
-    g_quats = np.zeros((n, 4), np.float32)
-    g_scales = np.zeros((n, 2), np.float32)
-    g_opac = np.zeros(n, np.float32)
-    g_sh = np.zeros(sh.shape, np.float32)
+    g_means = np.empty((n, 3), np.float32)
+    g_quats = np.empty((n, 4), np.float32)
+    g_scales = np.empty((n, 2), np.float32)
+    g_opac = np.empty(n, np.float32)
+    g_sh = np.empty(sh.shape, np.float32)
+    flat = g_sh.reshape(-1)
+    nsh = flat.shape[0] // max(n, 1)
+    for ch in prange((n + _CHUNK - 1) // _CHUNK):    # zeros (SH: 190 B a surfel), in parallel
+        for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
+            g_means[i, 0] = g_means[i, 1] = g_means[i, 2] = 0
+            g_quats[i, 0] = g_quats[i, 1] = g_quats[i, 2] = g_quats[i, 3] = 0
+            g_scales[i, 0] = g_scales[i, 1] = g_opac[i] = 0
+            for q in range(i * nsh, (i + 1) * nsh):
+                flat[q] = 0
     m = idx.shape[0]
     for ch in prange((m + _CHUNK - 1) // _CHUNK):
         R = np.empty((3, 3))
         GR = np.zeros((3, 3))
         Y = np.zeros(16)
-        Yc = np.zeros(16, np.complex128)
+        W = np.zeros(16)
         g = np.empty(16, np.float32)
         gcol = np.zeros(3)
-        gdir = np.zeros(3)
         for j in range(ch * _CHUNK, min(m, (ch + 1) * _CHUNK)):
             _project_backward_one(j, idx, rows, surf_off, surf_pairs, means, quats, scales, sh,
-                                  deg, Rv, C, K, R, GR, Y, Yc, g, gcol, gdir, g_means, g_quats,
+                                  deg, Rv, C, K, R, GR, Y, W, g, gcol, g_means, g_quats,
                                   g_scales, g_opac, g_sh)
     return g_means, g_quats, g_scales, g_opac, g_sh
 
 
 @njit(inline="always")
 def _project_backward_one(j, idx, rows, surf_off, surf_pairs, means, quats, scales, sh, deg, Rv,
-                          C, K, R, GR, Y, Yc, g, gcol, gdir, g_means, g_quats, g_scales, g_opac,
+                          C, K, R, GR, Y, W, g, gcol, g_means, g_quats, g_scales, g_opac,
                           g_sh):
     nk = (deg + 1) * (deg + 1)
-    h = 1e-30
     if True:
         i = idx[j]
         for c in range(16):
@@ -477,19 +514,14 @@ def _project_backward_one(j, idx, rows, surf_off, surf_pairs, means, quats, scal
                 for k in range(nk):
                     g_sh[i, k, c] = Y[k] * gcol[c]
         if deg > 0 and (gcol[0] != 0 or gcol[1] != 0 or gcol[2] != 0):
-            for ax in range(3):  # complex step: dY/d(dir_ax) = Im Y(dir + i h e_ax) / h
-                sh_basis_into(dx + (1j * h if ax == 0 else 0j), dy + (1j * h if ax == 1 else 0j),
-                          dz + (1j * h if ax == 2 else 0j), deg, Yc)
-                acc = 0.0
-                for k in range(1, nk):
-                    dyk = Yc[k].imag / h
-                    acc += dyk * (np.float64(sh[i, k, 0]) * gcol[0] + np.float64(sh[i, k, 1]) * gcol[1]
-                                  + np.float64(sh[i, k, 2]) * gcol[2])
-                gdir[ax] = acc
-            dd = dx * gdir[0] + dy * gdir[1] + dz * gdir[2]
-            gm0 += (gdir[0] - dx * dd) / mn
-            gm1 += (gdir[1] - dy * dd) / mn
-            gm2 += (gdir[2] - dz * dd) / mn
+            for k in range(1, nk):      # dL/dY_k
+                W[k] = (np.float64(sh[i, k, 0]) * gcol[0] + np.float64(sh[i, k, 1]) * gcol[1]
+                        + np.float64(sh[i, k, 2]) * gcol[2])
+            gd0, gd1, gd2 = sh_grad_dot(dx, dy, dz, deg, W)
+            dd = dx * gd0 + dy * gd1 + dz * gd2
+            gm0 += (gd0 - dx * dd) / mn
+            gm1 += (gd1 - dy * dd) / mn
+            gm2 += (gd2 - dz * dd) / mn
         g_means[i, 0] = gm0
         g_means[i, 1] = gm1
         g_means[i, 2] = gm2

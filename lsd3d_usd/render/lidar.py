@@ -38,6 +38,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit, prange
 
+from lsd3d_usd.jitopts import prange_only
+
 
 ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
@@ -151,7 +153,7 @@ def _hit_packed(ox, oy, oz, dx, dy, dz, P, p):
 
 
 # ----------------------------------------------------------------------------- binning
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=prange_only())
 def rotate_columns(rot, d):
     """(R, C, 3) directions: each column's ``d[:, c]`` (sensor frame) turned by its pose's
     rotation ``rot[c]`` (3, 3) — a sweep's rays in the world, the products summed in axis
@@ -166,7 +168,7 @@ def rotate_columns(rot, d):
     return out
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=prange_only())
 def _tile_bounds(dirs, tc, tr):
     """Per tile (ring group, column group): the world azimuth of its middle ray, the largest
     azimuth difference of its rays from it, and the range of the sines of its rays'
@@ -330,7 +332,7 @@ def _bin_group(g, near, e0, e1, az, w, anyaz, mid, half, el_lo, el_hi, az_mid, a
     return p, n
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=prange_only())
 def _bin(c, rad, oref, dref, sec_org, sec_d, sec_groups, az_mid, az_half, el_lo, el_hi,
          rings_sorted, mid, half, half_max, full_turn, max_range, mode, cap, per, offsets,
          tile_of, key):
@@ -452,7 +454,7 @@ KEY_OCTAVES = (-1, 10)   # the keys _bucket_tiles orders: 0.5 m to 1 km (outside
 KEY_SPLITS = 5           # bits of mantissa a bucket keeps: 32 buckets an octave (3 % apart)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=prange_only())
 def _bucket_tiles(offsets, idx, key):
     """Each tile's pairs grouped by key into buckets 1/32 of an octave wide (a counting sort,
     ties in surfel order), each key lowered to its bucket's floor. The trace needs no finer
@@ -488,7 +490,7 @@ def _bucket_tiles(offsets, idx, key):
 
 
 # ----------------------------------------------------------------------------- tracing
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=prange_only())
 def _trace(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k):
     R, C = dirs.shape[0], dirs.shape[1]
     nr, nc = (R + tr - 1) // tr, (C + tc - 1) // tc
@@ -534,7 +536,7 @@ def _trace(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k
                 out_t[i, j] = best
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=prange_only())
 def _trace_tiles(dirs, origins, P, offsets, idx, key, tc, tr, tmin, tmax, out_t, out_k):
     """_trace with a tile's rays taken together: each candidate surfel is met by all the
     tile's rays in one tight loop (scalar: Python's error model checks each division; with
@@ -660,7 +662,7 @@ def _trace_tile(h, g, nc, R, C, tr, tc, dirs, origins, P, offsets, idx, key, tmi
             r += 1
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=prange_only())
 def _trace_meshes(dirs, origins, col_group, local_from_world, verts, faces, face_lo,
                   face_hi, box_lo, box_hi, tmin, tmax, out_t, out_a, out_f):
     """Nearest triangle hit per ray over mesh actors (actor-local geometry; per column group

@@ -2,11 +2,12 @@
 everything before them.
 
 numba compiles a kernel the first time it is called and caches it on disk; compiling is
-serial, so on a fresh install `generate` spends most of its first minute compiling one
-kernel after another on one core. The rasteriser's kernels (the forward's
-`project_visible`, `bin_sorted`, `forward`, the backward's `project_backward`, `backward`:
-~38 of ~51 s) are first called after the proxy, the surfels and the conditioning's own
-kernels. `start` launches a process that renders a tiny field forward, says so on its
+serial, so on a fresh install `generate` would spend its first ~50 s compiling one kernel
+after another on one core. The rasteriser's kernels (the forward's `project_visible`,
+`bin_sorted`, `forward`, the backward's `project_backward`, `backward`: ~31 of those s,
+docs/render.md "First run") are first called after the proxy, the surfels and the
+conditioning's own kernels. `start` (called by `generate` as soon as it has read its
+options) launches a process that renders a tiny field forward, says so on its
 stdout, then backward, says so, and exits; numba writes what it compiled to the same
 on-disk cache (its writes are atomic). The main process, meanwhile compiling the other
 kernels on the other core, waits at its first rasterisation for the second process's
@@ -58,8 +59,11 @@ def start(distortion: bool = False) -> subprocess.Popen | None:
     """Launch the background compile if it is useful (see the module doc); the process, or
     None. ``distortion``: the run renders the depth-distortion output (other kernel
     signatures). The process's stdout is the pipe `wait_until` reads; its stderr is
-    discarded (the main process reports compiling as before)."""
+    discarded (the main process reports compiling as before). One this process started and
+    has not finished yet (running or ended) is returned as it is."""
     global _running, _waited
+    if _running is not None:
+        return _running
     if os.name == "nt" or os.environ.get(ENV_SWITCH, "1") == "0" or not backward_cold():
         return None
     env = dict(os.environ, NUMBA_NUM_THREADS="1", OMP_NUM_THREADS="1", **{ENV_SWITCH: "0"})
@@ -73,6 +77,16 @@ def start(distortion: bool = False) -> subprocess.Popen | None:
     _running, _waited = proc, 0.0
     _reported.clear()
     return proc
+
+
+def start_for_ggds(steps: int, weights: dict) -> subprocess.Popen | None:
+    """`start` for a GGDS run of ``steps`` steps with these loss weights (None without
+    steps). The `generate` command calls it as soon as its options are read, before it
+    imports the pipeline and plans the run, and pipeline.generate again (for callers that
+    start there), which then takes over the process already started."""
+    if steps <= 0:
+        return None
+    return start(distortion=(weights.get("distortion") or 0) > 0)
 
 
 def wait_until(stage: str, timeout: float = WAIT_S) -> None:

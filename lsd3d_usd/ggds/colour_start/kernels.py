@@ -14,6 +14,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from lsd3d_usd.jitopts import prange_only
 from lsd3d_usd.render.kernels_prep import sh_basis_into
 
 
@@ -75,7 +76,7 @@ def _add_sample(n, positions, scales, normals, viewmat, centre, fx, fy, cx, cy, 
     return True
 
 
-@njit(parallel=True, cache=True)
+@njit(parallel=prange_only(), cache=True)
 def accumulate_view(positions, scales, normals, viewmat, centre, fx, fy, cx, cy, near,
                     depth, table, rel_tol, abs_tol, max_radius, min_weight, view_weight,
                     degree, A, b, count):

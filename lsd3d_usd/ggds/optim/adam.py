@@ -14,12 +14,19 @@ import numpy as np
 import torch
 from numba import njit, prange
 
+from lsd3d_usd.jitopts import prange_only
 from lsd3d_usd.shmath import C0 as SH_C0
 
 ROW_BLOCK = 1 << 17
 
 
-@njit(cache=True, parallel=True)
+@njit(inline="always")
+def _rel_factor(c, rel_ref, rel_least):
+    """sqrt(base colour / rel_ref) within [rel_least, 1] (SelectiveAdam's rel_ref)."""
+    return min(max(math.sqrt(max(0.5 + SH_C0 * c, 0.0) / rel_ref), rel_least), 1.0)
+
+
+@njit(cache=True, parallel=prange_only())
 def _adam_rows(p, g, m, v, rows, t, lr, b1, b2, eps, col_scale, rel_ref, rel_least):
     """Adam on the rows ``rows`` (R,) of p, g, m, v (N,D) float32, in place. t (N,): each
     row's update count (this one included); col_scale (D,): the lr factor of each column.
@@ -31,18 +38,19 @@ def _adam_rows(p, g, m, v, rows, t, lr, b1, b2, eps, col_scale, rel_ref, rel_lea
         i = rows[q]
         c1 = np.float32(1.0 - b1 ** t[i])
         c2 = np.float32(1.0 - b2 ** t[i])
-        f = np.ones(3)
+        f0 = f1 = f2 = 1.0      # scalars: an array here would be a heap allocation per row
         if rel_ref > 0:
-            for c in range(3):
-                f[c] = min(max(math.sqrt(max(0.5 + SH_C0 * p[i, c], 0.0) / rel_ref),
-                               rel_least), 1.0)
+            f0 = _rel_factor(p[i, 0], rel_ref, rel_least)
+            f1 = _rel_factor(p[i, 1], rel_ref, rel_least)
+            f2 = _rel_factor(p[i, 2], rel_ref, rel_least)
         for j in range(D):
             gj = g[i, j]
             mj = np.float32(m[i, j] * b1 + gj * (1.0 - b1))
             vj = np.float32(v[i, j] * b2 + gj * gj * (1.0 - b2))
             m[i, j] = mj
             v[i, j] = vj
-            step = mj / c1 / (math.sqrt(vj / c2) + eps) * lr * col_scale[j] * f[j % 3]
+            f = f0 if j % 3 == 0 else f1 if j % 3 == 1 else f2
+            step = mj / c1 / (math.sqrt(vj / c2) + eps) * lr * col_scale[j] * f
             p[i, j] -= np.float32(step)
 
 

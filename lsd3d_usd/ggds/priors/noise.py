@@ -15,6 +15,8 @@ import numpy as np
 import torch
 from numba import njit, prange
 
+from lsd3d_usd.jitopts import prange_only
+
 _M32 = 0xFFFFFFFF
 _PRIMES = (0x8DA6B343, 0xD8163841, 0xCB1AB31F)
 
@@ -92,7 +94,7 @@ def _mix_nb(h):
     return h ^ (h >> 16)
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, parallel=prange_only())
 def _fbm_nb(p, octaves, seed, lacunarity, gain, out):
     n, D = p.shape
     primes = np.array([0x8DA6B343, 0xD8163841, 0xCB1AB31F], dtype=np.int64)
