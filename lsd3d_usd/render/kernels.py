@@ -336,7 +336,8 @@ MAX_TILE_PAIRS = 1 << 24  # list positions held exactly in float32
 def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile, ntx, nty,
             near, alpha_min, alpha_max, t_min, dist, amax):
     """Front-to-back compositing; prm and rects are per pair (bin_sorted's pair_prm,
-    pair_rect), tile_splats the surfel of each pair; tile a multiple of LANES. Returns (rgb
+    pair_rect), tile_splats the surfel of each pair; tile a multiple of LANES; tile_order
+    every tile exactly once (the outputs are written tile by tile, never filled). Returns (rgb
     (H,W,3), T_final, depth_acc = sum w z, normal_acc (H,W,3) = sum w n, depth_median, last
     (list position + 1 of the last contributor, per pixel), med (list position of the median
     contributor or -1), evals (ntiles, 2): per tile the Gaussians evaluated (rows x blocks x
@@ -356,14 +357,16 @@ def forward(prm, rects, tile_start, tile_splats, tile_order, width, height, tile
     moments of the contributors in u = 1/z: A = sum w, mu = sum w u / A, S = sum w (u - mu)^2
     (Welford's weighted update: every term is >= 0, no cancellation). With None numba prunes
     every use at compile time, so the default variant is the plain kernel."""
-    rgb = np.zeros((height, width, 3), f32)
-    tfin = np.ones((height, width), f32)
-    dacc = np.zeros((height, width), f32)
-    nacc = np.zeros((height, width, 3), f32)
-    dmed = np.zeros((height, width), f32)
-    last = np.zeros((height, width), np.int32)
-    med = np.full((height, width), -1, np.int32)
-    evals = np.zeros((ntx * nty, 2), np.int64)
+    # uninitialised: tile_order holds every tile once and each tile writes all its pixels
+    # (and its evals row) at its end, so a fill before would be a serial pass for nothing
+    rgb = np.empty((height, width, 3), f32)
+    tfin = np.empty((height, width), f32)
+    dacc = np.empty((height, width), f32)
+    nacc = np.empty((height, width, 3), f32)
+    dmed = np.empty((height, width), f32)
+    last = np.empty((height, width), np.int32)
+    med = np.empty((height, width), np.int32)
+    evals = np.empty((ntx * nty, 2), np.int64)
     nbr = tile // LANES  # blocks per tile row
     nblk = nbr * tile
     for it in prange(ntx * nty):
