@@ -554,8 +554,7 @@ def backward(prm, rects, tile_start, tile_splats, tile_order, width, height, til
         ints = np.zeros(2 * npx, np.int32)
         lst = ints[0:npx]
         lmed = ints[npx:2 * npx]
-        for p in range(npx):
-            lmed[p] = -1
+        lmed[:] = -1
         sbuf = np.empty(npx, np.bool_)
         kmax = k0
         for p in range(npx):

@@ -349,7 +349,7 @@ def project_backward(idx, rows, surf_off, surf_pairs, means, quats, scales, opac
     g_opac = np.empty(n, np.float32)
     g_sh = np.empty(sh.shape, np.float32)
     flat = g_sh.reshape(-1)
-    nsh = flat.shape[0] // max(n, 1)
+    nsh = sh.shape[1] * sh.shape[2]      # SH values per surfel
     for ch in prange((n + _CHUNK - 1) // _CHUNK):    # zeros (SH: 190 B a surfel), in parallel
         for i in range(ch * _CHUNK, min(n, (ch + 1) * _CHUNK)):
             g_means[i, 0] = g_means[i, 1] = g_means[i, 2] = 0
