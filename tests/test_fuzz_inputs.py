@@ -499,6 +499,10 @@ def check_polygons(case):
                       [3.000000000000002e-19, -3e-19, 0.0],
                       [4.000000000000002e-06, 1e-06, 0.0]]),
             np.array([0.0, 1.0, 0.0, 0.0, 0.0]), "driving")], [], [], [], []))
+# a building ring whose vertex lies 4e-9 m inside the sidewalk's corner and touches its
+# edge: the sliver between the rings left a 4e-9 m curb wall of no area
+@example(([], [np.array([[0.0, 0.0], [1.0, -2.0], [0.0, 1.0]])], [], [],
+          [np.array([[3e-9, -3e-9], [5e-5, 0.0], [0.0, 5e-5]])]))
 def test_fuzz_polygon_builder(case):
     check_polygons(case)
 

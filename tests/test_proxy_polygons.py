@@ -26,6 +26,20 @@ def test_prism_of_a_sliver_ring_is_the_solid_without_it():
     assert len(f) == len(ref_f) and np.allclose(np.sort(v, axis=0), np.sort(ref_v, axis=0))
 
 
+def test_near_vertices_of_different_rings_are_not_sound_and_get_meshed_without_slivers():
+    from lsd3d_usd.proxy.mesh import SIDEWALK, MeshPart
+    near = Polygon([(1, -2), (0, 0), (0, 5e-5), (0, 1)],
+                   [[(3e-9, -3e-9), (5e-5, 0), (0, 5e-5)]])
+    far = Polygon([(1, -2), (0, 0), (0, 5e-5), (0, 1)],
+                  [[(3e-6, -3e-6), (5e-5, 0), (0, 5e-5)]])
+    assert near.is_valid and far.is_valid
+    assert not planar._sound(near) and planar._sound(far)
+    assert list(planar._sound_all([near, far])) == [False, True]
+    v, f = planar.prism(near, 0.0, 0.17)
+    assert len(f) and planar._closed(f)
+    assert check_part(MeshPart(v, f, SIDEWALK, "ground/sidewalk/t", solid=True)) == []
+
+
 @pytest.mark.parametrize("geom", [
     _sliver_multipolygon(),
     Polygon([(0, 0), (4, 4), (4, 0), (0, 4)]),                         # bow tie
@@ -35,6 +49,8 @@ def test_prism_of_a_sliver_ring_is_the_solid_without_it():
     Polygon([(0, 0), (10, 0), (5, 0)]),                                # collinear
     # found by the fuzz suite: make_valid pieces that overlap once their rings are cleaned
     Polygon([(1, 2), (1e-13, -1e-13), (3, -2e-13), (3e-13, 1), (3, -4e-13)]),
+    # a hole touching the outer ring, its vertex 4e-9 m from the outer ring's corner
+    Polygon([(1, -2), (0, 0), (0, 5e-5), (0, 1)], [[(3e-9, -3e-9), (5e-5, 0), (0, 5e-5)]]),
 ])
 def test_clean_area_gives_sound_polygons_that_mesh(geom):
     clean = planar.clean_area(geom)
