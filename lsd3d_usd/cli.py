@@ -26,7 +26,7 @@ COMMAND_MODULES = (
     "lsd3d_usd.datasets.commands",
     "lsd3d_usd.sim_commands",
     "lsd3d_usd.scenario_commands",
-    "lsd3d_usd.env.commands",
+    "lsd3d_usd.env_commands",
     "lsd3d_usd.actors.commands",
     "lsd3d_usd.bench",
     "lsd3d_usd.batch.commands",

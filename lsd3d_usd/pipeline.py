@@ -141,17 +141,17 @@ def _surfels_hash(layout_hash: str, env_hash: str, cfg: GenerateConfig) -> str:
                  ct.to_dict(cfg.surfels), ct.to_dict(cfg.splats))
 
 
-def _prior_knows_ground(cfg: GenerateConfig) -> bool:
-    """Whether the configured prior says what its open ground looks like (Prior.ground_albedo),
-    known without loading it."""
-    return PRIORS.get(cfg.prior.kind).prior_type().ground_albedo is not Prior.ground_albedo
+def _prior_knows_ground(prior_cfg) -> bool:
+    """Whether the configured prior (a PriorConfig) says what its open ground looks like
+    (Prior.ground_albedo), known without loading it."""
+    return PRIORS.get(prior_cfg.kind).prior_type().ground_albedo is not Prior.ground_albedo
 
 
 def _env_layer_hash(params_hash: str, layout_hash: str, cfg: GenerateConfig) -> str:
     """The env layer's inputs: the environment, and what its far field is made of (the
     proxy's ground level: the layout and proxy settings; the terrain colour of a prior that
     says what it is, with its seed)."""
-    colour = (cfg.prior.name, cfg.seed) if _prior_knows_ground(cfg) else "env ground colour"
+    colour = (cfg.prior.name, cfg.seed) if _prior_knows_ground(cfg.prior) else "env ground colour"
     return content_hash(FAR_FIELD_VERSION, params_hash, layout_hash, cfg.proxy.as_dict(), colour)
 
 
@@ -307,32 +307,40 @@ def _env_step(sc: S.Scene, p: Plan):
         return light
     stage = S.new_stage()
     write_env_layer(stage, [p.env_params], texture_dir=sc.textures_dir, width=w, height=h,
-                    layer_dir=sc.root / S.LAYERS_DIR)
-    # The surfels are authored in display-scaled radiance: record the scale on the dome as a
-    # standard exposure, so USD renderers and our preview show the sky at the same level.
-    env = stage.GetPrimAtPath(S.ENV_PATH)
-    vset = env.GetVariantSets().GetVariantSet("environment")
-    with vset.GetVariantEditContext():
-        UsdLux.DomeLight_1(env.GetChild("Dome")).GetExposureAttr().Set(float(math.log2(light.exposure)))
-        env.CreateAttribute("lsd3d:env:displayExposure", S.Sdf.ValueTypeNames.Float,
-                            custom=True).Set(float(light.exposure))
-        height, albedo = _far_field(sc, p, light)
-        author_far_field(stage, height, albedo)
+                    layer_dir=sc.root / S.LAYERS_DIR,
+                    variant_extras=lambda st, _name, _exr: author_scene_variant(
+                        st, sc, p.cfg.prior, p.cfg.seed, p.env_params, light))
     sc.write_layer("env", stage, S.provenance("env", p.env_params.to_dict(), seed=p.cfg.seed,
                                                exposure=light.exposure, inputsHash=p.env_hash))
     return light
 
 
-def _far_field(sc: S.Scene, p: Plan, light) -> tuple[float, np.ndarray]:
+def author_scene_variant(stage, sc: S.Scene, prior_cfg, seed: int, params, light) -> None:
+    """What an environment variant of a scene's env layer holds beside the map, authored where
+    the stage's edit target is (the variant's edit context): the display scale the surfels
+    are authored in (``light.exposure``) as the dome's standard exposure, so USD renderers and
+    our views show the sky at the surfels' level, and the ground beyond the scene
+    (env.farfield). `generate` authors its own variant so; `lsd3d-usd env --usd` into a
+    scene's env layer authors an added variant alike (env_commands)."""
+    env = stage.GetPrimAtPath(S.ENV_PATH)
+    UsdLux.DomeLight_1(env.GetChild("Dome")).GetExposureAttr().Set(float(math.log2(light.exposure)))
+    env.CreateAttribute("lsd3d:env:displayExposure", S.Sdf.ValueTypeNames.Float,
+                        custom=True).Set(float(light.exposure))
+    height, albedo = _far_field(sc, prior_cfg, seed, params, light)
+    author_far_field(stage, height, albedo)
+
+
+def _far_field(sc: S.Scene, prior_cfg, seed: int, params, light) -> tuple[float, np.ndarray]:
     """Height and albedo of the ground beyond the scene (env.farfield): at the proxy's ground
     level, continuing the prior's terrain where the prior says what that is (its
     ground_albedo), else in the env's ground colour."""
-    height = ground_level(sc.layer_path("proxy"))
+    proxy = sc.layer_path("proxy")
+    height = ground_level(proxy) if proxy.is_file() else None
     albedo = None
-    if _prior_knows_ground(p.cfg):
-        albedo = make_prior(p.cfg.prior, p.cfg.seed).ground_albedo(light.prior_env)
+    if _prior_knows_ground(prior_cfg):
+        albedo = make_prior(prior_cfg, seed).ground_albedo(light.prior_env)
     if albedo is None:
-        albedo = p.env_params.resolved().ground_albedo
+        albedo = params.resolved().ground_albedo
     return (0.0 if height is None else height), np.asarray(albedo, np.float64)
 
 

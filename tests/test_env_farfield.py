@@ -264,3 +264,53 @@ def test_the_env_layer_is_remade_when_what_its_far_field_rests_on_changes():
     assert h != _env_layer_hash("env", "layout2", base)
     assert h != _env_layer_hash("env", "layout", generate_config(seed=2))      # the terrain's seed
     assert h != _env_layer_hash("env", "layout", generate_config(seed=1, proxy={"traffic_lights": False}))
+
+
+def test_env_variant_added_to_a_scene_gets_its_exposure_and_far_field(small_scene, tmp_path,
+                                                                      run_cli):
+    # `lsd3d-usd env --usd SCENE/layers/env.usda` adds a variant as generate authors its own:
+    # the display exposure and the ground beyond the scene; a layer outside a scene gets neither
+    import shutil
+
+    from lsd3d_usd.conditioning.light import scene_light
+    from lsd3d_usd.env.exr import read_env
+    from lsd3d_usd.env.params import EnvParams
+
+    scene = tmp_path / "scene"
+    shutil.copytree(small_scene, scene)
+    before = Usd.Stage.Open(str(scene / S.ROOT_FILE))
+    old = read_far_field(before)
+    assert old is not None
+    old_albedo = np.array(before.GetPrimAtPath(S.ENV_PATH).GetAttribute(FAR_ALBEDO).Get())
+    exr = scene / "textures" / "rain.exr"
+    run_cli("env", "--prompt", "rainy autumn evening in Seattle", "--resolution", "64x32",
+            "-o", exr, "--usd", scene / S.LAYERS_DIR / "env.usda", "--variant", "rain",
+            check=True)
+    stage = before
+    stage.Reload()          # the layers this process holds are the files before the command
+    env = stage.GetPrimAtPath(S.ENV_PATH)
+    assert env.GetVariantSets().GetVariantSet("environment").GetVariantSelection() == "rain"
+    far = read_far_field(stage)
+    assert far is not None and far.height == pytest.approx(old.height)
+    albedo = np.array(env.GetAttribute(FAR_ALBEDO).Get())
+    params = EnvParams.from_dict(read_env(exr)[1]["lsd3d:params"])
+    light = scene_light(params, exr)
+    # the scene's prior (procedural) continues its own terrain, weathered for the rain
+    want = ProceduralPrior(seed=5).ground_albedo(light.prior_env)
+    np.testing.assert_allclose(albedo, want, rtol=1e-5)
+    assert np.abs(albedo - old_albedo).max() > 0.02
+    shown = env.GetAttribute("lsd3d:env:displayExposure").Get()
+    assert shown == pytest.approx(light.exposure, rel=1e-6)
+    from pxr import UsdLux
+    dome = UsdLux.DomeLight_1(env.GetChild("Dome"))
+    assert dome.GetExposureAttr().Get() == pytest.approx(math.log2(light.exposure), rel=1e-6)
+    assert read_dome(stage).far_field is not None
+    # the generate variant is untouched
+    env.GetVariantSets().GetVariantSet("environment").SetVariantSelection(
+        [n for n in env.GetVariantSets().GetVariantSet("environment").GetVariantNames()
+         if n != "rain"][0])
+    assert read_far_field(stage).height == pytest.approx(old.height)
+    # outside a scene: the plain env layer, as before
+    run_cli("env", "--prompt", "rainy autumn evening in Seattle", "--resolution", "64x32",
+            "-o", tmp_path / "e.exr", "--usd", tmp_path / "env.usda", check=True)
+    assert read_far_field(Usd.Stage.Open(str(tmp_path / "env.usda"))) is None

@@ -102,7 +102,7 @@ def test_generate_below_a_file(tmp_path, cli_error):
 
 def test_os_errors_are_one_line(tmp_path, cli_error, monkeypatch):
     # 16: a folder made immutable mid-run: the OSError of the write is one line naming the file
-    import lsd3d_usd.env.commands as envc
+    import lsd3d_usd.env_commands as envc
 
     def denied(*a, **k):
         raise PermissionError(13, "Permission denied", str(tmp_path / "ggds" / "loss.png"))

@@ -59,7 +59,8 @@ def _default_texture_dir(layer_path: Path) -> Path:
     return d.parent / scene.TEXTURES_DIR if d.name == scene.LAYERS_DIR else d / scene.TEXTURES_DIR
 
 
-def _author_variant(stage, env_path, name: str, exr: Path, meta: dict, layer_dir: Path):
+def _author_variant(stage, env_path, name: str, exr: Path, meta: dict, layer_dir: Path,
+                    extras=None):
     env = stage.GetPrimAtPath(env_path)
     vset = env.GetVariantSets().AddVariantSet(VARIANT_SET)
     vset.AddVariant(name)
@@ -116,11 +117,13 @@ def _author_variant(stage, env_path, name: str, exr: Path, meta: dict, layer_dir
         attr("paramsHash", Sdf.ValueTypeNames.String, meta.get("lsd3d:paramsHash", ""))
         attr("params", Sdf.ValueTypeNames.String, json.dumps(meta.get("lsd3d:params", {}),
                                                              sort_keys=True))
+        if extras is not None:
+            extras(stage, name, exr)
 
 
 def write_env_layer(stage_or_path, envs, selected: str | None = None,
                     texture_dir=None, width: int = 2048, height: int = 1024,
-                    layer_dir=None, append: bool = True):
+                    layer_dir=None, append: bool = True, variant_extras=None):
     """Author /World/Env with one variant per environment.
 
     envs: EnvParams, EXR paths written by `write_env`, or (variant name, either) pairs; a
@@ -129,6 +132,8 @@ def write_env_layer(stage_or_path, envs, selected: str | None = None,
     stage_or_path: a Usd.Stage to author into (returned, not saved), or a .usda path,
     written atomically with scene.save_stage (an existing env layer there gets the new
     variants added when `append`). `selected`: variant to select (default: the first given).
+    ``variant_extras``: None, or a callable (stage, variant name, EXR path) run inside each new
+    variant's edit context (what a scene adds: its display exposure, its far field).
     """
 
     if isinstance(envs, (EnvParams, str, Path, tuple)):
@@ -174,7 +179,7 @@ def write_env_layer(stage_or_path, envs, selected: str | None = None,
                 c.isalnum() or c == "_" for c in name):
             raise InputError(f"variant name {name!r}: use letters, digits and _ (not starting "
                              f"with a digit)")
-        _author_variant(stage, env_path, name, exr, img_meta, layer_dir)
+        _author_variant(stage, env_path, name, exr, img_meta, layer_dir, variant_extras)
         names.append(name)
         recorded.append({"variant": name, "texture": _relative_asset(exr, layer_dir),
                          "paramsHash": img_meta.get("lsd3d:paramsHash", "")})

@@ -112,6 +112,20 @@ def recorded_config(sc: S.Scene, run: str | None = None):
     return None, (runs[0].name if runs else None)
 
 
+def recorded_prior_config(sc: S.Scene, run: str | None = None):
+    """(PriorConfig, seed, prompt, where they came from, run): what the GGDS run ``run``
+    (default: the newest unmuted one) recorded, else the default prior with the scene's seed."""
+    recorded, run = recorded_config(sc, run)
+    if recorded is not None:
+        cfg = configtree.from_dict(PriorConfig, recorded.get("prior", {}))
+        seed = int(recorded.get("seed", 0))
+        prompt = (recorded.get("env") or {}).get("prompt") or ""
+        return cfg, seed, prompt, f"recorded by GGDS run {run}", run
+    source = (f"default (GGDS run {run} records no configuration)" if run
+              else "default (the scene has no GGDS run)")
+    return PriorConfig(), _scene_seed(sc), "", source, run
+
+
 def recorded_prior_name(scene_path, run: str | None = None) -> str:
     """The registered name of the prior the scene's GGDS run ``run`` (default: the newest
     unmuted one) recorded (the default prior's when none is recorded, as load_scene_prior
@@ -144,16 +158,7 @@ def load_scene_prior(scene_path, prior: str | None = None, controlnet=None, *,
     that chooses another prior. Reads only."""
     t0 = time.perf_counter()
     sc = S.Scene.open(scene_root(scene_path))
-    recorded, run = recorded_config(sc, run)
-    if recorded is not None:
-        cfg = configtree.from_dict(PriorConfig, recorded.get("prior", {}))
-        seed = int(recorded.get("seed", 0))
-        prompt = (recorded.get("env") or {}).get("prompt") or ""
-        source = f"recorded by GGDS run {run}"
-    else:
-        cfg, seed, prompt = PriorConfig(), _scene_seed(sc), ""
-        source = (f"default (GGDS run {run} records no configuration)" if run
-                  else "default (the scene has no GGDS run)")
+    cfg, seed, prompt, source, run = recorded_prior_config(sc, run)
     if prior is not None:
         cfg.name = check_prior_name(prior, override)
         source = override

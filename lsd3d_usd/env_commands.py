@@ -1,9 +1,14 @@
-"""`lsd3d-usd env`: write an environment EXR (and optionally its DomeLight layer)."""
+"""`lsd3d-usd env`: write an environment EXR (and optionally its DomeLight layer).
+
+Above the pipeline (not in env/): a variant added to a scene's own env layer is authored as
+`generate` authors its variant (pipeline.author_scene_variant: the display exposure and the
+ground beyond the scene in the colour of the scene's prior), which needs the scene's prior."""
 from __future__ import annotations
 
 import argparse
 import sys
 import time
+from pathlib import Path
 
 from lsd3d_usd import configtree as ct
 from lsd3d_usd.cliutil import check_output_path
@@ -45,9 +50,36 @@ def _env(args) -> int:
         # local import: not loaded for --help
         from lsd3d_usd.env.usdlayer import write_env_layer
         item = (args.variant, path) if args.variant else path
-        layer = write_env_layer(args.usd, [item], append=not args.replace)
-        print(f"wrote {layer}  (/World/Env, DomeLight_1 poleAxis=Z)")
+        sc = _scene_of_env_layer(args.usd)
+        extras = None if sc is None else _scene_variant(sc, params, path)
+        layer = write_env_layer(args.usd, [item], append=not args.replace, variant_extras=extras)
+        print(f"wrote {layer}  (/World/Env, DomeLight_1 poleAxis=Z"
+              + (", the scene's display exposure and far field)" if sc is not None else ")"))
     return 0
+
+
+def _scene_of_env_layer(layer):
+    """The scene whose env layer ``layer`` is (SCENE/layers/env.usda), or None."""
+    from lsd3d_usd import scene as S
+    p = Path(layer).absolute()
+    root = p.parent.parent
+    if p.parent.name != S.LAYERS_DIR or not (root / S.ROOT_FILE).is_file():
+        return None
+    sc = S.Scene.open(root)
+    return sc if sc.layer_path("env").absolute() == p else None
+
+
+def _scene_variant(sc, params, exr):
+    """The variant_extras that author a new variant of the scene's env layer as generate
+    authors its own: exposure from this environment's light, the far field at the proxy's
+    ground level in the colour of the scene's recorded prior."""
+    from lsd3d_usd.conditioning.light import scene_light
+    from lsd3d_usd.ggds.priors.scene import recorded_prior_config
+    from lsd3d_usd.pipeline import author_scene_variant
+    prior_cfg, seed, *_ = recorded_prior_config(sc)
+    light = scene_light(params, exr)
+    return lambda stage, _name, _exr: author_scene_variant(stage, sc, prior_cfg, seed, params,
+                                                           light)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -63,7 +95,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     ct.add_arguments(p, SkyConfig, flags=SKY_FLAGS)
     p.add_argument("-o", "--output", required=True, help="output .exr path")
     p.add_argument("--usd", help="also write (or add a variant to) this env layer, e.g. "
-                                 "scene/layers/env.usda: /World/Env with a DomeLight_1")
+                                 "scene/layers/env.usda: /World/Env with a DomeLight_1 (a "
+                                 "scene's own env layer: the variant also gets the scene's "
+                                 "display exposure and ground beyond the scene, as generate's)")
     p.add_argument("--variant", help="variant name in the env layer (default: weather_time_season)")
     p.add_argument("--replace", action="store_true",
                    help="rewrite the --usd layer instead of adding a variant to it")
