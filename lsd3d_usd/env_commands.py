@@ -13,6 +13,7 @@ from pathlib import Path
 from lsd3d_usd import configtree as ct
 from lsd3d_usd.cliutil import check_output_path
 from lsd3d_usd.env.config import SKY_FLAGS, SkyConfig
+from lsd3d_usd.errors import InputError
 
 
 def _env(args) -> int:
@@ -51,6 +52,10 @@ def _env(args) -> int:
         from lsd3d_usd.env.usdlayer import write_env_layer
         item = (args.variant, path) if args.variant else path
         sc = _scene_of_env_layer(args.usd)
+        if sc is not None and args.replace:
+            raise InputError(f"--replace {args.usd}: that is the scene's own env layer, which "
+                             "generate makes (its GGDS runs rest on it); add a variant without "
+                             "--replace, or generate the scene with another --prompt")
         extras = None if sc is None else _scene_variant(sc, params, path)
         layer = write_env_layer(args.usd, [item], append=not args.replace, variant_extras=extras)
         print(f"wrote {layer}  (/World/Env, DomeLight_1 poleAxis=Z"
@@ -61,12 +66,12 @@ def _env(args) -> int:
 def _scene_of_env_layer(layer):
     """The scene whose env layer ``layer`` is (SCENE/layers/env.usda), or None."""
     from lsd3d_usd import scene as S
-    p = Path(layer).absolute()
+    p = Path(layer).resolve()
     root = p.parent.parent
     if p.parent.name != S.LAYERS_DIR or not (root / S.ROOT_FILE).is_file():
         return None
     sc = S.Scene.open(root)
-    return sc if sc.layer_path("env").absolute() == p else None
+    return sc if sc.layer_path("env").resolve() == p else None
 
 
 def _scene_variant(sc, params, exr):

@@ -305,11 +305,22 @@ def test_env_variant_added_to_a_scene_gets_its_exposure_and_far_field(small_scen
     dome = UsdLux.DomeLight_1(env.GetChild("Dome"))
     assert dome.GetExposureAttr().Get() == pytest.approx(math.log2(light.exposure), rel=1e-6)
     assert read_dome(stage).far_field is not None
-    # the generate variant is untouched
-    env.GetVariantSets().GetVariantSet("environment").SetVariantSelection(
-        [n for n in env.GetVariantSets().GetVariantSet("environment").GetVariantNames()
-         if n != "rain"][0])
+    # GGDS and eval still condition on the environment generate made (its map, its far
+    # field), whatever variant the layer selects for the views
+    from lsd3d_usd.conditioning.scene import scene_env
+    sc = S.Scene.open(scene)
+    made, _ = scene_env(S.Scene.open(small_scene))
+    params_now, texture = scene_env(sc, stage=stage)
+    assert params_now.to_dict() == made.to_dict() and texture.resolve() != exr.resolve()
     assert read_far_field(stage).height == pytest.approx(old.height)
+    assert np.array(env.GetAttribute(FAR_ALBEDO).Get()) == pytest.approx(old_albedo)
+    # the scene's own layer is generate's to remake: --replace is refused, nothing written
+    before_bytes = (scene / S.LAYERS_DIR / "env.usda").read_bytes()
+    got = run_cli("env", "--prompt", "snowy winter morning", "--resolution", "64x32",
+                  "-o", tmp_path / "snow.exr", "--usd", scene / S.LAYERS_DIR / "env.usda",
+                  "--replace")
+    assert got.returncode != 0 and "--replace" in got.stderr and "scene's own env layer" in got.stderr
+    assert (scene / S.LAYERS_DIR / "env.usda").read_bytes() == before_bytes
     # outside a scene: the plain env layer, as before
     run_cli("env", "--prompt", "rainy autumn evening in Seattle", "--resolution", "64x32",
             "-o", tmp_path / "e.exr", "--usd", tmp_path / "env.usda", check=True)

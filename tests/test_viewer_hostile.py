@@ -65,7 +65,10 @@ def test_idle_connections_are_closed_and_connections_bounded(viewer, monkeypatch
     idle.close()
     srv.max_connections = 2
     held = [socket.create_connection(srv.server_address, timeout=10) for _ in range(2)]
-    time.sleep(0.1)
+    deadline = time.monotonic() + 5     # both held connections accepted (a loaded machine
+    while srv._active < 2 and time.monotonic() < deadline:     # took more than 0.1 s)
+        time.sleep(0.01)
+    assert srv._active == 2
     extra = socket.create_connection(srv.server_address, timeout=10)
     assert extra.recv(64).startswith(b"HTTP/1.1 503")
     for s in held + [extra]:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Callable, Hashable
 
 import torch
+from pxr import Usd
 
 from lsd3d_usd import scene as S
 from lsd3d_usd.conditioning.gbuffer import (
@@ -25,6 +26,7 @@ from lsd3d_usd.conditioning.gbuffer import (
 from lsd3d_usd.conditioning.light import PriorEnv, SceneLight, scene_light
 from lsd3d_usd.conditioning.shadow import ShadowMap, shadow_map
 from lsd3d_usd.env.params import EnvParams
+from lsd3d_usd.env.usdlayer import VARIANT_SET as ENV_VARIANT_SET
 from lsd3d_usd.env.usdlayer import read_env_prim, read_far_field
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.proxy.usdio import proxy_arrays
@@ -109,9 +111,23 @@ class Conditioning:
         return None if self.backdrop is None else self.backdrop(camera)
 
 
+def _select_made_variant(stage, params: EnvParams) -> None:
+    """Select, in ``stage``'s session layer, the environment variant `generate` made (named
+    by its parameters), when the env layer's selection is another one: a variant added with
+    `lsd3d-usd env --usd` and selected changes what views draw, not the light the surfels
+    were fitted under, which GGDS and eval condition on."""
+    env = stage.GetPrimAtPath(S.ENV_PATH)
+    vset = env.GetVariantSets().GetVariantSet(ENV_VARIANT_SET) if env else None
+    name = params.variant_name()
+    if vset and name in vset.GetVariantNames() and vset.GetVariantSelection() != name:
+        with Usd.EditContext(stage, stage.GetSessionLayer()):
+            vset.SetVariantSelection(name)
+
+
 def scene_env(sc: S.Scene, purpose: str = "GGDS", stage=None) -> tuple[EnvParams, Path]:
     """(environment parameters of the scene's env layer, its EXR); one InputError line naming
-    what is missing. ``stage``: the scene's stage if the caller has it open."""
+    what is missing. ``stage``: the scene's stage if the caller has it open (its session layer
+    then selects generate's environment variant, as the one this returns)."""
     env_layer = next((li for li in sc.layers() if li.name == "env"), None)
     if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
         raise InputError(f"{sc.layer_path('env')}: {purpose} needs the scene's env layer with "
@@ -120,7 +136,9 @@ def scene_env(sc: S.Scene, purpose: str = "GGDS", stage=None) -> tuple[EnvParams
         params = EnvParams.from_dict(dict(env_layer.provenance["params"]))
     except (KeyError, TypeError, ValueError) as e:
         raise InputError(f"{env_layer.path}: unreadable env parameters ({e})") from None
-    texture = read_env_prim(stage or sc.open_stage(load=False)).get("texture")
+    stage = stage or sc.open_stage(load=False)
+    _select_made_variant(stage, params)
+    texture = read_env_prim(stage).get("texture")
     if not texture or not Path(texture).is_file():
         raise InputError(f"{env_layer.path}: the env map texture {texture!r} is missing")
     return params, Path(texture)

@@ -156,6 +156,8 @@ def _sample(image, x, y, z, top, bottom, out, n):
         x0 += W
     elif x0 >= W:
         x0 -= W
+    if x0 < 0 or x0 >= W:      # a NaN direction: any texel (the value is NaN anyway)
+        x0 = 0
     x1 = x0 + 1 if x0 + 1 < W else 0
     y0 = min(max(math.floor(py), 0.0), H - 2.0)
     fy = min(max(py - y0, 0.0), 1.0)

@@ -190,7 +190,8 @@ def write_env_layer(stage_or_path, envs, selected: str | None = None,
     vset.SetVariantSelection(sel)
     if path is None:
         return stage
-    prov = scene.provenance("env", params={"environments": json.dumps(recorded)})
+    # its own key: a scene's env layer keeps generate's parameters (lsd3d.params) beside it
+    prov = scene.provenance("env", environments=json.dumps(recorded))
     return scene.save_stage(stage, path, provenance=prov)
 
 
