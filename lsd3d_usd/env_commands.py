@@ -28,8 +28,14 @@ def _env(args) -> int:
     w, h = e.resolution
     check_resolution(w, h)
     out = check_output_path(args.output, "-o", suffixes=(".exr",), what="environment map")
+    sc = None
     if args.usd:
         check_output_path(args.usd, "--usd", suffixes=(".usda", ".usdc", ".usd"), what="env layer")
+        sc = _scene_of_env_layer(args.usd)
+        if sc is not None and args.replace:     # refused before anything is written
+            raise InputError(f"--replace {args.usd}: that is the scene's own env layer, which "
+                             "generate makes (its GGDS runs rest on it); add a variant without "
+                             "--replace, or generate the scene with another --prompt")
     fields = dict(seed=cfg.seed, turbidity=cfg.turbidity, cloud_coverage=cfg.cloud_coverage,
                   fog_density=cfg.fog_density, north_deg=cfg.north, color_space=cfg.color_space)
     params, unknown = build_params(e.prompt, when=e.when, lat=e.lat, lon=e.lon,
@@ -51,11 +57,6 @@ def _env(args) -> int:
         # local import: not loaded for --help
         from lsd3d_usd.env.usdlayer import write_env_layer
         item = (args.variant, path) if args.variant else path
-        sc = _scene_of_env_layer(args.usd)
-        if sc is not None and args.replace:
-            raise InputError(f"--replace {args.usd}: that is the scene's own env layer, which "
-                             "generate makes (its GGDS runs rest on it); add a variant without "
-                             "--replace, or generate the scene with another --prompt")
         extras = None if sc is None else _scene_variant(sc, params, path)
         layer = write_env_layer(args.usd, [item], append=not args.replace, variant_extras=extras)
         print(f"wrote {layer}  (/World/Env, DomeLight_1 poleAxis=Z"

@@ -321,6 +321,7 @@ def test_env_variant_added_to_a_scene_gets_its_exposure_and_far_field(small_scen
                   "--replace")
     assert got.returncode != 0 and "--replace" in got.stderr and "scene's own env layer" in got.stderr
     assert (scene / S.LAYERS_DIR / "env.usda").read_bytes() == before_bytes
+    assert not (tmp_path / "snow.exr").exists()
     # outside a scene: the plain env layer, as before
     run_cli("env", "--prompt", "rainy autumn evening in Seattle", "--resolution", "64x32",
             "-o", tmp_path / "e.exr", "--usd", tmp_path / "env.usda", check=True)
