@@ -1,6 +1,7 @@
 """The ground beyond the scene (env.farfield): the plane against a float64 ray-by-ray
 reference, its edge cases, the env layer's attributes, and every consumer drawing it alike."""
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -314,6 +315,14 @@ def test_env_variant_added_to_a_scene_gets_its_exposure_and_far_field(small_scen
     assert params_now.to_dict() == made.to_dict() and texture.resolve() != exr.resolve()
     assert read_far_field(stage).height == pytest.approx(old.height)
     assert np.array(env.GetAttribute(FAR_ALBEDO).Get()) == pytest.approx(old_albedo)
+    # eval renders with the environment its targets are conditioned on
+    from lsd3d_usd.conditioning.scene import select_generated_environment
+    from lsd3d_usd.env.usdlayer import read_env_prim
+    views = Usd.Stage.Open(str(scene / S.ROOT_FILE))
+    assert Path(read_env_prim(views)["texture"]).name == "rain.exr"
+    select_generated_environment(sc, views)
+    assert Path(read_env_prim(views)["texture"]).resolve() == texture.resolve()
+    assert read_dome(views).far_field.height == pytest.approx(old.height)
     # the scene's own layer is generate's to remake: --replace is refused, nothing written
     before_bytes = (scene / S.LAYERS_DIR / "env.usda").read_bytes()
     got = run_cli("env", "--prompt", "snowy winter morning", "--resolution", "64x32",

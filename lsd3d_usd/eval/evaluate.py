@@ -25,6 +25,7 @@ from lsd3d_usd import configtree as ct
 from lsd3d_usd import scene as S
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.conditioning.elevated_sampling import ELEVATED
+from lsd3d_usd.conditioning.scene import select_generated_environment
 from lsd3d_usd.eval import class_psnr as CP
 from lsd3d_usd.eval import elevated_views as E
 from lsd3d_usd.eval import geometry as G
@@ -273,6 +274,8 @@ def _load(o: EvalOptions) -> Inputs:
     surfels = scene_surfels(stage)
     if surfels is None:
         raise InputError(f"{sc.root}: no surfels to render (no visible ParticleField prim)")
+    # the environment its targets are conditioned on, whatever variant the views select
+    select_generated_environment(sc, stage)
     env = read_dome(stage)
     layout = read_layout(layout_path)
     proxy = proxy_arrays(sc.layer_path("proxy"))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from lsd3d_usd import scene as S
+from lsd3d_usd.conditioning.scene import select_generated_environment
 from lsd3d_usd.errors import InputError
 from lsd3d_usd.eval.geometry import surfel_depth
 from lsd3d_usd.eval.render import render_view
@@ -159,6 +160,7 @@ def reference_frames(ref, cameras):
     surfels = scene_surfels(stage)
     if surfels is None:
         raise InputError(f"--seams-reference {ref.root}: no surfels to render")
+    select_generated_environment(ref, stage)      # as evaluate does for the scene
     env = read_dome(stage)
     for cam in cameras:
         yield render_view(surfels, env, cam)
