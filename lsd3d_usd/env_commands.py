@@ -44,6 +44,12 @@ def _env(args) -> int:
     if unknown:
         print(f"lsd3d-usd: warning: prompt words not understood (ignored): {unknown_words(unknown)}",
               file=sys.stderr)
+    if sc is not None:
+        made = _made_variant(sc)
+        if made is not None and (args.variant or params.variant_name()) == made:
+            raise InputError(f"--usd {args.usd}: the variant {made!r} is the one generate made "
+                             "for the scene (its GGDS runs rest on it); name the new one with "
+                             "--variant")
     r = params.resolved()
     t0 = time.perf_counter()
     timings: dict = {}
@@ -57,6 +63,8 @@ def _env(args) -> int:
         # local import: not loaded for --help
         from lsd3d_usd.env.usdlayer import write_env_layer
         item = (args.variant, path) if args.variant else path
+        if sc is not None:      # the name checked against generate's above
+            item = (args.variant or params.variant_name(), path)
         extras = None if sc is None else _scene_variant(sc, params, path)
         layer = write_env_layer(args.usd, [item], append=not args.replace, variant_extras=extras)
         print(f"wrote {layer}  (/World/Env, DomeLight_1 poleAxis=Z"
@@ -65,14 +73,28 @@ def _env(args) -> int:
 
 
 def _scene_of_env_layer(layer):
-    """The scene whose env layer ``layer`` is (SCENE/layers/env.usda), or None."""
+    """The scene whose env layer ``layer`` is (SCENE/layers/env.usda), or None; found from
+    the path as given and from its real path (symlinked folders either way)."""
     from lsd3d_usd import scene as S
-    p = Path(layer).resolve()
-    root = p.parent.parent
-    if p.parent.name != S.LAYERS_DIR or not (root / S.ROOT_FILE).is_file():
+    real = Path(layer).resolve()
+    for p in dict.fromkeys((Path(layer).absolute(), real)):
+        root = p.parent.parent
+        if p.parent.name == S.LAYERS_DIR and (root / S.ROOT_FILE).is_file():
+            sc = S.Scene.open(root)
+            if sc.layer_path("env").resolve() == real:
+                return sc
+    return None
+
+
+def _made_variant(sc):
+    """The name of the environment variant generate made for the scene (its recorded
+    parameters' variant name), or None when the env layer records none."""
+    from lsd3d_usd.env.params import EnvParams
+    layer = next((li for li in sc.layers() if li.name == "env"), None)
+    try:
+        return EnvParams.from_dict(dict(layer.provenance["params"])).variant_name()
+    except (AttributeError, KeyError, TypeError, ValueError):
         return None
-    sc = S.Scene.open(root)
-    return sc if sc.layer_path("env").resolve() == p else None
 
 
 def _scene_variant(sc, params, exr):

@@ -310,9 +310,10 @@ def test_env_variant_added_to_a_scene_gets_its_exposure_and_far_field(small_scen
     # field), whatever variant the layer selects for the views
     from lsd3d_usd.conditioning.scene import scene_env
     sc = S.Scene.open(scene)
-    made, _ = scene_env(S.Scene.open(small_scene))
+    made, made_texture = scene_env(S.Scene.open(small_scene))
     params_now, texture = scene_env(sc, stage=stage)
-    assert params_now.to_dict() == made.to_dict() and texture.resolve() != exr.resolve()
+    assert params_now.to_dict() == made.to_dict()
+    assert texture.name == made_texture.name and texture.resolve() != exr.resolve()
     assert read_far_field(stage).height == pytest.approx(old.height)
     assert np.array(env.GetAttribute(FAR_ALBEDO).Get()) == pytest.approx(old_albedo)
     # eval renders with the environment its targets are conditioned on
@@ -322,7 +323,17 @@ def test_env_variant_added_to_a_scene_gets_its_exposure_and_far_field(small_scen
     assert Path(read_env_prim(views)["texture"]).name == "rain.exr"
     select_generated_environment(sc, views)
     assert Path(read_env_prim(views)["texture"]).resolve() == texture.resolve()
-    assert read_dome(views).far_field.height == pytest.approx(old.height)
+    assert np.array(views.GetPrimAtPath(S.ENV_PATH).GetAttribute(FAR_ALBEDO).Get()) == \
+        pytest.approx(old_albedo)
+    # the session layer's choice is not saved with the scene
+    views.Save()
+    assert Path(read_env_prim(Usd.Stage.Open(str(scene / S.ROOT_FILE)))["texture"]).name == \
+        "rain.exr"
+    # generate's variant is not written over, by its name or by the same conditions
+    got = run_cli("env", "--resolution", "64x32", "-o", tmp_path / "same.exr", "--usd",
+                  scene / S.LAYERS_DIR / "env.usda", "--variant", made.variant_name())
+    assert got.returncode != 0 and "--variant" in got.stderr and made.variant_name() in got.stderr
+    assert not (tmp_path / "same.exr").exists()
     # the scene's own layer is generate's to remake: --replace is refused, nothing written
     before_bytes = (scene / S.LAYERS_DIR / "env.usda").read_bytes()
     got = run_cli("env", "--prompt", "snowy winter morning", "--resolution", "64x32",
