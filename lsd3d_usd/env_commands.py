@@ -87,14 +87,10 @@ def _scene_of_env_layer(layer):
 
 
 def _made_variant(sc):
-    """The name of the environment variant generate made for the scene (its recorded
-    parameters' variant name), or None when the env layer records none."""
-    from lsd3d_usd.env.params import EnvParams
-    layer = next((li for li in sc.layers() if li.name == "env"), None)
-    try:
-        return EnvParams.from_dict(dict(layer.provenance["params"])).variant_name()
-    except (AttributeError, KeyError, TypeError, ValueError):
-        return None
+    """The name of the environment variant generate made for the scene, or None."""
+    from lsd3d_usd.conditioning.scene import made_environment
+    made = made_environment(sc)
+    return None if made is None else made.variant_name()
 
 
 def _scene_variant(sc, params, exr):

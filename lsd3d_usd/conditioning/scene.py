@@ -111,18 +111,26 @@ class Conditioning:
         return None if self.backdrop is None else self.backdrop(camera)
 
 
+def made_environment(sc: S.Scene) -> EnvParams | None:
+    """The environment `generate` made for the scene (its env layer's recorded parameters),
+    or None when there are none or they do not read (scene_env names what is wrong, for
+    whoever needs them)."""
+    env_layer = next((li for li in sc.layers() if li.name == "env"), None)
+    if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
+        return None
+    try:
+        return EnvParams.from_dict(dict(env_layer.provenance["params"]))
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
 def select_generated_environment(sc: S.Scene, stage) -> None:
     """In ``stage``'s session layer, select the environment variant `generate` made for the
     scene (when its env layer records its parameters and holds that variant): what eval
     renders against targets conditioned on that environment. Nothing otherwise."""
-    env_layer = next((li for li in sc.layers() if li.name == "env"), None)
-    if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
-        return
-    try:
-        params = EnvParams.from_dict(dict(env_layer.provenance["params"]))
-    except (KeyError, TypeError, ValueError):
-        return          # scene_env names it, for whoever needs the parameters
-    _select_made_variant(stage, params)
+    params = made_environment(sc)
+    if params is not None:
+        _select_made_variant(stage, params)
 
 
 def _select_made_variant(stage, params: EnvParams) -> None:
