@@ -111,16 +111,26 @@ class Conditioning:
         return None if self.backdrop is None else self.backdrop(camera)
 
 
+def _recorded_params(sc: S.Scene, purpose: str) -> tuple[EnvParams, Path]:
+    """(the environment `generate` recorded on the scene's env layer, that layer's path); one
+    InputError line naming what is missing or unreadable."""
+    env_layer = next((li for li in sc.layers() if li.name == "env"), None)
+    if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
+        raise InputError(f"{sc.layer_path('env')}: {purpose} needs the scene's env layer with "
+                         "its parameters (customLayerData lsd3d.params)")
+    try:
+        return EnvParams.from_dict(dict(env_layer.provenance["params"])), env_layer.path
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"{env_layer.path}: unreadable env parameters ({e})") from None
+
+
 def made_environment(sc: S.Scene) -> EnvParams | None:
     """The environment `generate` made for the scene (its env layer's recorded parameters),
     or None when there are none or they do not read (scene_env names what is wrong, for
     whoever needs them)."""
-    env_layer = next((li for li in sc.layers() if li.name == "env"), None)
-    if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
-        return None
     try:
-        return EnvParams.from_dict(dict(env_layer.provenance["params"]))
-    except (KeyError, TypeError, ValueError):
+        return _recorded_params(sc, "")[0]
+    except InputError:
         return None
 
 
@@ -150,17 +160,10 @@ def scene_env(sc: S.Scene, purpose: str = "GGDS", stage=None) -> tuple[EnvParams
     """(environment parameters of the scene's env layer, its EXR); one InputError line naming
     what is missing. ``stage``: the scene's stage if the caller has it open (its session layer
     then selects generate's environment variant, as the one this returns)."""
-    env_layer = next((li for li in sc.layers() if li.name == "env"), None)
-    if env_layer is None or not env_layer.exists or "params" not in env_layer.provenance:
-        raise InputError(f"{sc.layer_path('env')}: {purpose} needs the scene's env layer with "
-                         "its parameters (customLayerData lsd3d.params)")
-    try:
-        params = EnvParams.from_dict(dict(env_layer.provenance["params"]))
-    except (KeyError, TypeError, ValueError) as e:
-        raise InputError(f"{env_layer.path}: unreadable env parameters ({e})") from None
+    params, layer_path = _recorded_params(sc, purpose)
     stage = stage or sc.open_stage(load=False)
     _select_made_variant(stage, params)
     texture = read_env_prim(stage).get("texture")
     if not texture or not Path(texture).is_file():
-        raise InputError(f"{env_layer.path}: the env map texture {texture!r} is missing")
+        raise InputError(f"{layer_path}: the env map texture {texture!r} is missing")
     return params, Path(texture)

@@ -87,10 +87,10 @@ def _vertex_gaps(xy: np.ndarray, owner: np.ndarray, n: int) -> np.ndarray:
     cap triangulation drops, and walls of no area over the 4e-9 m edge that remains.
     Rings touching at one point share that vertex exactly (a gap of 0 is not counted)."""
     rows = np.unique(np.column_stack([owner, xy]), axis=0)
-    pts = shapely.multipoints(rows[:, 1:], indices=rows[:, 0].astype(np.intp))
+    # multipoints wants consecutive indices: the polygons that have vertices, renumbered
+    present, idx = np.unique(rows[:, 0].astype(np.intp), return_inverse=True)
     gaps = np.full(n, np.inf)
-    present = np.unique(rows[:, 0].astype(np.intp))
-    gaps[present] = shapely.minimum_clearance(pts)
+    gaps[present] = shapely.minimum_clearance(shapely.multipoints(rows[:, 1:], indices=idx))
     return gaps
 
 
