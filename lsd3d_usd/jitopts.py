@@ -18,3 +18,30 @@ def prange_only() -> ParallelOptions:
     return ParallelOptions({"prange": True, "numpy": False, "fusion": False,
                             "comprehension": False, "stencil": False, "setitem": False,
                             "inplace_binop": False})
+
+
+def run_in_slices(kernel, n: int, sliced: tuple, rest: tuple = (), out: tuple = (),
+                  min_slice: int = 4096) -> None:
+    """Run a serial ``nogil`` kernel over n rows on numba's thread count: each thread calls
+    ``kernel(*row slices of sliced, *rest, *row slices of out)`` on its share of the rows.
+    For kernels whose rows are independent: a prange kernel does the same, but its parallel
+    lowering took seconds more to compile on a first run (the procedural prior's kernels:
+    2.8 s) for the same speed."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    import numpy as np
+    from numba import get_num_threads
+
+    parts = min(get_num_threads(), n // max(int(min_slice), 1))
+    if parts <= 1:
+        if n:
+            kernel(*sliced, *rest, *out)
+        return
+    cuts = np.linspace(0, n, parts + 1).astype(np.int64)
+
+    def run(i):
+        lo, hi = cuts[i], cuts[i + 1]
+        kernel(*(a[lo:hi] for a in sliced), *rest, *(o[lo:hi] for o in out))
+
+    with ThreadPoolExecutor(parts) as pool:
+        list(pool.map(run, range(parts)))

@@ -1,5 +1,8 @@
 """World-space procedural materials per semantic class (for the procedural prior).
 
+The torch reference of the prior's surface: ggds/priors/surface_kernel.py computes the same
+in one numba pass (what the prior runs), held to this module bit for bit by the tests.
+
 Each material maps world positions p (n, 3) float64 and unit normals n (n, 3) to
 albedo (n, 3) linear RGB, a specular reflectance `spec` (n,) at normal incidence and a
 roughness (n,) in (0, 1]. Pure functions of (p, n, settings): 3D-consistent by construction.
@@ -231,7 +234,12 @@ def car_paint(p, nrm, s: MaterialSettings) -> Material:
     return Material(albedo, spec, rough)
 
 
-def metal(p, nrm, s: MaterialSettings, tone=(0.30, 0.30, 0.31)) -> Material:
+POLE_TONE = (0.30, 0.30, 0.31)
+TRAFFIC_LIGHT_TONE = (0.05, 0.05, 0.05)
+SIGN_COLORS = torch.tensor([(0.55, 0.05, 0.04), (0.03, 0.12, 0.45), (0.70, 0.70, 0.68), (0.60, 0.45, 0.02)])
+
+
+def metal(p, nrm, s: MaterialSettings, tone=POLE_TONE) -> Material:
     n = p.shape[0]
     g = 1.0 + 0.1 * (noise.value_noise(p / 0.1, seed=s.seed + 81) - 0.5)
     spec, rough = _consts(n, 0.2, 0.4)
@@ -242,8 +250,7 @@ def sign(p, nrm, s: MaterialSettings) -> Material:
     n = p.shape[0]
     c = noise.cell(p, 3.0)
     k = noise.hash_float(c[:, 0], c[:, 1], c[:, 2], seed=s.seed + 91)
-    cols = torch.tensor([(0.55, 0.05, 0.04), (0.03, 0.12, 0.45), (0.70, 0.70, 0.68), (0.60, 0.45, 0.02)])
-    albedo = cols[(k * 4).long().clamp_max(3)]
+    albedo = SIGN_COLORS[(k * len(SIGN_COLORS)).long().clamp_max(len(SIGN_COLORS) - 1)]
     spec, rough = _consts(n, 0.06, 0.3)
     return Material(albedo, spec, rough)
 
@@ -264,7 +271,7 @@ MATERIALS = {
     CLASS_ID["pole"]: metal,
     CLASS_ID["sign"]: sign,
     CLASS_ID["terrain"]: terrain,
-    CLASS_ID["traffic_light"]: lambda p, n, s: metal(p, n, s, tone=(0.05, 0.05, 0.05)),
+    CLASS_ID["traffic_light"]: lambda p, n, s: metal(p, n, s, tone=TRAFFIC_LIGHT_TONE),
 }
 
 
@@ -294,3 +301,19 @@ def apply_weather(cls_id: int, m: Material, p, nrm, s: MaterialSettings) -> tupl
         m.rough = _lerp(m.rough, torch.full_like(m.rough, 0.8), cover)
         mirror = mirror * (1.0 - cover)
     return m, mirror
+
+
+def surface_reference(p, nrm, cls, s: MaterialSettings) -> torch.Tensor:
+    """(N, 6) float32 of points p (N, 3, float64), unit normals nrm (N, 3) and classes cls
+    (N,): albedo clamped to [0, 1], specular reflectance, roughness clamped to [0.02, 1] and
+    the wet mirror factor — each class's material with its weather, as the procedural prior
+    clamps them; surface_kernel.surface_properties computes the same."""
+    cls = torch.as_tensor(cls).long().reshape(-1)
+    out = torch.zeros(len(cls), 6)
+    for cid in torch.unique(cls).tolist():
+        at = (cls == cid).nonzero()[:, 0]
+        pc, nc = p[at], nrm[at]
+        m, mir = apply_weather(cid, MATERIALS.get(cid, default_material)(pc, nc, s), pc, nc, s)
+        out[at] = torch.cat([m.albedo.clamp(0, 1), m.spec[:, None], m.rough.clamp(0.02, 1)[:, None],
+                             mir[:, None]], dim=1)
+    return out

@@ -94,40 +94,88 @@ def _mix_nb(h):
     return h ^ (h >> 16)
 
 
+_P0, _P1, _P2 = _PRIMES
+
+
+@njit(cache=True, inline="always")
+def _fade_nb(x):
+    """(lattice index, faded float32 fraction) of one coordinate."""
+    fl = np.floor(x)
+    f = np.float32(x - fl)
+    return np.int64(fl), f * f * (np.float32(3.0) - np.float32(2.0) * f)
+
+
+@njit(cache=True, inline="always")
+def _corner(h, i, P):
+    return _mix_nb(h ^ ((i * P) & 0xFFFFFFFF))
+
+
+@njit(cache=True, inline="always")
+def _lattice(h, w, b, i, f, P):
+    """One axis' step of a corner: the hash and weight of side b (0 or 1) of cell i."""
+    return _corner(h, i + b, P), w * (f if b else 1.0 - f)
+
+
+@njit(cache=True)
+def value_at(x, y, z, D, seed):
+    """value_noise at one point (its first D coordinates of x, y, z), float64 holding the
+    reference's value: the 2^D corners' hashes weighted multilinearly, summed in the
+    reference's corner order. The hash is chained axis by axis, so a corner's first steps
+    are shared by the corners beside it (6 mixes in 2D instead of 8, 14 in 3D instead of 24)."""
+    h0 = (np.int64(seed) * 0x9E3779B1) & 0xFFFFFFFF
+    i0, f0 = _fade_nb(x)
+    v = 0.0
+    if D == 1:
+        for b0 in range(2):
+            ha, wa = _lattice(h0, 1.0, b0, i0, f0, _P0)
+            v += wa * ((ha >> 8) * (1.0 / 16777216.0))
+        return v
+    i1, f1 = _fade_nb(y)
+    a0, w0 = _lattice(h0, 1.0, 0, i0, f0, _P0)
+    a1, w1 = _lattice(h0, 1.0, 1, i0, f0, _P0)
+    if D == 2:
+        for c in range(4):
+            hb, wb = _lattice(a1 if c & 1 else a0, w1 if c & 1 else w0, c >> 1, i1, f1, _P1)
+            v += wb * ((hb >> 8) * (1.0 / 16777216.0))
+        return v
+    i2, f2 = _fade_nb(z)
+    b00, u00 = _lattice(a0, w0, 0, i1, f1, _P1)
+    b10, u10 = _lattice(a1, w1, 0, i1, f1, _P1)
+    b01, u01 = _lattice(a0, w0, 1, i1, f1, _P1)
+    b11, u11 = _lattice(a1, w1, 1, i1, f1, _P1)
+    for c in range(8):
+        lo = c & 3
+        hb = b00 if lo == 0 else b10 if lo == 1 else b01 if lo == 2 else b11
+        wb = u00 if lo == 0 else u10 if lo == 1 else u01 if lo == 2 else u11
+        hc, wc = _lattice(hb, wb, c >> 2, i2, f2, _P2)
+        v += wc * ((hc >> 8) * (1.0 / 16777216.0))
+    return v
+
+
+@njit(cache=True)
+def fbm_at(x, y, z, D, octaves, seed, lacunarity, gain):
+    """fbm at one point (its first D coordinates of x, y, z) as float32: what `fbm` gives,
+    for kernels that shade point by point."""
+    total = 0.0
+    amp = 1.0
+    norm = 0.0
+    freq = 1.0
+    for o in range(octaves):
+        total += amp * value_at(x * freq, y * freq, z * freq, D, seed + 1013 * o)
+        norm += amp
+        amp *= gain
+        freq *= lacunarity
+    return np.float32(total / norm)
+
+
 @njit(cache=True, parallel=prange_only())
 def _fbm_nb(p, octaves, seed, lacunarity, gain, out):
     n, D = p.shape
-    primes = np.array([0x8DA6B343, 0xD8163841, 0xCB1AB31F], dtype=np.int64)
     for k in prange(n):
-        total = 0.0
-        amp = 1.0
-        norm = 0.0
-        freq = 1.0
-        for o in range(octaves):
-            sd = np.int64(seed + 1013 * o)
-            h0 = (sd * 0x9E3779B1) & 0xFFFFFFFF
-            ii = np.empty(3, dtype=np.int64)
-            ff = np.empty(3, dtype=np.float64)
-            for d in range(D):
-                x = p[k, d] * freq
-                fl = np.floor(x)
-                ii[d] = np.int64(fl)
-                f = np.float32(x - fl)
-                ff[d] = f * f * (np.float32(3.0) - np.float32(2.0) * f)
-            v = 0.0
-            for corner in range(1 << D):
-                w = 1.0
-                h = h0
-                for d in range(D):
-                    bit = (corner >> d) & 1
-                    w *= ff[d] if bit else 1.0 - ff[d]
-                    h = _mix_nb(h ^ (((ii[d] + bit) * primes[d]) & 0xFFFFFFFF))
-                v += w * ((h >> 8) * (1.0 / 16777216.0))
-            total += amp * v
-            norm += amp
-            amp *= gain
-            freq *= lacunarity
-        out[k] = total / norm
+        x = p[k, 0]
+        y = p[k, 1] if D > 1 else 0.0
+        z = p[k, 2] if D > 2 else 0.0
+        out[k] = fbm_at(x, y, z, D, octaves, seed, lacunarity, gain)
 
 
 def fbm(p: torch.Tensor, octaves: int = 4, seed: int = 0, lacunarity: float = 2.0,

@@ -22,6 +22,8 @@ import math
 import torch
 
 from lsd3d_usd.ggds.priors import materials as mat
+from lsd3d_usd.ggds.priors.lighting_kernel import light
+from lsd3d_usd.ggds.priors.surface_kernel import surface_properties
 from lsd3d_usd.ggds.filters import guided_filter
 from lsd3d_usd.conditioning.gbuffer import GBuffer
 from lsd3d_usd.ggds.priors.base import Prior, check_image, check_t
@@ -82,35 +84,19 @@ class ProceduralPrior(Prior):
     def surface(self, gb: GBuffer, env: PriorEnv):
         """Per-pixel albedo (H,W,3), spec (H,W), rough (H,W), mirror (H,W), surface mask (H,W)."""
         H, W = gb.shape
-        dev = gb.depth.device
-        pos = gb.world_pos.reshape(-1, 3).to(torch.float64)
-        valid = (gb.valid.reshape(-1) & torch.isfinite(pos).all(-1))
-        nrm = torch.nn.functional.normalize(gb.normal.reshape(-1, 3).float(), dim=-1)
-        sem = gb.semantic.reshape(-1).long()
-        # group the covered pixels by class once (one gather in, one scatter out)
-        idx = valid.nonzero()[:, 0]
-        order = torch.argsort(sem[idx], stable=True)
-        idx = idx[order]
-        cls, counts = torch.unique_consecutive(sem[idx], return_counts=True)
-        p_all, n_all = pos[idx].cpu(), nrm[idx].cpu()
-        outs = []
-        s = self.settings(env)
-        start = 0
-        for cid, cnt in zip(cls.tolist(), counts.tolist()):
-            p, n = p_all[start:start + cnt], n_all[start:start + cnt]
-            start += cnt
-            m = mat.MATERIALS.get(cid, mat.default_material)(p, n, s)
-            m, mir = mat.apply_weather(cid, m, p, n, s)
-            outs.append(torch.cat([m.albedo.clamp(0, 1), m.spec[:, None], m.rough.clamp(0.02, 1)[:, None],
-                                   mir[:, None]], dim=1))
-        flat = torch.zeros(H * W, 6, device=dev)
-        flat[:, 4] = 1.0
-        if outs:
-            flat[idx] = torch.cat(outs).to(dev)
-        flat = flat.reshape(H, W, 6)
+        flat, valid = self._surface_flat(gb, env)
+        flat = flat.reshape(H, W, 6).to(gb.depth.device)
         albedo, spec, rough, mirror = flat[..., :3], flat[..., 3], flat[..., 4], flat[..., 5]
-        valid = valid.reshape(H, W)
-        return albedo, spec, rough, mirror, valid
+        return albedo, spec, rough, mirror, valid.reshape(H, W).to(gb.depth.device)
+
+    def _surface_flat(self, gb: GBuffer, env: PriorEnv):
+        """(P, 6) albedo, spec, rough, mirror and the (P,) covered mask of the G-buffer's
+        pixels, on the CPU: every covered pixel's material and weather in one pass
+        (surface_kernel; the torch reference is materials.surface_reference)."""
+        pos = gb.world_pos.reshape(-1, 3).to(torch.float64).cpu()
+        valid = (gb.valid.reshape(-1).cpu() & torch.isfinite(pos).all(-1))
+        nrm = torch.nn.functional.normalize(gb.normal.reshape(-1, 3).float().cpu(), dim=-1)
+        return surface_properties(pos, nrm, gb.semantic.reshape(-1), self.settings(env), valid), valid
 
     @torch.no_grad()
     def ground_albedo(self, env: PriorEnv):
@@ -122,10 +108,8 @@ class ProceduralPrior(Prior):
                                                                  dtype=torch.float64)], -1)
         n = torch.zeros(len(p), 3)
         n[:, 2] = 1.0
-        s = self.settings(env)
-        cid = mat.CLASS_ID["terrain"]
-        m, _ = mat.apply_weather(cid, mat.MATERIALS[cid](p, n, s), p, n, s)
-        return m.albedo.clamp(0, 1).mean(0).double().numpy()
+        cls = torch.full((len(p),), mat.CLASS_ID["terrain"])
+        return surface_properties(p, n, cls, self.settings(env))[:, :3].mean(0).double().numpy()
 
     def background(self, dirs: torch.Tensor, origin, env: PriorEnv) -> torch.Tensor:
         """What is seen behind the proxy along ``dirs`` (N, 3) from ``origin``: the sky, and
@@ -177,7 +161,39 @@ class ProceduralPrior(Prior):
             env.fog_density = fog
 
     def render(self, gb: GBuffer, env: PriorEnv) -> torch.Tensor:
-        """The procedural image P (H, W, 3) in display range (exposure applied, clamped to [0, 1])."""
+        """The procedural image P (H, W, 3) in display range (exposure applied, clamped to [0, 1]):
+        the surface lit per pixel in one pass (lighting_kernel; `render_reference` is the
+        same in torch), the sky seen in reflections, fog, the background."""
+        gb.validate()
+        dev = gb.depth.device
+        H, W = gb.shape
+        surf, valid = self._surface_flat(gb, env)
+        sdir = env.sun_direction.cpu()
+        e_sun = env.sun_irradiance.cpu() * _smoothstep(-0.02, 0.02, float(sdir[2]))
+        vis = gb.sun_visibility if gb.sun_visibility is not None else torch.ones_like(gb.depth)
+        view = gb.view_dirs.reshape(-1, 3).float().cpu()
+        col, refl = light(surf.numpy(), valid.numpy(), view.numpy(),
+                          gb.normal.reshape(-1, 3).float().cpu().numpy(),
+                          vis.reshape(-1).float().cpu().numpy(), sdir.numpy(), e_sun.numpy(),
+                          env.sh_irradiance.cpu().numpy())
+        col, refl = torch.from_numpy(col), torch.from_numpy(refl)
+        # the sky is looked up where it is seen: reflected on surfaces, straight on background
+        at = valid.nonzero()[:, 0]
+        if len(at):
+            col[at] += self.sky(refl[at, :3], env).cpu() * refl[at, 3:]
+        if env.fog_density > 0:
+            dist = (gb.world_pos.reshape(-1, 3).to(torch.float64).cpu()
+                    - gb.camera_position.to(torch.float64).cpu()).norm(dim=-1).float()
+            T = torch.exp(-env.fog_density * torch.nan_to_num(dist, nan=0.0, posinf=1e9))[..., None]
+            col = col * T + env.fog_color.cpu() * (1 - T)
+        bg = ~valid
+        if bool(bg.any()):
+            col[bg] = self.background(torch.nn.functional.normalize(view[bg], dim=-1),
+                                      gb.camera_position, env).cpu()
+        return (col * env.exposure).clamp(0, 1).reshape(H, W, 3).to(dev)
+
+    def render_reference(self, gb: GBuffer, env: PriorEnv) -> torch.Tensor:
+        """`render` in whole-image torch operations: the reference of its lighting kernel."""
         gb.validate()
         dev = gb.depth.device
         albedo, spec, rough, mirror, valid = self.surface(gb, env)
