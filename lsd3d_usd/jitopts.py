@@ -22,7 +22,8 @@ def prange_only() -> ParallelOptions:
 
 def run_in_slices(kernel, n: int, sliced: tuple, rest: tuple = (), out: tuple = (),
                   min_slice: int = 4096) -> None:
-    """Run a serial ``nogil`` kernel over n rows on numba's thread count: each thread calls
+    """Run a serial kernel compiled with ``nogil=True`` (without it the slices take turns)
+    over n rows on numba's thread count: each thread calls
     ``kernel(*row slices of sliced, *rest, *row slices of out)`` on its share of the rows.
     For kernels whose rows are independent: a prange kernel does the same, but its parallel
     lowering took seconds more to compile on a first run (the procedural prior's kernels:

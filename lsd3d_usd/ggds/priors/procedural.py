@@ -93,9 +93,9 @@ class ProceduralPrior(Prior):
         """(P, 6) albedo, spec, rough, mirror and the (P,) covered mask of the G-buffer's
         pixels, on the CPU: every covered pixel's material and weather in one pass
         (surface_kernel; the torch reference is materials.surface_reference)."""
-        pos = gb.world_pos.reshape(-1, 3).to(torch.float64).cpu()
+        pos = gb.world_pos.detach().reshape(-1, 3).to(torch.float64).cpu()
         valid = (gb.valid.reshape(-1).cpu() & torch.isfinite(pos).all(-1))
-        nrm = torch.nn.functional.normalize(gb.normal.reshape(-1, 3).float().cpu(), dim=-1)
+        nrm = torch.nn.functional.normalize(gb.normal.detach().reshape(-1, 3).float().cpu(), dim=-1)
         return surface_properties(pos, nrm, gb.semantic.reshape(-1), self.settings(env), valid), valid
 
     @torch.no_grad()
@@ -168,14 +168,15 @@ class ProceduralPrior(Prior):
         dev = gb.depth.device
         H, W = gb.shape
         surf, valid = self._surface_flat(gb, env)
-        sdir = env.sun_direction.cpu()
-        e_sun = env.sun_irradiance.cpu() * _smoothstep(-0.02, 0.02, float(sdir[2]))
+        sdir = env.sun_direction.detach().cpu()
+        e_sun = torch.broadcast_to(env.sun_irradiance.detach().cpu(), (3,)) * _smoothstep(
+            -0.02, 0.02, float(sdir[2]))
         vis = gb.sun_visibility if gb.sun_visibility is not None else torch.ones_like(gb.depth)
-        view = gb.view_dirs.reshape(-1, 3).float().cpu()
+        view = gb.view_dirs.detach().reshape(-1, 3).float().cpu()
         col, refl = light(surf.numpy(), valid.numpy(), view.numpy(),
-                          gb.normal.reshape(-1, 3).float().cpu().numpy(),
-                          vis.reshape(-1).float().cpu().numpy(), sdir.numpy(), e_sun.numpy(),
-                          env.sh_irradiance.cpu().numpy())
+                          gb.normal.detach().reshape(-1, 3).float().cpu().numpy(),
+                          vis.detach().reshape(-1).float().cpu().numpy(), sdir.numpy(),
+                          e_sun.numpy(), env.sh_irradiance.detach().cpu().numpy())
         col, refl = torch.from_numpy(col), torch.from_numpy(refl)
         # the sky is looked up where it is seen: reflected on surfaces, straight on background
         at = valid.nonzero()[:, 0]
@@ -193,7 +194,9 @@ class ProceduralPrior(Prior):
         return (col * env.exposure).clamp(0, 1).reshape(H, W, 3).to(dev)
 
     def render_reference(self, gb: GBuffer, env: PriorEnv) -> torch.Tensor:
-        """`render` in whole-image torch operations: the reference of its lighting kernel."""
+        """`render`'s lighting in whole-image torch operations: the reference of its lighting
+        kernel (the surface comes from the same `surface`, itself held to
+        materials.surface_reference)."""
         gb.validate()
         dev = gb.depth.device
         albedo, spec, rough, mirror, valid = self.surface(gb, env)

@@ -6,8 +6,11 @@ the clamps the prior applies — without a temporary per operation or a sort by 
 prior's surface (the albedo, specular reflectance, roughness and wet mirror factor of every
 covered pixel) took ~70 ms of a 960×540 target in torch. It mirrors the reference's
 precision step by step (positions and lattice coordinates float64, the rest float32, Python
-scalars rounded to float32 where torch rounds them), so the two agree to float32 rounding;
+scalars rounded to float32 where torch rounds them), so the two agree bit for bit;
 tests/test_ggds_priors_surface.py holds it to the reference class by class and in weather.
+numba's cache watches this file only: the noise it calls (noise.fbm_at) is compiled into it,
+so after an edit of noise.py clear the cache (those tests fail on a stale kernel); the colours
+come from materials.py at each call (`_palettes`).
 """
 from __future__ import annotations
 
@@ -32,13 +35,20 @@ if {c for c in mat.MATERIALS} != {_ROAD, _MARK, _CROSS, _CURB, _SIDEWALK, _BUILD
 _GROUND = np.array([CLASS_ID[c] for c in mat.GROUND_CLASSES], np.int64)
 
 VEGETATION = tuple(mat.FOLIAGE)          # the vegetation states, by index
-_FOLIAGE = np.array([mat.FOLIAGE[v] for v in VEGETATION], np.float32)       # (V, 2, 3)
-_GRASS = np.array([mat.GRASS[v] for v in VEGETATION], np.float32)
-_FACADE = mat.FACADE_PALETTE.numpy().astype(np.float32)
-_CARS = mat.CAR_COLORS.numpy().astype(np.float32)
-_SIGNS = mat.SIGN_COLORS.numpy().astype(np.float32)
-_POLE_TONE = np.array(mat.POLE_TONE, np.float32)
-_LIGHT_TONE = np.array(mat.TRAFFIC_LIGHT_TONE, np.float32)
+
+
+def _palettes() -> tuple:
+    """materials.py's colours as the kernel takes them, read at each call: foliage and grass
+    (V, 2, 3) by vegetation state, façade, car and sign palettes (K, 3), the pole's and the
+    traffic light's tones (2, 3). Arguments, not globals: numba freezes a global array into
+    the compiled kernel and its cache only watches this file, so an edit of materials.py
+    would leave a cached kernel with the old colours."""
+    return (np.array([mat.FOLIAGE[v] for v in VEGETATION], np.float32),
+            np.array([mat.GRASS[v] for v in VEGETATION], np.float32),
+            mat.FACADE_PALETTE.numpy().astype(np.float32),
+            mat.CAR_COLORS.numpy().astype(np.float32),
+            mat.SIGN_COLORS.numpy().astype(np.float32),
+            np.array([mat.POLE_TONE, mat.TRAFFIC_LIGHT_TONE], np.float32))
 _SHIFT = mat.WALL_CELL_SHIFT_M
 
 
@@ -77,7 +87,7 @@ def _cell(x, size):
 def _mod1(x):
     """torch.remainder(x, 1.0) of a float64."""
     r = np.fmod(x, 1.0)
-    if r != 0.0 and r < 0.0:
+    if r < 0.0:
         r += 1.0
     return r
 
@@ -115,7 +125,7 @@ def _lerp(a, b, w):
 
 
 @njit(cache=True)
-def _facade(x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spacing):
+def _facade(x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spacing, palette):
     t0, t1 = -ny, nx
     tl = np.sqrt(t0 * t0 + t1 * t1)
     if tl > f32(1e-3):
@@ -129,7 +139,7 @@ def _facade(x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spacing):
     bid = _hash(cu, plane, np.int64(np.rint(nx * f32(4))) + np.int64(np.rint(ny * f32(4))), 3,
                 seed + 40)
     tone = _hash(cu, plane, 0, 2, seed + 41)
-    wall = _FACADE[min(np.int64(tone * f32(len(_FACADE))), len(_FACADE) - 1)]
+    wall = palette[min(np.int64(tone * f32(len(palette))), len(palette) - 1)]
     k = f32(0.85) + f32(0.3) * bid
     grain = f32(1.0) + f32(0.12) * (_fbm(x / 0.15, y / 0.15, z / 0.15, 3, 2, seed + 42) - f32(0.5))
     r, g, b = wall[0] * k * grain, wall[1] * k * grain, wall[2] * k * grain
@@ -171,7 +181,7 @@ def _facade(x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spacing):
 
 
 @njit(cache=True)
-def _material(c, x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spacing, veg):
+def _material(c, x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spacing, veg, pal):
     """(r, g, b, spec, rough) float32 of class c's material at one point (materials.MATERIALS)."""
     if c == _ROAD:
         r, g, b = _asphalt(x, y, seed)
@@ -191,32 +201,34 @@ def _material(c, x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spaci
         k = f32(0.88) + f32(0.24) * _hash(_cell(x, 0.5), _cell(y, 0.5), 0, 2, seed + 31)
         return r * k, g * k, b * k, f32(0.03), f32(0.85)
     if c == _BUILDING:
-        return _facade(x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spacing)
+        return _facade(x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spacing, pal[2])
     if c == _VEG:
         clump = _fbm(x / 0.6, y / 0.6, z / 0.6, 3, 3, seed + 51)
         leaf = _fbm(x / 0.05, y / 0.05, z / 0.05, 3, 1, seed + 52)
         w = _ss(0.3, 0.75, clump)
         shade = f32(0.55) + f32(0.45) * _ss(0.25, 0.7, clump) * (f32(0.7) + f32(0.3) * leaf)
-        a, e = _FOLIAGE[veg, 0], _FOLIAGE[veg, 1]
+        a, e = pal[0][veg, 0], pal[0][veg, 1]
         return (_lerp(a[0], e[0], w) * shade, _lerp(a[1], e[1], w) * shade,
                 _lerp(a[2], e[2], w) * shade, f32(0.02), f32(0.7))
     if c == _TERRAIN:
         mix = _ss(0.55, 0.7, _fbm(x / 4.0, y / 4.0, 0.0, 2, 4, seed + 61))
         k = f32(0.75) + f32(0.5) * _fbm(x / 0.03, y / 0.03, 0.0, 2, 1, seed + 62)
-        a, e = _GRASS[veg, 0], _GRASS[veg, 1]
+        a, e = pal[1][veg, 0], pal[1][veg, 1]
         return (_lerp(a[0], e[0], mix) * k, _lerp(a[1], e[1], mix) * k,
                 _lerp(a[2], e[2], mix) * k, f32(0.02), f32(0.9))
     if c == _VEHICLE:
         h = _hash(_cell(x, 5.0), _cell(y, 5.0), 0, 2, seed + 71)
-        col = _CARS[min(np.int64(h * f32(len(_CARS))), len(_CARS) - 1)]
+        cars = pal[3]
+        col = cars[min(np.int64(h * f32(len(cars))), len(cars) - 1)]
         return col[0], col[1], col[2], f32(0.05), f32(0.15)
     if c == _POLE or c == _LIGHT:
         g = f32(1.0) + f32(0.1) * (_fbm(x / 0.1, y / 0.1, z / 0.1, 3, 1, seed + 81) - f32(0.5))
-        tone = _POLE_TONE if c == _POLE else _LIGHT_TONE
+        tone = pal[5][0] if c == _POLE else pal[5][1]
         return tone[0] * g, tone[1] * g, tone[2] * g, f32(0.2), f32(0.4)
     if c == _SIGN:
         h = _hash(_cell(x, 3.0), _cell(y, 3.0), _cell(z, 3.0), 3, seed + 91)
-        col = _SIGNS[min(np.int64(h * f32(len(_SIGNS))), len(_SIGNS) - 1)]
+        signs = pal[4]
+        col = signs[min(np.int64(h * f32(len(signs))), len(signs) - 1)]
         return col[0], col[1], col[2], f32(0.06), f32(0.3)
     r, g, b = _concrete(x, y, z, seed, 2.0, 0.3)          # materials.default_material
     return r, g, b, f32(0.03), f32(0.85)
@@ -224,7 +236,7 @@ def _material(c, x, y, z, nx, ny, nz, seed, floor_height, ground_z, window_spaci
 
 @njit(cache=True, nogil=True)
 def _surface(p, n, cls, valid, seed, floor_height, ground_z, window_spacing, wetness, snow_cover,
-             veg, out):
+             veg, pal, out):
     for k in range(p.shape[0]):
         if not valid[k]:        # not covered: what ProceduralPrior.surface leaves there
             out[k, 0], out[k, 1], out[k, 2] = f32(0.0), f32(0.0), f32(0.0)
@@ -234,7 +246,7 @@ def _surface(p, n, cls, valid, seed, floor_height, ground_z, window_spacing, wet
         nx, ny, nz = n[k, 0], n[k, 1], n[k, 2]
         c = cls[k]
         r, g, b, spec, rough = _material(c, x, y, z, nx, ny, nz, seed, floor_height, ground_z,
-                                         window_spacing, veg)
+                                         window_spacing, veg, pal)
         # materials.apply_weather
         ground = False
         for gc in _GROUND:
@@ -274,7 +286,8 @@ def _surface(p, n, cls, valid, seed, floor_height, ground_z, window_spacing, wet
 
 def surface_properties(p, n, cls, s: mat.MaterialSettings, valid=None) -> torch.Tensor:
     """materials.surface_reference in one pass: (N, 6) float32 albedo, specular reflectance,
-    roughness and wet mirror factor of points p (N, 3, float64 world) with unit normals n
+    roughness and wet mirror factor of points p (N, 3, world; taken as float64, as the
+    prior's G-buffers hold them) with unit normals n
     (N, 3) and classes cls (N,) under settings s. Where ``valid`` (N,) is False, what the
     prior gives a pixel nothing covers: (0, 0, 0, 0, 1, 0), whatever p holds."""
     if s.vegetation not in VEGETATION:
@@ -290,5 +303,6 @@ def surface_properties(p, n, cls, s: mat.MaterialSettings, valid=None) -> torch.
     out = np.empty((len(pa), 6), np.float32)
     run_in_slices(_surface, len(pa), (pa, na, ca, va),
                   (int(s.seed), float(s.floor_height), float(s.ground_z), float(s.window_spacing),
-                   float(s.wetness), float(s.snow_cover), VEGETATION.index(s.vegetation)), (out,))
+                   float(s.wetness), float(s.snow_cover), VEGETATION.index(s.vegetation),
+                   _palettes()), (out,))
     return torch.from_numpy(out)
