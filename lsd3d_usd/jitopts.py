@@ -1,6 +1,10 @@
-"""numba options shared by the parallel kernels."""
+"""numba options shared by the parallel kernels, and a runner for serial ones on threads."""
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from numba import get_num_threads
 from numba.core.cpu import ParallelOptions
 
 
@@ -28,11 +32,6 @@ def run_in_slices(kernel, n: int, sliced: tuple, rest: tuple = (), out: tuple = 
     For kernels whose rows are independent: a prange kernel does the same, but its parallel
     lowering took seconds more to compile on a first run (the procedural prior's kernels:
     2.8 s) for the same speed."""
-    from concurrent.futures import ThreadPoolExecutor
-
-    import numpy as np
-    from numba import get_num_threads
-
     parts = min(get_num_threads(), n // max(int(min_slice), 1))
     if parts <= 1:
         if n:

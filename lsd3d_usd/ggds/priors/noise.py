@@ -120,8 +120,9 @@ def _lattice(h, w, b, i, f, P):
 def value_at(x, y, z, D, seed):
     """value_noise at one point (its first D coordinates of x, y, z) in float64: the 2^D
     corners' hashes weighted multilinearly, summed in value_noise_reference's corner order
-    (which computes in float32: the two agree to its rounding). The hash is chained axis by axis, so a corner's first steps
-    are shared by the corners beside it (6 mixes in 2D instead of 8, 14 in 3D instead of 24)."""
+    (which computes in float32: the two agree to its rounding). The hash is chained axis by
+    axis, so a corner's first steps are shared by the corners beside it (6 mixes in 2D
+    instead of 8, 14 in 3D instead of 24)."""
     h0 = (np.int64(seed) * 0x9E3779B1) & 0xFFFFFFFF
     i0, f0 = _fade_nb(x)
     v = 0.0

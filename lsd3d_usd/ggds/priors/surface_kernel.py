@@ -287,9 +287,9 @@ def _surface(p, n, cls, valid, seed, floor_height, ground_z, window_spacing, wet
 def surface_properties(p, n, cls, s: mat.MaterialSettings, valid=None) -> torch.Tensor:
     """materials.surface_reference in one pass: (N, 6) float32 albedo, specular reflectance,
     roughness and wet mirror factor of points p (N, 3, world; taken as float64, as the
-    prior's G-buffers hold them) with unit normals n
-    (N, 3) and classes cls (N,) under settings s. Where ``valid`` (N,) is False, what the
-    prior gives a pixel nothing covers: (0, 0, 0, 0, 1, 0), whatever p holds."""
+    prior's G-buffers hold them) with unit normals n (N, 3) and classes cls (N,) under
+    settings s. Where ``valid`` (N,) is False, what the prior gives a pixel nothing covers:
+    (0, 0, 0, 0, 1, 0), whatever p holds."""
     if s.vegetation not in VEGETATION:
         raise ValueError(f"unknown vegetation state {s.vegetation!r} (one of {', '.join(VEGETATION)})")
     pa = np.ascontiguousarray(torch.as_tensor(p).detach().cpu().numpy(), np.float64).reshape(-1, 3)
